@@ -1,0 +1,42 @@
+# endocam: every target creates .venv and installs what it needs, so a fresh clone needs nothing else.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+SYSSTAMP := $(VENV)/.system-deps
+export MUJOCO_GL ?= egl
+export PYOPENGL_PLATFORM ?= egl
+
+.PHONY: demo test lint typecheck unit bench system-deps clean
+
+$(SYSSTAMP):
+	@./.ci/system-deps
+	@mkdir -p $(VENV) && touch $(SYSSTAMP)
+
+$(STAMP): pyproject.toml $(SYSSTAMP)
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e ".[study,dev]"
+	@touch $(STAMP)
+
+system-deps: $(SYSSTAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/endocam demo --out out/demo
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/mypy
+
+unit: $(STAMP)
+	$(VENV)/bin/pytest
+
+test: lint unit
+
+bench: $(STAMP)
+	$(VENV)/bin/pytest bench --benchmark-enable --benchmark-only -p no:cacheprovider -o addopts=""
+
+clean:
+	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache

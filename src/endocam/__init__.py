@@ -1,0 +1,16 @@
+"""endocam: autonomous 6-DoF endoscopic camera control for minimally invasive surgery.
+
+Implements Abdelaal et al., "Orientation Matters: 6-DoF Autonomous Camera Movement for MIS":
+the orientation-aware goal pose, way-point planner and safety rules (``endocam.control``), the
+wire-chaser world (``endocam.task``, ``endocam.sim``), dVRK kinematics (``endocam.robot``) and the
+video-based skill-assessment study (``endocam.study``). Conventions: ``docs/conventions.md``.
+"""
+
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__ = version("endocam")
+except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
+    __version__ = "0.0.0+unknown"
+
+__all__ = ["__version__"]

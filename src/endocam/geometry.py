@@ -1,0 +1,131 @@
+"""Rigid-body geometry on numpy arrays: validation, homogeneous transforms and quaternions.
+
+Conventions (``docs/conventions.md``): ``T_a_b`` is the (4, 4) pose of frame b in frame a;
+quaternions are scalar-first (w, x, y, z); Tait–Bryan angles are ``R = Rx(α) Ry(β) Rz(γ)``.
+Rotation algebra is delegated to :class:`scipy.spatial.transform.Rotation`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+FloatArray = NDArray[np.float64]
+
+UP = np.array([0.0, 0.0, 1.0])  # world up, unitless direction
+EPS_NORM = 1e-12  # below this a vector has no direction (unitless)
+
+
+def as_vector3(value: ArrayLike, name: str) -> FloatArray:
+    """Return ``value`` as a finite float (3,) array, or raise ``ValueError`` naming ``name``.
+
+    Parameters
+    ----------
+    value : array_like, shape (3,)
+        Any 3-vector.
+    name : str
+        Argument name used in the error message.
+    """
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a 3-vector of numbers") from exc
+    if arr.shape != (3,):
+        raise ValueError(f"{name} must have shape (3,), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+    return arr
+
+
+def unit_vector(value: ArrayLike, name: str) -> FloatArray:
+    """Return ``value`` normalised to unit length; zero, NaN or inf raise ``ValueError``.
+
+    Parameters
+    ----------
+    value : array_like, shape (3,)
+        Direction, any non-zero length.
+    name : str
+        Argument name used in the error message.
+    """
+    arr = as_vector3(value, name)
+    norm = float(np.linalg.norm(arr))
+    if norm < EPS_NORM:
+        raise ValueError(f"{name} must be non-zero, got {arr.tolist()}")
+    return arr / norm
+
+
+def as_pose(value: ArrayLike, name: str) -> FloatArray:
+    """Validate a homogeneous transform: finite (4, 4), last row [0, 0, 0, 1], orthonormal R.
+
+    Parameters
+    ----------
+    value : array_like, shape (4, 4)
+        Candidate ``T_a_b``.
+    name : str
+        Argument name used in the error message.
+    """
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != (4, 4):
+        raise ValueError(f"{name} must have shape (4, 4), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite")
+    R = arr[:3, :3]
+    if not np.allclose(arr[3], [0.0, 0.0, 0.0, 1.0]) or not np.allclose(
+        R.T @ R, np.eye(3), atol=1e-6
+    ):
+        raise ValueError(f"{name} is not a rigid transform")
+    return arr
+
+
+def make_pose(R: ArrayLike, p: ArrayLike) -> FloatArray:
+    """Assemble ``T`` (4, 4) from a rotation ``R`` (3, 3) and a translation ``p`` (3,)."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = p
+    return T
+
+
+def invert_pose(T_a_b: FloatArray) -> FloatArray:
+    """Return ``T_b_a``, the inverse of a rigid transform ``T_a_b`` (4, 4)."""
+    R = T_a_b[:3, :3]
+    T = np.eye(4)
+    T[:3, :3] = R.T
+    T[:3, 3] = -R.T @ T_a_b[:3, 3]
+    return T
+
+
+def transform_points(T_a_b: FloatArray, p_b: FloatArray) -> FloatArray:
+    """Map points from frame b to frame a: ``p_a = R p_b + t``; ``p_b`` is (N, 3) or (3,)."""
+    return p_b @ T_a_b[:3, :3].T + T_a_b[:3, 3]
+
+
+def quat_wxyz_from_R(R: FloatArray) -> FloatArray:
+    """Scalar-first unit quaternion (w, x, y, z) with w ≥ 0 from ``R`` (3, 3) or (N, 3, 3)."""
+    q = Rotation.from_matrix(R).as_quat(canonical=True, scalar_first=True)
+    return np.asarray(q, dtype=float)
+
+
+def R_from_quat_wxyz(q: ArrayLike) -> FloatArray:
+    """Rotation matrix (3, 3) or (N, 3, 3) from scalar-first quaternion(s) (w, x, y, z)."""
+    return np.asarray(Rotation.from_quat(q, scalar_first=True).as_matrix(), dtype=float)
+
+
+def R_from_euler_xyz(angles: ArrayLike) -> FloatArray:
+    """Paper's Tait–Bryan rotation ``R = Rx(α) Ry(β) Rz(γ)`` from (α, β, γ) in rad, (3,) or (N, 3)."""
+    return np.asarray(Rotation.from_euler("XYZ", angles).as_matrix(), dtype=float)
+
+
+def euler_xyz_from_R(R: FloatArray) -> FloatArray:
+    """Inverse of :func:`R_from_euler_xyz`: (α, β, γ) in rad from ``R`` (3, 3) or (N, 3, 3)."""
+    return np.asarray(Rotation.from_matrix(R).as_euler("XYZ"), dtype=float)
+
+
+def rotation_angle(R_a_b: FloatArray, R_a_c: FloatArray) -> float:
+    """Angle (rad, in [0, π]) of the relative rotation between two orientations (3, 3)."""
+    return float(Rotation.from_matrix(R_a_b.T @ R_a_c).magnitude())
+
+
+def angle_between(u: FloatArray, v: FloatArray) -> float:
+    """Angle (rad, in [0, π]) between two non-zero vectors (3,), robust near 0 and π."""
+    return float(np.arctan2(np.linalg.norm(np.cross(u, v)), np.dot(u, v)))
