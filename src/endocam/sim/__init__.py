@@ -1,0 +1,1 @@
+"""MuJoCo scene and renderer of the wire-chaser world (the only module that speaks MuJoCo)."""

@@ -1,0 +1,1 @@
+"""The wire-chaser task: configuration, wire geometry, ring trajectories and touches."""

@@ -1,0 +1,165 @@
+"""The wire (rail) of the wire-chaser task: a cubic spline re-parametrised by arc length.
+
+The centre line ``c(s)`` is a C² cubic spline through the configured knots. It is first
+interpolated with a chord-length parameter, then re-fitted against its own arc length ``s``
+(m, from the left end), so ``|c'(s)| = 1`` up to ~1e-6 and every query takes ``s`` in metres.
+"""
+
+from __future__ import annotations
+
+from typing import overload
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.integrate import cumulative_simpson
+from scipy.interpolate import make_interp_spline
+from scipy.optimize import minimize_scalar
+from scipy.spatial import cKDTree
+
+from endocam.geometry import FloatArray, as_vector3
+from endocam.task.config import WireConfig
+
+_PARAM_SAMPLES = 20001  # count, dense samples of the chord-length spline for the arc-length map
+_SEARCH_SAMPLES_PER_M = 4000  # 1/m, KD-tree sample density for nearest-point seeds (0.25 mm)
+ARC_TOL = 1e-9  # m, arc-length tolerance of queries just outside [0, length]
+
+
+class Wire:
+    """The wire's centre line and posts.
+
+    Parameters
+    ----------
+    cfg : WireConfig
+        Knots (m), tube radius (m), post radius (m) and the dense polyline count.
+
+    Attributes
+    ----------
+    cfg : WireConfig
+        The configuration it was built from.
+    """
+
+    def __init__(self, cfg: WireConfig) -> None:
+        self.cfg = cfg
+        knots = np.asarray(cfg.knots, dtype=float)
+        chord = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(knots, axis=0), axis=1))])
+        param = make_interp_spline(chord, knots, k=3, bc_type="natural")
+        u = np.linspace(0.0, chord[-1], _PARAM_SAMPLES)
+        speed = np.linalg.norm(param.derivative()(u), axis=1)
+        s = np.concatenate([[0.0], cumulative_simpson(speed, x=u)])
+        self._length = float(s[-1])
+        self._spline = make_interp_spline(s, param(u), k=3)
+        self._d_spline = self._spline.derivative()
+        n_search = max(int(self._length * _SEARCH_SAMPLES_PER_M), cfg.samples)
+        self._search_s = np.linspace(0.0, self._length, n_search)
+        self._search_pts = self._spline(self._search_s)
+        self._tree = cKDTree(self._search_pts)
+
+    @property
+    def length(self) -> float:
+        """Arc length of the centre line, m."""
+        return self._length
+
+    @property
+    def radius(self) -> float:
+        """Wire tube radius, m."""
+        return self.cfg.radius
+
+    def _check_s(self, s: ArrayLike) -> FloatArray:
+        arr = np.asarray(s, dtype=float)
+        if not np.all(np.isfinite(arr)):
+            raise ValueError("s must be finite")
+        if np.any(arr < -ARC_TOL) or np.any(arr > self._length + ARC_TOL):
+            raise ValueError(f"s must lie in [0, {self._length:.6f}] m")
+        return np.clip(arr, 0.0, self._length)
+
+    def point(self, s: float) -> FloatArray:
+        """Centre-line point (3,) in world, m, at arc length ``s`` (m)."""
+        return np.asarray(self._spline(float(self._check_s(s))), dtype=float)
+
+    def points(self, s: ArrayLike) -> FloatArray:
+        """Centre-line points (N, 3) in world, m, at arc lengths ``s`` (N,), m."""
+        return np.asarray(self._spline(np.atleast_1d(self._check_s(s))), dtype=float)
+
+    @overload
+    def tangent(self, s: float) -> FloatArray: ...
+    @overload
+    def tangent(self, s: ArrayLike) -> FloatArray: ...
+    def tangent(self, s: ArrayLike) -> FloatArray:
+        """Unit tangent(s) in world, pointing towards increasing ``s``.
+
+        Parameters
+        ----------
+        s : float or (N,)
+            Arc length(s), m.
+
+        Returns
+        -------
+        (3,) or (N, 3)
+            Unit tangent(s), unitless.
+        """
+        d = np.asarray(self._d_spline(self._check_s(s)), dtype=float)
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def polyline(self, n: int | None = None) -> FloatArray:
+        """Dense centre line: ``n`` points (n, 3) in world, m, evenly spaced by arc length.
+
+        ``n`` defaults to ``cfg.samples``; it must be ≥ 2.
+        """
+        count = self.cfg.samples if n is None else n
+        if count < 2:
+            raise ValueError(f"n must be ≥ 2, got {count}")
+        return self.points(np.linspace(0.0, self._length, count))
+
+    def closest(self, p_world: ArrayLike) -> tuple[float, float]:
+        """Closest centre-line point to ``p_world``.
+
+        Parameters
+        ----------
+        p_world : (3,)
+            Query point in world, m.
+
+        Returns
+        -------
+        s : float
+            Arc length of the closest centre-line point, m.
+        distance : float
+            Distance from ``p_world`` to the centre line, m (≈1e-9 exact).
+        """
+        p = as_vector3(p_world, "p_world")
+        _, k = self._tree.query(p)
+        step = self._search_s[1]
+        lo = max(0.0, self._search_s[k] - step)
+        hi = min(self._length, self._search_s[k] + step)
+        res = minimize_scalar(
+            lambda x: float(np.sum((self._spline(x) - p) ** 2)),
+            bounds=(lo, hi),
+            method="bounded",
+            options={"xatol": 1e-10},
+        )
+        s = float(res.x)
+        return s, float(np.linalg.norm(self._spline(s) - p))
+
+    def nearest_s(self, p_world: FloatArray) -> FloatArray:
+        """Arc lengths (N,), m, of the search-polyline points nearest to ``p_world`` (N, 3), m.
+
+        Resolution is the internal search spacing (0.25 mm); use :meth:`closest` for exact.
+        """
+        _, k = self._tree.query(np.atleast_2d(p_world))
+        return np.asarray(self._search_s[k], dtype=float)
+
+    @property
+    def search_spacing(self) -> float:
+        """Arc-length spacing of the internal nearest-point search polyline, m."""
+        return float(self._search_s[1])
+
+    @property
+    def post_tops(self) -> FloatArray:
+        """(2, 3) the wire's two ends in world, m (tops of the posts)."""
+        return self.points(np.array([0.0, self._length]))
+
+    @property
+    def post_bases(self) -> FloatArray:
+        """(2, 3) the posts' feet on the board (z = 0), m, vertically under the wire's ends."""
+        base = self.post_tops.copy()
+        base[:, 2] = 0.0
+        return base

@@ -1,0 +1,94 @@
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from endocam.task.config import DEFAULT_KNOTS, RingConfig, TaskConfig, WireConfig
+from endocam.task.wire import Wire
+
+ATOL_M = 1e-9  # m
+UNIT_TOL = 1e-9  # unitless
+ARC_TOL_M = 1e-6  # m, arc-length parametrisation accuracy over the whole wire
+
+
+@pytest.fixture(scope="module")
+def wire() -> Wire:
+    return Wire(WireConfig())
+
+
+def test_length_in_paper_range_and_above_board(wire: Wire) -> None:
+    assert 0.250 <= wire.length <= 0.350
+    pts = wire.polyline()
+    assert pts[:, 2].min() > wire.radius
+    assert pts[:, 2].min() >= 0.020 and pts[:, 2].max() <= 0.070
+
+
+def test_wire_passes_through_knots(wire: Wire) -> None:
+    knots = np.asarray(DEFAULT_KNOTS)
+    _, d = zip(*(wire.closest(k) for k in knots), strict=True)
+    assert max(d) < 1e-6
+    np.testing.assert_allclose(wire.post_tops, knots[[0, -1]], atol=1e-7)
+    np.testing.assert_allclose(wire.post_bases[:, 2], 0.0)
+
+
+def test_rises_falls_and_turns(wire: Wire) -> None:
+    t = wire.tangent(np.linspace(0.0, wire.length, 500))
+    assert np.any(np.diff(np.sign(t[:, 2])) != 0)  # rises and falls
+    assert np.any(np.diff(np.sign(t[:, 1])) != 0)  # turns in plan view
+
+
+def test_tangents_unit_and_match_finite_differences(wire: Wire) -> None:
+    s = np.linspace(0.01, wire.length - 0.01, 200)
+    t = wire.tangent(s)
+    np.testing.assert_allclose(np.linalg.norm(t, axis=1), 1.0, atol=UNIT_TOL)
+    h = 1e-6
+    fd = (wire.points(s + h) - wire.points(s - h)) / (2 * h)
+    np.testing.assert_allclose(fd, t, atol=1e-5)
+    assert wire.tangent(0.1).shape == (3,)
+
+
+def test_arc_length_parametrisation(wire: Wire) -> None:
+    pts = wire.polyline(20001)
+    chord_sum = np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1))
+    assert abs(chord_sum - wire.length) < ARC_TOL_M
+    s = np.array([0.05, 0.1, 0.2])
+    d = np.linalg.norm(wire.points(s + 1e-3) - wire.points(s), axis=1)
+    np.testing.assert_allclose(d, 1e-3, rtol=1e-3)
+
+
+def test_closest_recovers_offset_point(wire: Wire) -> None:
+    rng = np.random.default_rng(0)
+    for s0 in rng.uniform(0.02, wire.length - 0.02, 10):
+        t = wire.tangent(s0)
+        offset = np.cross(t, rng.normal(size=3))
+        offset *= 2e-3 / np.linalg.norm(offset)
+        s, d = wire.closest(wire.point(s0) + offset)
+        assert abs(s - s0) < 1e-7
+        assert abs(d - 2e-3) < 1e-9
+
+
+def test_out_of_range_arc_length_raises(wire: Wire) -> None:
+    with pytest.raises(ValueError, match="s must lie"):
+        wire.point(wire.length + 1e-3)
+    with pytest.raises(ValueError, match="n must be"):
+        wire.polyline(1)
+
+
+def test_config_validation() -> None:
+    with pytest.raises(ValidationError, match="above the board"):
+        WireConfig(knots=[(0, 0, 0.0), (0.1, 0, 0.02), (0.2, 0, 0.02), (0.3, 0, 0.02)])
+    with pytest.raises(ValidationError, match="at least 4"):
+        WireConfig(knots=[(0, 0, 0.02), (0.1, 0, 0.02)])
+    with pytest.raises(ValidationError, match="minor_radius"):
+        RingConfig(minor_radius=6e-3)
+    with pytest.raises(ValidationError, match="hole is too small"):
+        TaskConfig(ring=RingConfig(major_radius=2e-3, minor_radius=1.5e-3))
+    with pytest.raises(ValidationError):
+        TaskConfig.model_validate({"wire": {"radius": -1.0}})
+    with pytest.raises(ValidationError):
+        TaskConfig.model_validate({"trajectory": {"position_noise": [4e-3, 3e-3]}})
+    with pytest.raises(ValidationError):
+        TaskConfig.model_validate({"bogus": 1})
+    cfg = TaskConfig()
+    with pytest.raises(ValidationError):
+        cfg.wire.radius = 2.0  # type: ignore[misc]
+    assert TaskConfig.model_validate(cfg.model_dump()) == cfg
