@@ -1,0 +1,149 @@
+"""``endocam study serve`` and ``endocam study analyze``.
+
+The ``study`` group is registered by :func:`register`. ``endocam study make`` (rendering the nine
+videos with the simulator) plugs in by adding one ``_add_<name>(sub)`` function to
+``_SUBCOMMANDS``; it must write the manifest described in :mod:`endocam.study.manifest`.
+FastAPI and uvicorn (the ``study`` extra) are imported only when ``serve`` runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+from endocam.cli import UsageError
+from endocam.study.analysis import AnalysisConfig, OutlierRule
+
+ADMIN_TOKEN_ENV = "ENDOCAM_ADMIN_TOKEN"
+_EXTRA_HINT = "install the study extra: pip install 'endocam[study]'"
+
+
+def _serve(args: argparse.Namespace) -> int:
+    study = Path(args.study)
+    if not (study / "manifest.json").is_file():
+        raise UsageError(f"--study: {study} has no manifest.json")
+    if not Path(args.db).parent.is_dir():
+        raise UsageError(f"--db: folder {Path(args.db).parent} does not exist")
+    if not 0 < args.port < 65536:
+        raise UsageError(f"--port must be in 1..65535, got {args.port}")
+    token = args.admin_token or os.environ.get(ADMIN_TOKEN_ENV) or None
+    try:
+        import uvicorn
+
+        from endocam.study.app import create_app
+    except ModuleNotFoundError as exc:
+        raise UsageError(f"'study serve' needs {exc.name}: {_EXTRA_HINT}") from None
+    try:
+        app = create_app(study, args.db, token)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if token is None:
+        print(f"endocam: no admin token (--admin-token or {ADMIN_TOKEN_ENV}): export disabled")
+    uvicorn.run(app, host=args.host, port=args.port, log_level="info")
+    return 0
+
+
+def _analyze(args: argparse.Namespace) -> int:
+    from endocam.study.analysis import analyze
+    from endocam.study.db import StudyDB
+    from endocam.study.manifest import load_manifest
+    from endocam.study.report import write_outputs
+    from endocam.study.responses import read_responses_csv
+
+    if args.tukey_k <= 0:
+        raise UsageError(f"--tukey-k must be > 0, got {args.tukey_k}")
+    try:
+        manifest = load_manifest(args.manifest, check_files=False)
+        if args.db is not None:
+            if not Path(args.db).is_file():
+                raise UsageError(f"--db: no such file {args.db}")
+            rows = StudyDB(args.db).export_rows()
+        else:
+            rows = read_responses_csv(args.responses)
+        config = AnalysisConfig(
+            all_videos=args.all_videos, outliers=OutlierRule(args.outliers), tukey_k=args.tukey_k
+        )
+        result = analyze(rows, manifest, config)
+        written = write_outputs(result, args.out)
+    except ModuleNotFoundError as exc:
+        raise UsageError(f"'study analyze' needs {exc.name}: {_EXTRA_HINT}") from None
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    for cond, s in result.conditions.items():
+        mean = "–" if s.mean_error is None else f"{s.mean_error:.2f}"
+        sd = "–" if s.sd_error is None else f"{s.sd_error:.2f}"
+        print(f"{cond:12s} n={s.n:3d}  mean error {mean} touches  SD {sd}")
+    print(f"excluded: {len(result.excluded)}; wrote {', '.join(str(p) for p in written.values())}")
+    return 0
+
+
+def _add_serve(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "serve",
+        help="run the study web app",
+        description="Serve the study to participants (FastAPI + SQLite; needs endocam[study]).",
+    )
+    p.add_argument("--study", required=True, metavar="DIR", help="study folder with manifest.json")
+    p.add_argument("--db", required=True, metavar="FILE", help="SQLite file (created if missing)")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default: %(default)s)")
+    p.add_argument("--port", type=int, default=8000, help="TCP port (default: %(default)s)")
+    p.add_argument(
+        "--admin-token",
+        default=None,
+        metavar="TOKEN",
+        help=f"token for /admin/export.csv|json (default: ${ADMIN_TOKEN_ENV}; none disables it)",
+    )
+    p.set_defaults(handler=_serve)
+
+
+def _add_analyze(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "analyze",
+        help="analyse the responses",
+        description="Assessment errors, exclusions, Friedman + Wilcoxon-Holm tests, plot, report.",
+    )
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--db", metavar="FILE", help="the study database")
+    source.add_argument(
+        "--responses",
+        metavar="CSV",
+        help="CSV with columns participant_id,video_id,reported_touches,attention_passed",
+    )
+    p.add_argument("--manifest", required=True, metavar="FILE", help="the study's manifest.json")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
+    p.add_argument(
+        "--all-videos",
+        action="store_true",
+        help="mean error over all videos of a condition (default: most difficult video only)",
+    )
+    p.add_argument(
+        "--outliers",
+        choices=[r.value for r in OutlierRule],
+        default=OutlierRule.TUKEY.value,
+        help="per-condition outlier rule (default: %(default)s)",
+    )
+    p.add_argument(
+        "--tukey-k",
+        type=float,
+        default=AnalysisConfig().tukey_k,
+        help="IQR multiplier of Tukey's fences (default: %(default)s)",
+    )
+    p.set_defaults(handler=_analyze)
+
+
+_SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_serve, _add_analyze]
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``study`` command group (``serve``, ``analyze``) to the top-level subparsers."""
+    study = subparsers.add_parser(
+        "study",
+        help="video-based skill-assessment study",
+        description="Run and analyse the video-based skill-assessment study (paper Sec. IV-D, V).",
+    )
+    sub = study.add_subparsers(dest="study_command", metavar="SUBCOMMAND")
+    sub.required = True
+    for add in _SUBCOMMANDS:
+        add(sub)

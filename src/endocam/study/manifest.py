@@ -1,0 +1,231 @@
+"""The study manifest: which videos exist, their ground truth and the presentation orders.
+
+``manifest.json`` sits at the root of a study folder and is the contract between
+``endocam study make`` (which writes it), ``endocam study serve`` and ``endocam study analyze``::
+
+    {"endocam_version": "0.1.0", "created": "2024-05-01T12:00:00+00:00",
+     "conditions": ["fixed", "centering", "orientation"],
+     "videos": [{"id": "v01", "condition": "fixed", "trajectory": "t3-71-high",
+                 "difficulty": 3, "true_touches": 7, "file": "videos/v01.mp4"}, ...],
+     "orders": [["fixed", "centering", "orientation"], ...],
+     "attention": {"question": "...", "answer": 4}}
+
+``difficulty`` runs from 1 to 3 (3 = most difficult, the paper's 71-point trajectory). ``file`` is
+relative to the study folder. Within a set the videos are shown in the order ``videos`` lists them.
+"""
+
+from __future__ import annotations
+
+import json
+from datetime import datetime
+from enum import StrEnum
+from pathlib import Path, PurePosixPath
+from typing import Annotated, Self
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+MANIFEST_NAME = "manifest.json"
+MAX_TOUCHES = 99  # largest count a participant may report (touches)
+ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"  # ids appear in URLs and CSV files
+
+
+class Condition(StrEnum):
+    """Camera condition of a study video (paper Sec. IV-D, conditions I-III)."""
+
+    FIXED = "fixed"
+    CENTERING = "centering"
+    ORIENTATION = "orientation"
+
+
+class ManifestError(ValueError):
+    """A manifest that cannot be used; the message is one line."""
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class Video(_Frozen):
+    """One study video and its ground truth.
+
+    Attributes
+    ----------
+    id : str
+        Unique video id (URL-safe).
+    condition : Condition
+        Camera condition the video was recorded with.
+    trajectory : str
+        Name of the ring trajectory; the same trajectory appears once per condition.
+    difficulty : int
+        1..3, 3 = most difficult.
+    true_touches : int
+        Ground-truth number of ring-wire touches (from the simulator's touch events).
+    file : str
+        Video path relative to the study folder (POSIX separators, no ``..``).
+    """
+
+    id: Annotated[str, Field(pattern=ID_PATTERN)]
+    condition: Condition
+    trajectory: Annotated[str, Field(min_length=1, max_length=128)]
+    difficulty: Annotated[int, Field(ge=1, le=3)]
+    true_touches: Annotated[int, Field(ge=0)]
+    file: Annotated[str, Field(min_length=1)]
+
+    @field_validator("file")
+    @classmethod
+    def _relative_inside(cls, value: str) -> str:
+        path = PurePosixPath(value)
+        if path.is_absolute() or ".." in path.parts or "\\" in value:
+            raise ValueError(
+                f"must be a relative POSIX path inside the study folder, got {value!r}"
+            )
+        return value
+
+
+class AttentionQuestion(_Frozen):
+    """The attention question asked in the middle of the study; the answer is an integer."""
+
+    question: Annotated[str, Field(min_length=1)]
+    answer: Annotated[int, Field(ge=0, le=MAX_TOUCHES)]
+
+
+class Manifest(_Frozen):
+    """Validated study manifest (see the module docstring for the JSON form)."""
+
+    endocam_version: str
+    created: datetime
+    conditions: tuple[Condition, ...]
+    videos: tuple[Video, ...]
+    orders: tuple[tuple[Condition, ...], ...]
+    attention: AttentionQuestion
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Self:
+        if sorted(self.conditions) != sorted(Condition):
+            raise ValueError(
+                f"conditions must list each of {[c.value for c in Condition]} once, "
+                f"got {[c.value for c in self.conditions]}"
+            )
+        ids = [v.id for v in self.videos]
+        duplicates = sorted({i for i in ids if ids.count(i) > 1})
+        if duplicates:
+            raise ValueError(f"video ids must be unique, repeated: {duplicates}")
+        trajectories = sorted({v.trajectory for v in self.videos})
+        if not trajectories:
+            raise ValueError("videos must not be empty")
+        for condition in self.conditions:
+            seen = sorted(v.trajectory for v in self.videos if v.condition == condition)
+            if seen != trajectories:
+                raise ValueError(
+                    f"condition {condition.value!r} must have exactly one video per trajectory "
+                    f"{trajectories}, has {seen}"
+                )
+        levels: dict[str, set[int]] = {}
+        for v in self.videos:
+            levels.setdefault(v.trajectory, set()).add(v.difficulty)
+        for name, found in levels.items():
+            if len(found) != 1:
+                raise ValueError(f"trajectory {name!r} has differing difficulties {sorted(found)}")
+        difficulty = [next(iter(found)) for found in levels.values()]
+        if len(set(difficulty)) != len(difficulty):
+            raise ValueError(f"each trajectory needs its own difficulty, got {sorted(difficulty)}")
+        if not self.orders:
+            raise ValueError("orders must not be empty")
+        for order in self.orders:
+            if sorted(order) != sorted(self.conditions):
+                raise ValueError(
+                    f"order {[c.value for c in order]} is not a permutation of conditions"
+                )
+        if len(set(self.orders)) != len(self.orders):
+            raise ValueError("orders must be distinct")
+        return self
+
+    def video(self, video_id: str) -> Video:
+        """Return the video with id ``video_id``; KeyError if the manifest has none."""
+        for v in self.videos:
+            if v.id == video_id:
+                return v
+        raise KeyError(video_id)
+
+    def videos_of(self, condition: Condition) -> tuple[Video, ...]:
+        """Videos of one condition, in manifest order (the order they are shown within a set)."""
+        return tuple(v for v in self.videos if v.condition == condition)
+
+    def most_difficult(self, condition: Condition) -> Video:
+        """The video of ``condition`` on the most difficult trajectory (the paper's analysis)."""
+        return max(self.videos_of(condition), key=lambda v: v.difficulty)
+
+
+def _one_line(exc: ValidationError, source: str) -> str:
+    first = exc.errors()[0]
+    where = ".".join(str(p) for p in first["loc"]) or "manifest"
+    more = f" (+{exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
+    return f"{source}: {where}: {first['msg']}{more}"
+
+
+def parse_manifest(text: str, source: str = MANIFEST_NAME) -> Manifest:
+    """Parse and validate manifest JSON text.
+
+    Parameters
+    ----------
+    text : str
+        The JSON document.
+    source : str
+        Name used in error messages.
+
+    Returns
+    -------
+    Manifest
+        The validated manifest.
+
+    Raises
+    ------
+    ManifestError
+        One-line message naming the offending field.
+    """
+    try:
+        return Manifest.model_validate_json(text)
+    except ValidationError as exc:
+        raise ManifestError(_one_line(exc, source)) from None
+
+
+def load_manifest(path: str | Path, *, check_files: bool | None = None) -> Manifest:
+    """Load a manifest from a study folder or a ``manifest.json`` file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A study folder (containing ``manifest.json``) or the manifest file itself.
+    check_files : bool, optional
+        Require every video file to exist. Defaults to True when ``path`` is a folder, False when
+        it is a file (the analysis needs only the ground truth, not the videos).
+
+    Returns
+    -------
+    Manifest
+        The validated manifest.
+
+    Raises
+    ------
+    ManifestError
+        Missing or unreadable manifest, invalid content or missing video files (one line).
+    """
+    path = Path(path)
+    is_dir = path.is_dir()
+    file = path / MANIFEST_NAME if is_dir else path
+    try:
+        text = file.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ManifestError(f"cannot read manifest {file}: {exc.strerror or exc}") from None
+    manifest = parse_manifest(text, source=str(file))
+    if check_files if check_files is not None else is_dir:
+        root = file.parent
+        missing = [v.file for v in manifest.videos if not (root / v.file).is_file()]
+        if missing:
+            raise ManifestError(f"{file}: video files missing in {root}: {missing}")
+    return manifest
+
+
+def manifest_json(manifest: Manifest) -> str:
+    """Serialise a manifest to the JSON text that :func:`parse_manifest` reads back."""
+    return json.dumps(manifest.model_dump(mode="json"), indent=2) + "\n"

@@ -1,0 +1,113 @@
+"""Outputs of the study analysis: ``analysis.json``, a Fig. 7-style box plot and ``report.html``.
+
+All files are first written to a temporary folder inside the output folder and then moved into
+place with ``os.replace``, so a reader never sees a half-written file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from endocam import __version__
+from endocam.study.analysis import ORDERED_CONDITIONS, AnalysisResult, result_json
+
+ANALYSIS_JSON = "analysis.json"
+BOXPLOT_PNG = "assessment_errors.png"
+REPORT_HTML = "report.html"
+_TEMPLATES = Path(__file__).parent / "templates"
+_LABELS = {"fixed": "Fixed", "centering": "Centering", "orientation": "Orientation"}
+BOXPLOT_DPI = 150  # dots per inch of the PNG
+
+
+def plot_errors(result: AnalysisResult, path: Path) -> None:
+    """Box plot of the kept assessment errors per condition (like the paper's Fig. 7).
+
+    Parameters
+    ----------
+    result : AnalysisResult
+        Its ``kept_errors`` (touches) are drawn; the mean is marked with a triangle.
+    path : Path
+        PNG file to write.
+    """
+    names = [c.value for c in ORDERED_CONDITIONS]
+    data = [result.kept_errors.get(name, []) for name in names]
+    fig = Figure(figsize=(5.0, 4.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    positions = [i + 1 for i, values in enumerate(data) if values]
+    if positions:
+        ax.boxplot(
+            [data[p - 1] for p in positions], positions=positions, showmeans=True, widths=0.5
+        )
+    ax.set_xticks(range(1, len(names) + 1), labels=[_LABELS[n] for n in names])
+    ax.set_xlim(0.5, len(names) + 0.5)
+    ax.set_xlabel("Camera condition")
+    ax.set_ylabel("Assessment error (touches)")
+    which = "all videos (mean)" if result.config.all_videos else "most difficult video"
+    ax.set_title(f"Assessment error, {which}")
+    ax.grid(axis="y", alpha=0.3)
+    fig.savefig(path, dpi=BOXPLOT_DPI, format="png")
+
+
+def render_report(result: AnalysisResult) -> str:
+    """The HTML report (needs jinja2 from the ``study`` extra)."""
+    try:
+        import jinja2
+    except ModuleNotFoundError as exc:  # pragma: no cover - depends on the installed extras
+        raise ModuleNotFoundError(
+            "report.html needs jinja2: pip install 'endocam[study]'", name=exc.name
+        ) from None
+    env = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(str(_TEMPLATES)),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+    )
+    return env.get_template("report.html").render(
+        result=result,
+        labels=_LABELS,
+        boxplot=BOXPLOT_PNG,
+        version=__version__,
+        fmt=lambda x, digits=2: "–" if x is None else f"{x:.{digits}f}",
+    )
+
+
+def write_outputs(result: AnalysisResult, out_dir: str | Path) -> dict[str, Path]:
+    """Write ``analysis.json``, the box plot PNG and ``report.html`` atomically into ``out_dir``.
+
+    Parameters
+    ----------
+    result : AnalysisResult
+        What to write.
+    out_dir : str or Path
+        Output folder, created if missing; existing files of the same names are replaced.
+
+    Returns
+    -------
+    dict name → Path
+        The written files.
+    """
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=".analysis-", dir=out))
+    except OSError as exc:
+        raise ValueError(f"out_dir: cannot write to {out}: {exc.strerror or exc}") from None
+    try:
+        doc = json.dumps(result_json(result), indent=2, allow_nan=False) + "\n"
+        (tmp / ANALYSIS_JSON).write_text(doc, encoding="utf-8")
+        plot_errors(result, tmp / BOXPLOT_PNG)
+        (tmp / REPORT_HTML).write_text(render_report(result), encoding="utf-8")
+        written = {}
+        for name in (ANALYSIS_JSON, BOXPLOT_PNG, REPORT_HTML):
+            os.replace(tmp / name, out / name)
+            written[name] = out / name
+        return written
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
