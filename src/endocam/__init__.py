@@ -13,4 +13,37 @@ try:
 except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
     __version__ = "0.0.0+unknown"
 
-__all__ = ["__version__"]
+from endocam.camera import Intrinsics, StereoCamera, project_points
+from endocam.control import (
+    POLICIES,
+    CameraCommand,
+    ConeWorkspace,
+    ControllerConfig,
+    Observation,
+    PolicyContext,
+    TrackingState,
+    goal_pose,
+    look_at_pose,
+    make_policy,
+)
+from endocam.metrics import center_error_3d, image_centering_error, orientation_error
+
+__all__ = [
+    "POLICIES",
+    "CameraCommand",
+    "ConeWorkspace",
+    "ControllerConfig",
+    "Intrinsics",
+    "Observation",
+    "PolicyContext",
+    "StereoCamera",
+    "TrackingState",
+    "__version__",
+    "center_error_3d",
+    "goal_pose",
+    "image_centering_error",
+    "look_at_pose",
+    "make_policy",
+    "orientation_error",
+    "project_points",
+]

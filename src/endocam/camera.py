@@ -107,7 +107,9 @@ class StereoCamera:
     """
 
     intrinsics: Intrinsics = field(
-        default_factory=lambda: Intrinsics.from_fovy(DEFAULT_WIDTH_PX, DEFAULT_HEIGHT_PX, DEFAULT_FOVY)
+        default_factory=lambda: Intrinsics.from_fovy(
+            DEFAULT_WIDTH_PX, DEFAULT_HEIGHT_PX, DEFAULT_FOVY
+        )
     )
     baseline: float = DEFAULT_BASELINE
 
@@ -133,7 +135,9 @@ class StereoCamera:
             return self.T_cam_right
         raise ValueError(f"eye must be 'left' or 'right', got {eye!r}")
 
-    def project(self, T_world_cam: FloatArray, p_world: FloatArray, eye: Eye = "left") -> FloatArray:
+    def project(
+        self, T_world_cam: FloatArray, p_world: FloatArray, eye: Eye = "left"
+    ) -> FloatArray:
         """Project world points into ``eye``'s image.
 
         Parameters

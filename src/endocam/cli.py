@@ -24,10 +24,10 @@ Handler = Callable[[argparse.Namespace], int | None]
 
 
 def _registrars() -> list[Callable[[argparse._SubParsersAction], None]]:
-    """Import the subcommand modules lazily, so ``--help`` stays fast and optional extras optional."""
+    """Import the subcommand modules lazily so optional extras stay optional."""
     from endocam.control import cli as control_cli
 
-    regs = [control_cli.register]
+    regs: list[Callable[[argparse._SubParsersAction], None]] = [control_cli.register]
     for name in ("endocam.sim.cli", "endocam.study.cli", "endocam.robot.cli"):
         try:
             module = __import__(name, fromlist=["register"])

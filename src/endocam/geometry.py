@@ -112,7 +112,7 @@ def R_from_quat_wxyz(q: ArrayLike) -> FloatArray:
 
 
 def R_from_euler_xyz(angles: ArrayLike) -> FloatArray:
-    """Paper's Tait–Bryan rotation ``R = Rx(α) Ry(β) Rz(γ)`` from (α, β, γ) in rad, (3,) or (N, 3)."""
+    """Paper's Tait–Bryan ``R = Rx(α) Ry(β) Rz(γ)`` from (α, β, γ), rad, (3,) or (N, 3)."""
     return np.asarray(Rotation.from_euler("XYZ", angles).as_matrix(), dtype=float)
 
 

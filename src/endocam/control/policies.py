@@ -1,0 +1,388 @@
+"""Camera policies: the paper's three conditions behind one small interface, and a registry.
+
+* ``fixed`` (condition I) holds the initial pose, which shows the whole task.
+* ``centering`` (condition II) follows the ring centre at the working distance and ignores the
+  ring's orientation. Our reading of the paper ("camera movement with a fixed orientation",
+  abstract; "the camera initial pose was the same as in the fixed camera condition", Sec. IV-D):
+  the camera keeps its initial orientation, hence its initial viewing direction ``z0``, and sits at
+  ``p_c − d_f z0`` so the ring centre is on the optical axis.
+* ``orientation`` (condition III) is the paper's method: goal on the ring normal with a level
+  horizon, way-points around goal jumps, and the safety rules.
+
+Both moving policies obey the same safety rules (cone freeze, tool-in-view windows, lost tracking),
+so the comparison isolates the use of orientation. Every command carries a :class:`TrackingState`
+and a one-line reason.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from endocam.camera import StereoCamera
+from endocam.control.goal import goal_pose_unchecked, look_at_pose
+from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
+from endocam.control.safety import (
+    CONE_BASE_RADIUS,
+    D_F_STEP,
+    ConeWorkspace,
+    ImageWindows,
+    adjust_working_distance,
+    window_status,
+)
+from endocam.geometry import UP, FloatArray
+
+
+class TrackingState(enum.Enum):
+    """What a policy is doing this control step."""
+
+    HOLDING = "holding"  # deliberately still (the fixed camera)
+    TRACKING = "tracking"  # moving to the goal
+    PLANNING = "planning"  # following intermediate way-points around a goal jump
+    FROZEN_OUTSIDE_CONE = "frozen_outside_cone"  # goal left the cone workspace; pose held
+    LOST_TRACKING = "lost_tracking"  # no valid feature observation; last safe pose held
+    UNREACHABLE = "unreachable"  # the arm cannot reach the goal (set by the robot layer)
+
+
+class ControllerConfig(BaseModel):
+    """Parameters of the moving policies, SI units. Validated at construction."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    d_f: float = Field(0.05, gt=0, description="initial working distance, m")
+    d_min: float = Field(0.03, gt=0, description="smallest working distance, m")
+    d_max: float = Field(0.12, gt=0, description="largest working distance, m")
+    d_f_step: float = Field(D_F_STEP, gt=0, description="working-distance change per step, m")
+    jump_threshold: float = Field(
+        0.02, gt=0, description="goal jump between control steps that triggers way-points, m"
+    )
+    d_wp: float = Field(0.04, gt=0, description="height of intermediate way-points, m")
+    planner_speed: float = Field(0.10, gt=0, description="progress speed along way-points, m/s")
+    planner_lookahead: float = Field(
+        0.01, gt=0, description="how far progress may lead the camera's projection, m"
+    )
+    cone_height: float = Field(
+        0.26, gt=0, description="cone workspace height (slightly under the instrument length), m"
+    )
+    cone_base_radius: float = Field(CONE_BASE_RADIUS, gt=0, description="cone base radius, m")
+    window_inner_frac: float = Field(0.5, gt=0, le=1, description="inner window, image fraction")
+    window_outer_frac: float = Field(0.9, gt=0, le=1, description="outer window, image fraction")
+
+    @model_validator(mode="after")
+    def _check_ranges(self) -> ControllerConfig:
+        if not self.d_min <= self.d_f <= self.d_max:
+            raise ValueError(
+                f"need d_min ≤ d_f ≤ d_max, got {self.d_min}, {self.d_f}, {self.d_max}"
+            )
+        if not self.window_inner_frac < self.window_outer_frac:
+            raise ValueError("window_inner_frac must be smaller than window_outer_frac")
+        return self
+
+    @property
+    def windows(self) -> ImageWindows:
+        """The tool-in-view windows."""
+        return ImageWindows(self.window_inner_frac, self.window_outer_frac)
+
+
+@dataclass(frozen=True)
+class PolicyContext:
+    """What a policy is told at ``reset``.
+
+    Attributes
+    ----------
+    camera : StereoCamera
+        The stereo camera (intrinsics, baseline).
+    T_world_cam : (4, 4)
+        Initial camera pose (the fixed condition's whole-task view), optical frame, m.
+    T_world_ring : (4, 4)
+        The ring pose at initialisation, m (gives the cone axis).
+    p_world_rcm : (3,)
+        Remote centre of motion of the camera arm = cone tip, m.
+    dt : float
+        Control period, s.
+    """
+
+    camera: StereoCamera
+    T_world_cam: FloatArray
+    T_world_ring: FloatArray
+    p_world_rcm: FloatArray
+    dt: float
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What a policy sees each control step.
+
+    Attributes
+    ----------
+    t : float
+        Time, s.
+    T_world_ring : (4, 4) or None
+        Sensed ring pose (ring z = face normal), m; ``None`` or non-finite when tracking is lost.
+    T_world_cam : (4, 4)
+        Measured camera pose, optical frame, m.
+    p_world_tips : (K, 3)
+        Instrument tip positions in world, m.
+    """
+
+    t: float
+    T_world_ring: FloatArray | None
+    T_world_cam: FloatArray
+    p_world_tips: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+@dataclass(frozen=True)
+class CameraCommand:
+    """A policy's output: the camera pose to move to, and why.
+
+    Attributes
+    ----------
+    T_world_cam : (4, 4)
+        Commanded camera pose, optical frame, m.
+    state : TrackingState
+    d_f : float
+        Working distance in use, m.
+    reason : str
+        One line for the log when the state is not plain tracking.
+    """
+
+    T_world_cam: FloatArray
+    state: TrackingState
+    d_f: float
+    reason: str = ""
+
+
+class CameraPolicy(Protocol):
+    """The interface every camera policy implements."""
+
+    name: str
+
+    def reset(self, context: PolicyContext) -> None:
+        """Start an episode."""
+
+    def step(self, obs: Observation) -> CameraCommand:
+        """One control step: map an observation to a camera command."""
+
+
+_UP = (0.0, 0.0, 1.0)  # world up as plain floats
+
+
+def _valid_pose(T: FloatArray | None) -> bool:
+    """A (4, 4) array of finite numbers (any NaN or inf makes the sum non-finite)."""
+    if T is None or np.shape(T) != (4, 4):
+        return False
+    return math.isfinite(math.fsum(np.ravel(T).tolist()))
+
+
+class FixedPolicy:
+    """Condition I: hold the initial whole-task pose."""
+
+    name = "fixed"
+
+    def __init__(self, config: ControllerConfig | None = None) -> None:
+        self.config = config or ControllerConfig()
+        self._T: FloatArray | None = None
+
+    def reset(self, context: PolicyContext) -> None:
+        """Remember the initial pose."""
+        self._T = np.array(context.T_world_cam, dtype=float)
+
+    def step(self, obs: Observation) -> CameraCommand:
+        """Return the initial pose, whatever is observed."""
+        if self._T is None:
+            raise RuntimeError("call reset() before step()")
+        return CameraCommand(self._T, TrackingState.HOLDING, self.config.d_f)
+
+
+class _MovingPolicy:
+    """Shared machinery of the moving policies: safety rules and way-point following."""
+
+    name = "moving"
+
+    def __init__(self, config: ControllerConfig | None = None) -> None:
+        self.config = config or ControllerConfig()
+        self._ctx: PolicyContext | None = None
+        self._cone: ConeWorkspace | None = None
+        self.d_f = self.config.d_f
+        self._last_goal: FloatArray | None = None  # last unplanned goal (jump detection)
+        self._last_cmd: FloatArray | None = None  # last commanded pose (last safe pose)
+        self._frozen_T: FloatArray | None = None
+        self._path: WaypointPath | None = None
+        self._s = 0.0
+
+    def reset(self, context: PolicyContext) -> None:
+        """Fix the cone axis from the RCM to the ring's initial position; clear all memory."""
+        self._ctx = context
+        self._cone = ConeWorkspace.from_rcm(
+            context.p_world_rcm,
+            context.T_world_ring[:3, 3],
+            self.config.cone_height,
+            self.config.cone_base_radius,
+        )
+        self.d_f = self.config.d_f
+        self._last_goal = None
+        self._last_cmd = np.array(context.T_world_cam, dtype=float)
+        self._frozen_T = None
+        self._path = None
+        self._s = 0.0
+
+    @property
+    def cone(self) -> ConeWorkspace:
+        """The cone workspace fixed at reset."""
+        if self._cone is None:
+            raise RuntimeError("call reset() before using the policy")
+        return self._cone
+
+    def _goal(self, T_world_ring: FloatArray, T_world_cam: FloatArray) -> FloatArray:
+        raise NotImplementedError
+
+    def _hold(self, state: TrackingState, reason: str) -> CameraCommand:
+        assert self._last_cmd is not None
+        return CameraCommand(self._last_cmd, state, self.d_f, reason)
+
+    def step(self, obs: Observation) -> CameraCommand:
+        """Safety checks, working distance, goal, way-points, cone — in that order."""
+        ctx = self._ctx
+        if ctx is None:
+            raise RuntimeError("call reset() before step()")
+        cfg = self.config
+        if not _valid_pose(obs.T_world_cam):
+            return self._hold(TrackingState.LOST_TRACKING, "camera pose not finite; holding")
+        T_cam = np.asarray(obs.T_world_cam, dtype=float)
+        if not _valid_pose(obs.T_world_ring):
+            self._last_goal = None
+            self._path = None
+            return self._hold(TrackingState.LOST_TRACKING, "ring pose missing or not finite")
+        T_ring = np.asarray(obs.T_world_ring, dtype=float)
+
+        status = window_status(ctx.camera, T_cam, obs.p_world_tips, cfg.windows)
+        self.d_f = adjust_working_distance(self.d_f, status, cfg.d_min, cfg.d_max, cfg.d_f_step)
+
+        goal = self._goal(T_ring, T_cam)
+        p_goal = goal[:3, 3]
+        ref = self._last_goal[:3, 3] if self._last_goal is not None else T_cam[:3, 3]
+        jumped = math.dist(p_goal.tolist(), ref.tolist()) > cfg.jump_threshold
+        self._last_goal = goal
+
+        up = UP
+        if jumped and self._path is None:
+            self._path = WaypointPath(intermediate_waypoints(T_cam[:3, 3], p_goal, up, cfg.d_wp))
+            self._s = 0.0
+        state, reason = TrackingState.TRACKING, ""
+        cmd = goal
+        if self._path is not None:
+            self._path = self._path.with_goal(p_goal, up, cfg.d_wp)
+            self._s = advance(
+                self._path, self._s, T_cam[:3, 3], cfg.planner_speed * ctx.dt, cfg.planner_lookahead
+            )
+            if self._s >= self._path.length - 1e-9:
+                self._path = None  # arrived: back to plain tracking
+            else:
+                p = self._path.point_at(self._s)
+                cmd = self._waypoint_pose(p, T_ring, goal)
+                state, reason = TrackingState.PLANNING, "following intermediate way-points"
+
+        if not self.cone.contains(cmd[:3, 3]):
+            if self._frozen_T is None:
+                self._frozen_T = T_cam
+            self._last_cmd = self._frozen_T
+            self._path = None
+            margin_mm = -self.cone.margin(cmd[:3, 3]) * 1e3
+            return self._hold(
+                TrackingState.FROZEN_OUTSIDE_CONE,
+                f"goal {margin_mm:.1f} mm outside the cone workspace; holding",
+            )
+        self._frozen_T = None
+        self._last_cmd = cmd
+        return CameraCommand(cmd, state, self.d_f, reason)
+
+    def _waypoint_pose(self, p: FloatArray, T_ring: FloatArray, goal: FloatArray) -> FloatArray:
+        """Pose at a way-point: look at the ring centre with a level horizon."""
+        if float(np.linalg.norm(T_ring[:3, 3] - p)) < 1e-6:
+            return goal
+        return look_at_pose(p, T_ring[:3, 3], previous=self._last_cmd)
+
+
+class CenteringPolicy(_MovingPolicy):
+    """Condition II: keep the initial orientation, put the ring centre on the optical axis."""
+
+    name = "centering"
+
+    def _goal(self, T_world_ring: FloatArray, T_world_cam: FloatArray) -> FloatArray:
+        assert self._ctx is not None
+        R0 = self._ctx.T_world_cam[:3, :3]
+        T = np.eye(4)
+        T[:3, :3] = R0
+        T[:3, 3] = T_world_ring[:3, 3] - self.d_f * R0[:, 2]
+        return T
+
+    def _waypoint_pose(self, p: FloatArray, T_ring: FloatArray, goal: FloatArray) -> FloatArray:
+        T = goal.copy()  # orientation stays fixed on the way too
+        T[:3, 3] = p
+        return T
+
+
+class OrientationPolicy(_MovingPolicy):
+    """Condition III: the paper's orientation-aware camera (goal on the ring normal)."""
+
+    name = "orientation"
+
+    def _goal(self, T_world_ring: FloatArray, T_world_cam: FloatArray) -> FloatArray:
+        previous = self._last_goal if self._last_goal is not None else T_world_cam
+        T = T_world_ring.tolist()
+        n = (T[0][2], T[1][2], T[2][2])
+        norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        if not norm > 0.0:
+            raise ValueError("ring normal is zero")
+        n = (n[0] / norm, n[1] / norm, n[2] / norm)
+        return goal_pose_unchecked((T[0][3], T[1][3], T[2][3]), n, self.d_f, _UP, previous)
+
+
+@dataclass(frozen=True)
+class PolicyEntry:
+    """A registry entry: how to build a policy and one line to describe it."""
+
+    factory: Callable[[ControllerConfig], CameraPolicy]
+    summary: str
+
+
+POLICIES: dict[str, PolicyEntry] = {
+    "fixed": PolicyEntry(FixedPolicy, "condition I: fixed camera showing the whole task"),
+    "centering": PolicyEntry(
+        CenteringPolicy, "condition II: follows the ring centre, keeps its initial orientation"
+    ),
+    "orientation": PolicyEntry(
+        OrientationPolicy, "condition III: on the ring normal, level horizon, way-points, safety"
+    ),
+}
+
+
+def make_policy(name: str, config: ControllerConfig | None = None) -> CameraPolicy:
+    """Build a registered policy by name; unknown names raise ``ValueError`` listing the choices."""
+    try:
+        entry = POLICIES[name]
+    except KeyError:
+        choices = ", ".join(POLICIES)
+        raise ValueError(f"unknown policy {name!r}; choose one of: {choices}") from None
+    return entry.factory(config or ControllerConfig())
+
+
+__all__ = [
+    "POLICIES",
+    "CameraCommand",
+    "CameraPolicy",
+    "CenteringPolicy",
+    "ControllerConfig",
+    "FixedPolicy",
+    "Observation",
+    "OrientationPolicy",
+    "PolicyContext",
+    "TrackingState",
+    "make_policy",
+]

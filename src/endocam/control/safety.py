@@ -1,0 +1,216 @@
+"""Safety rules of the autonomous camera (paper Sec. III-C).
+
+* :class:`ConeWorkspace`: the camera may only be driven autonomously inside a cone whose tip is the
+  remote centre of motion (RCM) and whose axis points at the feature's initial position.
+* :func:`window_status` and :func:`adjust_working_distance`: the tool-in-view windows. Instrument
+  tips outside the outer image window make the working distance grow by a fixed step per control
+  step; all tips inside the inner window make it shrink; in between it holds.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from endocam.camera import MIN_DEPTH, StereoCamera
+from endocam.geometry import FloatArray, as_vector3, unit_vector
+
+CONE_BASE_RADIUS = 0.10  # m, the paper's empirical base radius
+D_F_STEP = 1.0e-3  # m, working-distance change per control step (paper: ±1 mm)
+
+
+@dataclass(frozen=True)
+class ConeWorkspace:
+    """A solid cone: tip at the RCM, fixed axis, height and base radius (paper Sec. III-C).
+
+    Attributes
+    ----------
+    apex : (3,)
+        Cone tip = RCM position in world, m.
+    axis : (3,)
+        Unit axis in world, from the tip towards the base.
+    height : float
+        Distance from the tip to the base along the axis, m (slightly less than the instrument
+        length).
+    base_radius : float
+        Radius of the base disc, m.
+    """
+
+    apex: FloatArray
+    axis: FloatArray
+    height: float
+    base_radius: float = CONE_BASE_RADIUS
+    _apex: tuple[float, ...] = field(init=False, repr=False, compare=False)
+    _axis: tuple[float, ...] = field(init=False, repr=False, compare=False)
+    _tan_half: float = field(init=False, repr=False, compare=False)
+    _cos_half: float = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        # Plain-float copies for the 1 kHz control loop.
+        tan_half = self.base_radius / self.height
+        object.__setattr__(self, "_apex", tuple(np.asarray(self.apex, dtype=float).tolist()))
+        object.__setattr__(self, "_axis", tuple(np.asarray(self.axis, dtype=float).tolist()))
+        object.__setattr__(self, "_tan_half", tan_half)
+        object.__setattr__(self, "_cos_half", 1.0 / math.sqrt(1.0 + tan_half * tan_half))
+
+    @classmethod
+    def from_rcm(
+        cls,
+        p_world_rcm: ArrayLike,
+        p_world_feature: ArrayLike,
+        height: float,
+        base_radius: float = CONE_BASE_RADIUS,
+    ) -> ConeWorkspace:
+        """Cone from the RCM towards the feature's initial position; the axis is fixed after this.
+
+        Parameters
+        ----------
+        p_world_rcm : (3,)
+            RCM position in world, m.
+        p_world_feature : (3,)
+            The feature's position at initialisation, m.
+        height, base_radius : float
+            Cone height and base radius, m (both > 0).
+        """
+        apex = as_vector3(p_world_rcm, "p_world_rcm")
+        axis = unit_vector(as_vector3(p_world_feature, "p_world_feature") - apex, "feature - rcm")
+        if not (math.isfinite(height) and height > 0):
+            raise ValueError(f"height must be > 0 m, got {height}")
+        if not (math.isfinite(base_radius) and base_radius > 0):
+            raise ValueError(f"base_radius must be > 0 m, got {base_radius}")
+        return cls(apex, axis, float(height), float(base_radius))
+
+    def margin(self, p_world: FloatArray) -> float:
+        """Signed clearance of a point to the cone surface, m: > 0 inside, < 0 outside.
+
+        The margin is the smaller of the distance to the lateral surface (measured perpendicular
+        to the axis, scaled to the surface normal) and the distance to the base plane; points
+        behind the tip are outside.
+
+        Parameters
+        ----------
+        p_world : (3,)
+            Point in world, m.
+        """
+        p = p_world.tolist()
+        a = self._apex
+        k = self._axis
+        d0, d1, d2 = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+        h = d0 * k[0] + d1 * k[1] + d2 * k[2]
+        r0, r1, r2 = d0 - h * k[0], d1 - h * k[1], d2 - h * k[2]
+        radial = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        lateral = (h * self._tan_half - radial) * self._cos_half
+        if not math.isfinite(h + radial):
+            return math.nan
+        return min(lateral, self.height - h, h)
+
+    def contains(self, p_world: FloatArray) -> bool:
+        """Whether a point (3,) in world, m, is inside the cone or on its surface."""
+        margin = self.margin(p_world)
+        return math.isfinite(margin) and margin >= 0.0
+
+
+class WindowStatus(enum.Enum):
+    """Where the instrument tips project relative to the inner and outer image windows."""
+
+    OUTSIDE_OUTER = "outside_outer"  # at least one tip is outside the outer window (or unseen)
+    BETWEEN = "between"  # every tip inside the outer window, not all inside the inner one
+    INSIDE_INNER = "inside_inner"  # every tip inside the inner window
+
+
+@dataclass(frozen=True)
+class ImageWindows:
+    """Centred inner and outer windows as fractions of the image width and height.
+
+    Attributes
+    ----------
+    inner_frac : float
+        Inner window size as a fraction of the image (0 < inner < outer).
+    outer_frac : float
+        Outer window size as a fraction of the image (≤ 1).
+    """
+
+    inner_frac: float = 0.5
+    outer_frac: float = 0.9
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.inner_frac < self.outer_frac <= 1.0):
+            raise ValueError(
+                f"need 0 < inner_frac < outer_frac ≤ 1, got {self.inner_frac}, {self.outer_frac}"
+            )
+
+
+def window_status(
+    camera: StereoCamera,
+    T_world_cam: FloatArray,
+    p_world_tips: FloatArray,
+    windows: ImageWindows,
+) -> WindowStatus:
+    """Classify the instrument tips against the windows in both eyes (paper Sec. III-C).
+
+    A tip counts as inside a window only if it projects inside it in both eyes; a tip at or
+    behind an eye's image plane is outside every window.
+
+    Parameters
+    ----------
+    camera : StereoCamera
+    T_world_cam : (4, 4)
+        Current camera pose, optical frame, m.
+    p_world_tips : (K, 3)
+        Instrument tip positions in world, m. Tips with non-finite coordinates (tool tracking
+        lost) are ignored; no usable tip counts as "inside inner".
+    windows : ImageWindows
+    """
+    intr = camera.intrinsics
+    T = T_world_cam.tolist()
+    R0, R1, R2 = T[0][:3], T[1][:3], T[2][:3]
+    t = (T[0][3], T[1][3], T[2][3])
+    half_b = 0.5 * camera.baseline
+    hw_out, hh_out = 0.5 * windows.outer_frac * intr.width, 0.5 * windows.outer_frac * intr.height
+    hw_in, hh_in = 0.5 * windows.inner_frac * intr.width, 0.5 * windows.inner_frac * intr.height
+    all_inner = True
+    for p in np.asarray(p_world_tips, dtype=float).reshape(-1, 3).tolist():
+        if not math.isfinite(p[0] + p[1] + p[2]):
+            continue
+        d0, d1, d2 = p[0] - t[0], p[1] - t[1], p[2] - t[2]
+        # R^T d: the tip in the camera (centre) frame.
+        x = R0[0] * d0 + R1[0] * d1 + R2[0] * d2
+        y = R0[1] * d0 + R1[1] * d1 + R2[1] * d2
+        z = R0[2] * d0 + R1[2] * d1 + R2[2] * d2
+        if not z > MIN_DEPTH:  # also catches NaN
+            return WindowStatus.OUTSIDE_OUTER
+        dv = abs(intr.fy * y / z + intr.cy - 0.5 * intr.height)
+        for x_eye in (x + half_b, x - half_b):  # left eye at −b/2, right eye at +b/2
+            du = abs(intr.fx * x_eye / z + intr.cx - 0.5 * intr.width)
+            if not (du <= hw_out and dv <= hh_out):
+                return WindowStatus.OUTSIDE_OUTER
+            if not (du <= hw_in and dv <= hh_in):
+                all_inner = False
+    return WindowStatus.INSIDE_INNER if all_inner else WindowStatus.BETWEEN
+
+
+def adjust_working_distance(
+    d_f: float, status: WindowStatus, d_min: float, d_max: float, step: float = D_F_STEP
+) -> float:
+    """One control step of the working-distance rule, clamped to ``[d_min, d_max]`` (m).
+
+    Parameters
+    ----------
+    d_f : float
+        Current working distance, m.
+    status : WindowStatus
+        Result of :func:`window_status` for the current image.
+    d_min, d_max : float
+        Allowed range, m.
+    step : float
+        Change per control step, m (paper: 1 mm).
+    """
+    if status is WindowStatus.OUTSIDE_OUTER:
+        d_f += step
+    elif status is WindowStatus.INSIDE_INNER:
+        d_f -= step
+    return min(max(d_f, d_min), d_max)
