@@ -1,0 +1,398 @@
+r"""Modified Denavit–Hartenberg (Craig) kinematic chains, pure numpy.
+
+Each link transform is
+
+.. math::
+
+    T_{i-1,i} = R_x(\alpha_i)\, T_x(A_i)\, R_z(\theta_i)\, T_z(D_i)
+
+where a revolute joint sets :math:`\theta_i = q_i + \mathrm{offset}_i` (``D`` fixed) and a
+prismatic joint sets :math:`D_i = q_i + \mathrm{offset}_i` (``theta`` fixed). The chain product
+is followed by a constant tool-tip offset. This is the convention of the dVRK's kinematics
+files (``"convention": "modified"``), see ``docs/conventions.md``.
+
+All lengths are in metres, all angles in radians. Frame ``base`` is the chain's base frame
+(the RCM for the dVRK PSM and ECM); frame ``i`` is the frame attached to link ``i``.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "IDENTITY12",
+    "DHChain",
+    "DHLink",
+    "JointType",
+    "Pose12",
+    "chain_forward",
+    "chain_frames",
+    "check_finite",
+    "compose_links",
+    "geometric_jacobian",
+    "link_transform",
+    "pose12_to_matrix",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+class JointType(enum.Enum):
+    """Kind of joint actuating a DH link."""
+
+    REVOLUTE = "revolute"
+    PRISMATIC = "prismatic"
+
+
+@dataclass(frozen=True)
+class DHLink:
+    """One modified-DH link and its joint.
+
+    Attributes
+    ----------
+    name : str
+        Joint name (e.g. ``"outer_yaw"``).
+    alpha : float
+        Twist about the previous x axis, rad.
+    A : float
+        Length along the previous x axis, m.
+    D : float
+        Offset along the new z axis, m (the constant part for a revolute joint).
+    theta : float
+        Rotation about the new z axis, rad (the constant part for a prismatic joint).
+    offset : float
+        Added to the joint value: rad for revolute, m for prismatic joints.
+    joint_type : JointType
+        Revolute (``q`` adds to ``theta``) or prismatic (``q`` adds to ``D``).
+    lower, upper : float
+        Joint position limits (rad or m), ``lower <= upper``.
+    """
+
+    name: str
+    alpha: float
+    A: float
+    D: float
+    theta: float
+    offset: float
+    joint_type: JointType
+    lower: float
+    upper: float
+
+    def __post_init__(self) -> None:
+        values = (self.alpha, self.A, self.D, self.theta, self.offset, self.lower, self.upper)
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"link {self.name!r}: DH parameters and limits must be finite")
+        if self.lower > self.upper:
+            raise ValueError(f"link {self.name!r}: lower limit exceeds upper limit")
+
+
+def _identity() -> FloatArray:
+    return np.eye(4)
+
+
+# (cos alpha, sin alpha, A, D, theta, offset, revolute) of one link, for the fast path
+_LinkParams = tuple[float, float, float, float, float, float, bool]
+# a rigid transform as 12 floats: rotation row-major, then translation
+Pose12 = tuple[float, float, float, float, float, float, float, float, float, float, float, float]
+IDENTITY12: Pose12 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class DHChain:
+    """A serial chain of modified-DH links followed by a tool-tip offset.
+
+    Attributes
+    ----------
+    links : tuple of DHLink
+        Links from the base outwards.
+    T_last_tip : (4, 4) ndarray
+        Pose of the tool tip in the last link's frame (m). Not compared by ``==``.
+    """
+
+    links: tuple[DHLink, ...]
+    T_last_tip: FloatArray = field(default_factory=_identity, compare=False)
+    _params: tuple[_LinkParams, ...] = field(init=False, repr=False, compare=False)
+    _tip_rows: tuple[tuple[float, ...], ...] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if len(self.links) == 0:
+            raise ValueError("links: a chain needs at least one link")
+        T = np.asarray(self.T_last_tip, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ValueError("T_last_tip: expected a finite (4, 4) homogeneous matrix")
+        T = T.copy()
+        T.setflags(write=False)
+        object.__setattr__(self, "T_last_tip", T)
+        params = tuple(
+            (
+                math.cos(lk.alpha),
+                math.sin(lk.alpha),
+                lk.A,
+                lk.D,
+                lk.theta,
+                lk.offset,
+                lk.joint_type is JointType.REVOLUTE,
+            )
+            for lk in self.links
+        )
+        object.__setattr__(self, "_params", params)
+        object.__setattr__(self, "_tip_rows", tuple(tuple(row) for row in T[:3].tolist()))
+
+    @property
+    def n_joints(self) -> int:
+        """Number of joints (one per link)."""
+        return len(self.links)
+
+    @property
+    def lower(self) -> FloatArray:
+        """Lower joint limits, shape (n,), rad or m."""
+        return np.array([lk.lower for lk in self.links])
+
+    @property
+    def upper(self) -> FloatArray:
+        """Upper joint limits, shape (n,), rad or m."""
+        return np.array([lk.upper for lk in self.links])
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Joint names, base outwards."""
+        return tuple(lk.name for lk in self.links)
+
+
+def check_finite(x: object, name: str, shape: tuple[int, ...]) -> FloatArray:
+    """Convert ``x`` to a float array of the given shape; reject NaN/inf.
+
+    Parameters
+    ----------
+    x : array_like
+        Input values.
+    name : str
+        Argument name used in the error message.
+    shape : tuple of int
+        Required shape.
+
+    Returns
+    -------
+    ndarray
+        ``x`` as float64 with shape ``shape``.
+
+    Raises
+    ------
+    ValueError
+        If the shape differs or any entry is NaN or infinite.
+    """
+    try:
+        arr = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: expected numbers of shape {shape}") from exc
+    if arr.shape != shape:
+        raise ValueError(f"{name}: expected shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: contains NaN or inf")
+    return arr
+
+
+def link_transform(link: DHLink, q: float) -> FloatArray:
+    """Modified-DH transform of one link at joint value ``q``.
+
+    Parameters
+    ----------
+    link : DHLink
+        The link.
+    q : float
+        Joint value, rad (revolute) or m (prismatic).
+
+    Returns
+    -------
+    T_prev_link : (4, 4) ndarray
+        Pose of the link frame in the previous link's frame, m.
+    """
+    if link.joint_type is JointType.REVOLUTE:
+        theta, d = q + link.offset, link.D
+    else:
+        theta, d = link.theta, q + link.offset
+    ca, sa = math.cos(link.alpha), math.sin(link.alpha)
+    ct, st = math.cos(theta), math.sin(theta)
+    return np.array(
+        [
+            [ct, -st, 0.0, link.A],
+            [ca * st, ca * ct, -sa, -sa * d],
+            [sa * st, sa * ct, ca, ca * d],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
+
+
+def chain_frames(chain: DHChain, q: FloatArray) -> FloatArray:
+    """Poses of every link frame and of the tool tip, unchecked input.
+
+    Parameters
+    ----------
+    chain : DHChain
+        The chain with ``n`` links.
+    q : (n,) ndarray
+        Joint values, rad or m. Not validated (callers validate at the boundary).
+
+    Returns
+    -------
+    T_base_frames : (n + 1, 4, 4) ndarray
+        ``[T_base_1, ..., T_base_n, T_base_tip]``, m.
+    """
+    n = chain.n_joints
+    out = np.empty((n + 1, 4, 4))
+    T = np.eye(4)
+    for i, link in enumerate(chain.links):
+        T = T @ link_transform(link, float(q[i]))
+        out[i] = T
+    out[n] = T @ chain.T_last_tip
+    return out
+
+
+def compose_links(
+    chain: DHChain, q: list[float], start: int = 0, stop: int | None = None, T0: Pose12 = IDENTITY12
+) -> Pose12:
+    """Product ``T0 · T_start · … · T_(stop-1)`` of link transforms, in plain floats.
+
+    The fast path of forward kinematics: the same modified-DH product as repeated
+    :func:`link_transform`, written column by column on Python floats (cheaper than small
+    numpy arrays at this size).
+
+    Parameters
+    ----------
+    chain : DHChain
+        The chain.
+    q : list of float
+        Joint values for every link of the chain, rad / m.
+    start, stop : int
+        Range of links to compose (``stop`` defaults to all links).
+    T0 : Pose12
+        Pose to start from: rotation row-major then translation, m.
+
+    Returns
+    -------
+    Pose12
+        The composed pose, 12 floats (rotation row-major, then translation), m.
+    """
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = T0
+    params = chain._params
+    for i in range(start, len(params) if stop is None else stop):
+        ca, sa, a_len, d, theta, offset, revolute = params[i]
+        if revolute:
+            theta = q[i] + offset
+        else:
+            d = q[i] + offset
+        c, s = math.cos(theta), math.sin(theta)
+        e1, e2 = -sa * d, ca * d
+        # translation: A · x + (-sa d) · y + (ca d) · z of the current frame
+        px += a_len * r00 + e1 * r01 + e2 * r02
+        py += a_len * r10 + e1 * r11 + e2 * r12
+        pz += a_len * r20 + e1 * r21 + e2 * r22
+        # RotX(alpha): y' = ca y + sa z, z' = -sa y + ca z; then RotZ(theta) on x, y'
+        u0, u1, u2 = ca * r01 + sa * r02, ca * r11 + sa * r12, ca * r21 + sa * r22
+        r02, r12, r22 = -sa * r01 + ca * r02, -sa * r11 + ca * r12, -sa * r21 + ca * r22
+        r00, r01 = c * r00 + s * u0, -s * r00 + c * u0
+        r10, r11 = c * r10 + s * u1, -s * r10 + c * u1
+        r20, r21 = c * r20 + s * u2, -s * r20 + c * u2
+    return (r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz)
+
+
+def pose12_to_matrix(T: Pose12, tip: tuple[tuple[float, ...], ...] | None = None) -> FloatArray:
+    """Convert a 12-float pose to a (4, 4) matrix, optionally right-multiplied by ``tip``.
+
+    Parameters
+    ----------
+    T : Pose12
+        Rotation row-major, then translation, m.
+    tip : tuple of 3 rows of 4 floats, optional
+        Top three rows of a transform to append (e.g. the tool-tip offset).
+
+    Returns
+    -------
+    (4, 4) ndarray
+        The pose, m.
+    """
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = T
+    if tip is None:
+        return np.array(
+            [[r00, r01, r02, px], [r10, r11, r12, py], [r20, r21, r22, pz], [0.0, 0.0, 0.0, 1.0]]
+        )
+    (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3) = tip
+    return np.array(
+        [
+            [
+                r00 * a0 + r01 * b0 + r02 * c0,
+                r00 * a1 + r01 * b1 + r02 * c1,
+                r00 * a2 + r01 * b2 + r02 * c2,
+                r00 * a3 + r01 * b3 + r02 * c3 + px,
+            ],
+            [
+                r10 * a0 + r11 * b0 + r12 * c0,
+                r10 * a1 + r11 * b1 + r12 * c1,
+                r10 * a2 + r11 * b2 + r12 * c2,
+                r10 * a3 + r11 * b3 + r12 * c3 + py,
+            ],
+            [
+                r20 * a0 + r21 * b0 + r22 * c0,
+                r20 * a1 + r21 * b1 + r22 * c1,
+                r20 * a2 + r21 * b2 + r22 * c2,
+                r20 * a3 + r21 * b3 + r22 * c3 + pz,
+            ],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
+
+
+def chain_forward(chain: DHChain, q: FloatArray) -> FloatArray:
+    """Forward kinematics: the tool-tip pose, unchecked input.
+
+    Parameters
+    ----------
+    chain : DHChain
+        The chain with ``n`` links.
+    q : (n,) ndarray
+        Joint values, rad or m.
+
+    Returns
+    -------
+    T_base_tip : (4, 4) ndarray
+        Tool-tip pose in the base frame, m.
+    """
+    return pose12_to_matrix(compose_links(chain, q.tolist()), chain._tip_rows)
+
+
+def geometric_jacobian(chain: DHChain, q: FloatArray) -> FloatArray:
+    """Geometric Jacobian of the tool tip in the base frame, unchecked input.
+
+    Rows ``0:3`` are the linear velocity of the tip origin (m/s per joint unit/s), rows
+    ``3:6`` the angular velocity (rad/s per joint unit/s), both expressed in the base frame.
+    In modified DH, joint ``i`` moves about / along the z axis of link frame ``i``.
+
+    Parameters
+    ----------
+    chain : DHChain
+        The chain with ``n`` links.
+    q : (n,) ndarray
+        Joint values, rad or m.
+
+    Returns
+    -------
+    J : (6, n) ndarray
+        ``[v; ω] = J @ qd``.
+    """
+    frames = chain_frames(chain, q)
+    p_tip = frames[-1, :3, 3]
+    n = chain.n_joints
+    J = np.zeros((6, n))
+    for i, link in enumerate(chain.links):
+        z = frames[i, :3, 2]
+        if link.joint_type is JointType.REVOLUTE:
+            J[:3, i] = np.cross(z, p_tip - frames[i, :3, 3])
+            J[3:, i] = z
+        else:
+            J[:3, i] = z
+    return J

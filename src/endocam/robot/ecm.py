@@ -1,0 +1,187 @@
+"""dVRK Classic ECM (endoscope camera manipulator, 4 DoF): FK and best-effort IK.
+
+Joint order: ``yaw, pitch, insertion, roll`` (rad, rad, m, rad). Base frame: the RCM.
+
+Tool-tip / camera frame. The chain ends with an identity tool-tip offset, so the ECM's tip
+frame is the last DH frame: its origin is on the scope axis at distance
+``insertion + (0.3829 − 0.3822)`` m from the RCM and its **z axis points along the scope,
+away from the RCM** — the viewing direction of a 0° endoscope. For a straight scope this is
+an OpenCV-style optical frame (z forward); the image's x/y turn with the roll joint. A
+different optical mount (e.g. a 30° scope) is a ``T_tip_cam`` given to
+:meth:`~endocam.robot.kinematics.RcmArm.solve_camera`. Whatever the mount, the optical axis
+of a straight scope passes through the RCM.
+
+IK (position first, closed form). With 4 DoF the ECM cannot reach a general 6-DoF goal:
+
+1. the scope axis is put through the goal position ``p``: shaft direction ``p / |p|``,
+   insertion ``|p| − 0.0007`` m, yaw and pitch from the direction
+   ``(sin q1 cos q2, −sin q2, −cos q1 cos q2)``;
+2. the roll maximises ``trace(R_goal^T R(q))``, i.e. minimises the remaining orientation error
+   (closed form ``atan2``).
+
+The residual orientation error is therefore zero exactly when the goal's optical axis passes
+through the RCM (``z_goal = p / |p|``), and it is reported otherwise (status
+``UNREACHABLE``). Joint limits clamp yaw/pitch/insertion (then a bounded least-squares
+solve restores the closest reachable position) and roll (to its nearer limit).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+from endocam.robot.dh import DHChain, DHLink, JointType, chain_forward, compose_links
+from endocam.robot.ik import IKResult, IKStatus, rotation_angle_between
+from endocam.robot.kinematics import (
+    LIMIT_SLACK,
+    RcmArm,
+    branch_in_limits,
+    check_pose,
+    invert_pose,
+)
+
+__all__ = ["ECM", "ECM_CHAIN"]
+
+FloatArray = NDArray[np.float64]
+
+_HALF_PI = math.pi / 2.0  # rad; the dVRK's 1.5708, as its parser reads it
+_R = JointType.REVOLUTE
+_P = JointType.PRISMATIC
+
+ECM_CHAIN = DHChain(
+    links=(
+        DHLink("yaw", _HALF_PI, 0.0, 0.0, 0.0, _HALF_PI, _R, -1.5708, 1.5708),
+        DHLink("pitch", -_HALF_PI, 0.0, 0.0, 0.0, -_HALF_PI, _R, -0.76794, 1.1344),
+        DHLink("insertion", _HALF_PI, 0.0, 0.0, 0.0, -0.3822, _P, 0.0, 0.255),
+        DHLink("roll", 0.0, 0.0, 0.3829, 0.0, 0.0, _R, -1.552, 1.552),
+    ),
+    T_last_tip=np.eye(4),
+)
+"""The Classic ECM's modified-DH chain, base frame = RCM, identity tool-tip offset."""
+
+_EPS_GEOM = 1e-9  # m: a goal this close to the RCM has no defined shaft direction
+
+
+def clamp_angle_to_limits(angle: float, reference: float, lower: float, upper: float) -> float:
+    """In-limit angle closest (on the circle) to ``angle``.
+
+    Parameters
+    ----------
+    angle : float
+        Desired angle, rad.
+    reference : float
+        Preferred branch when several 2π-equivalents lie inside the limits, rad.
+    lower, upper : float
+        Joint limits, rad.
+
+    Returns
+    -------
+    float
+        An angle in ``[lower, upper]``, rad: an exact equivalent of ``angle`` when one
+        exists, otherwise the limit with the smaller angular distance.
+    """
+    chosen = branch_in_limits(angle, reference, lower, upper)
+    if lower - LIMIT_SLACK <= chosen <= upper + LIMIT_SLACK:
+        return min(max(chosen, lower), upper)
+
+    def circ_dist(a: float) -> float:
+        return abs(math.remainder(a - angle, 2.0 * math.pi))
+
+    return lower if circ_dist(lower) <= circ_dist(upper) else upper
+
+
+class ECM(RcmArm):
+    """dVRK Classic ECM (4 DoF) with a straight scope.
+
+    Parameters
+    ----------
+    chain : DHChain, optional
+        Kinematic chain; defaults to :data:`ECM_CHAIN` (structure must match).
+    """
+
+    def __init__(self, chain: DHChain = ECM_CHAIN) -> None:
+        super().__init__(chain)
+        if len(chain.links) != 4:
+            raise ValueError("chain: the ECM closed form needs 4 links")
+        links = chain.links
+        self._T_tip_inv = invert_pose(chain.T_last_tip)
+        self._R_tool = chain.T_last_tip[:3, :3].copy()
+        self._shaft_offset = links[2].offset + links[3].D  # m, tip on axis at insertion 0
+
+    def solve(self, T_rcm_tip: object, q_seed: object | None = None) -> IKResult:
+        """Position-first IK; the residual orientation error is reported, never hidden.
+
+        Parameters
+        ----------
+        T_rcm_tip : (4, 4) array_like
+            Goal camera (tip) pose in the RCM frame, m; z = viewing direction.
+        q_seed : (4,) array_like, optional
+            Preferred roll branch; default zero.
+
+        Returns
+        -------
+        IKResult
+            ``OK`` when the goal is reached (its optical axis passes through the RCM and the
+            joints are in limits); ``UNREACHABLE`` when the optical axis misses the RCM
+            (residual orientation error > 0); ``CLAMPED_TO_LIMITS`` when only joint limits
+            prevent it. ``q`` is always within the limits.
+        """
+        T_goal = check_pose(T_rcm_tip, "T_rcm_tip")
+        seed = self._seed(q_seed)
+        links = self._chain.links
+        T4 = T_goal @ self._T_tip_inv
+        p = T4[:3, 3]
+        r = float(np.linalg.norm(p))
+        shaft = p / r if r > _EPS_GEOM else T4[:3, 2]
+        q = np.zeros(4)
+        q[2] = r - self._shaft_offset
+        q[1] = -math.asin(max(-1.0, min(1.0, float(shaft[1]))))
+        q[0] = math.atan2(float(shaft[0]), float(-shaft[2]))
+        clamped = False
+        if not self.within_limits(np.append(q[:3], 0.0)):
+            clamped = True
+            q[:3] = self._nearest_position(p, self.clamp(q)[:3])
+        theta4, R_free = self._best_roll(T_goal, q)
+        exact_orientation = rotation_angle_between(T_goal[:3, :3], R_free) <= 1e-9
+        q[3] = clamp_angle_to_limits(
+            theta4 - links[3].offset, float(seed[3]), links[3].lower, links[3].upper
+        )
+        if abs(math.remainder(q[3] + links[3].offset - theta4, 2.0 * math.pi)) > LIMIT_SLACK:
+            clamped = True
+        q = self.clamp(q)
+        if not exact_orientation:
+            status = IKStatus.UNREACHABLE
+        elif clamped:
+            status = IKStatus.CLAMPED_TO_LIMITS
+        else:
+            status = IKStatus.OK
+        result = self._result(q, T_goal, status)
+        if status is IKStatus.OK and not self._reached(T_goal, result.T_rcm_tip):
+            return self._result(q, T_goal, IKStatus.UNREACHABLE, result.T_rcm_tip)
+        return result
+
+    def _best_roll(self, T_goal: FloatArray, q: FloatArray) -> tuple[float, FloatArray]:
+        """Roll angle θ4 (rad) maximising trace(R_goal^T R) and the rotation it gives."""
+        a = compose_links(self._chain, q.tolist(), 0, 3)
+        R3 = np.array(a[:9]).reshape(3, 3)
+        M = self._R_tool @ T_goal[:3, :3].T @ R3
+        theta4 = math.atan2(float(M[0, 1] - M[1, 0]), float(M[0, 0] + M[1, 1]))
+        c, s = math.cos(theta4), math.sin(theta4)
+        Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return theta4, R3 @ Rz @ self._R_tool
+
+    def _nearest_position(self, p_goal: FloatArray, q0: FloatArray) -> FloatArray:
+        """Yaw, pitch, insertion within limits whose tip is closest to ``p_goal`` (m)."""
+        lo, hi = self._lower[:3], self._upper[:3]
+        span = hi - lo
+        x0 = np.clip(q0, lo + 1e-9 * span, hi - 1e-9 * span)
+
+        def residual(x: FloatArray) -> FloatArray:
+            q = np.append(x, 0.0)
+            return chain_forward(self._chain, q)[:3, 3] - p_goal
+
+        sol = least_squares(residual, x0, bounds=(lo, hi), method="trf", xtol=1e-12, ftol=1e-12)
+        return np.clip(np.asarray(sol.x, dtype=np.float64), lo, hi)

@@ -1,0 +1,167 @@
+"""Inverse-kinematics results, statuses and pose-error helpers shared by the arms."""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "IK_ORIENTATION_TOL_RAD",
+    "IK_POSITION_TOL_M",
+    "IKResult",
+    "IKStatus",
+    "UnreachableError",
+    "pose_error",
+    "rotation_angle_between",
+    "within_tolerance",
+]
+
+FloatArray = NDArray[np.float64]
+
+IK_POSITION_TOL_M = 1e-7  # m: a pose closer than this is "reached"
+IK_ORIENTATION_TOL_RAD = 1e-7  # rad: an orientation closer than this is "reached"
+
+
+def within_tolerance(position_error: float, orientation_error: float) -> bool:
+    """True if both residuals are within the IK tolerances (m, rad)."""
+    return position_error <= IK_POSITION_TOL_M and orientation_error <= IK_ORIENTATION_TOL_RAD
+
+
+class IKStatus(enum.Enum):
+    """Outcome of an inverse-kinematics request.
+
+    Precedence: ``UNREACHABLE`` (no exact solution even with unlimited joints) over
+    ``CLAMPED_TO_LIMITS`` (an exact solution exists but violates joint limits) over ``OK``.
+    """
+
+    OK = "ok"
+    """Pose reached within tolerance, joints within limits."""
+    CLAMPED_TO_LIMITS = "clamped_to_limits"
+    """Joint limits prevent the pose; ``q`` is the nearest feasible configuration."""
+    UNREACHABLE = "unreachable"
+    """The arm's geometry cannot reach the pose; ``q`` is the nearest feasible configuration."""
+
+
+@dataclass(frozen=True)
+class IKResult:
+    """Immutable result of an IK solve.
+
+    Attributes
+    ----------
+    q : (n,) ndarray
+        Joint values within the joint limits, rad / m. The exact solution when ``status`` is
+        ``OK``, otherwise the nearest feasible configuration found.
+    status : IKStatus
+        Outcome.
+    position_error : float
+        ``|p_goal - p(q)|``, m.
+    orientation_error : float
+        Angle of ``R_goal^T R(q)``, rad.
+    T_rcm_tip : (4, 4) ndarray
+        ``forward(q)``: the pose actually reached, in the RCM frame, m.
+    """
+
+    q: FloatArray
+    status: IKStatus
+    position_error: float
+    orientation_error: float
+    T_rcm_tip: FloatArray
+
+    @property
+    def ok(self) -> bool:
+        """True when ``status`` is ``IKStatus.OK``."""
+        return self.status is IKStatus.OK
+
+
+class UnreachableError(ValueError):
+    """Raised by ``inverse`` when the requested pose cannot be reached exactly.
+
+    Attributes
+    ----------
+    result : IKResult
+        The nearest feasible configuration, its pose and its residual errors.
+    """
+
+    def __init__(self, result: IKResult) -> None:
+        self.result = result
+        super().__init__(
+            f"pose not reachable ({result.status.value}): nearest feasible pose leaves "
+            f"{result.position_error * 1e3:.3f} mm / "
+            f"{math.degrees(result.orientation_error):.3f} deg"
+        )
+
+    @property
+    def q(self) -> FloatArray:
+        """Nearest feasible joint values, (n,), rad / m."""
+        return self.result.q
+
+    @property
+    def T_rcm_tip(self) -> FloatArray:
+        """Pose at ``q``, (4, 4), RCM frame, m."""
+        return self.result.T_rcm_tip
+
+    @property
+    def position_error(self) -> float:
+        """Residual position error, m."""
+        return self.result.position_error
+
+    @property
+    def orientation_error(self) -> float:
+        """Residual orientation error, rad."""
+        return self.result.orientation_error
+
+
+def rotation_angle_between(R_a: FloatArray, R_b: FloatArray) -> float:
+    """Angle of the relative rotation ``R_a^T R_b``.
+
+    Uses ``atan2(|sin|, cos)`` from the skew and trace parts of ``M = R_a^T R_b``, which is
+    accurate near 0 and π (``arccos`` of the trace is not).
+
+    Parameters
+    ----------
+    R_a, R_b : (3, 3) ndarray
+        Rotation matrices in the same frame.
+
+    Returns
+    -------
+    float
+        Angle in [0, π], rad.
+    """
+    return _angle_between_rows(R_a.tolist(), R_b.tolist())
+
+
+def _angle_between_rows(A: list[list[float]], B: list[list[float]]) -> float:
+    # M_ij = sum_k A_ki B_kj
+    def m(i: int, j: int) -> float:
+        return A[0][i] * B[0][j] + A[1][i] * B[1][j] + A[2][i] * B[2][j]
+
+    s = 0.5 * math.sqrt(
+        (m(2, 1) - m(1, 2)) ** 2 + (m(0, 2) - m(2, 0)) ** 2 + (m(1, 0) - m(0, 1)) ** 2
+    )
+    c = 0.5 * (m(0, 0) + m(1, 1) + m(2, 2) - 1.0)
+    return math.atan2(s, c)
+
+
+def pose_error(T_goal: FloatArray, T: FloatArray) -> tuple[float, float]:
+    """Position and orientation distance between two poses in the same frame.
+
+    Parameters
+    ----------
+    T_goal, T : (4, 4) ndarray
+        Poses, m.
+
+    Returns
+    -------
+    position_error : float
+        Distance between the origins, m.
+    orientation_error : float
+        Angle between the rotations, rad.
+    """
+    A = T_goal.tolist()
+    B = T.tolist()
+    d0, d1, d2 = A[0][3] - B[0][3], A[1][3] - B[1][3], A[2][3] - B[2][3]
+    return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), _angle_between_rows(A, B)

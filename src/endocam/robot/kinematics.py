@@ -1,0 +1,413 @@
+"""Common machinery for arms with a remote centre of motion (dVRK PSM and ECM).
+
+:class:`RcmArm` wraps a :class:`~endocam.robot.dh.DHChain` whose base frame is the RCM. It
+validates inputs, evaluates FK and the Jacobian, and provides a bounded nearest-feasible
+solver used when the closed-form IK of a subclass cannot return an exact, in-limit solution.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from endocam.robot.dh import (
+    DHChain,
+    JointType,
+    chain_forward,
+    chain_frames,
+    check_finite,
+    geometric_jacobian,
+)
+from endocam.robot.ik import (
+    IKResult,
+    IKStatus,
+    UnreachableError,
+    pose_error,
+    within_tolerance,
+)
+
+__all__ = ["ORIENTATION_WEIGHT_M_PER_RAD", "RcmArm", "check_pose", "invert_pose"]
+
+FloatArray = NDArray[np.float64]
+
+ORIENTATION_WEIGHT_M_PER_RAD = 0.05  # m/rad: 1 rad of orientation error weighs like 5 cm
+ROTATION_ORTHO_TOL = 1e-6  # 1: max |R^T R - I| entry accepted as a rotation
+LIMIT_SLACK = 1e-12  # rad or m: round-off tolerated at a joint limit
+_DLS_DAMPING = 1e-6  # damping (m) of the damped-least-squares polish
+_DLS_STEPS = 5  # polish iterations after a closed-form solution
+
+
+def check_pose(T: object, name: str) -> FloatArray:
+    """Validate a homogeneous transform.
+
+    Parameters
+    ----------
+    T : array_like
+        Candidate (4, 4) pose, m.
+    name : str
+        Argument name for error messages.
+
+    Returns
+    -------
+    (4, 4) ndarray
+        ``T`` as float64.
+
+    Raises
+    ------
+    ValueError
+        If ``T`` is not a finite (4, 4) matrix with a rotation block and bottom row (0, 0, 0, 1).
+    """
+    arr = check_finite(T, name, (4, 4))
+    (a, b, c, _), (d, e, f, _), (g, h, i, _), bottom = arr.tolist()
+    if (
+        max(abs(bottom[0]), abs(bottom[1]), abs(bottom[2]), abs(bottom[3] - 1.0))
+        > ROTATION_ORTHO_TOL
+    ):
+        raise ValueError(f"{name}: bottom row must be (0, 0, 0, 1)")
+    gram = (
+        a * a + d * d + g * g - 1.0,
+        b * b + e * e + h * h - 1.0,
+        c * c + f * f + i * i - 1.0,
+        a * b + d * e + g * h,
+        a * c + d * f + g * i,
+        b * c + e * f + h * i,
+    )
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if max(abs(x) for x in gram) > ROTATION_ORTHO_TOL or det < 0.0:
+        raise ValueError(f"{name}: upper-left 3x3 block is not a rotation matrix")
+    return arr
+
+
+def invert_pose(T_a_b: FloatArray) -> FloatArray:
+    """Inverse of a rigid transform.
+
+    Parameters
+    ----------
+    T_a_b : (4, 4) ndarray
+        Pose of b in a, m.
+
+    Returns
+    -------
+    T_b_a : (4, 4) ndarray
+        Pose of a in b, m.
+    """
+    out = np.eye(4)
+    R_t = T_a_b[:3, :3].T
+    out[:3, :3] = R_t
+    out[:3, 3] = -R_t @ T_a_b[:3, 3]
+    return out
+
+
+def wrap_to_nearest(angle: float, reference: float) -> float:
+    """Add a multiple of 2π to ``angle`` to bring it closest to ``reference`` (rad)."""
+    return angle + 2.0 * math.pi * round((reference - angle) / (2.0 * math.pi))
+
+
+def branch_in_limits(angle: float, reference: float, lower: float, upper: float) -> float:
+    """The 2π-equivalent of ``angle`` inside ``[lower, upper]`` closest to ``reference``.
+
+    Falls back to the equivalent closest to ``reference`` when none is inside the limits.
+
+    Parameters
+    ----------
+    angle, reference, lower, upper : float
+        Angles, rad.
+
+    Returns
+    -------
+    float
+        The chosen angle, rad.
+    """
+    two_pi = 2.0 * math.pi
+    best = wrap_to_nearest(angle, reference)
+    if lower - LIMIT_SLACK <= best <= upper + LIMIT_SLACK:
+        return best
+    k_lo = math.ceil((lower - LIMIT_SLACK - angle) / two_pi)
+    k_hi = math.floor((upper + LIMIT_SLACK - angle) / two_pi)
+    candidates = [angle + two_pi * k for k in range(k_lo, k_hi + 1)]
+    if not candidates:
+        return best
+    return min(candidates, key=lambda a: abs(a - reference))
+
+
+class RcmArm(abc.ABC):
+    """An arm whose kinematic base frame is its remote centre of motion.
+
+    Parameters
+    ----------
+    chain : DHChain
+        Modified-DH chain, base frame = RCM, followed by the tool-tip offset.
+    """
+
+    def __init__(self, chain: DHChain) -> None:
+        self._chain = chain
+        self._lower = chain.lower
+        self._upper = chain.upper
+        self._lower.setflags(write=False)
+        self._upper.setflags(write=False)
+        self._lower_slack = self._lower - LIMIT_SLACK
+        self._upper_slack = self._upper + LIMIT_SLACK
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def chain(self) -> DHChain:
+        """The modified-DH chain (base = RCM frame)."""
+        return self._chain
+
+    @property
+    def n_joints(self) -> int:
+        """Number of joints."""
+        return self._chain.n_joints
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Joint names from the base outwards."""
+        return self._chain.names
+
+    @property
+    def lower(self) -> FloatArray:
+        """Lower joint limits, (n,), rad / m (read-only)."""
+        return self._lower
+
+    @property
+    def upper(self) -> FloatArray:
+        """Upper joint limits, (n,), rad / m (read-only)."""
+        return self._upper
+
+    @property
+    def prismatic(self) -> tuple[bool, ...]:
+        """Per joint, True for a prismatic (m) joint, False for a revolute (rad) one."""
+        return tuple(lk.joint_type is JointType.PRISMATIC for lk in self._chain.links)
+
+    # ------------------------------------------------------------------ helpers
+    def check_q(self, q: object, name: str = "q") -> FloatArray:
+        """Validate joint values: shape (n,), finite. Raises ValueError naming ``name``."""
+        return check_finite(q, name, (self.n_joints,))
+
+    def within_limits(self, q: FloatArray) -> bool:
+        """True if every joint of ``q`` (n,) lies within its limits (round-off tolerated)."""
+        return bool((q >= self._lower_slack).all() and (q <= self._upper_slack).all())
+
+    def clamp(self, q: FloatArray) -> FloatArray:
+        """Clip ``q`` (n,) into the joint limits, rad / m."""
+        return np.clip(q, self._lower, self._upper)
+
+    def default_seed(self) -> FloatArray:
+        """Seed used when none is given: zero clipped into the limits, (n,)."""
+        return self.clamp(np.zeros(self.n_joints))
+
+    # ------------------------------------------------------------------ kinematics
+    def forward(self, q: object) -> FloatArray:
+        """Forward kinematics.
+
+        Parameters
+        ----------
+        q : (n,) array_like
+            Joint values, rad (revolute) / m (prismatic).
+
+        Returns
+        -------
+        T_rcm_tip : (4, 4) ndarray
+            Tool-tip pose in the RCM frame, m.
+        """
+        return chain_forward(self._chain, self.check_q(q))
+
+    def frames(self, q: object) -> FloatArray:
+        """Poses of all link frames and the tip, ``(n + 1, 4, 4)``, RCM frame, m."""
+        return chain_frames(self._chain, self.check_q(q))
+
+    def jacobian(self, q: object) -> FloatArray:
+        """Geometric Jacobian of the tool tip, expressed in the RCM frame.
+
+        Parameters
+        ----------
+        q : (n,) array_like
+            Joint values, rad / m.
+
+        Returns
+        -------
+        J : (6, n) ndarray
+            Rows 0–2: linear velocity of the tip origin (m/s); rows 3–5: angular velocity
+            (rad/s); both in the RCM frame, per unit joint velocity (rad/s or m/s).
+        """
+        return geometric_jacobian(self._chain, self.check_q(q))
+
+    def forward_camera(self, q: object, T_tip_cam: object) -> FloatArray:
+        """Camera pose for a camera mounted at ``T_tip_cam`` on the tip.
+
+        Parameters
+        ----------
+        q : (n,) array_like
+            Joint values, rad / m.
+        T_tip_cam : (4, 4) array_like
+            Camera pose in the tool-tip frame, m.
+
+        Returns
+        -------
+        T_rcm_cam : (4, 4) ndarray
+            Camera pose in the RCM frame, m.
+        """
+        return self.forward(q) @ check_pose(T_tip_cam, "T_tip_cam")
+
+    # ------------------------------------------------------------------ inverse
+    @abc.abstractmethod
+    def solve(self, T_rcm_tip: object, q_seed: object | None = None) -> IKResult:
+        """Inverse kinematics that never raises for a valid, unreachable pose.
+
+        Parameters
+        ----------
+        T_rcm_tip : (4, 4) array_like
+            Goal tool-tip pose in the RCM frame, m.
+        q_seed : (n,) array_like, optional
+            Joint values whose solution branch is preferred (e.g. the current joints).
+
+        Returns
+        -------
+        IKResult
+            Joint values inside the limits, status and residual errors.
+        """
+
+    def inverse(self, T_rcm_tip: object, q_seed: object | None = None) -> FloatArray:
+        """Inverse kinematics that raises when the pose cannot be reached exactly.
+
+        Parameters
+        ----------
+        T_rcm_tip : (4, 4) array_like
+            Goal tool-tip pose in the RCM frame, m.
+        q_seed : (n,) array_like, optional
+            Joint values whose solution branch is preferred.
+
+        Returns
+        -------
+        q : (n,) ndarray
+            Joint values within the limits, rad / m.
+
+        Raises
+        ------
+        UnreachableError
+            Carrying the nearest feasible ``q``, its pose and the residual errors.
+        ValueError
+            For malformed or non-finite input.
+        """
+        result = self.solve(T_rcm_tip, q_seed)
+        if result.status is not IKStatus.OK:
+            raise UnreachableError(result)
+        return result.q
+
+    def solve_camera(
+        self, T_rcm_cam: object, T_tip_cam: object, q_seed: object | None = None
+    ) -> IKResult:
+        """IK for a camera mounted on the tip: goal camera pose → joint values.
+
+        Parameters
+        ----------
+        T_rcm_cam : (4, 4) array_like
+            Goal camera pose in the RCM frame, m.
+        T_tip_cam : (4, 4) array_like
+            Camera pose in the tool-tip frame, m.
+        q_seed : (n,) array_like, optional
+            Preferred branch.
+
+        Returns
+        -------
+        IKResult
+            As :meth:`solve`; ``T_rcm_tip`` and the errors refer to the tip. Because the
+            mount is rigid, the orientation error equals the camera's, and the position error
+            is the camera's when the tip orientation is reached.
+        """
+        T_goal = check_pose(T_rcm_cam, "T_rcm_cam")
+        T_mount = check_pose(T_tip_cam, "T_tip_cam")
+        return self.solve(T_goal @ invert_pose(T_mount), q_seed)
+
+    # ------------------------------------------------------------------ shared solvers
+    def _seed(self, q_seed: object | None) -> FloatArray:
+        if q_seed is None:
+            return self.default_seed()
+        return self.check_q(q_seed, "q_seed")
+
+    def _result(
+        self,
+        q: FloatArray,
+        T_goal: FloatArray,
+        status: IKStatus,
+        T: FloatArray | None = None,
+    ) -> IKResult:
+        if T is None:
+            T = chain_forward(self._chain, q)
+        pos_err, ang_err = pose_error(T_goal, T)
+        return IKResult(
+            q=q, status=status, position_error=pos_err, orientation_error=ang_err, T_rcm_tip=T
+        )
+
+    def _reached(self, T_goal: FloatArray, T: FloatArray) -> bool:
+        return within_tolerance(*pose_error(T_goal, T))
+
+    def _polish(self, q: FloatArray, T_goal: FloatArray) -> FloatArray:
+        """A few damped-least-squares steps from ``q`` towards ``T_goal`` (no limits)."""
+        for _ in range(_DLS_STEPS):
+            T = chain_forward(self._chain, q)
+            if self._reached(T_goal, T):
+                break
+            R_err = T_goal[:3, :3] @ T[:3, :3].T
+            err = np.concatenate(
+                [
+                    T_goal[:3, 3] - T[:3, 3],
+                    Rotation.from_matrix(R_err).as_rotvec(),
+                ]
+            )
+            J = geometric_jacobian(self._chain, q)
+            JJt = J @ J.T + _DLS_DAMPING**2 * np.eye(6)
+            q = q + J.T @ np.linalg.solve(JJt, err)
+        return q
+
+    def _pose_residual(self, q: FloatArray, T_goal: FloatArray, weight: float) -> FloatArray:
+        T = chain_forward(self._chain, q)
+        rot_err = Rotation.from_matrix(T_goal[:3, :3].T @ T[:3, :3]).as_rotvec()
+        return np.concatenate([T[:3, 3] - T_goal[:3, 3], weight * rot_err])
+
+    def nearest_feasible(
+        self,
+        T_goal: FloatArray,
+        q_start: FloatArray,
+        weight: float = ORIENTATION_WEIGHT_M_PER_RAD,
+    ) -> FloatArray:
+        """Joint values within limits minimising the weighted pose error to ``T_goal``.
+
+        Bounded nonlinear least squares (``scipy.optimize.least_squares``, trust-region
+        reflective) on ``[p(q) - p_goal, w · rotvec(R_goal^T R(q))]``, started from ``q_start``
+        clipped into the limits. A local minimum: start close to the goal's branch.
+
+        Parameters
+        ----------
+        T_goal : (4, 4) ndarray
+            Goal tip pose, RCM frame, m.
+        q_start : (n,) ndarray
+            Starting joint values, rad / m.
+        weight : float
+            Orientation weight ``w``, m/rad.
+
+        Returns
+        -------
+        q : (n,) ndarray
+            Joint values inside the limits, rad / m.
+        """
+        span = self._upper - self._lower
+        x0 = np.clip(q_start, self._lower + 1e-9 * span, self._upper - 1e-9 * span)
+        sol = least_squares(
+            self._pose_residual,
+            x0,
+            bounds=(self._lower, self._upper),
+            args=(T_goal, weight),
+            method="trf",
+            x_scale=1.0,
+            xtol=1e-12,
+            ftol=1e-12,
+            gtol=1e-12,
+            max_nfev=200,
+        )
+        return self.clamp(np.asarray(sol.x, dtype=np.float64))

@@ -1,0 +1,192 @@
+"""dVRK Classic PSM carrying a PROGRASP_FORCEPS_420093 tool: FK, closed-form IK, Jacobian.
+
+Joint order: ``outer_yaw, outer_pitch, outer_insertion, roll, wrist_pitch, wrist_yaw``
+(rad, rad, m, rad, rad, rad). The jaw opening is not modelled. Base frame: the RCM.
+
+Closed-form IK (geometry of the modified-DH table below):
+
+1. ``T_rcm_6 = T_rcm_tip · T_tooltip⁻¹``; its origin ``p`` is the wrist-yaw frame origin and
+   its z axis ``z6`` the wrist-yaw axis.
+2. The wrist-pitch point ``p_w`` lies on the shaft (through the RCM) and
+   ``p = p_w + L · x5`` with ``L = 0.0107`` m and ``x5 ⟂ z6``; the shaft direction lies in
+   ``span(x5, z6)``, so ``x5`` is the unit component of ``p`` perpendicular to ``z6``
+   (``x5 · shaft = cos(wrist_pitch) > 0`` selects the sign).
+3. From ``p_w``: insertion ``= |p_w| − (D_roll + offset_insertion)``, and outer yaw / pitch
+   from the shaft direction ``(sin q1 cos q2, −sin q2, −cos q1 cos q2)``.
+4. With ``R_rcm_3`` known, ``z6`` expressed in frame 3 gives roll and wrist pitch; the rest
+   of the rotation gives wrist yaw.
+
+Revolute joints are moved by ±2π onto the branch inside the limits closest to ``q_seed``.
+The result is verified against ``forward``; if the exact solution violates joint limits,
+a bounded least-squares solve returns the nearest feasible configuration.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from endocam.robot.dh import DHChain, DHLink, JointType, chain_forward, compose_links
+from endocam.robot.ik import IKResult, IKStatus, pose_error, within_tolerance
+from endocam.robot.kinematics import (
+    RcmArm,
+    branch_in_limits,
+    check_pose,
+    invert_pose,
+)
+
+__all__ = ["PSM", "PSM_CHAIN", "PSM_TOOLTIP_OFFSET"]
+
+FloatArray = NDArray[np.float64]
+
+# The dVRK files write ±1.5708; cisst's robManipulator parser replaces that value by π/2,
+# so the kinematics the dVRK actually runs (and this module) use π/2 exactly.
+_HALF_PI = math.pi / 2.0  # rad
+_R = JointType.REVOLUTE
+_P = JointType.PRISMATIC
+
+PSM_TOOLTIP_OFFSET = np.array(
+    [[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+)
+"""T_wristyaw_tip, (4, 4): rotation only (ISI tool-tip convention)."""
+
+PSM_CHAIN = DHChain(
+    links=(
+        DHLink("outer_yaw", _HALF_PI, 0.0, 0.0, 0.0, _HALF_PI, _R, -4.71239, 4.71239),
+        DHLink("outer_pitch", -_HALF_PI, 0.0, 0.0, 0.0, -_HALF_PI, _R, -0.925025, 0.925025),
+        DHLink("outer_insertion", _HALF_PI, 0.0, 0.0, 0.0, -0.4318, _P, 0.0, 0.24),
+        DHLink("roll", 0.0, 0.0, 0.4670, 0.0, 0.0, _R, -4.53786, 4.53786),
+        DHLink("wrist_pitch", -_HALF_PI, 0.0, 0.0, 0.0, -_HALF_PI, _R, -1.39626, 1.39626),
+        DHLink("wrist_yaw", -_HALF_PI, 0.0107, 0.0, 0.0, -_HALF_PI, _R, -1.39626, 1.39626),
+    ),
+    T_last_tip=PSM_TOOLTIP_OFFSET,
+)
+"""The PSM's modified-DH chain, base frame = RCM (dVRK ``psm-pro-grasp`` values)."""
+
+_EPS_GEOM = 1e-9  # m: below this the wrist geometry is singular
+
+
+class PSM(RcmArm):
+    """dVRK Classic PSM with a PROGRASP_FORCEPS_420093 tool (6 DoF).
+
+    Parameters
+    ----------
+    chain : DHChain, optional
+        Kinematic chain; defaults to :data:`PSM_CHAIN`. A different chain must keep the
+        structure of the PSM table (the closed form depends on it).
+    """
+
+    def __init__(self, chain: DHChain = PSM_CHAIN) -> None:
+        super().__init__(chain)
+        links = chain.links
+        if len(links) != 6:
+            raise ValueError("chain: the PSM closed form needs 6 links")
+        self._T_tip_inv = invert_pose(chain.T_last_tip)
+        self._wrist_length = links[5].A  # m, wrist pitch → wrist yaw axis
+        self._shaft_offset = links[3].D + links[2].offset  # m, wrist point at insertion 0
+        self._cos_alpha6 = math.cos(links[5].alpha)
+        self._sin_alpha6 = math.sin(links[5].alpha)
+
+    def solve(self, T_rcm_tip: object, q_seed: object | None = None) -> IKResult:
+        """Closed-form IK verified by FK; nearest feasible configuration when needed.
+
+        Parameters
+        ----------
+        T_rcm_tip : (4, 4) array_like
+            Goal tool-tip pose in the RCM frame, m.
+        q_seed : (6,) array_like, optional
+            Preferred branch for the yaw and roll joints (±2π); default: zero.
+
+        Returns
+        -------
+        IKResult
+            ``OK`` with the exact solution; ``CLAMPED_TO_LIMITS`` when the exact solution
+            violates a joint limit; ``UNREACHABLE`` when the geometry is singular (tip on the
+            wrist-yaw axis line through the RCM, or wrist point at the RCM) and the numeric
+            fallback cannot reach the pose. Non-OK results hold the nearest feasible ``q``.
+        """
+        T_goal = check_pose(T_rcm_tip, "T_rcm_tip")
+        seed = self._seed(q_seed)
+        sol = self._closed_form(T_goal, seed)
+        if sol is not None:
+            q, T = sol
+            errors = pose_error(T_goal, T)
+            if not within_tolerance(*errors):  # round-off: polish a few DLS steps
+                q = self._polish(q, T_goal)
+                T = chain_forward(self._chain, q)
+                errors = pose_error(T_goal, T)
+            if within_tolerance(*errors):
+                if self.within_limits(q):
+                    return IKResult(
+                        q=self.clamp(q),
+                        status=IKStatus.OK,
+                        position_error=errors[0],
+                        orientation_error=errors[1],
+                        T_rcm_tip=T,
+                    )
+                q_near = self.nearest_feasible(T_goal, self.clamp(q))
+                return self._result(q_near, T_goal, IKStatus.CLAMPED_TO_LIMITS)
+        # singular wrist geometry (or a failed closed form): bounded numeric solve
+        q_near = self.nearest_feasible(T_goal, seed if sol is None else self.clamp(sol[0]))
+        T = chain_forward(self._chain, q_near)
+        status = IKStatus.OK if self._reached(T_goal, T) else IKStatus.UNREACHABLE
+        return self._result(q_near, T_goal, status, T)
+
+    def _closed_form(
+        self, T_goal: FloatArray, seed: FloatArray
+    ) -> tuple[FloatArray, FloatArray] | None:
+        """Exact joint values for ``T_goal`` ignoring limits, with ``forward(q)``.
+
+        Returns None when the wrist geometry is singular. Written on Python floats: at this
+        size they are several times cheaper than numpy 3-vectors.
+        """
+        links = self._chain.links
+        (
+            (x0, _, z0, p0),
+            (x1, _, z1, p1),
+            (x2, _, z2, p2),
+            _,
+        ) = (T_goal @ self._T_tip_inv).tolist()
+        # step 2: wrist-pitch point on the shaft
+        pz = p0 * z0 + p1 * z1 + p2 * z2
+        e0, e1, e2 = p0 - pz * z0, p1 - pz * z1, p2 - pz * z2
+        n_perp = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+        L = self._wrist_length
+        if n_perp - L <= _EPS_GEOM:
+            return None
+        k = L / n_perp
+        w0, w1, w2 = p0 - k * e0, p1 - k * e1, p2 - k * e2
+        r = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        if r <= _EPS_GEOM:
+            return None
+        # step 3: outer yaw, pitch, insertion from the shaft direction
+        q3 = r - self._shaft_offset
+        q2 = -math.asin(max(-1.0, min(1.0, w1 / r)))
+        q1 = branch_in_limits(math.atan2(w0, -w2), float(seed[0]), links[0].lower, links[0].upper)
+        q = [q1, q2, q3, 0.0, 0.0, 0.0]
+        a00, a01, a02, a10, a11, a12, a20, a21, a22 = compose_links(self._chain, q, 0, 3)[:9]
+        # step 4: wrist-yaw axis in frame 3 = (-cos θ4 sin θ5, -sin θ4 sin θ5, -cos θ5)
+        v0 = a00 * z0 + a10 * z1 + a20 * z2
+        v1 = a01 * z0 + a11 * z1 + a21 * z2
+        v2 = a02 * z0 + a12 * z1 + a22 * z2
+        theta5 = math.atan2(-math.hypot(v0, v1), -v2)  # sin θ5 < 0 inside the limits
+        theta4 = math.atan2(v1, v0)
+        q[3] = branch_in_limits(
+            theta4 - links[3].offset, float(seed[3]), links[3].lower, links[3].upper
+        )
+        q[4] = branch_in_limits(theta5 - links[4].offset, 0.0, links[4].lower, links[4].upper)
+        b00, b01, b02, b10, b11, b12, b20, b21, b22 = compose_links(self._chain, q, 3, 5)[:9]
+        # x6 in frame 3, then in frame 5; RotX(alpha6)^T of it is (cos θ6, sin θ6, 0)
+        c0 = a00 * x0 + a10 * x1 + a20 * x2
+        c1 = a01 * x0 + a11 * x1 + a21 * x2
+        c2 = a02 * x0 + a12 * x1 + a22 * x2
+        u0 = b00 * c0 + b10 * c1 + b20 * c2
+        u1 = b01 * c0 + b11 * c1 + b21 * c2
+        u2 = b02 * c0 + b12 * c1 + b22 * c2
+        ca6, sa6 = self._cos_alpha6, self._sin_alpha6
+        theta6 = math.atan2(ca6 * u1 + sa6 * u2, u0)
+        q[5] = branch_in_limits(theta6 - links[5].offset, 0.0, links[5].lower, links[5].upper)
+        q_arr = np.array(q)
+        return q_arr, chain_forward(self._chain, q_arr)

@@ -1,0 +1,356 @@
+"""Tests of the dVRK PSM / ECM kinematics (endocam.robot)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from endocam.robot import ECM, PSM, IKStatus, UnreachableError
+from endocam.robot.dh import DHLink, JointType, chain_forward, link_transform
+from endocam.robot.kinematics import ORIENTATION_WEIGHT_M_PER_RAD
+
+EPS = np.finfo(np.float64).eps
+ATOL_M = 1e-9  # m: FK / IK agreement on positions (sub-nanometre)
+ATOL_RAD = 1e-9  # rad: FK / IK agreement on orientations
+FD_STEP = 1e-6  # rad or m: central-difference step
+FD_ATOL = 1e-8  # Jacobian entries: O(FD_STEP**2) truncation + round-off / FD_STEP
+
+PSM_ARM = PSM()
+ECM_ARM = ECM()
+SHAFT_AT_ZERO_INSERTION = 0.4670 - 0.4318  # m, wrist point beyond the RCM at insertion 0
+WRIST_LENGTH = 0.0107  # m
+
+
+def _rot_x(a: float) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("x", a).as_matrix()
+    return T
+
+
+def _rot_z(a: float) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("z", a).as_matrix()
+    return T
+
+
+def _trans(axis: int, d: float) -> np.ndarray:
+    T = np.eye(4)
+    T[axis, 3] = d
+    return T
+
+
+def _random_q(arm: PSM | ECM, rng: np.random.Generator, margin: float = 0.0) -> np.ndarray:
+    span = arm.upper - arm.lower
+    return rng.uniform(arm.lower + margin * span, arm.upper - margin * span)
+
+
+def _shaft_direction(q1: float, q2: float) -> np.ndarray:
+    return np.array([math.sin(q1) * math.cos(q2), -math.sin(q2), -math.cos(q1) * math.cos(q2)])
+
+
+# ---------------------------------------------------------------------------- DH / FK
+def test_link_transform_is_craig_product() -> None:
+    rng = np.random.default_rng(0)
+    for joint_type in JointType:
+        for _ in range(20):
+            alpha, a_len, d, theta, offset, q = rng.uniform(-2.0, 2.0, 6)
+            link = DHLink("j", alpha, a_len, d, theta, offset, joint_type, -10.0, 10.0)
+            if joint_type is JointType.REVOLUTE:
+                th, dd = q + offset, d
+            else:
+                th, dd = theta, q + offset
+            expected = _rot_x(alpha) @ _trans(0, a_len) @ _rot_z(th) @ _trans(2, dd)
+            np.testing.assert_allclose(link_transform(link, q), expected, atol=10 * EPS)
+
+
+@pytest.mark.parametrize("arm", [PSM_ARM, ECM_ARM], ids=["psm", "ecm"])
+def test_fast_fk_equals_link_product(arm: PSM | ECM) -> None:
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        q = _random_q(arm, rng)
+        T = np.eye(4)
+        for link, qi in zip(arm.chain.links, q, strict=True):
+            T = T @ link_transform(link, float(qi))
+        T = T @ arm.chain.T_last_tip
+        np.testing.assert_allclose(chain_forward(arm.chain, q), T, atol=ATOL_M)
+        np.testing.assert_allclose(arm.frames(q)[-1], T, atol=ATOL_M)
+
+
+def test_psm_zero_pose() -> None:
+    T = PSM_ARM.forward(np.zeros(6))
+    # shaft straight down (-z of the RCM frame); wrist point 0.0352 m past the RCM and the
+    # jaw link (0.0107 m) straight on; tip z along the shaft, x/y from the ISI tool-tip offset
+    expected = np.array(
+        [
+            [0.0, 1.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 0.0, -1.0, -(SHAFT_AT_ZERO_INSERTION + WRIST_LENGTH)],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
+    np.testing.assert_allclose(T, expected, atol=ATOL_M)
+
+
+def test_psm_pure_insertion_moves_tip_along_shaft() -> None:
+    rng = np.random.default_rng(2)
+    for _ in range(30):
+        q = _random_q(PSM_ARM, rng, margin=0.1)
+        dq = rng.uniform(-0.02, 0.02)
+        q2 = q.copy()
+        q2[2] += dq
+        T1, T2 = PSM_ARM.forward(q), PSM_ARM.forward(q2)
+        shaft = _shaft_direction(q[0], q[1])
+        np.testing.assert_allclose(T2[:3, 3] - T1[:3, 3], dq * shaft, atol=ATOL_M)
+        np.testing.assert_allclose(T2[:3, :3], T1[:3, :3], atol=ATOL_RAD)
+
+
+def test_psm_shaft_passes_through_rcm() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        q = _random_q(PSM_ARM, rng)
+        frames = PSM_ARM.frames(q)
+        p_wrist = frames[3, :3, 3]  # roll frame origin = wrist-pitch point
+        shaft = frames[2, :3, 2]
+        np.testing.assert_allclose(np.cross(p_wrist, shaft), 0.0, atol=ATOL_M)
+        assert np.linalg.norm(p_wrist) == pytest.approx(q[2] + SHAFT_AT_ZERO_INSERTION)
+        np.testing.assert_allclose(shaft, _shaft_direction(q[0], q[1]), atol=ATOL_RAD)
+
+
+def test_ecm_zero_pose_and_axis_through_rcm() -> None:
+    T = ECM_ARM.forward(np.zeros(4))
+    np.testing.assert_allclose(T[:3, 2], [0.0, 0.0, -1.0], atol=ATOL_RAD)
+    np.testing.assert_allclose(T[:3, 3], [0.0, 0.0, -(0.3829 - 0.3822)], atol=ATOL_M)
+    rng = np.random.default_rng(4)
+    for _ in range(30):
+        T = ECM_ARM.forward(_random_q(ECM_ARM, rng))
+        np.testing.assert_allclose(np.cross(T[:3, 3], T[:3, 2]), 0.0, atol=ATOL_M)
+
+
+# ---------------------------------------------------------------------------- PSM IK
+def test_psm_ik_round_trip_random() -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        q = _random_q(PSM_ARM, rng)
+        T = PSM_ARM.forward(q)
+        res = PSM_ARM.solve(T, q_seed=q)
+        assert res.status is IKStatus.OK
+        np.testing.assert_allclose(res.q, q, atol=1e-7)
+        np.testing.assert_allclose(PSM_ARM.forward(res.q), T, atol=ATOL_M)
+        assert res.position_error < ATOL_M
+        assert res.orientation_error < ATOL_RAD
+        q_any = PSM_ARM.inverse(T)  # default seed: pose must still match
+        np.testing.assert_allclose(PSM_ARM.forward(q_any), T, atol=ATOL_M)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.tuples(
+        *[
+            st.floats(lo, hi)
+            for lo, hi in zip(PSM_ARM.lower * 0.999, PSM_ARM.upper * 0.999, strict=True)
+        ]
+    )
+)
+def test_psm_ik_round_trip_property(q_tuple: tuple[float, ...]) -> None:
+    q = np.array(q_tuple)
+    T = PSM_ARM.forward(q)
+    q_sol = PSM_ARM.inverse(T, q_seed=q)
+    np.testing.assert_allclose(PSM_ARM.forward(q_sol), T, atol=ATOL_M)
+
+
+def test_psm_ik_picks_branch_closest_to_seed() -> None:
+    q = np.array([4.0, 0.2, 0.1, -4.0, 0.3, -0.2])  # yaw / roll beyond ±π
+    T = PSM_ARM.forward(q)
+    np.testing.assert_allclose(PSM_ARM.inverse(T, q_seed=q), q, atol=1e-7)
+    q_alt = q.copy()
+    q_alt[0] -= 2 * math.pi
+    q_alt[3] += 2 * math.pi
+    np.testing.assert_allclose(PSM_ARM.inverse(T, q_seed=q_alt), q_alt, atol=1e-7)
+
+
+def test_psm_unreachable_insertion_raises_with_nearest_feasible() -> None:
+    q_far = np.array([0.2, -0.1, 0.30, 0.4, 0.2, -0.1])  # insertion beyond 0.24 m
+    T = chain_forward(PSM_ARM.chain, q_far)
+    with pytest.raises(UnreachableError) as info:
+        PSM_ARM.inverse(T)
+    err = info.value
+    assert isinstance(err, ValueError)
+    assert err.result.status is IKStatus.CLAMPED_TO_LIMITS
+    assert PSM_ARM.within_limits(err.q)
+    assert err.q[2] == pytest.approx(PSM_ARM.upper[2])
+    np.testing.assert_allclose(err.T_rcm_tip, PSM_ARM.forward(err.q), atol=ATOL_M)
+    # the shortfall is about the missing insertion (the weighted optimum may trade a little)
+    shortfall = 0.30 - 0.24
+    assert 0.9 * shortfall < err.position_error <= shortfall + ATOL_M
+    assert _cost(err.position_error, err.orientation_error) <= shortfall + ATOL_M
+    res = PSM_ARM.solve(T)
+    assert res.status is IKStatus.CLAMPED_TO_LIMITS
+    np.testing.assert_allclose(res.q, err.q, atol=1e-9)
+
+
+def test_psm_unreachable_wrist_limit_gives_nearest_feasible() -> None:
+    q_far = np.array([0.1, 0.1, 0.1, 0.2, 1.5, 0.0])  # wrist pitch beyond 1.396 rad
+    T = chain_forward(PSM_ARM.chain, q_far)
+    res = PSM_ARM.solve(T, q_seed=np.zeros(6))
+    assert res.status is IKStatus.CLAMPED_TO_LIMITS
+    assert PSM_ARM.within_limits(res.q)
+    assert res.position_error > 0.0 or res.orientation_error > 0.0
+    # nearest feasible is no worse than simply clamping the exact solution
+    clamped = PSM_ARM.clamp(q_far)
+    clamp_cost = _cost(*_errors(T, PSM_ARM.forward(clamped)))
+    assert _cost(res.position_error, res.orientation_error) <= clamp_cost + ATOL_M
+
+
+def _cost(position_error: float, orientation_error: float) -> float:
+    """The weighted residual norm the nearest-feasible solve minimises, m."""
+    return math.hypot(position_error, ORIENTATION_WEIGHT_M_PER_RAD * orientation_error)
+
+
+def _errors(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+    pos = float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]))
+    ang = float(Rotation.from_matrix(T_a[:3, :3].T @ T_b[:3, :3]).magnitude())
+    return pos, ang
+
+
+def test_psm_pose_at_rcm_is_unreachable() -> None:
+    T = np.eye(4)  # tip at the RCM: the wrist point cannot get there
+    res = PSM_ARM.solve(T)
+    assert res.status is IKStatus.UNREACHABLE
+    assert PSM_ARM.within_limits(res.q)
+    assert res.position_error > 0.01
+
+
+def test_solve_camera_round_trip() -> None:
+    rng = np.random.default_rng(6)
+    T_tip_cam = np.eye(4)
+    T_tip_cam[:3, :3] = Rotation.from_rotvec([0.1, -0.3, 0.2]).as_matrix()
+    T_tip_cam[:3, 3] = [0.002, -0.001, 0.005]
+    for _ in range(30):
+        q = _random_q(PSM_ARM, rng)
+        T_rcm_cam = PSM_ARM.forward(q) @ T_tip_cam
+        res = PSM_ARM.solve_camera(T_rcm_cam, T_tip_cam, q_seed=q)
+        assert res.ok
+        np.testing.assert_allclose(PSM_ARM.forward_camera(res.q, T_tip_cam), T_rcm_cam, atol=ATOL_M)
+
+
+# ---------------------------------------------------------------------------- Jacobian
+def _fd_jacobian_error(arm: PSM | ECM, J: np.ndarray, q: np.ndarray) -> float:
+    """Max |J - J_fd| using central differences of position and rotation."""
+    worst = 0.0
+    for i in range(arm.n_joints):
+        dq = np.zeros(arm.n_joints)
+        dq[i] = FD_STEP
+        Tp, Tm = arm.forward(q + dq), arm.forward(q - dq)
+        v = (Tp[:3, 3] - Tm[:3, 3]) / (2 * FD_STEP)
+        w = Rotation.from_matrix(Tp[:3, :3] @ Tm[:3, :3].T).as_rotvec() / (2 * FD_STEP)
+        worst = max(worst, float(np.abs(J[:, i] - np.concatenate([v, w])).max()))
+    return worst
+
+
+@pytest.mark.parametrize("arm", [PSM_ARM, ECM_ARM], ids=["psm", "ecm"])
+def test_jacobian_matches_finite_differences(arm: PSM | ECM) -> None:
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        q = _random_q(arm, rng, margin=0.01)
+        J = arm.jacobian(q)
+        assert J.shape == (6, arm.n_joints)
+        assert _fd_jacobian_error(arm, J, q) < FD_ATOL
+
+
+def test_wrong_jacobian_is_caught() -> None:
+    rng = np.random.default_rng(8)
+    q = _random_q(PSM_ARM, rng, margin=0.05)
+    J = PSM_ARM.jacobian(q)
+    swapped = J.copy()
+    swapped[:, [3, 4]] = swapped[:, [4, 3]]
+    perturbed = J.copy()
+    perturbed[0, 5] += 1e-4
+    angular_first = np.vstack([J[3:], J[:3]])
+    for wrong in (swapped, perturbed, angular_first):
+        assert _fd_jacobian_error(PSM_ARM, wrong, q) > FD_ATOL
+
+
+# ---------------------------------------------------------------------------- ECM IK
+def _look_pose(p: np.ndarray, z: np.ndarray, roll: float) -> np.ndarray:
+    z = z / np.linalg.norm(z)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    R = np.column_stack([x, np.cross(z, x), z]) @ Rotation.from_euler("z", roll).as_matrix()
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = p
+    return T
+
+
+def test_ecm_round_trip() -> None:
+    rng = np.random.default_rng(9)
+    for _ in range(100):
+        q = _random_q(ECM_ARM, rng)
+        res = ECM_ARM.solve(ECM_ARM.forward(q), q_seed=q)
+        assert res.status is IKStatus.OK
+        np.testing.assert_allclose(res.q, q, atol=1e-7)
+
+
+def test_ecm_residual_zero_iff_axis_through_rcm() -> None:
+    rng = np.random.default_rng(10)
+    for _ in range(50):
+        q = _random_q(ECM_ARM, rng, margin=0.1)
+        on_axis = ECM_ARM.forward(q)
+        p = on_axis[:3, 3]
+        # the optical axis (z) passes through the RCM: z = p / |p|
+        np.testing.assert_allclose(on_axis[:3, 2], p / np.linalg.norm(p), atol=ATOL_RAD)
+        res = ECM_ARM.solve(on_axis, q_seed=np.zeros(4))
+        assert res.status is IKStatus.OK
+        assert res.position_error < ATOL_M
+        assert res.orientation_error < ATOL_RAD
+        # tilt the optical axis by `tilt` about an axis ⟂ to it: the residual is the tilt
+        tilt = rng.uniform(0.05, 0.5)
+        tilt_axis = np.cross(p, rng.normal(size=3))
+        R_tilt = Rotation.from_rotvec(tilt * tilt_axis / np.linalg.norm(tilt_axis)).as_matrix()
+        off_axis = on_axis.copy()
+        off_axis[:3, :3] = R_tilt @ on_axis[:3, :3]
+        res_off = ECM_ARM.solve(off_axis)
+        assert res_off.status is IKStatus.UNREACHABLE
+        assert res_off.position_error < ATOL_M  # position first
+        assert res_off.orientation_error == pytest.approx(tilt, abs=1e-9)
+
+
+def test_ecm_goal_outside_limits_is_clamped() -> None:
+    p = np.array([0.0, 0.0, -0.4])  # 0.4 m deep: beyond the 0.255 m insertion
+    res = ECM_ARM.solve(_look_pose(p, p, 0.0))
+    assert res.status is IKStatus.CLAMPED_TO_LIMITS
+    assert ECM_ARM.within_limits(res.q)
+    assert res.position_error == pytest.approx(0.4 - 0.255 - 0.0007, abs=1e-6)
+
+
+# ---------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_input_rejected(bad: float) -> None:
+    q = np.zeros(6)
+    q[2] = bad
+    for fn in (PSM_ARM.forward, PSM_ARM.jacobian):
+        with pytest.raises(ValueError, match="q"):
+            fn(q)
+    T = np.eye(4)
+    T[0, 3] = bad
+    with pytest.raises(ValueError, match="T_rcm_tip"):
+        PSM_ARM.solve(T)
+    with pytest.raises(ValueError, match="T_rcm_tip"):
+        ECM_ARM.inverse(T)
+    with pytest.raises(ValueError, match="q_seed"):
+        PSM_ARM.solve(PSM_ARM.forward(np.zeros(6)), q_seed=q)
+
+
+def test_malformed_pose_rejected() -> None:
+    with pytest.raises(ValueError, match="T_rcm_tip"):
+        PSM_ARM.solve(2.0 * np.eye(4))
+    with pytest.raises(ValueError, match="T_rcm_tip"):
+        PSM_ARM.solve(np.eye(3))
+    with pytest.raises(ValueError, match="q"):
+        PSM_ARM.forward(np.zeros(5))
