@@ -1,0 +1,77 @@
+"""Shared helpers for the study tests: a tiny study folder with real mp4 files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import imageio_ffmpeg
+import numpy as np
+
+from endocam.study.counterbalance import presentation_orders
+
+CONDITIONS = ("fixed", "centering", "orientation")
+# trajectory name, difficulty, true touches per condition (fixed, centering, orientation)
+TRAJECTORIES = (
+    ("t1-36-low", 1, (2, 2, 2)),
+    ("t2-36-high", 2, (4, 5, 4)),
+    ("t3-71-high", 3, (7, 8, 9)),
+)
+ATTENTION_ANSWER = 4
+VIDEO_W_PX, VIDEO_H_PX, VIDEO_FRAMES, VIDEO_FPS = 64, 48, 10, 10
+
+
+def write_tiny_mp4(path: Path, shade: int) -> None:
+    """Write a 64x48, 10-frame H.264 video (a grey level that brightens over time)."""
+    writer = imageio_ffmpeg.write_frames(
+        str(path),
+        (VIDEO_W_PX, VIDEO_H_PX),
+        fps=VIDEO_FPS,
+        codec="libx264",
+        pix_fmt_out="yuv420p",
+        macro_block_size=16,
+        ffmpeg_log_level="error",
+    )
+    writer.send(None)
+    for i in range(VIDEO_FRAMES):
+        frame = np.full((VIDEO_H_PX, VIDEO_W_PX, 3), (shade + 10 * i) % 256, dtype=np.uint8)
+        writer.send(frame)
+    writer.close()
+
+
+def manifest_dict() -> dict:
+    """Manifest of the tiny study: ids v01..v09, condition-major."""
+    videos = []
+    for c_index, condition in enumerate(CONDITIONS):
+        for t_index, (name, difficulty, touches) in enumerate(TRAJECTORIES):
+            number = 3 * c_index + t_index + 1
+            videos.append(
+                {
+                    "id": f"v{number:02d}",
+                    "condition": condition,
+                    "trajectory": name,
+                    "difficulty": difficulty,
+                    "true_touches": touches[c_index],
+                    "file": f"videos/v{number:02d}.mp4",
+                }
+            )
+    return {
+        "endocam_version": "0.1.0",
+        "created": "2024-05-01T12:00:00+00:00",
+        "conditions": list(CONDITIONS),
+        "videos": videos,
+        "orders": [[c.value for c in order] for order in presentation_orders()],
+        "attention": {"question": "To show you are paying attention, enter four.", "answer": 4},
+    }
+
+
+def make_study(root: Path, with_videos: bool = True) -> Path:
+    """Create a study folder under ``root``; returns its path."""
+    study = root / "study"
+    (study / "videos").mkdir(parents=True)
+    manifest = manifest_dict()
+    (study / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
+    if with_videos:
+        for i, video in enumerate(manifest["videos"]):
+            write_tiny_mp4(study / video["file"], 20 * i)
+    return study

@@ -1,0 +1,262 @@
+import sqlite3
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from endocam.study.app import SESSION_COOKIE, create_app
+from endocam.study.db import StudyDB
+from study_helpers import ATTENTION_ANSWER, make_study
+
+ADMIN = "s3cret-admin"
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return make_study(tmp_path_factory.mktemp("api"))
+
+
+@pytest.fixture
+def db_path(tmp_path: Path) -> Path:
+    return tmp_path / "study.db"
+
+
+@pytest.fixture
+def client(study: Path, db_path: Path) -> Iterator[TestClient]:
+    with TestClient(create_app(study, db_path, ADMIN)) as c:
+        yield c
+
+
+def snapshot(db_path: Path) -> list[tuple]:
+    with sqlite3.connect(db_path) as conn:
+        participants = conn.execute("SELECT * FROM participants ORDER BY pk").fetchall()
+        responses = conn.execute("SELECT * FROM responses ORDER BY 1, 2").fetchall()
+    return participants + responses
+
+
+def start(client: TestClient, pid: str) -> dict:
+    r = client.post("/api/session", json={"participant_id": pid})
+    assert r.status_code == 201, r.text
+    return r.json()
+
+
+def test_session_cookie_is_httponly_and_the_id_alone_grants_nothing(client: TestClient) -> None:
+    r = client.post("/api/session", json={"participant_id": "alice"})
+    cookie = r.headers["set-cookie"]
+    assert "HttpOnly" in cookie and "samesite=strict" in cookie.lower()
+    assert r.cookies[SESSION_COOKIE] != "alice"
+    client.cookies.clear()
+    assert client.get("/api/next").status_code == 401
+    client.cookies.set(SESSION_COOKIE, "alice")
+    assert client.get("/api/next").status_code == 401
+
+
+@pytest.mark.parametrize(
+    ("body", "status"),
+    [
+        ({"video_id": "v01", "reported_touches": -1}, 422),
+        ({"video_id": "v01", "reported_touches": 100}, 422),
+        ({"video_id": "v01", "reported_touches": "seven"}, 422),
+        ({"video_id": "v01", "reported_touches": "7"}, 422),
+        ({"video_id": "v01", "reported_touches": 7.5}, 422),
+        ({"video_id": "v01", "reported_touches": True}, 422),
+        ({"video_id": "v01"}, 422),
+        ({"video_id": "v01", "reported_touches": 3, "extra": 1}, 422),
+        ({"video_id": "v99", "reported_touches": 3}, 404),
+        ({"video_id": "v02", "reported_touches": 3}, 409),  # not the current video
+        ({"video_id": "v01", "reported_touches": 3, "participant_id": "bob"}, 403),
+    ],
+)
+def test_bad_answers_are_refused_and_change_nothing(
+    client: TestClient, db_path: Path, body: dict, status: int
+) -> None:
+    start(client, "bob")
+    start_other = TestClient(client.app)
+    start(start_other, "alice")
+    body = {**body, "participant_id": "alice"} if status == 403 else body
+    before = snapshot(db_path)
+    r = client.post("/api/answer", json=body)
+    assert r.status_code == status, r.text
+    assert snapshot(db_path) == before
+
+
+def test_unknown_or_missing_session_is_refused(client: TestClient, db_path: Path) -> None:
+    start(client, "carol")
+    before = snapshot(db_path)
+    body = {"video_id": "v01", "reported_touches": 3}
+    client.cookies.set(SESSION_COOKIE, "forged")
+    assert client.post("/api/answer", json=body).status_code == 401
+    client.cookies.clear()
+    assert client.post("/api/answer", json=body).status_code == 401
+    assert client.post("/api/attention", json={"answer": 4}).status_code == 401
+    assert snapshot(db_path) == before
+
+
+def test_duplicate_answer_is_refused_and_the_first_kept(client: TestClient, db_path: Path) -> None:
+    start(client, "dave")
+    assert (
+        client.post("/api/answer", json={"video_id": "v01", "reported_touches": 5}).status_code
+        == 201
+    )
+    before = snapshot(db_path)
+    r = client.post("/api/answer", json={"video_id": "v01", "reported_touches": 9})
+    assert r.status_code == 409
+    assert snapshot(db_path) == before
+    assert client.get("/api/me").json()["answers"] == {"v01": 5}
+
+
+def test_participants_cannot_see_or_change_each_other(client: TestClient, db_path: Path) -> None:
+    start(client, "erin")
+    other = TestClient(client.app)
+    start(other, "frank")  # order 1: starts with v04
+    assert (
+        client.post("/api/answer", json={"video_id": "v01", "reported_touches": 2}).status_code
+        == 201
+    )
+    assert other.get("/api/me").json() == {
+        "participant_id": "frank",
+        "answers": {},
+        "attention_answered": False,
+    }
+    before = snapshot(db_path)
+    # frank cannot answer for erin, nor answer erin's current video out of his own order
+    body = {"video_id": "v02", "reported_touches": 1, "participant_id": "erin"}
+    assert other.post("/api/answer", json=body).status_code == 403
+    assert (
+        other.post("/api/answer", json={"video_id": "v01", "reported_touches": 1}).status_code
+        == 409
+    )
+    assert snapshot(db_path) == before
+
+
+def test_taken_or_malformed_ids_are_refused(client: TestClient, db_path: Path) -> None:
+    start(client, "gina")
+    before = snapshot(db_path)
+    assert client.post("/api/session", json={"participant_id": "gina"}).status_code == 409
+    assert client.post("/api/session", json={"participant_id": "../x"}).status_code == 422
+    assert client.post("/api/session", json={"participant_id": ""}).status_code == 422
+    assert snapshot(db_path) == before
+    generated = client.post("/api/session").json()["participant_id"]
+    assert generated.startswith("p-")
+
+
+def test_full_run_round_robin_and_restart(study: Path, db_path: Path) -> None:
+    expected_orders = {}
+    with TestClient(create_app(study, db_path, ADMIN)) as c:
+        for k in range(7):
+            TestClient(c.app).post("/api/session", json={"participant_id": f"rr{k}"})
+            expected_orders[f"rr{k}"] = k % 6
+        start(c, "henry")  # 8th participant → order 1 (centering, orientation, fixed)
+        seen = []
+        for _ in range(5):
+            step = c.get("/api/next").json()
+            seen.append(step["video_id"])
+            c.post("/api/answer", json={"video_id": step["video_id"], "reported_touches": 1})
+        cookie = c.cookies[SESSION_COOKIE]
+    assert seen == ["v04", "v05", "v06", "v07", "v08"]
+    # a new server process on the same file: everything is still there
+    with TestClient(create_app(study, db_path, ADMIN)) as c:
+        c.cookies.set(SESSION_COOKIE, cookie)
+        step = c.get("/api/next").json()
+        assert (step["video_id"], step["n_answered"]) == ("v09", 5)
+        assert c.post("/api/attention", json={"answer": 4}).status_code == 409  # not yet
+        c.post("/api/answer", json={"video_id": "v09", "reported_touches": 1})
+        assert c.get("/api/next").json()["kind"] == "attention"
+        assert c.post("/api/attention", json={"answer": 3}).status_code == 201
+        assert c.post("/api/attention", json={"answer": ATTENTION_ANSWER}).status_code == 409
+        for _ in range(3):
+            vid = c.get("/api/next").json()["video_id"]
+            assert (
+                c.post("/api/answer", json={"video_id": vid, "reported_touches": 2}).status_code
+                == 201
+            )
+        assert c.get("/api/next").json()["kind"] == "done"
+    orders = {p.participant_id: p.order_index for p in StudyDB(db_path).participants()}
+    assert {k: orders[k] for k in expected_orders} == expected_orders
+    assert orders["henry"] == 1
+    rows = [r for r in StudyDB(db_path).export_rows() if r.participant_id == "henry"]
+    assert len(rows) == 9 and all(r.attention_passed is False for r in rows)
+
+
+def test_admin_export_needs_the_token(client: TestClient, study: Path, db_path: Path) -> None:
+    start(client, "ivy")
+    client.post("/api/answer", json={"video_id": "v01", "reported_touches": 6})
+    assert client.get("/admin/export.csv").status_code == 401
+    assert client.get("/admin/export.csv?token=wrong").status_code == 401
+    assert (
+        client.get("/admin/export.json", headers={"Authorization": "Bearer nope"}).status_code
+        == 401
+    )
+    r = client.get("/admin/export.csv", headers={"Authorization": f"Bearer {ADMIN}"})
+    assert r.status_code == 200
+    assert r.text.splitlines() == [
+        "participant_id,video_id,reported_touches,attention_passed",
+        "ivy,v01,6,",
+    ]
+    doc = client.get(f"/admin/export.json?token={ADMIN}").json()
+    assert doc["responses"] == [
+        {
+            "participant_id": "ivy",
+            "video_id": "v01",
+            "reported_touches": 6,
+            "attention_passed": None,
+        }
+    ]
+    with TestClient(create_app(study, db_path, None)) as no_token:
+        assert no_token.get("/admin/export.csv?token=").status_code == 403
+        assert (
+            no_token.get("/admin/export.json", headers={"Authorization": "Bearer x"}).status_code
+            == 403
+        )
+
+
+def test_videos_only_from_the_manifest(client: TestClient, study: Path) -> None:
+    assert client.get("/videos/v01").status_code == 401  # no session
+    start(client, "jack")
+    r = client.get("/videos/v01")
+    assert r.status_code == 200 and r.content == (study / "videos" / "v01.mp4").read_bytes()
+    assert client.get("/videos/v99").status_code == 404
+    assert client.get("/videos/..%2Fmanifest.json").status_code == 404
+    assert client.get("/videos/manifest.json").status_code == 404
+
+
+def test_html_forms_validate_server_side(client: TestClient, db_path: Path) -> None:
+    r = client.post("/start", data={"participant_id": "kim"}, follow_redirects=False)
+    assert r.status_code == 303 and r.headers["location"] == "/study"
+    page = client.get("/study")
+    assert 'name="video_id" value="v01"' in page.text
+    assert 'min="0" max="99"' in page.text and "required" in page.text
+    before = snapshot(db_path)
+    for bad in ["-1", "abc", "100", "", "3.5"]:
+        r = client.post("/study/answer", data={"video_id": "v01", "reported_touches": bad})
+        assert r.status_code == 400 and 'role="alert"' in r.text
+    assert snapshot(db_path) == before
+    r = client.post(
+        "/study/answer", data={"video_id": "v01", "reported_touches": "7"}, follow_redirects=False
+    )
+    assert r.status_code == 303
+    r = client.post("/study/answer", data={"video_id": "v01", "reported_touches": "8"})
+    assert r.status_code == 409
+    assert client.get("/api/me").json()["answers"] == {"v01": 7}
+
+
+def test_concurrent_starts_get_balanced_orders(tmp_path: Path) -> None:
+    db = StudyDB(tmp_path / "c.db")
+    results: list[int] = []
+    lock = threading.Lock()
+
+    def worker(k: int) -> None:
+        participant, _ = db.create_participant(f"c{k}", 6)
+        with lock:
+            results.append(participant.order_index)
+
+    threads = [threading.Thread(target=worker, args=(k,)) for k in range(18)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(results) == sorted(list(range(6)) * 3)
+    with sqlite3.connect(tmp_path / "c.db") as conn:
+        assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"

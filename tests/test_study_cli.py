@@ -1,0 +1,92 @@
+import json
+from pathlib import Path
+
+import pytest
+
+from endocam.cli import main
+from endocam.study.db import StudyDB
+from endocam.study.manifest import parse_manifest
+from endocam.study.responses import ResponseRow, rows_to_csv
+from study_helpers import manifest_dict
+
+MANIFEST = parse_manifest(json.dumps(manifest_dict()))
+
+
+def _rows(n: int) -> list[ResponseRow]:
+    return [
+        ResponseRow(
+            participant_id=f"p{k}",
+            video_id=v.id,
+            reported_touches=v.true_touches + (k % 3) * (1 + (v.condition == "centering")),
+            attention_passed=k != 0,
+        )
+        for k in range(n)
+        for v in MANIFEST.videos
+    ]
+
+
+@pytest.fixture
+def files(tmp_path: Path) -> tuple[Path, Path]:
+    manifest = tmp_path / "manifest.json"
+    manifest.write_text(json.dumps(manifest_dict()), encoding="utf-8")
+    responses = tmp_path / "responses.csv"
+    responses.write_text(rows_to_csv(_rows(9)), encoding="utf-8")
+    return manifest, responses
+
+
+def test_analyze_from_csv_and_db_agree(files: tuple[Path, Path], tmp_path: Path) -> None:
+    manifest, responses = files
+    out_csv, out_db = tmp_path / "a", tmp_path / "b"
+    args = ["study", "analyze", "--manifest", str(manifest), "--outliers", "none"]
+    assert main([*args, "--responses", str(responses), "--out", str(out_csv)]) == 0
+    db = StudyDB(tmp_path / "s.db")
+    for k in range(9):
+        participant, _ = db.create_participant(f"p{k}", 6)
+        for r in _rows(9):
+            if r.participant_id == participant.participant_id:
+                db.record_answer(participant, r.video_id, r.reported_touches)
+        db.record_attention(participant, 4 if k else 0, k != 0)
+    assert main([*args, "--db", str(tmp_path / "s.db"), "--out", str(out_db)]) == 0
+    a = json.loads((out_csv / "analysis.json").read_text())
+    b = json.loads((out_db / "analysis.json").read_text())
+    assert a == b
+    assert a["excluded"] == [{"participant_id": "p0", "reason": "failed the attention question"}]
+    assert a["conditions"]["fixed"]["n"] == 8
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        (["--responses", "missing.csv"], "cannot read responses"),
+        (["--responses", "RESP", "--tukey-k", "0"], "--tukey-k"),
+        (["--db", "missing.db"], "--db"),
+    ],
+)
+def test_analyze_user_errors_are_one_line_exit_2(
+    files: tuple[Path, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    extra: list[str],
+    needle: str,
+) -> None:
+    manifest, responses = files
+    extra = [str(responses) if e == "RESP" else e for e in extra]
+    code = main(
+        ["study", "analyze", "--manifest", str(manifest), "--out", str(tmp_path / "o"), *extra]
+    )
+    err = capsys.readouterr().err
+    assert code == 2
+    assert needle in err and err.count("\n") == 1
+
+
+def test_bad_manifest_and_serve_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "manifest.json"
+    bad.write_text("{}", encoding="utf-8")
+    code = main(["study", "analyze", "--manifest", str(bad), "--responses", "x", "--out", "o"])
+    assert code == 2 and "manifest" in capsys.readouterr().err
+    assert main(["study", "serve", "--study", str(tmp_path / "none"), "--db", "x.db"]) == 2
+    assert "no manifest.json" in capsys.readouterr().err
+    # a study folder whose videos are missing is refused before the server starts
+    bad.write_text(json.dumps(manifest_dict()), encoding="utf-8")
+    assert main(["study", "serve", "--study", str(tmp_path), "--db", str(tmp_path / "s.db")]) == 2
+    assert "video files missing" in capsys.readouterr().err

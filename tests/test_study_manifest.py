@@ -1,0 +1,110 @@
+import json
+from pathlib import Path
+
+import pytest
+
+from endocam.study.flow import StepKind, attention_after_set, next_step, video_sequence
+from endocam.study.manifest import Condition, ManifestError, load_manifest, parse_manifest
+from study_helpers import manifest_dict
+
+
+def _text(doc: dict) -> str:
+    return json.dumps(doc)
+
+
+def test_valid_manifest_parses_and_answers_queries() -> None:
+    m = parse_manifest(_text(manifest_dict()))
+    assert len(m.videos) == 9
+    assert m.most_difficult(Condition.CENTERING).id == "v06"
+    assert [v.id for v in m.videos_of(Condition.ORIENTATION)] == ["v07", "v08", "v09"]
+    assert parse_manifest(m.model_dump_json()) == m
+
+
+def _broken(edit) -> str:
+    doc = manifest_dict()
+    edit(doc)
+    return _text(doc)
+
+
+@pytest.mark.parametrize(
+    ("edit", "needle"),
+    [
+        (lambda d: d["videos"][1].update(id="v01"), "unique"),
+        (lambda d: d["videos"].pop(), "one video per trajectory"),
+        (lambda d: d["videos"][0].update(difficulty=4), "difficulty"),
+        (lambda d: d["videos"][0].update(true_touches=-1), "true_touches"),
+        (lambda d: d["videos"][0].update(file="../x.mp4"), "relative POSIX path"),
+        (lambda d: d["videos"][0].update(file="/abs/x.mp4"), "relative POSIX path"),
+        (lambda d: d["videos"][0].update(condition="zoom"), "condition"),
+        (lambda d: d.update(conditions=["fixed", "centering"]), "conditions"),
+        (lambda d: d["orders"].append(["fixed", "fixed", "orientation"]), "permutation"),
+        (lambda d: d["orders"].append(d["orders"][0]), "distinct"),
+        (lambda d: d.update(orders=[]), "orders"),
+        (lambda d: d["attention"].update(answer="four"), "attention"),
+        (lambda d: d.pop("created"), "created"),
+    ],
+)
+def test_invalid_manifests_give_one_line_errors(edit, needle: str) -> None:
+    with pytest.raises(ManifestError) as info:
+        parse_manifest(_broken(edit))
+    message = str(info.value)
+    assert needle in message
+    assert "\n" not in message
+
+
+def test_same_difficulty_for_two_trajectories_is_rejected() -> None:
+    def edit(doc: dict) -> None:
+        for v in doc["videos"]:
+            if v["trajectory"] == "t2-36-high":
+                v["difficulty"] = 3
+
+    with pytest.raises(ManifestError, match="own difficulty"):
+        parse_manifest(_broken(edit))
+
+
+def test_loading_a_folder_checks_video_files(tmp_path: Path) -> None:
+    (tmp_path / "manifest.json").write_text(_text(manifest_dict()), encoding="utf-8")
+    with pytest.raises(ManifestError, match="video files missing"):
+        load_manifest(tmp_path)
+    # the file alone is enough for the analysis
+    assert len(load_manifest(tmp_path / "manifest.json").videos) == 9
+    with pytest.raises(ManifestError, match="cannot read"):
+        load_manifest(tmp_path / "nope.json")
+
+
+def test_flow_puts_attention_between_set_two_and_three() -> None:
+    m = parse_manifest(_text(manifest_dict()))
+    assert attention_after_set(3) == 2
+    order = 1  # centering, orientation, fixed
+    assert video_sequence(m, order) == (
+        ("v04", "v05", "v06"),
+        ("v07", "v08", "v09"),
+        ("v01", "v02", "v03"),
+    )
+    answered: list[str] = []
+    seen = []
+    attention = False
+    for _ in range(20):
+        step = next_step(m, order, answered, attention)
+        seen.append(step.video_id or step.kind.value)
+        if step.kind == StepKind.VIDEO:
+            answered.append(step.video_id)
+        elif step.kind == StepKind.ATTENTION:
+            attention = True
+        else:
+            break
+    assert seen == [
+        "v04",
+        "v05",
+        "v06",
+        "v07",
+        "v08",
+        "v09",
+        "attention",
+        "v01",
+        "v02",
+        "v03",
+        "done",
+    ]
+    with pytest.raises(ValueError, match="order_index"):
+        next_step(m, 6, [], False)
