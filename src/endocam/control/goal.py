@@ -23,7 +23,8 @@ Two places need care:
   kept) to 0 (for ``c ≥ sin ROLL_LEVEL_ANGLE``: the horizon is level). The roll picked is the one
   closest to ``previous``, so the goal is continuous: there is no NaN and no sudden 180° roll;
   the roll unwinds by at most about ``π / (ROLL_LEVEL_ANGLE − ROLL_HOLD_ANGLE)`` radians per radian
-  of tilt. With no ``previous`` the default roll keeps the world x axis pointing right in the image.
+  of tilt. With no ``previous`` the horizon is level and upright wherever it is defined; exactly
+  at ``n ∥ up`` the default roll keeps the world x axis pointing right in the image.
 """
 
 from __future__ import annotations
@@ -100,6 +101,8 @@ def _rotation_columns(z: Vec, up: Vec, x_prev: Vec | None) -> tuple[Vec, Vec, Ve
         n_ref = _norm(x_ref)
         x_ref = _scaled(x_ref, 1.0 / n_ref) if n_ref > _EPS else None
     if x_ref is None:
+        if c > _EPS:  # nothing to keep: the level, upright horizon
+            return _scaled(x_level, 1.0 / c), _cross(z, _scaled(x_level, 1.0 / c)), z
         x_ref = _default_roll_reference(z)
 
     if c >= _SIN_LEVEL:
@@ -193,6 +196,24 @@ def look_at_pose(
     x_prev = None if previous is None else _vec(previous[:3, 0])
     x, y, zz = _rotation_columns(_vec(z), _vec(up_u), x_prev)
     return _pose(x, y, zz, _vec(p))
+
+
+def look_at_unchecked(
+    p_cam: FloatArray, p_target: FloatArray, fallback: FloatArray, previous: FloatArray | None
+) -> FloatArray:
+    """:func:`look_at_pose` without validation, for the control loop.
+
+    Returns ``fallback`` (4, 4) when the two points coincide (no direction to look along).
+    """
+    p = _vec(p_cam)
+    d = _vec(p_target)
+    d = (d[0] - p[0], d[1] - p[1], d[2] - p[2])
+    norm = _norm(d)
+    if not norm > 1e-9:
+        return fallback
+    x_prev = None if previous is None else _vec(previous[:3, 0])
+    x, y, z = _rotation_columns(_scaled(d, 1.0 / norm), (0.0, 0.0, 1.0), x_prev)
+    return _pose(x, y, z, p)
 
 
 def choose_side(n: Vec, up: Vec, z_prev: Vec | None) -> float:

@@ -9,7 +9,9 @@ At every point on the way the camera looks at the feature with a level horizon.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import itertools
+import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -54,36 +56,45 @@ class WaypointPath:
     """
 
     points: FloatArray
+    # Plain-float copies, computed once: the path is queried every control step.
+    _pts: list[list[float]] = field(init=False, repr=False, compare=False)
+    _cum: list[float] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        pts = np.asarray(self.points, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
+            raise ValueError(f"points must have shape (M ≥ 2, 3), got {pts.shape}")
+        rows = pts.tolist()
+        if not math.isfinite(math.fsum(v for row in rows for v in row)):
+            raise ValueError("points must be finite")
+        cum = [0.0]
+        for a, b in itertools.pairwise(rows):
+            cum.append(cum[-1] + math.dist(a, b))
+        object.__setattr__(self, "_pts", rows)
+        object.__setattr__(self, "_cum", cum)
 
     @property
     def cumulative(self) -> FloatArray:
         """(M,) arc length at each way-point, m; starts at 0."""
-        seg = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
-        return np.concatenate(([0.0], np.cumsum(seg)))
+        return np.array(self._cum)
 
     @property
     def length(self) -> float:
         """Total path length, m."""
-        return float(self.cumulative[-1])
+        return self._cum[-1]
 
     def point_at(self, s: float) -> FloatArray:
         """Position (3,) at arc length ``s`` (m), clamped to ``[0, length]``."""
-        cum = self.cumulative
-        s = min(max(s, 0.0), float(cum[-1]))
-        return np.array([np.interp(s, cum, self.points[:, k]) for k in range(3)])
-
-    def project(self, p_world: FloatArray) -> float:
-        """Arc length (m) of the point on the path closest to ``p_world`` (3,)."""
-        cum = self.cumulative
-        a = self.points[:-1]
-        d = np.diff(self.points, axis=0)
-        len2 = np.einsum("ij,ij->i", d, d)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            u = np.clip(np.einsum("ij,ij->i", p_world - a, d) / len2, 0.0, 1.0)
-        u = np.nan_to_num(u)  # zero-length segments
-        closest = a + u[:, None] * d
-        k = int(np.argmin(np.linalg.norm(closest - p_world, axis=1)))
-        return float(cum[k] + u[k] * np.sqrt(len2[k]))
+        cum, pts = self._cum, self._pts
+        if s <= 0.0:
+            return np.array(pts[0])
+        for k in range(1, len(cum)):
+            if s <= cum[k]:
+                seg = cum[k] - cum[k - 1]
+                u = (s - cum[k - 1]) / seg if seg > 0.0 else 1.0
+                a, b = pts[k - 1], pts[k]
+                return np.array([a[i] + u * (b[i] - a[i]) for i in range(3)])
+        return np.array(pts[-1])
 
     def with_goal(self, p_world_goal: FloatArray, up: FloatArray, d_wp: float) -> WaypointPath:
         """Same path with the goal (and IWP2 above it) moved to follow a moving feature."""
@@ -96,7 +107,7 @@ class WaypointPath:
 def advance(
     path: WaypointPath, s: float, p_world_cam: FloatArray, step: float, lookahead: float
 ) -> float:
-    """Next progress along the path: monotone, at most ``step`` on, at most ``lookahead`` ahead.
+    """Next progress along the path: monotone, by ``step``, and only while the camera keeps up.
 
     Parameters
     ----------
@@ -104,18 +115,18 @@ def advance(
     s : float
         Current progress, m.
     p_world_cam : (3,)
-        Where the camera actually is, m; progress never runs more than ``lookahead`` ahead of
-        its projection on the path, so a slow camera still passes through the way-points.
+        Where the camera actually is, m. Progress waits while the camera is farther than
+        ``lookahead`` from the point at ``s``, so a slow camera still passes every way-point.
     step : float
-        Largest progress per call, m (speed × control period).
+        Progress per call, m (speed × control period).
     lookahead : float
-        Largest lead over the camera's projection, m.
+        Largest lead of the commanded point over the camera, m.
 
     Returns
     -------
     float
         New progress in ``[s, length]``, m (never less than ``s``).
     """
-    s_cam = path.project(p_world_cam)
-    s_new = min(s + step, max(s_cam + lookahead, s), path.length)
-    return max(s_new, s)
+    if math.dist(path.point_at(s).tolist(), p_world_cam.tolist()) > lookahead:
+        return s
+    return min(s + step, path.length)

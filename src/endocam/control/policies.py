@@ -26,7 +26,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from endocam.camera import StereoCamera
-from endocam.control.goal import goal_pose_unchecked, look_at_pose
+from endocam.control.goal import goal_pose_unchecked, look_at_unchecked
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.safety import (
     CONE_BASE_RADIUS,
@@ -207,6 +207,7 @@ class _MovingPolicy:
 
     def __init__(self, config: ControllerConfig | None = None) -> None:
         self.config = config or ControllerConfig()
+        self._windows = self.config.windows
         self._ctx: PolicyContext | None = None
         self._cone: ConeWorkspace | None = None
         self.d_f = self.config.d_f
@@ -261,7 +262,7 @@ class _MovingPolicy:
             return self._hold(TrackingState.LOST_TRACKING, "ring pose missing or not finite")
         T_ring = np.asarray(obs.T_world_ring, dtype=float)
 
-        status = window_status(ctx.camera, T_cam, obs.p_world_tips, cfg.windows)
+        status = window_status(ctx.camera, T_cam, obs.p_world_tips, self._windows)
         self.d_f = adjust_working_distance(self.d_f, status, cfg.d_min, cfg.d_max, cfg.d_f_step)
 
         goal = self._goal(T_ring, T_cam)
@@ -288,12 +289,13 @@ class _MovingPolicy:
                 cmd = self._waypoint_pose(p, T_ring, goal)
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
 
-        if not self.cone.contains(cmd[:3, 3]):
+        if not self.cone.contains(p_goal):
             if self._frozen_T is None:
                 self._frozen_T = T_cam
             self._last_cmd = self._frozen_T
             self._path = None
-            margin_mm = -self.cone.margin(cmd[:3, 3]) * 1e3
+            self._last_goal = None  # on recovery, a far goal is planned from the camera
+            margin_mm = -self.cone.margin(p_goal) * 1e3
             return self._hold(
                 TrackingState.FROZEN_OUTSIDE_CONE,
                 f"goal {margin_mm:.1f} mm outside the cone workspace; holding",
@@ -304,9 +306,7 @@ class _MovingPolicy:
 
     def _waypoint_pose(self, p: FloatArray, T_ring: FloatArray, goal: FloatArray) -> FloatArray:
         """Pose at a way-point: look at the ring centre with a level horizon."""
-        if float(np.linalg.norm(T_ring[:3, 3] - p)) < 1e-6:
-            return goal
-        return look_at_pose(p, T_ring[:3, 3], previous=self._last_cmd)
+        return look_at_unchecked(p, T_ring[:3, 3], goal, self._last_cmd)
 
 
 class CenteringPolicy(_MovingPolicy):

@@ -1,0 +1,50 @@
+"""One full control step of each moving policy: windows, goal, planner, cone and command.
+
+Run: make bench, or
+  .venv/bin/pytest bench/bench_control.py --benchmark-enable -o addopts="" -p no:cacheprovider
+Target (issue 2): median under 50 µs, so the controller can run at 1 kHz with room to spare.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from endocam import ControllerConfig, StereoCamera, look_at_pose, make_policy
+from endocam.control.policies import Observation, PolicyContext
+from endocam.geometry import make_pose
+
+DT = 0.001  # s, 1 kHz
+
+
+def _ring(p, n):
+    z = np.asarray(n, float) / np.linalg.norm(n)
+    x = np.cross([0.0, 0.0, 1.0], z)
+    x /= np.linalg.norm(x)
+    return make_pose(np.column_stack([x, np.cross(z, x), z]), p)
+
+
+def _setup(name: str, planning: bool):
+    cam = StereoCamera()
+    ring = _ring([0.0, 0.0, 0.05], [1.0, 0.2, 0.3])
+    tips = np.array([[0.0, 0.0, 0.05], [0.01, 0.01, 0.04]])
+    overview = look_at_pose([0.0, -0.15, 0.25], ring[:3, 3])
+    cfg = ControllerConfig(cone_height=0.5, cone_base_radius=0.5)
+    policy = make_policy(name, cfg)
+    policy.reset(PolicyContext(cam, overview, ring, np.array([0.0, -0.05, 0.3]), DT))
+    # Settle with an ideal camera that follows every command; "planning" benchmarks the step
+    # right after a goal jump (the camera is far from the goal and follows way-points).
+    T_cam = overview
+    for _ in range(0 if planning else 6000):
+        T_cam = policy.step(Observation(0.0, ring, T_cam, tips)).T_world_cam
+    obs = Observation(0.0, ring, T_cam, tips)
+    assert policy.step(obs).state.value == ("planning" if planning else "tracking")
+    return policy, obs
+
+
+@pytest.mark.parametrize("planning", [False, True], ids=["tracking", "planning"])
+@pytest.mark.parametrize("name", ["centering", "orientation"])
+def test_control_step(benchmark, name: str, planning: bool) -> None:
+    policy, obs = _setup(name, planning)
+    cmd = benchmark(policy.step, obs)
+    assert np.all(np.isfinite(cmd.T_world_cam))
