@@ -153,6 +153,20 @@ class Wire:
         return float(self._search_s[1])
 
     @property
+    def search_arc_length(self) -> FloatArray:
+        """(M,) arc lengths of the internal search polyline (spacing ≤ 0.25 mm), m. Read-only."""
+        view = self._search_s.view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def search_points(self) -> FloatArray:
+        """(M, 3) centre-line points at :attr:`search_arc_length`, world, m. Read-only."""
+        view = self._search_pts.view()
+        view.flags.writeable = False
+        return view
+
+    @property
     def post_tops(self) -> FloatArray:
         """(2, 3) the wire's two ends in world, m (tops of the posts)."""
         return self.points(np.array([0.0, self._length]))

@@ -1,0 +1,162 @@
+import math
+
+import numpy as np
+import pytest
+
+from endocam.geometry import make_pose
+from endocam.task.config import RingConfig, TaskConfig, WireConfig
+from endocam.task.touches import clearance, clearances, touch_events
+from endocam.task.trajectory import TrajectoryKind, make_trajectory
+from endocam.task.wire import Wire
+
+ATOL_M = 1e-9  # m, exactness of the clearance on analytic cases
+BRUTE_ATOL_M = 1e-6  # m, agreement with a brute-force 5.5 µm polyline
+T_TOL_S = 1e-6  # s, event start/end root tolerance
+Z0 = 0.03  # m, height of the straight test wire
+RING = RingConfig()
+R, r = RING.major_radius, RING.minor_radius
+
+
+@pytest.fixture(scope="module")
+def straight() -> Wire:
+    # straight wire along world x at height Z0
+    xs = (-0.05, -0.02, 0.02, 0.05)
+    return Wire(WireConfig(knots=[(x, 0.0, Z0) for x in xs]))
+
+
+@pytest.fixture(scope="module")
+def wire() -> Wire:
+    return Wire(TaskConfig().wire)
+
+
+def ring_facing_x(p: tuple[float, float, float], tilt: float = 0.0) -> np.ndarray:
+    """Ring with its normal along world x, tilted by ``tilt`` about world y."""
+    # ring axes: z = x_world, x = z_world, y = z × x; then tilt about world y
+    R0 = np.column_stack([[0, 0, 1.0], np.cross([1.0, 0, 0], [0, 0, 1.0]), [1.0, 0, 0]])
+    c, s = math.cos(tilt), math.sin(tilt)
+    Ry = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    return make_pose(Ry @ R0, p)
+
+
+def test_centred_straight_wire_clearance_is_R_minus_radii(straight: Wire) -> None:
+    c, _ = clearance(ring_facing_x((0.0, 0.0, Z0)), straight, RING)
+    assert abs(c - (R - r - straight.radius)) < ATOL_M
+
+
+@pytest.mark.parametrize("delta", [0.0, 1e-3, 2.5e-3, 2.9e-3, 3.0e-3, 4.5e-3])
+def test_offset_wire_clearance(straight: Wire, delta: float) -> None:
+    c, p = clearance(ring_facing_x((0.01, -delta, Z0)), straight, RING)
+    expected = R - delta - r - straight.radius
+    assert abs(c - expected) < ATOL_M
+    if delta > 0:
+        # contact point: mid-gap between the wire (y = 0) and the near rim (y = R - delta)
+        mid = straight.radius + 0.5 * expected
+        np.testing.assert_allclose(p, [0.01, mid, Z0], atol=1e-7)
+
+
+@pytest.mark.parametrize("tilt_deg", [10.0, 30.0, 50.0, 90.0])
+def test_tilted_ring_clearance(straight: Wire, tilt_deg: float) -> None:
+    tilt = math.radians(tilt_deg)
+    c, _ = clearance(ring_facing_x((0.0, 0.0, Z0), tilt), straight, RING)
+    expected = R * math.cos(tilt) - r - straight.radius
+    assert abs(c - expected) < ATOL_M
+
+
+def test_batch_matches_scalar_and_brute_force(wire: Wire) -> None:
+    rng = np.random.default_rng(7)
+    s = rng.uniform(0.0, wire.length, 20)
+    T = np.stack(
+        [
+            make_pose(
+                np.linalg.qr(rng.normal(size=(3, 3)))[0] * np.array([1, 1, 1]),
+                wire.point(si) + rng.uniform(-5e-3, 5e-3, 3),
+            )
+            for si in s
+        ]
+    )
+    T[:, :3, :3] *= np.sign(np.linalg.det(T[:, :3, :3]))[:, None, None]
+    c_batch, p_batch = clearances(T, wire, RING)
+    dense = wire.polyline(50_001)
+    for i in range(len(T)):
+        c_one, p_one = clearance(T[i], wire, RING)
+        assert abs(c_one - c_batch[i]) < BRUTE_ATOL_M
+        if c_one < 5e-3:  # near the wire the closest approach is unique: same contact point
+            np.testing.assert_allclose(p_one, p_batch[i], atol=1e-5)
+        d = dense - T[i, :3, 3]
+        h = d @ T[i, :3, 2]
+        rho = np.linalg.norm(d - h[:, None] * T[i, :3, 2], axis=1)
+        brute = np.min(np.hypot(h, rho - R)) - r - wire.radius
+        assert abs(c_one - brute) < BRUTE_ATOL_M
+        assert c_one <= brute + ATOL_M  # the refined minimum is never worse than brute force
+
+
+@pytest.mark.parametrize("n", [36, 71])
+def test_ideal_trajectories_never_touch(wire: Wire, n: int) -> None:
+    cfg = TaskConfig()
+    traj = make_trajectory(cfg, TrajectoryKind.IDEAL, n, wire=wire)
+    rep = touch_events(traj, wire, cfg.ring, dt=0.05)
+    assert rep.count == 0
+    assert rep.clearance.min() > 0.5 * (R - r - wire.radius)
+
+
+def test_more_control_points_touch_more_often(wire: Wire) -> None:
+    cfg = TaskConfig()
+    seeds = range(6)
+    counts = {
+        n: [
+            touch_events(
+                make_trajectory(cfg, TrajectoryKind.NOISY, n, seed=seed, wire=wire),
+                wire,
+                cfg.ring,
+                dt=0.05,
+            ).count
+            for seed in seeds
+        ]
+        for n in (36, 71)
+    }
+    assert min(counts[36]) > 0  # noisy paths do touch
+    assert np.mean(counts[71]) > np.mean(counts[36])
+
+
+def test_touches_deterministic_and_consistent(wire: Wire) -> None:
+    cfg = TaskConfig()
+    traj = make_trajectory(cfg, TrajectoryKind.NOISY, 71, seed=5, wire=wire)
+    a = touch_events(traj, wire, cfg.ring, dt=0.01)
+    b = touch_events(traj, wire, cfg.ring, dt=0.01)
+    assert a.count == b.count > 0
+    np.testing.assert_array_equal(a.clearance, b.clearance)
+    for ea, eb in zip(a.events, b.events, strict=True):
+        assert (ea.t_start, ea.t_end, ea.min_clearance) == (eb.t_start, eb.t_end, eb.min_clearance)
+        np.testing.assert_array_equal(ea.p_world_contact, eb.p_world_contact)
+    # every in-contact sample lies inside exactly one event, and runs equal events
+    runs = np.count_nonzero(np.diff(np.concatenate([[0], a.in_contact.astype(int)])) == 1)
+    assert runs == a.count
+    np.testing.assert_array_equal(a.in_contact, a.clearance <= 0.0)
+    assert np.all(np.diff(a.t) > 0)
+    for e in a.events:
+        assert e.t_start < e.t_end and e.min_clearance <= 0.0
+        inside = (a.t > e.t_start + T_TOL_S) & (a.t < e.t_end - T_TOL_S)
+        assert np.all(a.in_contact[inside])
+        for t_edge in (e.t_start, e.t_end):
+            if 0.0 < t_edge < traj.duration:
+                assert abs(clearance(traj.pose(t_edge), wire, cfg.ring)[0]) < 1e-6
+
+
+def test_coarse_sampling_misses_no_touch(wire: Wire) -> None:
+    cfg = TaskConfig()
+    traj = make_trajectory(cfg, TrajectoryKind.NOISY, 71, seed=11, wire=wire)
+    fine = touch_events(traj, wire, cfg.ring, dt=0.004)
+    coarse = touch_events(traj, wire, cfg.ring, dt=1.5)  # refinement must recover every touch
+    assert coarse.count == fine.count
+    for ec, ef in zip(coarse.events, fine.events, strict=True):
+        assert abs(ec.t_start - ef.t_start) < 1e-5 and abs(ec.t_end - ef.t_end) < 1e-5
+
+
+def test_bad_input(wire: Wire) -> None:
+    with pytest.raises(ValueError, match="T_world_ring"):
+        clearance(np.eye(3), wire, RING)
+    with pytest.raises(ValueError, match="T_world_ring"):
+        clearances(np.eye(4), wire, RING)
+    traj = make_trajectory(TaskConfig(), TrajectoryKind.IDEAL, 2, wire=wire)
+    with pytest.raises(ValueError, match="dt"):
+        touch_events(traj, wire, RING, dt=0.0)
