@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from endocam.robot.dh import check_finite
 from endocam.robot.ecm import ECM
 from endocam.robot.ik import IKResult, IKStatus
-from endocam.robot.kinematics import RcmArm, check_pose, invert_pose
+from endocam.robot.kinematics import LIMIT_SLACK, RcmArm, check_pose, invert_pose
 from endocam.robot.psm import PSM
 
 __all__ = [
@@ -317,7 +317,7 @@ class SimulatedArm:
         """
         T = check_pose(T_base_tip, "T_base_tip")
         T_rcm_tip = T if self._T_rcm_base is None else self._T_rcm_base @ T
-        result = self._model.solve(T_rcm_tip, self._target)
+        result = self._model.solve_unchecked(T_rcm_tip, self._target)
         self._last_ik = result
         self._command_status = result.status
         if result.ok or self._unreachable is UnreachablePolicy.APPROACH_NEAREST:
@@ -365,13 +365,18 @@ class SimulatedArm:
         vel = list(out.new_velocity)
         acc = list(out.new_acceleration)
         hit = False
+        rounded = False
         for i, (lo, hi) in enumerate(zip(self._lower, self._upper, strict=True)):
             if pos[i] < lo or pos[i] > hi:
+                overshoot = lo - pos[i] if pos[i] < lo else pos[i] - hi
                 pos[i] = lo if pos[i] < lo else hi
+                if overshoot <= LIMIT_SLACK:  # ruckig round-off when arriving at a limit
+                    rounded = True
+                    continue
                 vel[i] = 0.0
                 acc[i] = 0.0
                 hit = True
-        if hit:
+        if hit or rounded:
             inp.current_position = pos
             inp.current_velocity = vel
             inp.current_acceleration = acc

@@ -39,7 +39,6 @@ from endocam.robot.kinematics import (
     LIMIT_SLACK,
     RcmArm,
     branch_in_limits,
-    check_pose,
     invert_pose,
 )
 
@@ -111,15 +110,16 @@ class ECM(RcmArm):
         self._R_tool = chain.T_last_tip[:3, :3].copy()
         self._shaft_offset = links[2].offset + links[3].D  # m, tip on axis at insertion 0
 
-    def solve(self, T_rcm_tip: object, q_seed: object | None = None) -> IKResult:
+    def solve_unchecked(self, T_goal: FloatArray, seed: FloatArray) -> IKResult:
         """Position-first IK; the residual orientation error is reported, never hidden.
 
         Parameters
         ----------
-        T_rcm_tip : (4, 4) array_like
-            Goal camera (tip) pose in the RCM frame, m; z = viewing direction.
-        q_seed : (4,) array_like, optional
-            Preferred roll branch; default zero.
+        T_goal : (4, 4) ndarray
+            Goal camera (tip) pose in the RCM frame, m; z = viewing direction (validated by
+            :meth:`solve`).
+        seed : (4,) ndarray
+            Preferred roll branch.
 
         Returns
         -------
@@ -129,8 +129,6 @@ class ECM(RcmArm):
             (residual orientation error > 0); ``CLAMPED_TO_LIMITS`` when only joint limits
             prevent it. ``q`` is always within the limits.
         """
-        T_goal = check_pose(T_rcm_tip, "T_rcm_tip")
-        seed = self._seed(q_seed)
         links = self._chain.links
         T4 = T_goal @ self._T_tip_inv
         p = T4[:3, 3]

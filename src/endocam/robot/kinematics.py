@@ -151,6 +151,7 @@ class RcmArm(abc.ABC):
         self._lower.setflags(write=False)
         self._upper.setflags(write=False)
         self._lower_slack = self._lower - LIMIT_SLACK
+        self._limit_pairs = tuple(zip(self._lower.tolist(), self._upper.tolist(), strict=True))
         self._upper_slack = self._upper + LIMIT_SLACK
 
     # ------------------------------------------------------------------ properties
@@ -192,6 +193,33 @@ class RcmArm(abc.ABC):
     def within_limits(self, q: FloatArray) -> bool:
         """True if every joint of ``q`` (n,) lies within its limits (round-off tolerated)."""
         return bool((q >= self._lower_slack).all() and (q <= self._upper_slack).all())
+
+    def clamp_floats(self, q: list[float]) -> tuple[list[float], bool]:
+        """Clip joint values given as floats into the limits.
+
+        Parameters
+        ----------
+        q : list of float
+            Joint values, rad / m.
+
+        Returns
+        -------
+        clipped : list of float
+            ``q`` clipped into the limits.
+        inside : bool
+            True if ``q`` was within the limits (round-off of ``LIMIT_SLACK`` tolerated).
+        """
+        inside = True
+        out = list(q)
+        for i, (lo, hi) in enumerate(self._limit_pairs):
+            v = out[i]
+            if v < lo:
+                inside = inside and v >= lo - LIMIT_SLACK
+                out[i] = lo
+            elif v > hi:
+                inside = inside and v <= hi + LIMIT_SLACK
+                out[i] = hi
+        return out, inside
 
     def clamp(self, q: FloatArray) -> FloatArray:
         """Clip ``q`` (n,) into the joint limits, rad / m."""
@@ -255,7 +283,6 @@ class RcmArm(abc.ABC):
         return self.forward(q) @ check_pose(T_tip_cam, "T_tip_cam")
 
     # ------------------------------------------------------------------ inverse
-    @abc.abstractmethod
     def solve(self, T_rcm_tip: object, q_seed: object | None = None) -> IKResult:
         """Inverse kinematics that never raises for a valid, unreachable pose.
 
@@ -264,12 +291,37 @@ class RcmArm(abc.ABC):
         T_rcm_tip : (4, 4) array_like
             Goal tool-tip pose in the RCM frame, m.
         q_seed : (n,) array_like, optional
-            Joint values whose solution branch is preferred (e.g. the current joints).
+            Joint values whose solution branch is preferred (e.g. the current joints);
+            default zero clipped into the limits.
 
         Returns
         -------
         IKResult
-            Joint values inside the limits, status and residual errors.
+            Joint values inside the limits, status and residual errors (see the subclass's
+            :meth:`solve_unchecked` for what each status means for that arm).
+
+        Raises
+        ------
+        ValueError
+            If ``T_rcm_tip`` is not a finite rigid transform or ``q_seed`` is malformed.
+        """
+        return self.solve_unchecked(check_pose(T_rcm_tip, "T_rcm_tip"), self._seed(q_seed))
+
+    @abc.abstractmethod
+    def solve_unchecked(self, T_goal: FloatArray, seed: FloatArray) -> IKResult:
+        """:meth:`solve` without input validation, for callers that validated already.
+
+        Parameters
+        ----------
+        T_goal : (4, 4) ndarray
+            A valid rigid transform: goal tip pose in the RCM frame, m.
+        seed : (n,) ndarray
+            Finite joint values of the preferred branch, rad / m.
+
+        Returns
+        -------
+        IKResult
+            As :meth:`solve`.
         """
 
     def inverse(self, T_rcm_tip: object, q_seed: object | None = None) -> FloatArray:

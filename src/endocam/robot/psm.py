@@ -28,12 +28,18 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from endocam.robot.dh import DHChain, DHLink, JointType, chain_forward, compose_links
+from endocam.robot.dh import (
+    DHChain,
+    DHLink,
+    JointType,
+    chain_forward,
+    compose_links,
+    pose12_to_matrix,
+)
 from endocam.robot.ik import IKResult, IKStatus, pose_error, within_tolerance
 from endocam.robot.kinematics import (
     RcmArm,
     branch_in_limits,
-    check_pose,
     invert_pose,
 )
 
@@ -89,15 +95,15 @@ class PSM(RcmArm):
         self._cos_alpha6 = math.cos(links[5].alpha)
         self._sin_alpha6 = math.sin(links[5].alpha)
 
-    def solve(self, T_rcm_tip: object, q_seed: object | None = None) -> IKResult:
+    def solve_unchecked(self, T_goal: FloatArray, seed: FloatArray) -> IKResult:
         """Closed-form IK verified by FK; nearest feasible configuration when needed.
 
         Parameters
         ----------
-        T_rcm_tip : (4, 4) array_like
-            Goal tool-tip pose in the RCM frame, m.
-        q_seed : (6,) array_like, optional
-            Preferred branch for the yaw and roll joints (±2π); default: zero.
+        T_goal : (4, 4) ndarray
+            Goal tool-tip pose in the RCM frame, m (validated by :meth:`solve`).
+        seed : (6,) ndarray
+            Preferred branch for the yaw and roll joints (±2π).
 
         Returns
         -------
@@ -107,8 +113,6 @@ class PSM(RcmArm):
             wrist-yaw axis line through the RCM, or wrist point at the RCM) and the numeric
             fallback cannot reach the pose. Non-OK results hold the nearest feasible ``q``.
         """
-        T_goal = check_pose(T_rcm_tip, "T_rcm_tip")
-        seed = self._seed(q_seed)
         sol = self._closed_form(T_goal, seed)
         if sol is not None:
             q, T = sol
@@ -118,9 +122,10 @@ class PSM(RcmArm):
                 T = chain_forward(self._chain, q)
                 errors = pose_error(T_goal, T)
             if within_tolerance(*errors):
-                if self.within_limits(q):
+                q_in, inside = self.clamp_floats(q.tolist())
+                if inside:
                     return IKResult(
-                        q=self.clamp(q),
+                        q=np.array(q_in),
                         status=IKStatus.OK,
                         position_error=errors[0],
                         orientation_error=errors[1],
@@ -166,7 +171,8 @@ class PSM(RcmArm):
         q2 = -math.asin(max(-1.0, min(1.0, w1 / r)))
         q1 = branch_in_limits(math.atan2(w0, -w2), float(seed[0]), links[0].lower, links[0].upper)
         q = [q1, q2, q3, 0.0, 0.0, 0.0]
-        a00, a01, a02, a10, a11, a12, a20, a21, a22 = compose_links(self._chain, q, 0, 3)[:9]
+        T_rcm_3 = compose_links(self._chain, q, 0, 3)
+        a00, a01, a02, a10, a11, a12, a20, a21, a22 = T_rcm_3[:9]
         # step 4: wrist-yaw axis in frame 3 = (-cos θ4 sin θ5, -sin θ4 sin θ5, -cos θ5)
         v0 = a00 * z0 + a10 * z1 + a20 * z2
         v1 = a01 * z0 + a11 * z1 + a21 * z2
@@ -188,5 +194,7 @@ class PSM(RcmArm):
         ca6, sa6 = self._cos_alpha6, self._sin_alpha6
         theta6 = math.atan2(ca6 * u1 + sa6 * u2, u0)
         q[5] = branch_in_limits(theta6 - links[5].offset, 0.0, links[5].lower, links[5].upper)
-        q_arr = np.array(q)
-        return q_arr, chain_forward(self._chain, q_arr)
+        # forward(q), reusing the product of the first three links (unchanged since)
+        T_rcm_6 = compose_links(self._chain, q, 3, 6, T_rcm_3)
+        T = pose12_to_matrix(T_rcm_6, self._chain._tip_rows)
+        return np.array(q), T
