@@ -322,11 +322,18 @@ def test_ecm_residual_zero_iff_axis_through_rcm() -> None:
 
 
 def test_ecm_goal_outside_limits_is_clamped() -> None:
-    p = np.array([0.0, 0.0, -0.4])  # 0.4 m deep: beyond the 0.255 m insertion
-    res = ECM_ARM.solve(_look_pose(p, p, 0.0))
+    goal = ECM_ARM.forward([0.0, 0.0, 0.2, 0.3])
+    goal[:3, 3] = [0.0, 0.0, -0.4]  # 0.4 m deep on the same axis: beyond 0.255 m insertion
+    res = ECM_ARM.solve(goal)
     assert res.status is IKStatus.CLAMPED_TO_LIMITS
     assert ECM_ARM.within_limits(res.q)
     assert res.position_error == pytest.approx(0.4 - 0.255 - 0.0007, abs=1e-6)
+    assert res.orientation_error < ATOL_RAD  # the axis still points at the goal
+    # axis through the RCM but beyond the yaw limit: still a limit problem, not a DoF one
+    p_side = 0.2 * np.array([0.0, 0.0, 1.0])  # straight up: cos(yaw) cos(pitch) < 0
+    res_side = ECM_ARM.solve(_look_pose(p_side, p_side, 0.0))
+    assert res_side.status is IKStatus.CLAMPED_TO_LIMITS
+    assert ECM_ARM.within_limits(res_side.q)
 
 
 # ---------------------------------------------------------------------------- bad input

@@ -62,6 +62,7 @@ ECM_CHAIN = DHChain(
 """The Classic ECM's modified-DH chain, base frame = RCM, identity tool-tip offset."""
 
 _EPS_GEOM = 1e-9  # m: a goal this close to the RCM has no defined shaft direction
+_EXACT_TOL_RAD = 1e-9  # rad: orientation residual counted as zero with unlimited joints
 
 
 def clamp_angle_to_limits(angle: float, reference: float, lower: float, upper: float) -> float:
@@ -138,12 +139,14 @@ class ECM(RcmArm):
         q[2] = r - self._shaft_offset
         q[1] = -math.asin(max(-1.0, min(1.0, float(shaft[1]))))
         q[0] = math.atan2(float(shaft[0]), float(-shaft[2]))
+        # reachable with unlimited joints iff the best roll on the unclamped axis is exact
+        theta4, R_free = self._best_roll(T_goal, q)
+        exact_orientation = rotation_angle_between(T_goal[:3, :3], R_free) <= _EXACT_TOL_RAD
         clamped = False
         if not self.within_limits(np.append(q[:3], 0.0)):
             clamped = True
             q[:3] = self._nearest_position(p, self.clamp(q)[:3])
-        theta4, R_free = self._best_roll(T_goal, q)
-        exact_orientation = rotation_angle_between(T_goal[:3, :3], R_free) <= 1e-9
+            theta4, _ = self._best_roll(T_goal, q)
         q[3] = clamp_angle_to_limits(
             theta4 - links[3].offset, float(seed[3]), links[3].lower, links[3].upper
         )
