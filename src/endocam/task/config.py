@@ -179,7 +179,7 @@ class InstrumentConfig(BaseModel):
     model_config = _FROZEN
 
     shaft_radius: float = Field(4.0e-3, gt=0.0, description="Instrument shaft radius, m.")
-    shaft_length: float = Field(0.12, gt=0.0, description="Visible shaft length, m.")
+    shaft_length: float = Field(0.06, gt=0.0, description="Visible shaft length, m.")
     wrist_length: float = Field(8.0e-3, gt=0.0, description="Wrist length (shaft end to jaws), m.")
     jaw_length: float = Field(8.0e-3, gt=0.0, description="Jaw length (wrist to tip), m.")
     jaw_opening: float = Field(
@@ -242,7 +242,9 @@ class SceneConfig(BaseModel):
         0.35, ge=0.0, le=1.0, description="Camera headlight diffuse (endoscope light), 0-1."
     )
     ambient: float = Field(0.25, ge=0.0, le=1.0, description="Headlight ambient term, 0-1.")
-    wire_segments: int = Field(160, ge=8, description="Capsules in the rendered wire chain, count.")
+    wire_segments: int = Field(
+        240, ge=8, description="Segments of the rendered wire tube mesh along its length, count."
+    )
     ring_mesh_segments: tuple[int, int] = Field(
         (64, 16), description="Torus mesh resolution (around the core, around the tube), count."
     )

@@ -1,0 +1,201 @@
+"""Named queries and offscreen rendering of the wire-chaser scene.
+
+:class:`WireChaserScene` owns the MuJoCo model, its data and one ``mujoco.Renderer``. Callers
+speak optical-frame poses and world points; nothing above this module touches MuJoCo arrays.
+Run headless with the environment variable ``MUJOCO_GL=egl``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import mujoco
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from endocam.camera import Eye, StereoCamera
+from endocam.geometry import FloatArray, as_pose, as_vector3, quat_wxyz_from_R
+from endocam.sim.scene import (
+    CAMERA_BODY,
+    EYE_CAMERAS,
+    N_GROUPS,
+    PSM2_BODY,
+    RING_BODY,
+    TIP_SITES,
+    build_spec,
+)
+from endocam.task.config import TaskConfig
+
+DEFAULT_RAY_TOLERANCE = 2.0e-3  # m, occluders closer than this in front of the target are ignored
+
+
+class WireChaserScene:
+    """The rendered wire-chaser world.
+
+    Parameters
+    ----------
+    task_cfg : TaskConfig
+    camera : StereoCamera
+        Stereo rig; its intrinsics set the render size and ``fovy``.
+    spec : mujoco.MjSpec, optional
+        A spec from :func:`endocam.sim.scene.build_spec`, possibly with extra mocap links
+        (built from ``task_cfg`` and ``camera`` if omitted).
+    """
+
+    def __init__(
+        self, task_cfg: TaskConfig, camera: StereoCamera, spec: mujoco.MjSpec | None = None
+    ) -> None:
+        self.task_cfg = task_cfg
+        self.camera = camera
+        self.model = (build_spec(task_cfg, camera) if spec is None else spec).compile()
+        self.data = mujoco.MjData(self.model)
+        self._mocap = {
+            name: int(self.model.body(name).mocapid[0])
+            for name in (RING_BODY, PSM2_BODY, CAMERA_BODY)
+        }
+        self._cam_ids = {eye: int(self.model.camera(eye).id) for eye in EYE_CAMERAS}
+        self._site_ids = [int(self.model.site(s).id) for s in TIP_SITES]
+        self._option = mujoco.MjvOption()
+        self._option.geomgroup[:] = 1  # MuJoCo hides groups 3-5 by default; show everything
+        k = camera.intrinsics
+        self._renderer: mujoco.Renderer | None = mujoco.Renderer(self.model, k.height, k.width)
+        flags = self._renderer.scene.flags
+        flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+        flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
+        flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0
+        self._update()
+
+    # ---------------------------------------------------------------- state
+    def _update(self) -> None:
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_camlight(self.model, self.data)
+        for w in self.data.warning:
+            if w.number > 0:
+                raise RuntimeError(f"MuJoCo warning raised (number {w.number}, info {w.lastinfo})")
+
+    def _set_mocap(self, body: str, T_world_body: FloatArray) -> None:
+        i = self._mocap[body]
+        self.data.mocap_pos[i] = T_world_body[:3, 3]
+        self.data.mocap_quat[i] = quat_wxyz_from_R(T_world_body[:3, :3])
+        self._update()
+
+    def set_ring_pose(self, T_world_ring: ArrayLike) -> None:
+        """Move the ring, its handle and PSM1 (which holds it) to ``T_world_ring`` (4, 4), m."""
+        self._set_mocap(RING_BODY, as_pose(T_world_ring, "T_world_ring"))
+
+    def set_camera_pose(self, T_world_cam: ArrayLike) -> None:
+        """Move the stereo camera: ``T_world_cam`` (4, 4), optical frame of the rig centre, m."""
+        self._set_mocap(CAMERA_BODY, as_pose(T_world_cam, "T_world_cam"))
+
+    def set_mocap_pose(self, body: str, T_world_body: ArrayLike) -> None:
+        """Move any named mocap body (e.g. a link added with ``add_mocap_link``), (4, 4), m."""
+        T = as_pose(T_world_body, "T_world_body")
+        if body not in self._mocap:
+            try:
+                mocap_id = int(self.model.body(body).mocapid[0])
+            except KeyError as exc:
+                raise ValueError(f"body {body!r} does not exist") from exc
+            if mocap_id < 0:
+                raise ValueError(f"body {body!r} is not a mocap body")
+            self._mocap[body] = mocap_id
+        self._set_mocap(body, T)
+
+    # -------------------------------------------------------------- queries
+    @property
+    def T_world_cam(self) -> FloatArray:
+        """(4, 4) current camera pose (optical frame), m."""
+        return self._body_pose(CAMERA_BODY)
+
+    @property
+    def T_world_ring(self) -> FloatArray:
+        """(4, 4) current ring pose, m."""
+        return self._body_pose(RING_BODY)
+
+    def _body_pose(self, body: str) -> FloatArray:
+        b = self.model.body(body).id
+        T = np.eye(4)
+        T[:3, :3] = self.data.xmat[b].reshape(3, 3)
+        T[:3, 3] = self.data.xpos[b]
+        return T
+
+    def tool_tips(self) -> FloatArray:
+        """(2, 3) world positions of the PSM1 and PSM2 tool tips (jaw tips), m."""
+        return np.array([self.data.site_xpos[i] for i in self._site_ids], dtype=float)
+
+    def render(self, eye: Eye = "left") -> NDArray[np.uint8]:
+        """Render ``eye``'s image at the camera's resolution: (H, W, 3) uint8 RGB."""
+        if eye not in self._cam_ids:
+            raise ValueError(f"eye must be 'left' or 'right', got {eye!r}")
+        if self._renderer is None:
+            raise RuntimeError("the scene is closed")
+        self._renderer.update_scene(self.data, camera=self._cam_ids[eye], scene_option=self._option)
+        return np.asarray(self._renderer.render(), dtype=np.uint8)
+
+    def ray_visible(
+        self,
+        p_world: ArrayLike,
+        T_world_cam: ArrayLike,
+        eye: Eye = "left",
+        exclude_groups: Sequence[int] = (),
+        tolerance: float = DEFAULT_RAY_TOLERANCE,
+    ) -> bool:
+        """Whether ``p_world`` is unoccluded from ``eye`` (geometry only, not the frustum).
+
+        A ray is cast (``mj_ray``) from the eye's optical centre towards the point through every
+        geom of the current scene except those in ``exclude_groups`` (geom groups, e.g. the
+        target's own group, ``GROUP_*`` in :mod:`endocam.sim.scene`). The point is visible if
+        nothing is hit, or the first hit lies no more than ``tolerance`` before the point: a
+        point on a surface (e.g. a ring–wire contact point between two 1 mm tubes) is not hidden
+        by the surface it sits on.
+
+        Parameters
+        ----------
+        p_world : (3,)
+            Target point in world, m.
+        T_world_cam : (4, 4)
+            Camera pose (optical frame), m.
+        eye : {"left", "right"}
+        exclude_groups : sequence of int
+            Geom groups ignored by the ray.
+        tolerance : float
+            Allowed depth of the first hit before the target, m (≥ 0).
+
+        Returns
+        -------
+        bool
+        """
+        p = as_vector3(p_world, "p_world")
+        T = as_pose(T_world_cam, "T_world_cam")
+        if not math.isfinite(tolerance) or tolerance < 0.0:
+            raise ValueError(f"tolerance must be ≥ 0 m, got {tolerance}")
+        groups = np.ones(N_GROUPS, dtype=np.uint8)
+        for g in exclude_groups:
+            if not 0 <= g < N_GROUPS:
+                raise ValueError(f"exclude_groups entries must be in [0, {N_GROUPS}), got {g}")
+            groups[g] = 0
+        p_eye = (T @ self.camera.T_cam_eye(eye))[:3, 3]
+        vec = p - p_eye
+        dist = float(np.linalg.norm(vec))
+        if dist <= tolerance:
+            return True
+        geomid = np.full(1, -1, dtype=np.int32)
+        hit = mujoco.mj_ray(self.model, self.data, p_eye, vec / dist, groups, 1, -1, geomid)
+        return bool(hit < 0.0 or hit >= dist - tolerance)
+
+    def geom_name(self, geom_id: int) -> str:
+        """Name of geom ``geom_id`` (for diagnostics)."""
+        return str(self.model.geom(geom_id).name)
+
+    def close(self) -> None:
+        """Release the renderer's GL context (idempotent)."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __enter__(self) -> WireChaserScene:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
