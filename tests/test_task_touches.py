@@ -2,8 +2,9 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
-from endocam.geometry import make_pose
+from endocam.geometry import make_pose, transform_points
 from endocam.task.config import RingConfig, TaskConfig, WireConfig
 from endocam.task.touches import clearance, clearances, touch_events
 from endocam.task.trajectory import TrajectoryKind, make_trajectory
@@ -160,3 +161,19 @@ def test_bad_input(wire: Wire) -> None:
     traj = make_trajectory(TaskConfig(), TrajectoryKind.IDEAL, 2, wire=wire)
     with pytest.raises(ValueError, match="dt"):
         touch_events(traj, wire, RING, dt=0.0)
+
+
+def test_ideal_handle_never_meets_the_wire(wire: Wire) -> None:
+    cfg = TaskConfig()
+    ring = cfg.ring
+    tree = cKDTree(wire.polyline(20_001))  # 14 µm spacing
+    x_end = ring.major_radius + ring.handle_length
+    # handle axis from the ring's outer rim to its end (where PSM1's jaws are), ring frame
+    handle = np.column_stack(
+        [np.linspace(ring.major_radius + ring.minor_radius, x_end, 30), np.zeros(30), np.zeros(30)]
+    )
+    for n in (36, 71):
+        traj = make_trajectory(cfg, TrajectoryKind.IDEAL, n, wire=wire)
+        for T in traj.poses(np.linspace(0.0, traj.duration, 1201)):
+            d, _ = tree.query(transform_points(T, handle))
+            assert d.min() > ring.handle_radius + wire.radius + 1e-3
