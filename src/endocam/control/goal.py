@@ -38,8 +38,7 @@ from endocam.geometry import UP, FloatArray, as_vector3, unit_vector
 
 ROLL_HOLD_ANGLE = math.radians(2.0)  # rad, tilt of z from vertical below which roll is held
 ROLL_LEVEL_ANGLE = math.radians(20.0)  # rad, tilt above which the horizon is exactly level
-SIDE_HYSTERESIS = math.radians(10.0)  # rad, how far below horizontal the normal may tip before
-# the camera changes side
+SIDE_HYSTERESIS = math.radians(10.0)  # rad, default tip below horizontal before a side change
 _SIN_HOLD = math.sin(ROLL_HOLD_ANGLE)
 _SIN_LEVEL = math.sin(ROLL_LEVEL_ANGLE)
 _SIN_SIDE = math.sin(SIDE_HYSTERESIS)
@@ -216,7 +215,9 @@ def look_at_unchecked(
     return _pose(x, y, z, p)
 
 
-def choose_side(n: Vec, up: Vec, z_prev: Vec | None) -> float:
+def choose_side(
+    n: Vec, up: Vec, z_prev: Vec | None, sin_hysteresis: float = _SIN_SIDE
+) -> float:
     """Sign ``s`` (±1) so the camera at ``p_c + s d_f n`` is above the tissue, with hysteresis.
 
     Parameters
@@ -227,7 +228,9 @@ def choose_side(n: Vec, up: Vec, z_prev: Vec | None) -> float:
         Unit world up.
     z_prev : 3-tuple or None
         Optical axis of the previous ``T_world_cam`` in world; the side it looked from is kept
-        while ``s n·up`` stays above ``−sin(SIDE_HYSTERESIS)``.
+        while ``s n·up ≥ −sin_hysteresis``.
+    sin_hysteresis : float
+        Sine of how far below horizontal the normal may tip before the side changes (≥ 0).
     """
     n_up = _dot(n, up)
     default = 1.0 if n_up >= 0.0 else -1.0
@@ -237,21 +240,31 @@ def choose_side(n: Vec, up: Vec, z_prev: Vec | None) -> float:
     if abs(along) < _EPS:
         return default
     s_prev = 1.0 if along > 0.0 else -1.0
-    if s_prev * n_up >= -_SIN_SIDE:
+    if s_prev * n_up >= -sin_hysteresis:
         return s_prev
     return default
 
 
 def goal_pose_unchecked(
-    p_c: Vec, n: Vec, d_f: float, up: Vec, previous: FloatArray | None
+    p_c: Vec,
+    n: Vec,
+    d_f: float,
+    up: Vec,
+    previous: FloatArray | None,
+    side_hysteresis: float = SIDE_HYSTERESIS,
+    min_height: float = -math.inf,
 ) -> FloatArray:
     """:func:`goal_pose` without validation, for the control loop; ``n`` and ``up`` unit."""
+    # Keeping the previous side may not take the camera below ``min_height``.
+    sin_h = math.sin(side_hysteresis)
+    if min_height > -math.inf:
+        sin_h = max(0.0, min(sin_h, (_dot(p_c, up) - min_height) / d_f))
     if previous is None:
         s = choose_side(n, up, None)
         x_prev = None
     else:
         R = previous[:3, :3].tolist()
-        s = choose_side(n, up, (R[0][2], R[1][2], R[2][2]))
+        s = choose_side(n, up, (R[0][2], R[1][2], R[2][2]), sin_h)
         x_prev = (R[0][0], R[1][0], R[2][0])
     z = _scaled(n, -s)
     x, y, zz = _rotation_columns(z, up, x_prev)
@@ -266,6 +279,8 @@ def goal_pose(
     *,
     up: ArrayLike = UP,
     previous: ArrayLike | None = None,
+    side_hysteresis: float = SIDE_HYSTERESIS,
+    min_height: float = -math.inf,
 ) -> FloatArray:
     r"""Camera goal pose on the feature normal, looking at the feature (paper Sec. III-B).
 
@@ -282,6 +297,12 @@ def goal_pose(
     previous : (4, 4) or None
         The last goal or the current camera pose ``T_world_cam``. Gives hysteresis to the side
         choice and the roll to keep at the horizon singularity (see the module docstring).
+    side_hysteresis : float
+        How far below horizontal (rad, in [0, π/2)) the normal may tip before the camera
+        changes side.
+    min_height : float
+        Lowest camera height along ``up`` (m, e.g. the board plus a margin) at which the
+        hysteresis may keep the previous side; below it the camera changes side at once.
 
     Returns
     -------
@@ -307,4 +328,10 @@ def goal_pose(
         prev = np.asarray(previous, dtype=float)
         if prev.shape != (4, 4) or not np.all(np.isfinite(prev)):
             raise ValueError("previous must be a finite (4, 4) pose")
-    return goal_pose_unchecked(_vec(p), _vec(n_u), float(d_f), _vec(up_u), prev)
+    if not 0.0 <= side_hysteresis < 0.5 * math.pi:
+        raise ValueError(f"side_hysteresis must be in [0, π/2) rad, got {side_hysteresis}")
+    if math.isnan(min_height):
+        raise ValueError("min_height must be a number of metres or -inf")
+    return goal_pose_unchecked(
+        _vec(p), _vec(n_u), float(d_f), _vec(up_u), prev, side_hysteresis, min_height
+    )

@@ -57,18 +57,30 @@ class ControllerConfig(BaseModel):
 
     d_f: float = Field(0.05, gt=0, description="initial working distance, m")
     d_min: float = Field(0.03, gt=0, description="smallest working distance, m")
-    d_max: float = Field(0.12, gt=0, description="largest working distance, m")
+    d_max: float = Field(0.08, gt=0, description="largest working distance, m")
     d_f_step: float = Field(D_F_STEP, gt=0, description="working-distance change per step, m")
     jump_threshold: float = Field(
         0.02, gt=0, description="goal jump between control steps that triggers way-points, m"
     )
     d_wp: float = Field(0.04, gt=0, description="height of intermediate way-points, m")
-    planner_speed: float = Field(0.10, gt=0, description="progress speed along way-points, m/s")
+    side_hysteresis: float = Field(
+        math.radians(25.0),
+        ge=0,
+        lt=math.pi / 2,
+        description="how far below horizontal the ring normal may tip before the orientation "
+        "camera changes side, rad",
+    )
+    min_camera_height: float = Field(
+        0.015,
+        description="lowest camera height above the board (world z) the side hysteresis may "
+        "keep, m",
+    )
+    planner_speed: float = Field(0.15, gt=0, description="progress speed along way-points, m/s")
     planner_lookahead: float = Field(
         0.01, gt=0, description="how far progress may lead the camera's projection, m"
     )
     cone_height: float = Field(
-        0.26, gt=0, description="cone workspace height (slightly under the instrument length), m"
+        0.35, gt=0, description="cone workspace height (slightly under the instrument length), m"
     )
     cone_base_radius: float = Field(CONE_BASE_RADIUS, gt=0, description="cone base radius, m")
     window_inner_frac: float = Field(0.5, gt=0, le=1, description="inner window, image fraction")
@@ -248,7 +260,7 @@ class _MovingPolicy:
         return CameraCommand(self._last_cmd, state, self.d_f, reason)
 
     def step(self, obs: Observation) -> CameraCommand:
-        """Safety checks, working distance, goal, way-points, cone — in that order."""
+        """Input checks, working distance, goal, cone freeze, way-points — in that order."""
         ctx = self._ctx
         if ctx is None:
             raise RuntimeError("call reset() before step()")
@@ -267,28 +279,6 @@ class _MovingPolicy:
 
         goal = self._goal(T_ring, T_cam)
         p_goal = goal[:3, 3]
-        ref = self._last_goal[:3, 3] if self._last_goal is not None else T_cam[:3, 3]
-        jumped = math.dist(p_goal.tolist(), ref.tolist()) > cfg.jump_threshold
-        self._last_goal = goal
-
-        up = UP
-        if jumped and self._path is None:
-            self._path = WaypointPath(intermediate_waypoints(T_cam[:3, 3], p_goal, up, cfg.d_wp))
-            self._s = 0.0
-        state, reason = TrackingState.TRACKING, ""
-        cmd = goal
-        if self._path is not None:
-            self._path = self._path.with_goal(p_goal, up, cfg.d_wp)
-            self._s = advance(
-                self._path, self._s, T_cam[:3, 3], cfg.planner_speed * ctx.dt, cfg.planner_lookahead
-            )
-            if self._s >= self._path.length - 1e-9:
-                self._path = None  # arrived: back to plain tracking
-            else:
-                p = self._path.point_at(self._s)
-                cmd = self._waypoint_pose(p, T_ring, goal)
-                state, reason = TrackingState.PLANNING, "following intermediate way-points"
-
         if not self.cone.contains(p_goal):
             if self._frozen_T is None:
                 self._frozen_T = T_cam
@@ -301,6 +291,26 @@ class _MovingPolicy:
                 f"goal {margin_mm:.1f} mm outside the cone workspace; holding",
             )
         self._frozen_T = None
+
+        ref = self._last_goal[:3, 3] if self._last_goal is not None else T_cam[:3, 3]
+        jumped = math.dist(p_goal.tolist(), ref.tolist()) > cfg.jump_threshold
+        self._last_goal = goal
+        if jumped and self._path is None:
+            self._path = WaypointPath(intermediate_waypoints(T_cam[:3, 3], p_goal, UP, cfg.d_wp))
+            self._s = 0.0
+        state, reason = TrackingState.TRACKING, ""
+        cmd = goal
+        if self._path is not None:
+            self._path = self._path.with_goal(p_goal, UP, cfg.d_wp)
+            self._s = advance(
+                self._path, self._s, T_cam[:3, 3], cfg.planner_speed * ctx.dt, cfg.planner_lookahead
+            )
+            if self._s >= self._path.length - 1e-9:
+                self._path = None  # arrived: back to plain tracking
+            else:
+                p = self._path.point_at(self._s)
+                cmd = self._waypoint_pose(p, T_ring, goal)
+                state, reason = TrackingState.PLANNING, "following intermediate way-points"
         self._last_cmd = cmd
         return CameraCommand(cmd, state, self.d_f, reason)
 
@@ -341,7 +351,16 @@ class OrientationPolicy(_MovingPolicy):
         if not norm > 0.0:
             raise ValueError("ring normal is zero")
         n = (n[0] / norm, n[1] / norm, n[2] / norm)
-        return goal_pose_unchecked((T[0][3], T[1][3], T[2][3]), n, self.d_f, _UP, previous)
+        cfg = self.config
+        return goal_pose_unchecked(
+            (T[0][3], T[1][3], T[2][3]),
+            n,
+            self.d_f,
+            _UP,
+            previous,
+            cfg.side_hysteresis,
+            cfg.min_camera_height,
+        )
 
 
 @dataclass(frozen=True)

@@ -249,9 +249,10 @@ class SceneConfig(BaseModel):
         (64, 16), description="Torus mesh resolution (around the core, around the tube), count."
     )
     rcm_position: Vec3 = Field(
-        (0.0, -0.07, 0.175),
+        (0.25, -0.05, 0.15),
         description="Camera arm's remote centre of motion (cone workspace tip) in world, m: "
-        "0.13 m above the wire's middle, 0.06 m to the front (−y).",
+        "a port 0.15 m above the board, right of the task (+x), so the cone from it towards "
+        "the ring's start (the wire's left end) runs along the wire (see docs/world.md).",
     )
     rcm_euler_xyz: Vec3 = Field(
         (0.0, 0.0, 0.0),

@@ -1,0 +1,149 @@
+"""The one experiment config: task, camera, controller and episode, loadable from TOML or YAML.
+
+Every value is SI (m, s, rad; image sizes in px) and documented field by field; see
+``endocam config`` for the full default config with descriptions. Files may set any subset:
+unset fields keep their defaults. Unknown keys are errors (a typo must not be silently ignored).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from endocam.camera import DEFAULT_BASELINE, DEFAULT_FOVY, Intrinsics, StereoCamera
+from endocam.control.policies import ControllerConfig
+from endocam.task.config import TaskConfig
+
+_FROZEN = ConfigDict(frozen=True, extra="forbid")
+
+
+class CameraConfig(BaseModel):
+    """The stereo endoscope: image size, field of view and baseline."""
+
+    model_config = _FROZEN
+
+    width: int = Field(640, ge=16, le=4096, description="Image width per eye, px.")
+    height: int = Field(480, ge=16, le=4096, description="Image height per eye, px.")
+    fovy: float = Field(
+        DEFAULT_FOVY, gt=0.0, lt=math.pi, description="Vertical field of view, rad (60°)."
+    )
+    baseline: float = Field(DEFAULT_BASELINE, ge=0.0, le=0.05, description="Stereo baseline, m.")
+
+    def stereo(self) -> StereoCamera:
+        """The :class:`StereoCamera` this config describes."""
+        return StereoCamera(Intrinsics.from_fovy(self.width, self.height, self.fovy), self.baseline)
+
+
+class MotionLimits(BaseModel):
+    """Limits on the camera's Cartesian motion: it never teleports."""
+
+    model_config = _FROZEN
+
+    max_linear_speed: float = Field(0.15, gt=0.0, description="Camera speed limit, m/s.")
+    max_linear_acceleration: float = Field(1.0, gt=0.0, description="Acceleration limit, m/s².")
+    max_angular_speed: float = Field(
+        math.radians(120.0), gt=0.0, description="Angular speed limit, rad/s."
+    )
+    max_angular_acceleration: float = Field(
+        math.radians(1200.0), gt=0.0, description="Angular acceleration limit, rad/s²."
+    )
+    max_linear_jerk: float = Field(20.0, gt=0.0, description="Jerk limit, m/s³.")
+    max_angular_jerk: float = Field(
+        math.radians(24000.0), gt=0.0, description="Angular jerk limit, rad/s³."
+    )
+
+
+class EpisodeConfig(BaseModel):
+    """Simulated time, sensing and actuation."""
+
+    model_config = _FROZEN
+
+    control_rate: float = Field(100.0, gt=0.0, le=2000.0, description="Control rate, Hz.")
+    video_fps: float = Field(30.0, gt=0.0, le=120.0, description="Video frame rate, frames/s.")
+    sensing_latency: float = Field(
+        0.05, ge=0.0, le=2.0, description="Delay of the ring pose the controller sees, s."
+    )
+    limits: MotionLimits = Field(default_factory=MotionLimits, description="Camera motion limits.")
+    arm: str = Field(
+        "free",
+        pattern="^(free|psm|ecm)$",
+        description="What carries the camera: 'free' (Cartesian limits only), 'psm' or 'ecm' "
+        "(through the dVRK arm's kinematics and joint limits).",
+    )
+
+    @model_validator(mode="after")
+    def _rates(self) -> EpisodeConfig:
+        if self.video_fps > self.control_rate:
+            raise ValueError("video_fps must not exceed control_rate")
+        return self
+
+
+class ExperimentConfig(BaseModel):
+    """Everything an episode needs, with the paper-like defaults."""
+
+    model_config = _FROZEN
+
+    task: TaskConfig = Field(default_factory=TaskConfig, description="The wire-chaser world.")
+    camera: CameraConfig = Field(default_factory=CameraConfig, description="The stereo camera.")
+    controller: ControllerConfig = Field(
+        default_factory=ControllerConfig, description="The moving policies' parameters."
+    )
+    episode: EpisodeConfig = Field(default_factory=EpisodeConfig, description="Time and motion.")
+
+
+def _one_line(exc: ValidationError) -> str:
+    """The first validation error as ``path.to.field: message``."""
+    err = exc.errors()[0]
+    where = ".".join(str(p) for p in err["loc"]) or "config"
+    more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
+    return f"{where}: {err['msg']}{more}"
+
+
+def config_from_mapping(data: Any, source: str = "config") -> ExperimentConfig:
+    """Validate a mapping (as parsed from TOML/YAML) into an :class:`ExperimentConfig`.
+
+    Raises
+    ------
+    ValueError
+        One line naming the file, the field and the problem.
+    """
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{source}: the top level must be a table of sections")
+    try:
+        return ExperimentConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ValueError(f"{source}: {_one_line(exc)}") from None
+
+
+def load_config(path: str | Path) -> ExperimentConfig:
+    """Load an :class:`ExperimentConfig` from a ``.toml``, ``.yaml`` or ``.yml`` file.
+
+    Raises
+    ------
+    ValueError
+        One line if the file is missing, unreadable, malformed or invalid.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ValueError(f"cannot read config {p}: {exc.strerror or exc}") from None
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".toml":
+            data: Any = tomllib.loads(text)
+        elif suffix in (".yaml", ".yml"):
+            data = yaml.safe_load(text)
+        else:
+            raise ValueError(f"config {p}: unknown format {suffix!r}; use .toml, .yaml or .yml")
+    except (tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ValueError(f"config {p} is malformed: {first}") from None
+    return config_from_mapping(data, str(p))

@@ -1,0 +1,236 @@
+"""The episode runner: a ring trajectory, a camera policy and the camera's motion, in fixed steps.
+
+Time advances at the control rate. Each step the policy sees the ring pose as it was
+``sensing_latency`` seconds ago, the measured camera pose and the instrument tips; its command
+goes through the camera's actuator model (Cartesian speed/acceleration limits, and optionally a
+dVRK arm's IK and joint limits), so the camera never teleports. Rendering is separate
+(:mod:`endocam.sim.outputs`): the control loop runs headless and is deterministic, so the same
+config and seed give identical logs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from endocam.camera import StereoCamera
+from endocam.config import ExperimentConfig
+from endocam.control.policies import Observation, PolicyContext, TrackingState, make_policy
+from endocam.geometry import FloatArray
+from endocam.metrics import center_error_3d, image_centering_error, orientation_error
+from endocam.sim.motion import CartesianLimiter
+from endocam.sim.scene import overview_camera_pose, psm1_tip_in_ring
+from endocam.task.touches import TouchReport, touch_events
+from endocam.task.trajectory import RingTrajectory, TrajectoryKind, make_trajectory
+from endocam.task.wire import Wire
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """Which episode to run.
+
+    Attributes
+    ----------
+    policy : str
+        A registered policy name (``endocam policies``).
+    trajectory : TrajectoryKind
+        ``ideal`` or ``noisy``.
+    control_points : int
+        Control points along the wire (≥ 2); the paper uses 36 and 71.
+    seed : int
+        Noise seed of a noisy trajectory (ignored by ``ideal``).
+    """
+
+    policy: str
+    trajectory: TrajectoryKind
+    control_points: int
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.control_points < 2:
+            raise ValueError(f"control_points must be ≥ 2, got {self.control_points}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be ≥ 0, got {self.seed}")
+
+
+@dataclass(frozen=True)
+class EpisodeLog:
+    """Everything one episode produced, per control step (N steps), SI.
+
+    Attributes
+    ----------
+    t : (N,)
+        Time, s.
+    T_world_ring : (N, 4, 4)
+        True ring pose (ring z = face normal), m.
+    T_world_ring_sensed : (N, 4, 4)
+        Ring pose the policy saw (delayed by the sensing latency), m.
+    T_world_cam : (N, 4, 4)
+        Camera (optical frame) pose at the start of each step, m.
+    T_world_cmd : (N, 4, 4)
+        Camera pose the policy commanded, m.
+    state : (N,)
+        :class:`TrackingState` values (strings).
+    reason : list of str
+        The policy's one-line reason per step ("" while plainly tracking).
+    d_f : (N,)
+        Working distance in use, m.
+    p_world_tips : (N, 2, 3)
+        PSM1 and PSM2 tip positions, m.
+    contact : (N,)
+        Whether the ring touches the wire at ``t`` (from the ground-truth touch events).
+    clearance : (N,)
+        Ring–wire clearance at ``t``, m (negative = interpenetration).
+    joints : (N, J) or None
+        Joint positions of the camera arm, when the camera is carried by one (rad / m).
+    """
+
+    t: FloatArray
+    T_world_ring: FloatArray
+    T_world_ring_sensed: FloatArray
+    T_world_cam: FloatArray
+    T_world_cmd: FloatArray
+    state: np.ndarray
+    reason: list[str]
+    d_f: FloatArray
+    p_world_tips: FloatArray
+    contact: np.ndarray
+    clearance: FloatArray
+    joints: FloatArray | None = None
+    joint_names: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    """An episode's inputs, log, ground truth and per-step tracking errors.
+
+    The errors are measured against the *true* ring pose, in SI: ``image_error`` px (the only
+    non-SI quantity, pixels having no SI unit), ``center_error`` m, ``orientation_error`` rad.
+    """
+
+    config: ExperimentConfig
+    spec: EpisodeSpec
+    camera: StereoCamera
+    trajectory: RingTrajectory
+    wire: Wire
+    touches: TouchReport
+    log: EpisodeLog
+    T_world_overview: FloatArray
+    image_error: FloatArray = field(repr=False)
+    center_error: FloatArray = field(repr=False)
+    orientation_error: FloatArray = field(repr=False)
+
+
+def contact_at(touches: TouchReport, t: FloatArray) -> np.ndarray:
+    """(N,) bool: whether ``t`` (s) lies inside a ground-truth touch event."""
+    inside = np.zeros(len(t), dtype=bool)
+    for ev in touches.events:
+        inside |= (t >= ev.t_start) & (t <= ev.t_end)
+    return inside
+
+
+def run_episode(
+    config: ExperimentConfig,
+    spec: EpisodeSpec,
+    *,
+    progress: Callable[[int], object] | None = None,
+    touches: TouchReport | None = None,
+) -> EpisodeResult:
+    """Run one headless episode.
+
+    Parameters
+    ----------
+    config : ExperimentConfig
+    spec : EpisodeSpec
+    progress : callable, optional
+        Called with the number of control steps done since the last call (for a progress bar).
+    touches : TouchReport, optional
+        Precomputed ground truth for this trajectory (it does not depend on the policy).
+
+    Returns
+    -------
+    EpisodeResult
+    """
+    policy = make_policy(spec.policy, config.controller)  # unknown names fail before any work
+    camera = config.camera.stereo()
+    wire = Wire(config.task.wire)
+    trajectory = make_trajectory(
+        config.task, spec.trajectory, spec.control_points, spec.seed, wire=wire
+    )
+    if touches is None:
+        touches = touch_events(
+            trajectory, wire, config.task.ring, config.task.trajectory.touch_sample_dt
+        )
+    ep = config.episode
+    dt = 1.0 / ep.control_rate
+    n = math.floor(trajectory.duration / dt + 1e-9) + 1
+    t = np.arange(n, dtype=float) * dt
+    T_ring = trajectory.poses(t)
+    T_sensed = trajectory.poses(np.clip(t - ep.sensing_latency, 0.0, None))
+    tip1 = T_ring[:, :3, :3] @ psm1_tip_in_ring(config.task.ring, config.task.instruments)
+    tip1 = tip1 + T_ring[:, :3, 3]
+    tip2 = np.broadcast_to(np.array(config.task.instruments.psm2_tip), (n, 3))
+    tips = np.stack([tip1, tip2], axis=1)
+
+    T_overview = overview_camera_pose(config.task, camera)
+    p_rcm = np.array(config.task.scene.rcm_position)
+    policy.reset(PolicyContext(camera, T_overview, T_sensed[0], p_rcm, dt))
+    limiter = CartesianLimiter(ep.limits, dt)
+    limiter.reset(T_overview)
+
+    T_cam = np.empty((n, 4, 4))
+    T_cmd = np.empty((n, 4, 4))
+    d_f = np.empty(n)
+    state = np.empty(n, dtype=object)
+    reason: list[str] = []
+    T_now = T_overview
+    chunk = max(1, n // 100)
+    for k in range(n):
+        T_cam[k] = T_now
+        cmd = policy.step(Observation(float(t[k]), T_sensed[k], T_now, tips[k]))
+        T_cmd[k] = cmd.T_world_cam
+        d_f[k] = cmd.d_f
+        state[k] = cmd.state.value
+        reason.append(cmd.reason)
+        T_now = limiter.step(cmd.T_world_cam)
+        if progress is not None and (k + 1) % chunk == 0:
+            progress(chunk)
+    if progress is not None and n % chunk:
+        progress(n % chunk)
+
+    clearance = np.interp(t, touches.t, touches.clearance)
+    log = EpisodeLog(
+        t=t,
+        T_world_ring=T_ring,
+        T_world_ring_sensed=T_sensed,
+        T_world_cam=T_cam,
+        T_world_cmd=T_cmd,
+        state=state.astype(str),
+        reason=reason,
+        d_f=d_f,
+        p_world_tips=tips,
+        contact=contact_at(touches, t),
+        clearance=clearance,
+    )
+    return EpisodeResult(
+        config=config,
+        spec=spec,
+        camera=camera,
+        trajectory=trajectory,
+        wire=wire,
+        touches=touches,
+        log=log,
+        T_world_overview=T_overview,
+        image_error=image_centering_error(camera, T_cam, T_ring[:, :3, 3]),
+        center_error=center_error_3d(T_cam, T_ring[:, :3, 3]),
+        orientation_error=orientation_error(T_cam, T_ring[:, :3, 2]),
+    )
+
+
+def state_fractions(log: EpisodeLog) -> dict[str, float]:
+    """Fraction of control steps spent in each :class:`TrackingState` (all states listed)."""
+    n = len(log.state)
+    return {s.value: float(np.count_nonzero(log.state == s.value)) / n for s in TrackingState}

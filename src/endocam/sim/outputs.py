@@ -1,0 +1,403 @@
+"""What an episode leaves behind: scene, log, metrics, video, plot and report files.
+
+The files are ``scene.json``, ``episode.csv``, ``metrics.json``, ``video.mp4``, ``tracking.png``
+and ``report.html``.
+Raw files are SI unless a column or key says its unit (``image_error_px``, ``center_error_mm``).
+Everything is written into a temporary folder next to the destination and moved into place when
+complete, so an interrupted run never leaves output that looks finished.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import json
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import imageio_ffmpeg
+import jinja2
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from endocam import __version__
+from endocam.control.policies import TrackingState
+from endocam.geometry import quat_wxyz_from_R
+from endocam.metrics import summarize
+from endocam.sim.episode import EpisodeResult, state_fractions
+
+SCENE_JSON = "scene.json"
+EPISODE_CSV = "episode.csv"
+METRICS_JSON = "metrics.json"
+VIDEO_MP4 = "video.mp4"
+TRACKING_PNG = "tracking.png"
+REPORT_HTML = "report.html"
+WIRE_POLYLINE_POINTS = 1000  # count, samples of the wire centre line in scene.json
+PLOT_DPI = 120  # dots per inch of the PNG plots
+VIDEO_CRF = 20  # x264 constant rate factor (lower = better quality; 20 keeps the wire crisp)
+_TEMPLATES = Path(__file__).parent / "templates"
+_SHADE = {
+    TrackingState.PLANNING.value: ("#f5c542", "planning (way-points)"),
+    TrackingState.FROZEN_OUTSIDE_CONE.value: ("#9aa5b1", "frozen outside cone"),
+    TrackingState.LOST_TRACKING.value: ("#e06666", "lost tracking"),
+    TrackingState.UNREACHABLE.value: ("#c27ba0", "unreachable"),
+}
+
+Progress = Callable[[int], object]
+
+
+# --------------------------------------------------------------------------- atomic folders
+@contextlib.contextmanager
+def atomic_dir(out_dir: Path) -> Iterator[Path]:
+    """Yield a temporary folder that replaces ``out_dir`` only if the block completes."""
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=out_dir.parent))
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    old = None
+    if out_dir.exists():
+        old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}")
+        os.replace(out_dir, old)
+    os.replace(tmp, out_dir)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def check_writable(out_dir: Path) -> None:
+    """Raise ``ValueError`` (one line) unless ``out_dir`` can be created and written."""
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValueError(f"output {out_dir} exists and is not a folder")
+    parent = out_dir.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"cannot create output folder {parent}: {exc.strerror}") from None
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"output folder {parent} is not writable")
+
+
+# ------------------------------------------------------------------------------- raw files
+def scene_dict(result: EpisodeResult) -> dict[str, Any]:
+    """The ``scene.json`` content, SI: wire, ring, camera, RCM, cone and the config."""
+    cfg = result.config
+    cam = result.camera
+    wire = result.wire
+    return {
+        "units": "SI (m, s, rad); pixel quantities in px",
+        "wire": {
+            "points": wire.polyline(WIRE_POLYLINE_POINTS).tolist(),
+            "wire_radius": cfg.task.wire.radius,
+            "length": wire.length,
+        },
+        "ring": {
+            "major_radius": cfg.task.ring.major_radius,
+            "minor_radius": cfg.task.ring.minor_radius,
+        },
+        "camera": {
+            "K_left": cam.intrinsics.K.tolist(),
+            "T_cam_left": cam.T_cam_left.tolist(),
+            "T_cam_right": cam.T_cam_right.tolist(),
+            "width": cam.intrinsics.width,
+            "height": cam.intrinsics.height,
+            "baseline": cam.baseline,
+            "fovy": cam.intrinsics.fovy,
+            "T_world_overview": result.T_world_overview.tolist(),
+        },
+        "rcm": list(cfg.task.scene.rcm_position),
+        "cone": {
+            "apex": list(cfg.task.scene.rcm_position),
+            "axis_towards": result.log.T_world_ring_sensed[0][:3, 3].tolist(),
+            "height": cfg.controller.cone_height,
+            "base_radius": cfg.controller.cone_base_radius,
+        },
+        "episode": {
+            "policy": result.spec.policy,
+            "trajectory": result.spec.trajectory.value,
+            "control_points": result.spec.control_points,
+            "seed": result.spec.seed,
+        },
+        "config": cfg.model_dump(mode="json"),
+        "endocam_version": __version__,
+    }
+
+
+def episode_columns(result: EpisodeResult) -> dict[str, np.ndarray]:
+    """Per-step columns of ``episode.csv`` (ordered), SI unless the name gives a unit."""
+    log = result.log
+    q_ring = quat_wxyz_from_R(log.T_world_ring[:, :3, :3])
+    q_cam = quat_wxyz_from_R(log.T_world_cam[:, :3, :3])
+    cols: dict[str, np.ndarray] = {"t": log.t}
+    for i, a in enumerate("xyz"):
+        cols[f"ring_{a}"] = log.T_world_ring[:, i, 3]
+    for i, a in enumerate("wxyz"):
+        cols[f"ring_q{a}"] = q_ring[:, i]
+    for i, a in enumerate("xyz"):
+        cols[f"cam_{a}"] = log.T_world_cam[:, i, 3]
+    for i, a in enumerate("wxyz"):
+        cols[f"cam_q{a}"] = q_cam[:, i]
+    cols["contact"] = log.contact.astype(int)
+    cols["clearance"] = log.clearance
+    cols["state"] = log.state
+    cols["d_f"] = log.d_f
+    for i, a in enumerate("xyz"):
+        cols[f"cmd_{a}"] = log.T_world_cmd[:, i, 3]
+    for j, name in enumerate(("psm1", "psm2")):
+        for i, a in enumerate("xyz"):
+            cols[f"{name}_tip_{a}"] = log.p_world_tips[:, j, i]
+    if log.joints is not None:
+        for j, name in enumerate(log.joint_names):
+            cols[f"q_{name}"] = log.joints[:, j]
+    cols["image_error_px"] = result.image_error
+    cols["center_error_mm"] = result.center_error * 1e3
+    cols["orientation_error_deg"] = np.degrees(result.orientation_error)
+    cols["reason"] = np.array(log.reason, dtype=object)
+    return cols
+
+
+def write_episode_csv(result: EpisodeResult, path: Path) -> None:
+    """Write ``episode.csv``: one row per control step, full float precision."""
+    cols = episode_columns(result)
+    names = list(cols)
+    arrays = [cols[n] for n in names]
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(names)
+        for k in range(len(result.log.t)):
+            writer.writerow([_cell(a[k]) for a in arrays])
+
+
+def _cell(value: Any) -> Any:
+    if isinstance(value, float | np.floating):
+        return repr(float(value)) if math.isfinite(value) else ""
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def metrics_dict(result: EpisodeResult) -> dict[str, Any]:
+    """The ``metrics.json`` content: tracking errors in px / mm / deg, touches, states, config."""
+    return {
+        "image_error_px": summarize(result.image_error),
+        "center_error_mm": summarize(result.center_error, 1e3),
+        "orientation_error_deg": summarize(result.orientation_error, math.degrees(1.0)),
+        "touches": result.touches.count,
+        "touch_events": [
+            {
+                "t_start": ev.t_start,
+                "t_end": ev.t_end,
+                "contact_point": np.asarray(ev.p_world_contact).tolist(),
+                "min_clearance": ev.min_clearance,
+            }
+            for ev in result.touches.events
+        ],
+        "state_fractions": state_fractions(result.log),
+        "episode": {
+            "policy": result.spec.policy,
+            "trajectory": result.spec.trajectory.value,
+            "control_points": result.spec.control_points,
+            "seed": result.spec.seed,
+            "duration_s": float(result.trajectory.duration),
+            "control_steps": len(result.log.t),
+        },
+        "config": result.config.model_dump(mode="json"),
+        "endocam_version": __version__,
+    }
+
+
+def _json(path: Path, data: Any) -> None:
+    text = json.dumps(data, indent=2, allow_nan=False, default=_nan_to_none)
+    path.write_text(text + "\n", encoding="utf-8")
+
+
+def _nan_to_none(obj: Any) -> Any:  # pragma: no cover - json only calls it for unknown types
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def _finite(data: Any) -> Any:
+    """Replace NaN/inf by None recursively (JSON has no NaN)."""
+    if isinstance(data, dict):
+        return {k: _finite(v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [_finite(v) for v in data]
+    if isinstance(data, float) and not math.isfinite(data):
+        return None
+    return data
+
+
+# ---------------------------------------------------------------------------------- plots
+def _shade_states(ax: Any, t: np.ndarray, state: np.ndarray) -> None:
+    for value, (colour, _label) in _SHADE.items():
+        mask = state == value
+        if mask.any():
+            ax.fill_between(
+                t,
+                0,
+                1,
+                where=mask,
+                color=colour,
+                alpha=0.25,
+                lw=0,
+                step="mid",
+                transform=ax.get_xaxis_transform(),
+            )
+
+
+def plot_tracking(results: Sequence[EpisodeResult], labels: Sequence[str], path: Path) -> None:
+    """The three tracking errors against time, one line per episode (like paper Figs. 5–6).
+
+    With one episode, the control states (planning, frozen, lost) are shaded behind the lines.
+    """
+    fig = Figure(figsize=(9.0, 7.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(3, 1, sharex=True)
+    series = [
+        ("image_error", 1.0, "Image centring error (px)"),
+        ("center_error", 1e3, "3D centring error (mm)"),
+        ("orientation_error", math.degrees(1.0), "Orientation error (deg)"),
+    ]
+    for ax, (attr, scale, ylabel) in zip(axes, series, strict=True):
+        for result, label in zip(results, labels, strict=True):
+            ax.plot(result.log.t, getattr(result, attr) * scale, lw=1.0, label=label)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+        ax.set_ylim(bottom=0)
+    if len(results) == 1:
+        for ax in axes:
+            _shade_states(ax, results[0].log.t, results[0].log.state)
+        present = {s for s in np.unique(results[0].log.state) if s in _SHADE}
+        handles = [_patch(_SHADE[s][0], _SHADE[s][1]) for s in _SHADE if s in present]
+        if handles:
+            axes[0].legend(handles=handles, loc="upper right", fontsize=8)
+    else:
+        axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("Time (s)")
+    r0 = results[0]
+    fig.suptitle(
+        f"Tracking errors, {r0.spec.trajectory.value} trajectory, "
+        f"{r0.spec.control_points} control points, seed {r0.spec.seed}"
+    )
+    fig.savefig(path, dpi=PLOT_DPI, format="png")
+
+
+def _patch(colour: str, label: str) -> Any:
+    from matplotlib.patches import Patch
+
+    return Patch(facecolor=colour, alpha=0.4, label=label)
+
+
+# ---------------------------------------------------------------------------------- video
+def frame_indices(result: EpisodeResult) -> np.ndarray:
+    """Control-step index shown in each video frame (nearest step to ``j / fps``)."""
+    fps = result.config.episode.video_fps
+    rate = result.config.episode.control_rate
+    n_frames = math.floor(result.trajectory.duration * fps + 1e-9) + 1
+    k = np.rint(np.arange(n_frames) * rate / fps).astype(int)
+    return np.minimum(k, len(result.log.t) - 1)
+
+
+def video_writer(path: Path, width: int, height: int, fps: float) -> Any:
+    """A primed imageio-ffmpeg H.264 writer (yuv420p, playable in every browser)."""
+    writer = imageio_ffmpeg.write_frames(
+        str(path),
+        (width, height),
+        fps=fps,
+        codec="libx264",
+        pix_fmt_in="rgb24",
+        pix_fmt_out="yuv420p",
+        macro_block_size=1,
+        ffmpeg_log_level="error",
+        output_params=["-crf", str(VIDEO_CRF), "-preset", "veryfast", "-movflags", "+faststart"],
+    )
+    writer.send(None)
+    return writer
+
+
+def render_video(result: EpisodeResult, path: Path, progress: Progress | None = None) -> int:
+    """Render the left eye over the episode into an H.264 MP4; returns the number of frames."""
+    from endocam.sim.render import WireChaserScene
+
+    log = result.log
+    idx = frame_indices(result)
+    k = result.camera.intrinsics
+    if k.width % 2 or k.height % 2:
+        raise ValueError("video needs an even image width and height (H.264 yuv420p)")
+    with WireChaserScene(result.config.task, result.camera) as scene:
+        writer = video_writer(path, k.width, k.height, result.config.episode.video_fps)
+        try:
+            for i in idx:
+                scene.set_ring_pose(log.T_world_ring[i])
+                scene.set_camera_pose(log.T_world_cam[i])
+                writer.send(np.ascontiguousarray(scene.render("left")))
+                if progress is not None:
+                    progress(1)
+        finally:
+            writer.close()
+    return len(idx)
+
+
+# --------------------------------------------------------------------------------- report
+def _env() -> jinja2.Environment:
+    return jinja2.Environment(
+        loader=jinja2.FileSystemLoader(str(_TEMPLATES)),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+
+
+def fmt(x: Any, digits: int = 2) -> str:
+    """Format a number for a table; missing values as an en dash."""
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "–"
+    return f"{x:.{digits}f}"
+
+
+def render_template(name: str, **context: Any) -> str:
+    """Render one of the report templates."""
+    return _env().get_template(name).render(fmt=fmt, version=__version__, **context)
+
+
+def write_run(
+    result: EpisodeResult,
+    out_dir: Path,
+    *,
+    video: bool = True,
+    progress: Progress | None = None,
+    prerendered: Path | None = None,
+) -> Path:
+    """Write every output of one episode into ``out_dir`` atomically; returns ``out_dir``.
+
+    ``prerendered`` is an MP4 of this episode already rendered elsewhere (moved in, not redone).
+    """
+    metrics = _finite(metrics_dict(result))
+    with atomic_dir(Path(out_dir)) as tmp:
+        _json(tmp / SCENE_JSON, _finite(scene_dict(result)))
+        write_episode_csv(result, tmp / EPISODE_CSV)
+        _json(tmp / METRICS_JSON, metrics)
+        plot_tracking([result], [result.spec.policy], tmp / TRACKING_PNG)
+        if video and prerendered is not None:
+            shutil.move(prerendered, tmp / VIDEO_MP4)
+        elif video:
+            render_video(result, tmp / VIDEO_MP4, progress)
+        html = render_template(
+            "run.html",
+            metrics=metrics,
+            spec=result.spec,
+            video=VIDEO_MP4 if video else None,
+            plot=TRACKING_PNG,
+            files=[SCENE_JSON, EPISODE_CSV, METRICS_JSON],
+        )
+        (tmp / REPORT_HTML).write_text(html, encoding="utf-8")
+    return Path(out_dir)
