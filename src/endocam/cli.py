@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable, Sequence
+from typing import NoReturn
 
 from endocam import __version__
 
@@ -21,6 +22,14 @@ class UsageError(Exception):
 
 
 Handler = Callable[[argparse.Namespace], int | None]
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line on stderr with exit code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print ``prog: error: message`` (no usage block) and exit with code 2."""
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see --help)\n")
 
 
 def _registrars() -> list[Callable[[argparse._SubParsersAction], None]]:
@@ -41,7 +50,7 @@ def _registrars() -> list[Callable[[argparse._SubParsersAction], None]]:
 
 def build_parser() -> argparse.ArgumentParser:
     """Build the full argument parser with every registered subcommand."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="endocam",
         description="Autonomous 6-DoF endoscopic camera control for MIS.",
     )

@@ -41,7 +41,7 @@ class MotionStatus(enum.Enum):
 
 
 class CartesianLimiter:
-    """Moves a pose towards a (moving) target under linear and angular speed/acceleration/jerk limits.
+    """Moves a pose towards a (moving) target under speed, acceleration and jerk limits.
 
     Parameters
     ----------
@@ -143,6 +143,13 @@ class CartesianLimiter:
         if result not in (Result.Working, Result.Finished):
             raise RuntimeError(f"ruckig failed with {result} for a finite target")
         new = self._out.new_position
+        if result == Result.Finished:  # at rest on the target: take it exactly (no round-off)
+            self._p = np.array(T_world_target[:3, 3], dtype=float)
+            self._R = np.array(T_world_target[:3, :3], dtype=float)
+            self._v = [0.0] * 6
+            self._acc = [0.0] * 6
+            self.status = MotionStatus.REJECTED if rejected else MotionStatus.ARRIVED
+            return self.pose
         self._p = np.array(new[:3])
         mujoco.mju_quatIntegrate(q_cur, np.array(new[3:]), 1.0)
         mat = np.empty(9)
