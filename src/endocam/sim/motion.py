@@ -5,8 +5,9 @@ A policy commands a pose; the camera does not teleport there. Each control step,
 degrees of freedom, the position and the rotation vector relative to the current orientation,
 under per-axis velocity, acceleration and jerk limits. The per-axis limits are the configured
 norms divided by √3, so the speed and acceleration *norms* never exceed the configured limits.
-Quaternion algebra uses MuJoCo's ``mju_*`` functions (scalar-first, like endocam); scipy's
-``Rotation.from_matrix`` costs ~0.1 ms per call here, too slow for a 1 kHz loop.
+The rotation-vector map (SO(3) log and exp) is done on plain floats: on this machine scipy's
+``Rotation.from_matrix`` costs ~150 µs per call and each MuJoCo ``mju_*`` call ~3 µs of binding
+overhead, too much for a 1 kHz loop. The kernels are checked against scipy in the tests.
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ from __future__ import annotations
 import enum
 import math
 
-import mujoco
 import numpy as np
 from ruckig import InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
 
@@ -30,6 +30,70 @@ _SNAP_ACC = 1e-10  # m/s² or rad/s²: smaller accelerations are round-off
 def _snap(values: list[float], tol: float) -> list[float]:
     """Values with magnitude below ``tol`` set to exactly 0."""
     return [0.0 if abs(v) < tol else v for v in values]
+
+
+Rows = list[list[float]]
+_SMALL_ANGLE = 1e-8  # rad, below this the first-order series of log/exp is exact in floats
+
+
+def so3_log(R: Rows) -> list[float]:
+    """Rotation vector (3,) of a rotation matrix given as rows, rad; |θ| ≤ π.
+
+    Uses the quaternion of ``R`` (Shepperd's branch choice, stable for every angle) and
+    ``θ = 2 atan2(|v|, w) v/|v|`` with ``w ≥ 0``.
+    """
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
+    tr = r00 + r11 + r22
+    if tr > 0.0:
+        k = math.sqrt(tr + 1.0) * 2.0
+        w, x, y, z = 0.25 * k, (r21 - r12) / k, (r02 - r20) / k, (r10 - r01) / k
+    elif r00 > r11 and r00 > r22:
+        k = math.sqrt(1.0 + r00 - r11 - r22) * 2.0
+        w, x, y, z = (r21 - r12) / k, 0.25 * k, (r01 + r10) / k, (r02 + r20) / k
+    elif r11 > r22:
+        k = math.sqrt(1.0 + r11 - r00 - r22) * 2.0
+        w, x, y, z = (r02 - r20) / k, (r01 + r10) / k, 0.25 * k, (r12 + r21) / k
+    else:
+        k = math.sqrt(1.0 + r22 - r00 - r11) * 2.0
+        w, x, y, z = (r10 - r01) / k, (r02 + r20) / k, (r12 + r21) / k, 0.25 * k
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    s = math.sqrt(x * x + y * y + z * z)
+    if s < _SMALL_ANGLE:
+        return [2.0 * x, 2.0 * y, 2.0 * z]
+    scale = 2.0 * math.atan2(s, w) / s
+    return [scale * x, scale * y, scale * z]
+
+
+def so3_exp(theta: list[float]) -> Rows:
+    """Rotation matrix (rows) of a rotation vector (3,), rad (Rodrigues' formula)."""
+    x, y, z = theta
+    a2 = x * x + y * y + z * z
+    if a2 < _SMALL_ANGLE * _SMALL_ANGLE:
+        s, c = 1.0, 0.5  # sin(a)/a and (1 − cos a)/a² to first order
+    else:
+        a = math.sqrt(a2)
+        s, c = math.sin(a) / a, (1.0 - math.cos(a)) / a2
+    return [
+        [1.0 - c * (y * y + z * z), c * x * y - s * z, c * x * z + s * y],
+        [c * x * y + s * z, 1.0 - c * (x * x + z * z), c * y * z - s * x],
+        [c * x * z - s * y, c * y * z + s * x, 1.0 - c * (x * x + y * y)],
+    ]
+
+
+def _matmul(A: Rows, B: Rows) -> Rows:
+    return [
+        [A[i][0] * B[0][j] + A[i][1] * B[1][j] + A[i][2] * B[2][j] for j in range(3)]
+        for i in range(3)
+    ]
+
+
+def _tmatmul(A: Rows, B: Rows) -> Rows:
+    """``A^T B`` for 3×3 row lists."""
+    return [
+        [A[0][i] * B[0][j] + A[1][i] * B[1][j] + A[2][i] * B[2][j] for j in range(3)]
+        for i in range(3)
+    ]
 
 
 class MotionStatus(enum.Enum):
@@ -65,19 +129,21 @@ class CartesianLimiter:
         self._inp.max_acceleration = [a, a, a, al, al, al]
         j, jr = limits.max_linear_jerk / _SQRT3, limits.max_angular_jerk / _SQRT3
         self._inp.max_jerk = [j, j, j, jr, jr, jr]  # jerk-limited: smooth for the viewer
-        self._p = np.zeros(3)
-        self._R = np.eye(3)
+        # Each DoF is limited on its own (no time synchronisation): the target moves every step,
+        # so synchronised arrival buys nothing, and it halves ruckig's cost.
+        self._inp.synchronization = Synchronization.No
+        self._p = [0.0, 0.0, 0.0]
+        self._R: Rows = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
         self._v = [0.0] * 6  # linear velocity (world) and angular velocity (body), SI
         self._acc = [0.0] * 6
         self._target = np.eye(4)
-        self._q_cur, self._q_tgt, self._q_rel = np.zeros(4), np.zeros(4), np.zeros(4)
-        self._theta = np.zeros(3)
         self.status = MotionStatus.ARRIVED
 
     def reset(self, T_world_cam: FloatArray) -> None:
         """Start at rest at ``T_world_cam`` (4, 4)."""
-        self._p = np.array(T_world_cam[:3, 3], dtype=float)
-        self._R = np.array(T_world_cam[:3, :3], dtype=float)
+        T = np.asarray(T_world_cam, dtype=float)
+        self._p = T[:3, 3].tolist()
+        self._R = T[:3, :3].tolist()
         self._v = [0.0] * 6
         self._acc = [0.0] * 6
         self._target = np.array(T_world_cam, dtype=float)
@@ -86,15 +152,30 @@ class CartesianLimiter:
     @property
     def pose(self) -> FloatArray:
         """Current ``T_world_cam`` (4, 4)."""
-        T = np.eye(4)
-        T[:3, :3] = self._R
-        T[:3, 3] = self._p
-        return T
+        R, p = self._R, self._p
+        return np.array(
+            [
+                [R[0][0], R[0][1], R[0][2], p[0]],
+                [R[1][0], R[1][1], R[1][2], p[1]],
+                [R[2][0], R[2][1], R[2][2], p[2]],
+                [0.0, 0.0, 0.0, 1.0],
+            ]
+        )
 
     @property
     def velocity(self) -> FloatArray:
         """(6,) linear velocity in world (m/s), then angular velocity in the camera (rad/s)."""
         return np.array(self._v)
+
+    def _retry(self, inp: InputParameter) -> Result:
+        """Ruckig fails on rare round-off residue near rest (~1e-16): snap it to 0 and retry."""
+        inp.current_velocity = _snap(self._v, _SNAP_VEL)
+        inp.current_acceleration = _snap(self._acc, _SNAP_ACC)
+        inp.target_position = [
+            c if abs(t - c) < _SNAP_POS else t
+            for t, c in zip(inp.target_position, inp.current_position, strict=True)
+        ]
+        return self._otg.update(inp, self._out)
 
     def step(self, T_world_target: FloatArray) -> FloatArray:
         """Advance one control period towards ``T_world_target`` (4, 4); returns the new pose.
@@ -102,61 +183,41 @@ class CartesianLimiter:
         A non-finite target is rejected: the camera keeps going to the last valid target,
         within its limits, and ``status`` says ``REJECTED``.
         """
-        rejected = not math.isfinite(float(np.sum(T_world_target)))
+        flat = np.ravel(T_world_target).tolist()
+        rejected = len(flat) != 16 or not math.isfinite(math.fsum(flat))
         if rejected:
             T_world_target = self._target
-        self._target = np.array(T_world_target, dtype=float)
+            flat = T_world_target.ravel().tolist()
+        else:
+            self._target = T_world_target
         # Re-anchor the orientation DoFs at the current orientation: current rotation vector 0,
-        # target = log(q_cur⁻¹ q_target) (body frame, |θ| ≤ π).
-        q_cur, q_tgt, q_rel, theta = self._q_cur, self._q_tgt, self._q_rel, self._theta
-        mujoco.mju_mat2Quat(q_cur, self._R.ravel())
-        mujoco.mju_mat2Quat(q_tgt, np.ascontiguousarray(T_world_target[:3, :3]).ravel())
-        mujoco.mju_negQuat(q_rel, q_cur)
-        mujoco.mju_mulQuat(q_rel, q_rel.copy(), q_tgt)
-        if q_rel[0] < 0.0:
-            q_rel *= -1.0  # shortest rotation
-        mujoco.mju_quat2Vel(theta, q_rel, 1.0)
+        # target = log(R_cur^T R_target) (body frame, |θ| ≤ π).
+        R_tgt = [flat[0:3], flat[4:7], flat[8:11]]
+        theta = so3_log(_tmatmul(self._R, R_tgt))
+        p = self._p
         inp = self._inp
-        inp.current_position = [*self._p.tolist(), 0.0, 0.0, 0.0]
+        inp.current_position = [p[0], p[1], p[2], 0.0, 0.0, 0.0]
+        inp.target_position = [flat[3], flat[7], flat[11], *theta]
         inp.current_velocity = self._v
         inp.current_acceleration = self._acc
-        inp.target_position = [*T_world_target[:3, 3].tolist(), *theta.tolist()]
-        inp.target_velocity = [0.0] * 6
-        inp.target_acceleration = [0.0] * 6
-        # Round-off residue (~1e-16) near rest makes ruckig's synchronisation fail: snap it to 0.
-        inp.current_velocity = _snap(self._v, _SNAP_VEL)
-        inp.current_acceleration = _snap(self._acc, _SNAP_ACC)
-        delta = [t - c for t, c in zip(inp.target_position, inp.current_position, strict=True)]
-        inp.target_position = [
-            c if abs(d) < _SNAP_POS else t
-            for t, c, d in zip(inp.target_position, inp.current_position, delta, strict=True)
-        ]
         try:
             result = self._otg.update(inp, self._out)
         except RuckigError:
-            # Rare numerical corner cases: retry without time synchronisation of the DoFs.
-            inp.synchronization = Synchronization.No
-            try:
-                result = self._otg.update(inp, self._out)
-            finally:
-                inp.synchronization = Synchronization.Time
+            result = self._retry(inp)
         if result not in (Result.Working, Result.Finished):
             raise RuntimeError(f"ruckig failed with {result} for a finite target")
-        new = self._out.new_position
         if result == Result.Finished:  # at rest on the target: take it exactly (no round-off)
-            self._p = np.array(T_world_target[:3, 3], dtype=float)
-            self._R = np.array(T_world_target[:3, :3], dtype=float)
+            self._p = [flat[3], flat[7], flat[11]]
+            self._R = R_tgt
             self._v = [0.0] * 6
             self._acc = [0.0] * 6
             self.status = MotionStatus.REJECTED if rejected else MotionStatus.ARRIVED
             return self.pose
-        self._p = np.array(new[:3])
-        mujoco.mju_quatIntegrate(q_cur, np.array(new[3:]), 1.0)
-        mat = np.empty(9)
-        mujoco.mju_quat2Mat(mat, q_cur)
-        self._R = mat.reshape(3, 3)
-        self._v = list(self._out.new_velocity)
-        self._acc = list(self._out.new_acceleration)
+        new = self._out.new_position
+        self._p = new[:3]
+        self._R = _matmul(self._R, so3_exp(new[3:]))
+        self._v = self._out.new_velocity
+        self._acc = self._out.new_acceleration
         if rejected:
             self.status = MotionStatus.REJECTED
         elif result == Result.Finished:
