@@ -1,0 +1,30 @@
+"""The numbered examples run and produce what they promise (CI runs them, as ruckig's do)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+def _run(*args: str) -> str:
+    res = subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    return res.stdout
+
+
+def test_goal_pose_example() -> None:
+    out = _run(str(EXAMPLES / "01_goal_pose.py"))
+    assert out.count("horizon level") == 3
+
+
+def test_controller_demo_writes_a_plot(tmp_path: Path) -> None:
+    png = tmp_path / "demo.png"
+    out = _run(str(EXAMPLES / "02_controller_demo.py"), str(png))
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    errors = {line.split()[0]: float(line.split()[-2]) for line in out.splitlines()[:3]}
+    # Only the orientation camera aligns with the normal; the others keep their orientation.
+    assert errors["orientation"] < 0.2 * errors["fixed"]
+    assert errors["centering"] == errors["fixed"]
