@@ -202,6 +202,17 @@ def metrics_dict(result: EpisodeResult) -> dict[str, Any]:
             for ev in result.touches.events
         ],
         "state_fractions": state_fractions(result.log),
+        "by_state": {
+            state: {
+                "image_error_px": summarize(result.image_error[mask]),
+                "center_error_mm": summarize(result.center_error[mask], 1e3),
+                "orientation_error_deg": summarize(
+                    result.orientation_error[mask], math.degrees(1.0)
+                ),
+            }
+            for state in np.unique(result.log.state)
+            for mask in [result.log.state == state]
+        },
         "episode": {
             "policy": result.spec.policy,
             "trajectory": result.spec.trajectory.value,
