@@ -1,9 +1,9 @@
-"""``endocam study serve`` and ``endocam study analyze``.
+"""``endocam study make``, ``endocam study serve`` and ``endocam study analyze``.
 
-The ``study`` group is registered by :func:`register`. ``endocam study make`` (rendering the nine
-videos with the simulator) plugs in by adding one ``_add_<name>(sub)`` function to
-``_SUBCOMMANDS``; it must write the manifest described in :mod:`endocam.study.manifest`.
-FastAPI and uvicorn (the ``study`` extra) are imported only when ``serve`` runs.
+The ``study`` group is registered by :func:`register`; each subcommand is one ``_add_<name>(sub)``
+function in ``_SUBCOMMANDS``. ``make`` renders the nine videos with the simulator and writes the
+manifest described in :mod:`endocam.study.manifest`. FastAPI and uvicorn (the ``study`` extra) are
+imported only when ``serve`` runs; MuJoCo only when ``make`` runs.
 """
 
 from __future__ import annotations
@@ -18,6 +18,26 @@ from endocam.study.analysis import AnalysisConfig, OutlierRule
 
 ADMIN_TOKEN_ENV = "ENDOCAM_ADMIN_TOKEN"
 _EXTRA_HINT = "install the study extra: pip install 'endocam[study]'"
+
+
+def _make(args: argparse.Namespace) -> int:
+    from endocam.config import ExperimentConfig, load_config
+    from endocam.sim.outputs import check_writable
+    from endocam.study.make import check_study_config, make_study
+
+    if args.seed < 0:
+        raise UsageError(f"--seed must be ≥ 0, got {args.seed}")
+    try:
+        config = ExperimentConfig() if args.config is None else load_config(args.config)
+        check_study_config(config)
+        check_writable(Path(args.out))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    manifest = make_study(config, args.out, seed=args.seed)
+    for v in manifest.videos:
+        print(f"{v.id}  {v.condition.value:12s} {v.trajectory:12s} {v.true_touches:3d} touches")
+    print(f"study written to {args.out} ({len(manifest.videos)} videos)")
+    return 0
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -48,7 +68,8 @@ def _serve(args: argparse.Namespace) -> int:
 def _analyze(args: argparse.Namespace) -> int:
     from endocam.study.analysis import analyze
     from endocam.study.db import StudyDB
-    from endocam.study.manifest import load_manifest
+    from endocam.study.manifest import MANIFEST_NAME, load_manifest
+    from endocam.study.observability import OBSERVABILITY_JSON, load_summary
     from endocam.study.report import write_outputs
     from endocam.study.responses import read_responses_csv
 
@@ -66,7 +87,12 @@ def _analyze(args: argparse.Namespace) -> int:
             all_videos=args.all_videos, outliers=OutlierRule(args.outliers), tukey_k=args.tukey_k
         )
         result = analyze(rows, manifest, config)
-        written = write_outputs(result, args.out)
+        manifest_path = Path(args.manifest)
+        if manifest_path.is_dir():
+            manifest_path = manifest_path / MANIFEST_NAME
+        obs_path = manifest_path.parent / OBSERVABILITY_JSON
+        observability = load_summary(obs_path) if obs_path.is_file() else None
+        written = write_outputs(result, args.out, observability)
     except ModuleNotFoundError as exc:
         raise UsageError(f"'study analyze' needs {exc.name}: {_EXTRA_HINT}") from None
     except ValueError as exc:
@@ -77,6 +103,28 @@ def _analyze(args: argparse.Namespace) -> int:
         print(f"{cond:12s} n={s.n:3d}  mean error {mean} touches  SD {sd}")
     print(f"excluded: {len(result.excluded)}; wrote {', '.join(str(p) for p in written.values())}")
     return 0
+
+
+def _add_make(sub: argparse._SubParsersAction) -> None:
+    from endocam.study.make import DEFAULT_SEED
+
+    p = sub.add_parser(
+        "make",
+        help="render the nine study videos and write manifest.json",
+        description="Simulate three noisy trajectories of increasing difficulty (36 points with "
+        "5-10° angle noise, 36 and 71 points with the config's noise) with the fixed, centering "
+        "and orientation cameras; write videos/, manifest.json, design.json, "
+        "observability.json/.csv and logs/ into --out (replaced atomically).",
+    )
+    p.add_argument("--out", required=True, metavar="DIR", help="study folder to write")
+    p.add_argument("--config", metavar="FILE", help="TOML or YAML config (see `endocam config`)")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=DEFAULT_SEED,
+        help="study seed: trajectory noise and video ids (default: %(default)s)",
+    )
+    p.set_defaults(handler=_make)
 
 
 def _add_serve(sub: argparse._SubParsersAction) -> None:
@@ -111,7 +159,12 @@ def _add_analyze(sub: argparse._SubParsersAction) -> None:
         metavar="CSV",
         help="CSV with columns participant_id,video_id,reported_touches,attention_passed",
     )
-    p.add_argument("--manifest", required=True, metavar="FILE", help="the study's manifest.json")
+    p.add_argument(
+        "--manifest",
+        required=True,
+        metavar="FILE",
+        help="the study's manifest.json (an observability.json beside it adds a report section)",
+    )
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
     p.add_argument(
         "--all-videos",
@@ -133,11 +186,15 @@ def _add_analyze(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_analyze)
 
 
-_SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_serve, _add_analyze]
+_SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
+    _add_make,
+    _add_serve,
+    _add_analyze,
+]
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``study`` command group (``serve``, ``analyze``) to the top-level subparsers."""
+    """Add the ``study`` command group (``make``, ``serve``, ``analyze``) to the subparsers."""
     study = subparsers.add_parser(
         "study",
         help="video-based skill-assessment study",

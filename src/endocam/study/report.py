@@ -17,6 +17,7 @@ from matplotlib.figure import Figure
 
 from endocam import __version__
 from endocam.study.analysis import ORDERED_CONDITIONS, AnalysisResult, result_json
+from endocam.study.observability import ObservabilitySummary
 
 ANALYSIS_JSON = "analysis.json"
 BOXPLOT_PNG = "assessment_errors.png"
@@ -56,8 +57,17 @@ def plot_errors(result: AnalysisResult, path: Path) -> None:
     fig.savefig(path, dpi=BOXPLOT_DPI, format="png")
 
 
-def render_report(result: AnalysisResult) -> str:
-    """The HTML report (needs jinja2 from the ``study`` extra)."""
+def render_report(result: AnalysisResult, observability: ObservabilitySummary | None = None) -> str:
+    """The HTML report (needs jinja2 from the ``study`` extra).
+
+    Parameters
+    ----------
+    result : AnalysisResult
+        The analysis.
+    observability : ObservabilitySummary, optional
+        The study's objective touch observability (``observability.json`` written by
+        ``study make``); adds a section when given.
+    """
     try:
         import jinja2
     except ModuleNotFoundError as exc:  # pragma: no cover - depends on the installed extras
@@ -71,14 +81,20 @@ def render_report(result: AnalysisResult) -> str:
     )
     return env.get_template("report.html").render(
         result=result,
+        observability=observability,
         labels=_LABELS,
         boxplot=BOXPLOT_PNG,
         version=__version__,
         fmt=lambda x, digits=2: "–" if x is None else f"{x:.{digits}f}",
+        pct=lambda x: "–" if x is None else f"{100 * x:.0f} %",
     )
 
 
-def write_outputs(result: AnalysisResult, out_dir: str | Path) -> dict[str, Path]:
+def write_outputs(
+    result: AnalysisResult,
+    out_dir: str | Path,
+    observability: ObservabilitySummary | None = None,
+) -> dict[str, Path]:
     """Write ``analysis.json``, the box plot PNG and ``report.html`` atomically into ``out_dir``.
 
     Parameters
@@ -87,6 +103,8 @@ def write_outputs(result: AnalysisResult, out_dir: str | Path) -> dict[str, Path
         What to write.
     out_dir : str or Path
         Output folder, created if missing; existing files of the same names are replaced.
+    observability : ObservabilitySummary, optional
+        Shown as a section of ``report.html`` when given.
 
     Returns
     -------
@@ -103,7 +121,7 @@ def write_outputs(result: AnalysisResult, out_dir: str | Path) -> dict[str, Path
         doc = json.dumps(result_json(result), indent=2, allow_nan=False) + "\n"
         (tmp / ANALYSIS_JSON).write_text(doc, encoding="utf-8")
         plot_errors(result, tmp / BOXPLOT_PNG)
-        (tmp / REPORT_HTML).write_text(render_report(result), encoding="utf-8")
+        (tmp / REPORT_HTML).write_text(render_report(result, observability), encoding="utf-8")
         written = {}
         for name in (ANALYSIS_JSON, BOXPLOT_PNG, REPORT_HTML):
             os.replace(tmp / name, out / name)

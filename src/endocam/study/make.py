@@ -1,0 +1,321 @@
+"""``endocam study make``: render the nine study videos, their manifest and raw material.
+
+Design (paper Sec. IV-D: "three randomised trajectories of increasing difficulty"):
+
+====  ===============  ==============  =======================================================
+diff  name             control points  noise per control point (magnitude range, random sign)
+====  ===============  ==============  =======================================================
+1     ``t1-36-low``    36              position: config's (3-3.5 mm); angles: 5-10°
+2     ``t2-36-high``   36              the config's (paper: 3-3.5 mm, 10-30°)
+3     ``t3-71-high``   71              the config's; twice the control points = more turns
+====  ===============  ==============  =======================================================
+
+Each trajectory is rendered with the three camera conditions (``fixed``, ``centering``,
+``orientation``): nine videos, left eye, the config's resolution and frame rate. The noise seed
+of trajectory ``k`` is the ``k``-th draw of ``numpy.random.default_rng(seed).integers(0, 2**31)``;
+video ids are eight hex digits drawn from ``default_rng([seed, ID_STREAM])``, so nothing in a URL
+reveals the condition and the same ``--seed`` gives the same study.
+
+Written (atomically: a temporary folder renamed at the end)::
+
+    manifest.json          the contract with `study serve` / `study analyze`
+    videos/<id>.mp4        the nine videos (H.264)
+    design.json            trajectories (seeds, noise, touches) and the key id → condition
+    observability.json     objective touch observability (endocam.study.observability) + CSV
+    observability.csv
+    logs/<id>/             scene.json, episode.csv, metrics.json, tracking.png, report.html
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from tqdm import tqdm
+
+from endocam import __version__
+from endocam.config import ExperimentConfig
+from endocam.study.counterbalance import presentation_orders
+from endocam.study.manifest import (
+    MANIFEST_NAME,
+    AttentionQuestion,
+    Condition,
+    Manifest,
+    Video,
+    manifest_json,
+)
+from endocam.study.observability import (
+    OBSERVABILITY_CSV,
+    OBSERVABILITY_JSON,
+    TouchObservation,
+    observability_csv,
+    observability_json,
+    observe_episode,
+    summarize,
+)
+from endocam.task.trajectory import TrajectoryKind
+
+if TYPE_CHECKING:  # the simulator (MuJoCo) is imported only when a study is made
+    from endocam.sim.episode import EpisodeResult
+
+DEFAULT_SEED = 2024
+ID_STREAM = 1  # second entry of the id generator's seed, keeps ids apart from trajectory seeds
+ID_HEX_DIGITS = 8  # hex digits of a video id (32 random bits)
+DESIGN_JSON = "design.json"
+VIDEOS_DIR = "videos"
+LOGS_DIR = "logs"
+DEFAULT_ATTENTION = AttentionQuestion(
+    question="To show you are paying attention, enter the number four as a digit.", answer=4
+)
+STUDY_CONDITIONS = (Condition.FIXED, Condition.CENTERING, Condition.ORIENTATION)
+
+
+@dataclass(frozen=True)
+class StudyTrajectory:
+    """One study trajectory: a noisy ring path of a given difficulty.
+
+    Attributes
+    ----------
+    name : str
+        Name in the manifest.
+    difficulty : int
+        1..3, 3 = most difficult.
+    control_points : int
+        Control points along the wire.
+    angle_noise : (2,) or None
+        Per-angle noise magnitude range [lo, hi], rad; None keeps the config's.
+    """
+
+    name: str
+    difficulty: int
+    control_points: int
+    angle_noise: tuple[float, float] | None = None
+
+
+STUDY_TRAJECTORIES = (
+    StudyTrajectory("t1-36-low", 1, 36, (math.radians(5.0), math.radians(10.0))),
+    StudyTrajectory("t2-36-high", 2, 36),
+    StudyTrajectory("t3-71-high", 3, 71),
+)
+
+
+def trajectory_config(config: ExperimentConfig, trajectory: StudyTrajectory) -> ExperimentConfig:
+    """``config`` with the trajectory's noise override applied (validated again)."""
+    if trajectory.angle_noise is None:
+        return config
+    data = config.model_dump()
+    data["task"]["trajectory"]["angle_noise"] = trajectory.angle_noise
+    return ExperimentConfig.model_validate(data)
+
+
+def trajectory_seeds(seed: int, n: int = len(STUDY_TRAJECTORIES)) -> tuple[int, ...]:
+    """Noise seeds of the ``n`` trajectories, drawn from ``default_rng(seed)`` (each ≥ 0)."""
+    if seed < 0:
+        raise ValueError(f"seed must be ≥ 0, got {seed}")
+    rng = np.random.default_rng(seed)
+    return tuple(int(s) for s in rng.integers(0, 2**31, size=n))
+
+
+def video_ids(seed: int, n: int) -> tuple[str, ...]:
+    """``n`` distinct random-looking ids (``ID_HEX_DIGITS`` hex digits), seeded by ``seed``."""
+    if seed < 0:
+        raise ValueError(f"seed must be ≥ 0, got {seed}")
+    rng = np.random.default_rng([seed, ID_STREAM])
+    ids: list[str] = []
+    while len(ids) < n:
+        candidate = f"{int(rng.integers(0, 16**ID_HEX_DIGITS)):0{ID_HEX_DIGITS}x}"
+        if candidate not in ids:
+            ids.append(candidate)
+    return tuple(ids)
+
+
+def check_study_config(config: ExperimentConfig) -> None:
+    """Raise ``ValueError`` (one line) if the config cannot make study videos."""
+    if config.camera.width % 2 or config.camera.height % 2:
+        raise ValueError(
+            f"camera.width and camera.height must be even for H.264 video, got "
+            f"{config.camera.width}x{config.camera.height}"
+        )
+
+
+def render_conditions(
+    results: Sequence[EpisodeResult],
+    paths: Sequence[Path],
+    progress: Callable[[int], object] | None = None,
+) -> None:
+    """Render the left eye of episodes that share one ring trajectory, in one pass.
+
+    One scene serves all of them: per frame the ring is placed once, then each episode's camera.
+
+    Parameters
+    ----------
+    results : sequence of EpisodeResult
+        Episodes of the same config and trajectory (different policies).
+    paths : sequence of Path
+        One MP4 per episode.
+    progress : callable, optional
+        Called with 1 per rendered frame (all episodes).
+    """
+    from endocam.sim.outputs import frame_indices, video_writer
+    from endocam.sim.render import WireChaserScene
+
+    first = results[0]
+    idx = frame_indices(first)
+    k = first.camera.intrinsics
+    fps = first.config.episode.video_fps
+    writers = [video_writer(p, k.width, k.height, fps) for p in paths]
+    try:
+        with WireChaserScene(first.config.task, first.camera) as scene:
+            for i in idx:
+                scene.set_ring_pose(first.log.T_world_ring[i])
+                for result, writer in zip(results, writers, strict=True):
+                    scene.set_camera_pose(result.log.T_world_cam[i])
+                    writer.send(np.ascontiguousarray(scene.render("left")))
+                    if progress is not None:
+                        progress(1)
+    finally:
+        for w in writers:
+            w.close()
+
+
+def make_study(
+    config: ExperimentConfig,
+    out_dir: str | Path,
+    *,
+    seed: int = DEFAULT_SEED,
+    trajectories: Sequence[StudyTrajectory] = STUDY_TRAJECTORIES,
+) -> Manifest:
+    """Simulate, render and write a complete study folder (see the module docstring).
+
+    Parameters
+    ----------
+    config : ExperimentConfig
+        Camera, controller, episode and task; the trajectories override only the angle noise.
+    out_dir : str or Path
+        Study folder; replaced atomically when everything is written.
+    seed : int
+        Study seed (≥ 0): trajectory noise seeds and video ids derive from it.
+    trajectories : sequence of StudyTrajectory
+        The design; distinct names and difficulties in 1..3.
+
+    Returns
+    -------
+    Manifest
+        The manifest written (validated).
+    """
+    from endocam.sim.episode import EpisodeSpec
+    from endocam.sim.outputs import atomic_dir, check_writable, frame_indices, write_run
+    from endocam.sim.render import WireChaserScene
+    from endocam.sim.runs import ground_truth, run_with_progress
+
+    check_study_config(config)
+    out = Path(out_dir)
+    check_writable(out)
+    seeds = trajectory_seeds(seed, len(trajectories))
+    ids = iter(video_ids(seed, len(trajectories) * len(STUDY_CONDITIONS)))
+    kind = TrajectoryKind.NOISY
+
+    runs: list[tuple[StudyTrajectory, int, list[EpisodeResult]]] = []
+    with tqdm(total=len(trajectories) * len(STUDY_CONDITIONS), desc="episodes", leave=False) as bar:
+        for traj, traj_seed in zip(trajectories, seeds, strict=True):
+            cfg = trajectory_config(config, traj)
+            touches = ground_truth(cfg, kind, traj.control_points, traj_seed)
+            results = []
+            for condition in STUDY_CONDITIONS:
+                spec = EpisodeSpec(condition.value, kind, traj.control_points, traj_seed)
+                results.append(run_with_progress(cfg, spec, touches))
+                bar.update(1)
+            runs.append((traj, traj_seed, results))
+
+    key: dict[tuple[str, Condition], str] = {
+        (traj.name, c): next(ids) for traj, _, _ in runs for c in STUDY_CONDITIONS
+    }
+    videos = []
+    for c_index, c in enumerate(STUDY_CONDITIONS):  # condition-major, easy to hard in each set
+        for traj, _, results in sorted(runs, key=lambda r: r[0].difficulty):
+            vid = key[(traj.name, c)]
+            videos.append(
+                Video(
+                    id=vid,
+                    condition=c,
+                    trajectory=traj.name,
+                    difficulty=traj.difficulty,
+                    true_touches=results[c_index].touches.count,
+                    file=f"{VIDEOS_DIR}/{vid}.mp4",
+                )
+            )
+    manifest = Manifest(
+        endocam_version=__version__,
+        created=datetime.now(UTC).replace(microsecond=0),
+        conditions=STUDY_CONDITIONS,
+        videos=tuple(videos),
+        orders=presentation_orders(STUDY_CONDITIONS),
+        attention=DEFAULT_ATTENTION,
+    )
+
+    n_frames = sum(len(frame_indices(rs[0])) * len(rs) for _, _, rs in runs)
+    records: list[TouchObservation] = []
+    with atomic_dir(out) as tmp:
+        (tmp / VIDEOS_DIR).mkdir()
+        with tqdm(total=n_frames, desc="render", unit="frame", leave=False) as bar:
+            for traj, _, results in runs:
+                paths = [tmp / VIDEOS_DIR / f"{key[(traj.name, c)]}.mp4" for c in STUDY_CONDITIONS]
+                render_conditions(results, paths, bar.update)
+        first = runs[0][2][0]
+        with WireChaserScene(first.config.task, first.camera) as scene:
+            for traj, _, results in tqdm(runs, desc="observability", leave=False):
+                for c, result in zip(STUDY_CONDITIONS, results, strict=True):
+                    vid = key[(traj.name, c)]
+                    records += observe_episode(
+                        result, scene, video_id=vid, condition=c.value, trajectory=traj.name
+                    )
+        for traj, _, results in tqdm(runs, desc="logs", leave=False):
+            for c, result in zip(STUDY_CONDITIONS, results, strict=True):
+                write_run(result, tmp / LOGS_DIR / key[(traj.name, c)], video=False)
+        summary = summarize(records)
+        (tmp / OBSERVABILITY_JSON).write_text(observability_json(summary, records), "utf-8")
+        (tmp / OBSERVABILITY_CSV).write_text(observability_csv(records), "utf-8")
+        design = design_dict(config, runs, key, seed)
+        (tmp / DESIGN_JSON).write_text(json.dumps(design, indent=2) + "\n", "utf-8")
+        (tmp / MANIFEST_NAME).write_text(manifest_json(manifest), "utf-8")
+    return manifest
+
+
+def design_dict(
+    config: ExperimentConfig,
+    runs: Sequence[tuple[StudyTrajectory, int, list[EpisodeResult]]],
+    key: dict[tuple[str, Condition], str],
+    seed: int,
+) -> dict[str, Any]:
+    """``design.json``: the study seed, each trajectory's parameters and the video key."""
+    trajectories = []
+    for traj, traj_seed, results in runs:
+        cfg = results[0].config.task.trajectory
+        trajectories.append(
+            {
+                "name": traj.name,
+                "difficulty": traj.difficulty,
+                "control_points": traj.control_points,
+                "noise_seed": traj_seed,
+                "position_noise_mm": [v * 1e3 for v in cfg.position_noise],
+                "angle_noise_deg": [math.degrees(v) for v in cfg.angle_noise],
+                "duration_s": cfg.duration,
+                "true_touches": results[0].touches.count,
+                "videos": {c.value: key[(traj.name, c)] for c in STUDY_CONDITIONS},
+            }
+        )
+    return {
+        "seed": seed,
+        "eye": "left",
+        "width_px": config.camera.width,
+        "height_px": config.camera.height,
+        "video_fps": config.episode.video_fps,
+        "trajectories": trajectories,
+        "endocam_version": __version__,
+    }

@@ -1,0 +1,191 @@
+import json
+import re
+from pathlib import Path
+
+import imageio_ffmpeg
+import pytest
+
+from endocam.cli import main
+from endocam.config import load_config
+from endocam.sim.runs import ground_truth
+from endocam.study.counterbalance import presentation_orders
+from endocam.study.make import (
+    DESIGN_JSON,
+    STUDY_TRAJECTORIES,
+    trajectory_config,
+    trajectory_seeds,
+    video_ids,
+)
+from endocam.study.manifest import Condition, load_manifest
+from endocam.study.observability import OBSERVABILITY_CSV, OBSERVABILITY_JSON, load_summary
+from endocam.study.responses import ResponseRow, rows_to_csv
+from endocam.task.trajectory import TrajectoryKind
+
+SEED = 7
+WIDTH_PX, HEIGHT_PX, FPS, DURATION_S = 160, 120, 10.0, 1.5
+N_FRAMES = int(DURATION_S * FPS) + 1  # frames per video, t = 0 .. duration
+TINY = f"""
+[task.trajectory]
+duration = {DURATION_S}
+[camera]
+width = {WIDTH_PX}
+height = {HEIGHT_PX}
+[episode]
+video_fps = {FPS}
+"""
+
+
+@pytest.fixture(scope="module")
+def config_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("cfg") / "tiny.toml"
+    path.write_text(TINY, encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="module")
+def study(config_file: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("made") / "study"
+    args = ["study", "make", "--out", str(out), "--config", str(config_file)]
+    assert main([*args, "--seed", str(SEED)]) == 0
+    return out
+
+
+def test_manifest_is_valid_with_nine_videos_and_six_orders(study: Path) -> None:
+    manifest = load_manifest(study)  # also checks that every file exists
+    assert len(manifest.videos) == 9
+    assert manifest.orders == presentation_orders()
+    for condition in Condition:
+        videos = manifest.videos_of(condition)
+        assert [v.difficulty for v in videos] == [1, 2, 3]
+        assert [v.trajectory for v in videos] == [t.name for t in STUDY_TRAJECTORIES]
+    assert not list(study.parent.glob(".study.tmp-*"))  # the temporary folder was renamed
+
+
+def test_ids_do_not_reveal_the_condition(study: Path) -> None:
+    manifest = load_manifest(study)
+    for v in manifest.videos:
+        assert re.fullmatch(r"[0-9a-f]{8}", v.id)
+        assert v.file == f"videos/{v.id}.mp4"
+    assert set(video_ids(SEED, 9)) == {v.id for v in manifest.videos}
+
+
+def test_videos_decode_with_the_configured_size_and_rate(study: Path) -> None:
+    for v in load_manifest(study).videos:
+        reader = imageio_ffmpeg.read_frames(str(study / v.file))
+        meta = next(reader)
+        frames = sum(1 for _ in reader)
+        assert meta["size"] == (WIDTH_PX, HEIGHT_PX)
+        assert meta["fps"] == pytest.approx(FPS)
+        assert frames == N_FRAMES
+
+
+def test_true_touches_equal_the_simulator_counts(study: Path, config_file: Path) -> None:
+    manifest = load_manifest(study)
+    design = json.loads((study / DESIGN_JSON).read_text())
+    seeds = trajectory_seeds(SEED)
+    config = load_config(config_file)
+    for traj, seed, entry in zip(STUDY_TRAJECTORIES, seeds, design["trajectories"], strict=True):
+        assert entry["noise_seed"] == seed
+        truth = ground_truth(
+            trajectory_config(config, traj), TrajectoryKind.NOISY, traj.control_points, seed
+        )
+        for v in manifest.videos:
+            if v.trajectory == traj.name:
+                assert v.true_touches == truth.count
+                assert entry["videos"][v.condition.value] == v.id
+                metrics = json.loads((study / "logs" / v.id / "metrics.json").read_text())
+                assert metrics["episode"]["policy"] == v.condition.value
+                assert metrics["touches"] == truth.count
+    assert design["trajectories"][0]["angle_noise_deg"] == pytest.approx([5.0, 10.0])
+
+
+def test_difficulty_design_uses_more_points_and_more_noise() -> None:
+    by_level = {t.difficulty: t for t in STUDY_TRAJECTORIES}
+    assert by_level[1].control_points == by_level[2].control_points < by_level[3].control_points
+    assert by_level[1].angle_noise is not None and by_level[2].angle_noise is None
+
+
+def test_observability_covers_every_touch(study: Path) -> None:
+    manifest = load_manifest(study)
+    summary = load_summary(study / OBSERVABILITY_JSON)
+    doc = json.loads((study / OBSERVABILITY_JSON).read_text())
+    for condition in Condition:
+        expected = sum(v.true_touches for v in manifest.videos_of(condition))
+        assert summary.conditions[condition].touches == expected
+        rows = [t for t in doc["touches"] if t["condition"] == condition.value]
+        assert len(rows) == expected
+        assert {t["video_id"] for t in rows} <= {v.id for v in manifest.videos_of(condition)}
+    csv_rows = (study / OBSERVABILITY_CSV).read_text().splitlines()
+    assert len(csv_rows) == 1 + len(doc["touches"])
+
+
+def test_analyze_report_shows_observability(study: Path, tmp_path: Path) -> None:
+    manifest = load_manifest(study)
+    rows = [
+        ResponseRow(
+            participant_id=f"p{k}",
+            video_id=v.id,
+            reported_touches=min(99, v.true_touches + k % 3),
+            attention_passed=True,
+        )
+        for k in range(6)
+        for v in manifest.videos
+    ]
+    responses = tmp_path / "responses.csv"
+    responses.write_text(rows_to_csv(rows), encoding="utf-8")
+    out = tmp_path / "results"
+    args = ["study", "analyze", "--responses", str(responses), "--manifest"]
+    assert main([*args, str(study / "manifest.json"), "--out", str(out)]) == 0
+    html = (out / "report.html").read_text()
+    assert "Objective touch observability" in html
+    out2 = tmp_path / "results2"
+    assert main([*args, str(study), "--out", str(out2), "--outliers", "none"]) == 0
+    assert "Objective touch observability" in (out2 / "report.html").read_text()
+
+
+def test_seeds_and_ids_are_deterministic_and_distinct() -> None:
+    assert trajectory_seeds(SEED) == trajectory_seeds(SEED)
+    assert trajectory_seeds(SEED) != trajectory_seeds(SEED + 1)
+    ids = video_ids(SEED, 9)
+    assert ids == video_ids(SEED, 9) and len(set(ids)) == 9
+    with pytest.raises(ValueError, match="seed"):
+        video_ids(-1, 9)
+
+
+@pytest.mark.parametrize(
+    ("setup", "needle"),
+    [
+        ("file_parent", "cannot create output folder"),
+        ("out_is_file", "is not a folder"),
+        ("bad_toml", "malformed"),
+        ("odd_width", "must be even"),
+        ("unknown_key", "camera.colour"),
+        ("negative_seed", "--seed"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2(
+    setup: str, needle: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out"
+    config = tmp_path / "c.toml"
+    config.write_text(TINY, encoding="utf-8")
+    extra: list[str] = []
+    if setup == "file_parent":
+        (tmp_path / "blocker").write_text("x")
+        out = tmp_path / "blocker" / "out"
+    elif setup == "out_is_file":
+        out.write_text("x")
+    elif setup == "bad_toml":
+        config.write_text("[camera\nwidth = 3", encoding="utf-8")
+    elif setup == "odd_width":
+        config.write_text("[camera]\nwidth = 161\n", encoding="utf-8")
+    elif setup == "unknown_key":
+        config.write_text("[camera]\ncolour = 1\n", encoding="utf-8")
+    else:
+        extra = ["--seed", "-3"]
+    code = main(["study", "make", "--out", str(out), "--config", str(config), *extra])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert needle in err
+    assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out").is_dir()
