@@ -17,9 +17,15 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from endocam.camera import DEFAULT_BASELINE, DEFAULT_FOVY, Intrinsics, StereoCamera
 from endocam.control.policies import ControllerConfig
+from endocam.geometry import FloatArray, R_from_euler_xyz, make_pose
 from endocam.task.config import TaskConfig
 
 _FROZEN = ConfigDict(frozen=True, extra="forbid")
+
+# The pickup camera's optical centre on the PSM tool-tip z axis (the approach direction), m:
+# the dVRK's PROGRASP tip frame sits at the jaw pivot (wrist-yaw axis); ≈ 10 mm of jaw plus
+# ≈ 5 mm from the jaw tips to the optical centre (an assumed geometry, not a datasheet value).
+DEFAULT_TIP_CAM_OFFSET = 0.015
 
 
 class CameraConfig(BaseModel):
@@ -73,11 +79,33 @@ class EpisodeConfig(BaseModel):
         "free",
         pattern="^(free|psm|ecm)$",
         description="What carries the camera: 'free' (Cartesian limits only), 'psm' or 'ecm' "
-        "(through the dVRK arm's kinematics and joint limits).",
+        "(through the dVRK arm's kinematics and joint limits). A policy may force an arm "
+        "(orientation-ecm uses the ECM).",
     )
+    tip_cam_position: tuple[float, float, float] = Field(
+        (0.0, 0.0, DEFAULT_TIP_CAM_OFFSET),
+        description="Camera optical centre in the PSM tool-tip frame, m (T_tip_cam): a pickup "
+        "camera grasped by ProGrasp forceps, on the approach (tip z) axis 15 mm from the jaw "
+        "pivot, i.e. ~5 mm beyond the jaw tips. Ignored by the ECM (its tip frame is the "
+        "optical frame).",
+    )
+    tip_cam_euler_xyz: tuple[float, float, float] = Field(
+        (0.0, 0.0, math.pi),
+        description="Camera optical frame orientation in the PSM tool-tip frame, Tait-Bryan "
+        "(α, β, γ), rad (T_tip_cam): optical axis (z) along the tool's approach direction "
+        "(tip z), image x along the tip's −x, so the image is upright at the arm's mid-range "
+        "pose under the default RCM frame.",
+    )
+
+    @property
+    def T_tip_cam(self) -> FloatArray:
+        """(4, 4) camera optical frame in the PSM tool-tip frame, m."""
+        return make_pose(R_from_euler_xyz(self.tip_cam_euler_xyz), self.tip_cam_position)
 
     @model_validator(mode="after")
     def _rates(self) -> EpisodeConfig:
+        if not all(math.isfinite(v) for v in (*self.tip_cam_position, *self.tip_cam_euler_xyz)):
+            raise ValueError("tip_cam_position and tip_cam_euler_xyz must be finite")
         if self.video_fps > self.control_rate:
             raise ValueError("video_fps must not exceed control_rate")
         return self

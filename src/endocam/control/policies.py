@@ -363,12 +363,34 @@ class OrientationPolicy(_MovingPolicy):
         )
 
 
+class OrientationEcmPolicy(OrientationPolicy):
+    """The paper's orientation goal, carried out by the 4-DoF ECM (registry entry forces it).
+
+    The goal is condition III's; the ECM's optical axis always passes through its RCM, so the
+    camera reaches the goal's position but not, in general, its orientation. The orientation
+    error it leaves quantifies what a standard endoscope cannot deliver (paper Sec. I).
+    """
+
+    name = "orientation-ecm"
+
+
 @dataclass(frozen=True)
 class PolicyEntry:
-    """A registry entry: how to build a policy and one line to describe it."""
+    """A registry entry: how to build a policy, one line to describe it, the arm it needs.
+
+    Attributes
+    ----------
+    factory : callable
+        Builds the policy from a :class:`ControllerConfig`.
+    summary : str
+        One line for ``endocam policies``.
+    arm : {"free", "psm", "ecm"} or None
+        The arm that must carry the camera; ``None`` uses the config's ``episode.arm``.
+    """
 
     factory: Callable[[ControllerConfig], CameraPolicy]
     summary: str
+    arm: str | None = None
 
 
 POLICIES: dict[str, PolicyEntry] = {
@@ -378,6 +400,11 @@ POLICIES: dict[str, PolicyEntry] = {
     ),
     "orientation": PolicyEntry(
         OrientationPolicy, "condition III: on the ring normal, level horizon, way-points, safety"
+    ),
+    "orientation-ecm": PolicyEntry(
+        OrientationEcmPolicy,
+        "condition III's goal carried out by the 4-DoF dVRK ECM (always uses the ECM)",
+        arm="ecm",
     ),
 }
 
@@ -400,8 +427,10 @@ __all__ = [
     "ControllerConfig",
     "FixedPolicy",
     "Observation",
+    "OrientationEcmPolicy",
     "OrientationPolicy",
     "PolicyContext",
+    "PolicyEntry",
     "TrackingState",
     "make_policy",
 ]

@@ -37,6 +37,7 @@ from endocam.robot.dh import DHChain, DHLink, JointType, chain_forward, compose_
 from endocam.robot.ik import IKResult, IKStatus, rotation_angle_between
 from endocam.robot.kinematics import (
     LIMIT_SLACK,
+    NEAREST_MAX_NFEV,
     RcmArm,
     branch_in_limits,
     invert_pose,
@@ -100,10 +101,14 @@ class ECM(RcmArm):
     ----------
     chain : DHChain, optional
         Kinematic chain; defaults to :data:`ECM_CHAIN` (structure must match).
+    nearest_max_nfev : int
+        Iteration budget of the nearest-feasible fallback (see :class:`RcmArm`).
     """
 
-    def __init__(self, chain: DHChain = ECM_CHAIN) -> None:
-        super().__init__(chain)
+    def __init__(
+        self, chain: DHChain = ECM_CHAIN, nearest_max_nfev: int = NEAREST_MAX_NFEV
+    ) -> None:
+        super().__init__(chain, nearest_max_nfev)
         if len(chain.links) != 4:
             raise ValueError("chain: the ECM closed form needs 4 links")
         links = chain.links

@@ -10,6 +10,7 @@ from __future__ import annotations
 import abc
 import math
 
+import mujoco
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
@@ -31,7 +32,13 @@ from endocam.robot.ik import (
     within_tolerance,
 )
 
-__all__ = ["ORIENTATION_WEIGHT_M_PER_RAD", "RcmArm", "check_pose", "invert_pose"]
+__all__ = [
+    "NEAREST_MAX_NFEV",
+    "ORIENTATION_WEIGHT_M_PER_RAD",
+    "RcmArm",
+    "check_pose",
+    "invert_pose",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -40,6 +47,7 @@ ROTATION_ORTHO_TOL = 1e-6  # 1: max |R^T R - I| entry accepted as a rotation
 LIMIT_SLACK = 1e-12  # rad or m: round-off tolerated at a joint limit
 _DLS_DAMPING = 1e-6  # damping (m) of the damped-least-squares polish
 _DLS_STEPS = 5  # polish iterations after a closed-form solution
+NEAREST_MAX_NFEV = 200  # count: default residual evaluations of the nearest-feasible solve
 
 
 def check_pose(T: object, name: str) -> FloatArray:
@@ -142,9 +150,16 @@ class RcmArm(abc.ABC):
     ----------
     chain : DHChain
         Modified-DH chain, base frame = RCM, followed by the tool-tip offset.
+    nearest_max_nfev : int
+        Default iteration budget (residual evaluations) of :meth:`nearest_feasible`; a
+        control loop that must stay fast lowers it (the result is then a coarser, still
+        in-limit, approach of the nearest feasible configuration).
     """
 
-    def __init__(self, chain: DHChain) -> None:
+    def __init__(self, chain: DHChain, nearest_max_nfev: int = NEAREST_MAX_NFEV) -> None:
+        if not (isinstance(nearest_max_nfev, int) and nearest_max_nfev >= 1):
+            raise ValueError("nearest_max_nfev: must be a positive integer")
+        self.nearest_max_nfev = nearest_max_nfev
         self._chain = chain
         self._lower = chain.lower
         self._upper = chain.upper
@@ -419,8 +434,23 @@ class RcmArm(abc.ABC):
 
     def _pose_residual(self, q: FloatArray, T_goal: FloatArray, weight: float) -> FloatArray:
         T = chain_forward(self._chain, q)
-        rot_err = Rotation.from_matrix(T_goal[:3, :3].T @ T[:3, :3]).as_rotvec()
+        # rotation vector of R_goal^T R via MuJoCo's quaternion kernels: scipy's Rotation
+        # costs ~0.2 ms per call, too slow inside the control loop's nearest-feasible solve
+        quat = np.empty(4)
+        mujoco.mju_mat2Quat(quat, np.ascontiguousarray(T_goal[:3, :3].T @ T[:3, :3]).ravel())
+        if quat[0] < 0.0:
+            quat = -quat
+        rot_err = np.empty(3)
+        mujoco.mju_quat2Vel(rot_err, quat, 1.0)
         return np.concatenate([T[:3, 3] - T_goal[:3, 3], weight * rot_err])
+
+    def _pose_residual_jac(self, q: FloatArray, T_goal: FloatArray, weight: float) -> FloatArray:
+        """Jacobian of :meth:`_pose_residual` (position rows exact, rotation rows first order).
+
+        The rotation rows ``R_goal^T J_ω`` are exact at zero orientation error.
+        """
+        J = geometric_jacobian(self._chain, q)
+        return np.vstack([J[:3], weight * (T_goal[:3, :3].T @ J[3:])])
 
     def nearest_feasible(
         self,
@@ -431,8 +461,9 @@ class RcmArm(abc.ABC):
         """Joint values within limits minimising the weighted pose error to ``T_goal``.
 
         Bounded nonlinear least squares (``scipy.optimize.least_squares``, trust-region
-        reflective) on ``[p(q) - p_goal, w · rotvec(R_goal^T R(q))]``, started from ``q_start``
-        clipped into the limits. A local minimum: start close to the goal's branch.
+        reflective) on ``[p(q) - p_goal, w · rotvec(R_goal^T R(q))]`` with the geometric
+        Jacobian, started from ``q_start`` clipped into the limits. A local minimum: start close
+        to the goal's branch.
 
         Parameters
         ----------
@@ -455,11 +486,12 @@ class RcmArm(abc.ABC):
             x0,
             bounds=(self._lower, self._upper),
             args=(T_goal, weight),
+            jac=self._pose_residual_jac,
             method="trf",
             x_scale=1.0,
             xtol=1e-12,
             ftol=1e-12,
             gtol=1e-12,
-            max_nfev=200,
+            max_nfev=self.nearest_max_nfev,
         )
         return self.clamp(np.asarray(sol.x, dtype=np.float64))

@@ -38,6 +38,7 @@ from endocam.robot.dh import (
 )
 from endocam.robot.ik import IKResult, IKStatus, pose_error, within_tolerance
 from endocam.robot.kinematics import (
+    NEAREST_MAX_NFEV,
     RcmArm,
     branch_in_limits,
     invert_pose,
@@ -82,10 +83,14 @@ class PSM(RcmArm):
     chain : DHChain, optional
         Kinematic chain; defaults to :data:`PSM_CHAIN`. A different chain must keep the
         structure of the PSM table (the closed form depends on it).
+    nearest_max_nfev : int
+        Iteration budget of the nearest-feasible fallback (see :class:`RcmArm`).
     """
 
-    def __init__(self, chain: DHChain = PSM_CHAIN) -> None:
-        super().__init__(chain)
+    def __init__(
+        self, chain: DHChain = PSM_CHAIN, nearest_max_nfev: int = NEAREST_MAX_NFEV
+    ) -> None:
+        super().__init__(chain, nearest_max_nfev)
         links = chain.links
         if len(links) != 6:
             raise ValueError("chain: the PSM closed form needs 6 links")

@@ -18,9 +18,16 @@ import numpy as np
 
 from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
-from endocam.control.policies import Observation, PolicyContext, TrackingState, make_policy
+from endocam.control.policies import (
+    POLICIES,
+    Observation,
+    PolicyContext,
+    TrackingState,
+    make_policy,
+)
 from endocam.geometry import FloatArray
 from endocam.metrics import center_error_3d, image_centering_error, orientation_error
+from endocam.sim.arm import ArmKind, ArmStep, CameraArm
 from endocam.sim.motion import CartesianLimiter
 from endocam.sim.scene import overview_camera_pose, psm1_tip_in_ring
 from endocam.task.touches import TouchReport, touch_events
@@ -85,7 +92,18 @@ class EpisodeLog:
     clearance : (N,)
         Ring–wire clearance at ``t``, m (negative = interpenetration).
     joints : (N, J) or None
-        Joint positions of the camera arm, when the camera is carried by one (rad / m).
+        Joint positions of the camera arm at the start of each step, when the camera is
+        carried by one (rad / m); ``T_world_cam[k] = FK(joints[k])``.
+    joint_names : tuple of str
+        Names of the ``joints`` columns (``()`` without an arm).
+    arm : str
+        What carried the camera: ``free``, ``psm`` or ``ecm``.
+    goal_position_error : (N,) or None
+        With an arm: distance from the commanded camera goal to the nearest pose the arm can
+        reach, m (IK residual of the tip; 0 when reachable).
+    goal_orientation_error : (N,) or None
+        With an arm: angle from the commanded orientation to the nearest reachable one, rad
+        (for the ECM the orientation its missing DoF cannot deliver).
     """
 
     t: FloatArray
@@ -101,6 +119,9 @@ class EpisodeLog:
     clearance: FloatArray
     joints: FloatArray | None = None
     joint_names: tuple[str, ...] = ()
+    arm: str = ArmKind.FREE.value
+    goal_position_error: FloatArray | None = None
+    goal_orientation_error: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -141,6 +162,12 @@ def run_episode(
 ) -> EpisodeResult:
     """Run one headless episode.
 
+    With ``episode.arm`` ``psm`` or ``ecm`` (or a policy that forces an arm, see
+    :func:`episode_arm`) the camera is carried by that dVRK arm (:class:`CameraArm`): it
+    starts at the configuration nearest to the overview pose, every logged camera pose is
+    ``FK(q)`` of the logged joints, and steps whose goal the arm cannot reach are logged as
+    ``unreachable`` (unless the policy is already frozen or has lost tracking).
+
     Parameters
     ----------
     config : ExperimentConfig
@@ -177,16 +204,25 @@ def run_episode(
 
     T_overview = overview_camera_pose(config.task, camera)
     p_rcm = np.array(config.task.scene.rcm_position)
-    policy.reset(PolicyContext(camera, T_overview, T_sensed[0], p_rcm, dt))
+    kind = episode_arm(config, spec.policy)
     limiter = CartesianLimiter(ep.limits, dt)
-    limiter.reset(T_overview)
+    arm: CameraArm | None = None
+    if kind is ArmKind.FREE:
+        limiter.reset(T_overview)
+        T_now = T_overview
+    else:
+        T_tip_cam = ep.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
+        arm = CameraArm(kind, config.task.scene.T_world_rcm, T_tip_cam, ep.limits, dt)
+        T_now = arm.reset(T_overview)  # the reachable pose nearest to the overview
+    policy.reset(PolicyContext(camera, T_now, T_sensed[0], p_rcm, dt))
 
     T_cam = np.empty((n, 4, 4))
     T_cmd = np.empty((n, 4, 4))
     d_f = np.empty(n)
     state = np.empty(n, dtype=object)
     reason: list[str] = []
-    T_now = T_overview
+    joints = None if arm is None else np.empty((n, arm.model.n_joints))
+    goal_err = None if arm is None else np.empty((n, 2))
     chunk = max(1, n // 100)
     for k in range(n):
         T_cam[k] = T_now
@@ -194,8 +230,20 @@ def run_episode(
         T_cmd[k] = cmd.T_world_cam
         d_f[k] = cmd.d_f
         state[k] = cmd.state.value
-        reason.append(cmd.reason)
-        T_now = limiter.step(cmd.T_world_cam)
+        if arm is None:
+            reason.append(cmd.reason)
+            T_now = limiter.step(cmd.T_world_cam)
+        else:
+            assert joints is not None and goal_err is not None
+            joints[k] = arm.q
+            out = arm.step(cmd.T_world_cam)
+            goal_err[k] = (out.goal.position_error, out.goal.orientation_error)
+            if not out.reachable and cmd.state not in _SAFETY_STATES:
+                state[k] = TrackingState.UNREACHABLE.value
+                reason.append(_unreachable_reason(kind, out))
+            else:
+                reason.append(cmd.reason)
+            T_now = out.T_world_cam
         if progress is not None and (k + 1) % chunk == 0:
             progress(chunk)
     if progress is not None and n % chunk:
@@ -214,6 +262,11 @@ def run_episode(
         p_world_tips=tips,
         contact=contact_at(touches, t),
         clearance=clearance,
+        joints=joints,
+        joint_names=() if arm is None else arm.joint_names,
+        arm=kind.value,
+        goal_position_error=None if goal_err is None else goal_err[:, 0],
+        goal_orientation_error=None if goal_err is None else goal_err[:, 1],
     )
     return EpisodeResult(
         config=config,
@@ -227,6 +280,32 @@ def run_episode(
         image_error=image_centering_error(camera, T_cam, T_ring[:, :3, 3]),
         center_error=center_error_3d(T_cam, T_ring[:, :3, 3]),
         orientation_error=orientation_error(T_cam, T_ring[:, :3, 2]),
+    )
+
+
+_SAFETY_STATES = (TrackingState.FROZEN_OUTSIDE_CONE, TrackingState.LOST_TRACKING)
+
+
+def episode_arm(config: ExperimentConfig, policy: str) -> ArmKind:
+    """The arm that carries the camera: the policy's (``orientation-ecm``) or ``episode.arm``.
+
+    Raises
+    ------
+    ValueError
+        For an unknown policy name.
+    """
+    if policy not in POLICIES:
+        make_policy(policy, config.controller)  # raises ValueError listing the choices
+    forced = POLICIES[policy].arm
+    return ArmKind(forced if forced is not None else config.episode.arm)
+
+
+def _unreachable_reason(kind: ArmKind, out: ArmStep) -> str:
+    err_mm = out.goal.position_error * 1e3
+    err_deg = math.degrees(out.goal.orientation_error)
+    return (
+        f"goal unreachable by the {kind.value.upper()} ({out.goal.status.value}): nearest "
+        f"feasible pose {err_mm:.1f} mm, {err_deg:.1f}° away; approaching it"
     )
 
 

@@ -255,8 +255,11 @@ class SceneConfig(BaseModel):
         "the ring's start (the wire's left end) runs along the wire (see docs/world.md).",
     )
     rcm_euler_xyz: Vec3 = Field(
-        (0.0, 0.0, 0.0),
-        description="Orientation of the RCM frame in world, Tait-Bryan (α, β, γ), rad.",
+        (0.444, 1.135, 2.658),
+        description="Orientation of the RCM frame in world, Tait-Bryan (α, β, γ), rad. The "
+        "default aims the frame's −z axis (the shaft of a dVRK arm at mid-range yaw/pitch) from "
+        "the default RCM at the task centre (0, 0, 45) mm, with y horizontal: the ECM's image "
+        "(and the default PSM camera mount's) is upright at zero roll.",
     )
 
     @field_validator(

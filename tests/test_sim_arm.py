@@ -1,0 +1,194 @@
+"""The camera carried by a dVRK arm in the episode runner (endocam.sim.arm, issue 4)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from endocam.config import ExperimentConfig
+from endocam.control.policies import POLICIES, TrackingState
+from endocam.geometry import make_pose
+from endocam.robot.kinematics import LIMIT_SLACK
+from endocam.sim.arm import ArmKind, CameraArm, natural_pose
+from endocam.sim.episode import EpisodeResult, EpisodeSpec, episode_arm, run_episode
+from endocam.sim.outputs import episode_columns
+from endocam.task.trajectory import TrajectoryKind
+
+ATOL_M = 1e-9  # m: logged camera position vs FK(logged q), round-off only
+ATOL_R = 1e-9  # 1: logged rotation-matrix entries vs FK(logged q)
+RESIDUAL_ZERO_RAD = 1e-7  # rad: the ECM IK's tolerance for "orientation reached"
+DURATION_S = 3.0  # s: short episodes keep the file fast
+
+
+def _config(arm: str = "free", **scene: object) -> ExperimentConfig:
+    data: dict[str, object] = {
+        "task": {"trajectory": {"duration": DURATION_S}},
+        "episode": {"arm": arm},
+    }
+    if scene:
+        data["task"] = {"trajectory": {"duration": DURATION_S}, "scene": scene}
+    return ExperimentConfig.model_validate(data)
+
+
+def _run(policy: str, arm: str, kind: str = "noisy", **scene: object) -> EpisodeResult:
+    return run_episode(_config(arm, **scene), EpisodeSpec(policy, TrajectoryKind(kind), 71, 1))
+
+
+def _arm_for(result: EpisodeResult) -> CameraArm:
+    cfg = result.config
+    kind = ArmKind(result.log.arm)
+    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
+    dt = 1.0 / cfg.episode.control_rate
+    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, cfg.episode.limits, dt)
+
+
+@pytest.fixture(scope="module")
+def psm_result() -> EpisodeResult:
+    return _run("orientation", "psm")
+
+
+@pytest.fixture(scope="module")
+def ecm_result() -> EpisodeResult:
+    return _run("orientation-ecm", "free")
+
+
+@pytest.mark.parametrize("which", ["psm_result", "ecm_result"])
+def test_logged_camera_pose_is_fk_of_logged_joints(which: str, request: pytest.FixtureRequest):
+    result = request.getfixturevalue(which)
+    log = result.log
+    assert log.joints is not None and log.joints.shape == (len(log.t), len(log.joint_names))
+    T_fk = _arm_for(result).camera_poses(log.joints)
+    np.testing.assert_allclose(T_fk[:, :3, 3], log.T_world_cam[:, :3, 3], rtol=0, atol=ATOL_M)
+    np.testing.assert_allclose(T_fk[:, :3, :3], log.T_world_cam[:, :3, :3], rtol=0, atol=ATOL_R)
+    assert np.ptp(log.joints, axis=0).max() > 1e-3  # the arm actually moved
+
+
+@pytest.mark.parametrize("which", ["psm_result", "ecm_result"])
+def test_joint_limits_never_exceeded(which: str, request: pytest.FixtureRequest):
+    result = request.getfixturevalue(which)
+    model = _arm_for(result).model
+    q = result.log.joints
+    assert q is not None
+    assert np.all(q >= model.lower - LIMIT_SLACK) and np.all(q <= model.upper + LIMIT_SLACK)
+
+
+def test_joint_columns_in_episode_csv(psm_result: EpisodeResult):
+    cols = episode_columns(psm_result)
+    names = [f"q_{n}" for n in psm_result.log.joint_names]
+    assert names == [c for c in cols if c.startswith("q_")]
+    assert "q_outer_insertion" in names
+
+
+def test_orientation_ecm_forces_the_ecm(ecm_result: EpisodeResult):
+    assert POLICIES["orientation-ecm"].arm == "ecm"
+    assert episode_arm(_config("psm"), "orientation-ecm") is ArmKind.ECM
+    assert episode_arm(_config("psm"), "orientation") is ArmKind.PSM
+    assert episode_arm(_config(), "orientation") is ArmKind.FREE
+    assert ecm_result.log.arm == "ecm"
+    assert ecm_result.log.joint_names == ("yaw", "pitch", "insertion", "roll")
+    assert np.all(np.isfinite(ecm_result.orientation_error))
+    with pytest.raises(ValueError, match="unknown policy"):
+        episode_arm(_config(), "nope")
+
+
+def test_free_camera_logs_no_joints():
+    result = run_episode(
+        _config().model_copy(
+            update={"task": _config().task.model_copy(update={"trajectory": _short(1.0)})}
+        ),
+        EpisodeSpec("orientation", TrajectoryKind.IDEAL, 36),
+    )
+    assert result.log.joints is None and result.log.arm == "free"
+    assert TrackingState.UNREACHABLE.value not in set(result.log.state)
+
+
+def _short(duration: float):  # type: ignore[no-untyped-def]
+    return ExperimentConfig().task.trajectory.model_copy(update={"duration": duration})
+
+
+def _ecm_arm() -> CameraArm:
+    cfg = ExperimentConfig()
+    return CameraArm(ArmKind.ECM, cfg.task.scene.T_world_rcm, np.eye(4), cfg.episode.limits, 0.01)
+
+
+def _look_from(p_world: np.ndarray, z_world: np.ndarray) -> np.ndarray:
+    z = z_world / np.linalg.norm(z_world)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    return make_pose(np.column_stack([x, np.cross(z, x), z]), p_world)
+
+
+def test_ecm_residual_zero_iff_axis_through_rcm():
+    arm = _ecm_arm()
+    T_rcm = arm.T_world_rcm
+    p_rcm = T_rcm[:3, 3]
+    # a reachable point on the scope's mid-range axis, looking away from the RCM
+    T_nat = arm.camera_pose(natural_pose(arm.model))
+    p = T_nat[:3, 3]
+    on_axis = _look_from(p, p - p_rcm)
+    out = arm.step(on_axis)
+    assert out.reachable
+    assert out.goal.orientation_error <= RESIDUAL_ZERO_RAD
+    tilt = math.radians(10.0)
+    R_tilt = np.array(
+        [[1, 0, 0], [0, math.cos(tilt), -math.sin(tilt)], [0, math.sin(tilt), math.cos(tilt)]]
+    )
+    off_axis = on_axis.copy()
+    off_axis[:3, :3] = on_axis[:3, :3] @ R_tilt
+    out = arm.step(off_axis)
+    assert out.reachable  # the position is reached; only the orientation is missing
+    assert out.goal.orientation_error == pytest.approx(tilt, abs=1e-6)
+
+
+def test_unreachable_goal_is_approached_and_reported():
+    cfg = ExperimentConfig()
+    arm = CameraArm(
+        ArmKind.PSM, cfg.task.scene.T_world_rcm, cfg.episode.T_tip_cam, cfg.episode.limits, 0.01
+    )
+    T0 = arm.reset(np.eye(4))
+    far = T0.copy()
+    far[:3, 3] += np.array([0.0, 0.0, 1.0])  # 1 m away: beyond the insertion stroke
+    dists = []
+    for _ in range(20):
+        out = arm.step(far)
+        assert not out.reachable and np.all(np.isfinite(out.T_world_cam))
+        assert arm.model.within_limits(out.q)
+        dists.append(np.linalg.norm(out.T_world_cam[:3, 3] - far[:3, 3]))
+    assert dists[-1] < dists[0]  # approaching the nearest feasible pose
+
+
+def test_runner_marks_unreachable_steps(psm_result: EpisodeResult):
+    # from the default port the PSM cannot reach every orientation goal (docs/robot.md)
+    result = psm_result
+    state = result.log.state
+    assert TrackingState.UNREACHABLE.value in set(state)
+    assert np.all(np.isfinite(result.log.T_world_cam))
+    hit = np.flatnonzero(state == TrackingState.UNREACHABLE.value)
+    assert all("unreachable by the PSM" in result.log.reason[k] for k in hit)
+    assert result.log.goal_position_error is not None
+    assert result.log.goal_orientation_error is not None
+    err = np.maximum(result.log.goal_position_error, result.log.goal_orientation_error)
+    assert np.all(err[hit] > 0.0)
+    # the policy's own safety states are never overwritten
+    frozen = result.log.state == TrackingState.FROZEN_OUTSIDE_CONE.value
+    assert all("outside the cone" in result.log.reason[k] for k in np.flatnonzero(frozen))
+
+
+def test_episode_is_deterministic(psm_result: EpisodeResult):
+    again = _run("orientation", "psm")
+    assert again.log.joints is not None and psm_result.log.joints is not None
+    np.testing.assert_array_equal(again.log.joints, psm_result.log.joints)
+    np.testing.assert_array_equal(again.log.T_world_cam, psm_result.log.T_world_cam)
+    assert list(again.log.state) == list(psm_result.log.state)
+
+
+def test_bad_mount_rejected():
+    cfg = ExperimentConfig()
+    with pytest.raises(ValueError, match="T_tip_cam"):
+        CameraArm(
+            ArmKind.PSM, cfg.task.scene.T_world_rcm, np.zeros((4, 4)), cfg.episode.limits, 0.01
+        )
+    with pytest.raises(ValueError, match="kind"):
+        CameraArm(ArmKind.FREE, np.eye(4), np.eye(4), cfg.episode.limits, 0.01)
