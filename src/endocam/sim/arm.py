@@ -152,6 +152,7 @@ class CameraArm:
         self._arm = SimulatedArm(self.model, dt=dt, q0=natural_pose(self.model))
         self._limiter = CartesianLimiter(limits, dt)
         self._q = self._arm.measured_js()[0]
+        self._limiter.reset(self.camera_pose(self._q))  # at rest at the mid-range pose
 
     # ------------------------------------------------------------------ frames
     @property

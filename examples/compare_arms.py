@@ -1,0 +1,62 @@
+"""Compare the camera carried by the dVRK PSM and by the ECM on the paper's trajectories.
+
+Runs ``orientation`` (free camera and PSM) and ``orientation-ecm`` (ECM) on the six episodes of
+``endocam experiment paper`` (3 ideal trajectories with 36/54/71 control points, 3 noisy
+71-point trajectories, seeds 1-3) and prints a Markdown table of the means: image centring
+error (px), 3D centring error (mm), orientation error (deg), and the fraction of control steps
+the arm could not reach the goal (``unreachable``) or the goal left the cone (``frozen``).
+
+Usage::
+
+    MUJOCO_GL=egl .venv/bin/python examples/compare_arms.py [--arms free psm ecm]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+
+from endocam.config import ExperimentConfig
+from endocam.sim.episode import run_episode, state_fractions
+from endocam.sim.runs import paper_specs
+
+ROWS = {
+    "free": ("orientation", "free"),
+    "psm": ("orientation", "psm"),
+    "ecm": ("orientation-ecm", "free"),
+}
+
+
+def main() -> None:
+    """Run the comparison and print the table."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--arms", nargs="+", choices=list(ROWS), default=list(ROWS))
+    args = parser.parse_args()
+    print(
+        "| camera | trajectories | image error (px) | 3D error (mm) | orientation error (deg) "
+        "| unreachable | frozen |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for arm in args.arms:
+        policy, episode_arm = ROWS[arm]
+        config = ExperimentConfig.model_validate({"episode": {"arm": episode_arm}})
+        results = [run_episode(config, spec) for spec in paper_specs(policy)]
+        for kind in ("ideal", "noisy"):
+            group = [r for r in results if r.spec.trajectory.value == kind]
+            img = np.mean([np.nanmean(r.image_error) for r in group])
+            mm = 1e3 * np.mean([np.mean(r.center_error) for r in group])
+            deg = math.degrees(np.mean([np.mean(r.orientation_error) for r in group]))
+            fr = [state_fractions(r.log) for r in group]
+            unreach = 100 * np.mean([f["unreachable"] for f in fr])
+            frozen = 100 * np.mean([f["frozen_outside_cone"] for f in fr])
+            print(
+                f"| {arm} ({policy}) | {kind} | {img:.0f} | {mm:.1f} | {deg:.1f} | "
+                f"{unreach:.0f} % | {frozen:.0f} % |",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()
