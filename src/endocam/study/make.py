@@ -262,11 +262,10 @@ def make_study(
     n_frames = sum(len(frame_indices(rs[0])) * len(rs) for _, _, rs in runs)
     records: list[TouchObservation] = []
     with atomic_dir(out) as tmp:
-        (tmp / VIDEOS_DIR).mkdir()
-        with tqdm(total=n_frames, desc="render", unit="frame", leave=False) as bar:
-            for traj, _, results in runs:
-                paths = [tmp / VIDEOS_DIR / f"{key[(traj.name, c)]}.mp4" for c in STUDY_CONDITIONS]
-                render_conditions(results, paths, bar.update)
+        # cheap outputs first: a failure there must not waste the long render
+        for traj, _, results in tqdm(runs, desc="logs", leave=False):
+            for c, result in zip(STUDY_CONDITIONS, results, strict=True):
+                write_run(result, tmp / LOGS_DIR / key[(traj.name, c)], video=False)
         first = runs[0][2][0]
         with WireChaserScene(first.config.task, first.camera) as scene:
             for traj, _, results in tqdm(runs, desc="observability", leave=False):
@@ -275,9 +274,11 @@ def make_study(
                     records += observe_episode(
                         result, scene, video_id=vid, condition=c.value, trajectory=traj.name
                     )
-        for traj, _, results in tqdm(runs, desc="logs", leave=False):
-            for c, result in zip(STUDY_CONDITIONS, results, strict=True):
-                write_run(result, tmp / LOGS_DIR / key[(traj.name, c)], video=False)
+        (tmp / VIDEOS_DIR).mkdir()
+        with tqdm(total=n_frames, desc="render", unit="frame", leave=False) as bar:
+            for traj, _, results in runs:
+                paths = [tmp / VIDEOS_DIR / f"{key[(traj.name, c)]}.mp4" for c in STUDY_CONDITIONS]
+                render_conditions(results, paths, bar.update)
         summary = summarize(records)
         (tmp / OBSERVABILITY_JSON).write_text(observability_json(summary, records), "utf-8")
         (tmp / OBSERVABILITY_CSV).write_text(observability_csv(records), "utf-8")
