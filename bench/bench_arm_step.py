@@ -1,6 +1,6 @@
 """Benchmarks of the camera arm's control step (issue 4): IK alone, and one full step.
 
-Run: ``.venv/bin/pytest bench/bench_arm_step.py --benchmark-enable -o addopts="" -p no:cacheprovider``
+Run: ``.venv/bin/pytest bench/bench_arm_step.py --benchmark-enable -o addopts=""``
 """
 
 from __future__ import annotations

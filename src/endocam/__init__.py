@@ -27,9 +27,12 @@ from endocam.control import (
     make_policy,
 )
 from endocam.metrics import center_error_3d, image_centering_error, orientation_error
+from endocam.robot import ECM, PSM
 
 __all__ = [
+    "ECM",
     "POLICIES",
+    "PSM",
     "CameraCommand",
     "ConeWorkspace",
     "ControllerConfig",

@@ -215,9 +215,7 @@ def look_at_unchecked(
     return _pose(x, y, z, p)
 
 
-def choose_side(
-    n: Vec, up: Vec, z_prev: Vec | None, sin_hysteresis: float = _SIN_SIDE
-) -> float:
+def choose_side(n: Vec, up: Vec, z_prev: Vec | None, sin_hysteresis: float = _SIN_SIDE) -> float:
     """Sign ``s`` (±1) so the camera at ``p_c + s d_f n`` is above the tissue, with hysteresis.
 
     Parameters

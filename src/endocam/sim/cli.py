@@ -22,6 +22,13 @@ def _config(args: argparse.Namespace) -> ExperimentConfig:
         raise UsageError(str(exc)) from None
 
 
+def _with_arm(cfg: ExperimentConfig, arm: str | None) -> ExperimentConfig:
+    """The config with ``episode.arm`` replaced when ``--arm`` was given."""
+    if arm is None:
+        return cfg
+    return cfg.model_copy(update={"episode": cfg.episode.model_copy(update={"arm": arm})})
+
+
 def _out_dir(path: str) -> Path:
     from endocam.sim.outputs import check_writable
 
@@ -49,7 +56,7 @@ def _run(args: argparse.Namespace) -> int:
         raise UsageError(f"--control-points must be ≥ 2, got {args.control_points}")
     if args.seed < 0:
         raise UsageError(f"--seed must be ≥ 0, got {args.seed}")
-    cfg = _config(args)
+    cfg = _with_arm(_config(args), args.arm)
     out = _out_dir(args.out)
     spec = EpisodeSpec(args.policy, TrajectoryKind(args.trajectory), args.control_points, args.seed)
     metrics = run_and_write(cfg, spec, out, video=not args.no_video)
@@ -79,7 +86,7 @@ def _experiment(args: argparse.Namespace) -> int:
 
     cfg = _config(args)
     out = _out_dir(args.out)
-    table = run_paper_experiment(cfg, out, policy=args.policy)
+    table = run_paper_experiment(_with_arm(cfg, args.arm), out, policy=args.policy)
     print(table)
     return 0
 
@@ -115,6 +122,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=_int, default=1, help="noise seed (default 1)")
     p.add_argument("--out", required=True, help="output folder (replaced atomically)")
     p.add_argument("--no-video", action="store_true", help="skip rendering video.mp4")
+    p.add_argument(
+        "--arm",
+        choices=["free", "psm", "ecm"],
+        default=None,
+        help="what carries the camera: free (Cartesian limits only), psm or ecm (dVRK "
+        "kinematics, IK and joint limits); default: the config's episode.arm (free). "
+        "orientation-ecm always uses the ECM",
+    )
     p.add_argument("--config", help="TOML or YAML config file (see `endocam config`)")
     p.set_defaults(handler=_run)
 
@@ -143,6 +158,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=policies,
         default="orientation",
         help="camera policy (default orientation)",
+    )
+    ep.add_argument(
+        "--arm",
+        choices=["free", "psm", "ecm"],
+        default=None,
+        help="what carries the camera (default: the config's episode.arm)",
     )
     ep.add_argument("--config", help="TOML or YAML config file")
     ep.set_defaults(handler=_experiment)
