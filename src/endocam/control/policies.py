@@ -33,8 +33,9 @@ from endocam.control.safety import (
     D_F_STEP,
     ConeWorkspace,
     ImageWindows,
+    WindowGeometry,
     adjust_working_distance,
-    window_status,
+    window_status_rows,
 )
 from endocam.geometry import UP, FloatArray
 
@@ -185,11 +186,25 @@ class CameraPolicy(Protocol):
 _UP = (0.0, 0.0, 1.0)  # world up as plain floats
 
 
+Rows = list[list[float]]
+
+
+def _rows(T: FloatArray | None) -> Rows | None:
+    """Rows of a finite (4, 4) array as plain floats, or ``None`` if missing or not finite."""
+    if T is None:
+        return None
+    arr = T if isinstance(T, np.ndarray) else np.asarray(T, dtype=float)
+    if arr.shape != (4, 4):
+        return None
+    rows: Rows = arr.tolist()
+    if not math.isfinite(math.fsum(rows[0] + rows[1] + rows[2] + rows[3])):
+        return None  # any NaN or inf makes the sum non-finite
+    return rows
+
+
 def _valid_pose(T: FloatArray | None) -> bool:
-    """A (4, 4) array of finite numbers (any NaN or inf makes the sum non-finite)."""
-    if T is None or np.shape(T) != (4, 4):
-        return False
-    return math.isfinite(math.fsum(np.ravel(T).tolist()))
+    """A (4, 4) array of finite numbers."""
+    return _rows(T) is not None
 
 
 class FixedPolicy:
@@ -220,10 +235,12 @@ class _MovingPolicy:
     def __init__(self, config: ControllerConfig | None = None) -> None:
         self.config = config or ControllerConfig()
         self._windows = self.config.windows
+        self._window_geometry: WindowGeometry | None = None
         self._ctx: PolicyContext | None = None
         self._cone: ConeWorkspace | None = None
         self.d_f = self.config.d_f
         self._last_goal: FloatArray | None = None  # last unplanned goal (jump detection)
+        self._last_goal_p: list[float] = []  # its position as plain floats
         self._last_cmd: FloatArray | None = None  # last commanded pose (last safe pose)
         self._frozen_T: FloatArray | None = None
         self._path: WaypointPath | None = None
@@ -232,6 +249,7 @@ class _MovingPolicy:
     def reset(self, context: PolicyContext) -> None:
         """Fix the cone axis from the RCM to the ring's initial position; clear all memory."""
         self._ctx = context
+        self._window_geometry = WindowGeometry.of(context.camera, self._windows)
         self._cone = ConeWorkspace.from_rcm(
             context.p_world_rcm,
             context.T_world_ring[:3, 3],
@@ -255,6 +273,12 @@ class _MovingPolicy:
     def _goal(self, T_world_ring: FloatArray, T_world_cam: FloatArray) -> FloatArray:
         raise NotImplementedError
 
+    def _goal_rows(
+        self, ring_rows: Rows, T_world_ring: FloatArray, T_world_cam: FloatArray
+    ) -> FloatArray:
+        """:meth:`_goal` with the ring pose also given as rows of floats (override to use them)."""
+        return self._goal(T_world_ring, T_world_cam)
+
     def _hold(self, state: TrackingState, reason: str) -> CameraCommand:
         assert self._last_cmd is not None
         return CameraCommand(self._last_cmd, state, self.d_f, reason)
@@ -265,21 +289,29 @@ class _MovingPolicy:
         if ctx is None:
             raise RuntimeError("call reset() before step()")
         cfg = self.config
-        if not _valid_pose(obs.T_world_cam):
+        cam_rows = _rows(obs.T_world_cam)
+        if cam_rows is None:
             return self._hold(TrackingState.LOST_TRACKING, "camera pose not finite; holding")
         T_cam = np.asarray(obs.T_world_cam, dtype=float)
-        if not _valid_pose(obs.T_world_ring):
+        ring_rows = _rows(obs.T_world_ring)
+        if ring_rows is None:
             self._last_goal = None
             self._path = None
             return self._hold(TrackingState.LOST_TRACKING, "ring pose missing or not finite")
         T_ring = np.asarray(obs.T_world_ring, dtype=float)
 
-        status = window_status(ctx.camera, T_cam, obs.p_world_tips, self._windows)
+        tips = obs.p_world_tips
+        tip_rows = tips.tolist() if isinstance(tips, np.ndarray) else list(tips)
+        geometry = self._window_geometry
+        assert geometry is not None  # set by reset()
+        status = window_status_rows(geometry, cam_rows, tip_rows)
         self.d_f = adjust_working_distance(self.d_f, status, cfg.d_min, cfg.d_max, cfg.d_f_step)
 
-        goal = self._goal(T_ring, T_cam)
+        goal = self._goal_rows(ring_rows, T_ring, T_cam)
         p_goal = goal[:3, 3]
-        if not self.cone.contains(p_goal):
+        goal_rows = goal.tolist()
+        p_goal_list = [goal_rows[0][3], goal_rows[1][3], goal_rows[2][3]]
+        if not self.cone.contains(p_goal_list):
             if self._frozen_T is None:
                 self._frozen_T = T_cam
             self._last_cmd = self._frozen_T
@@ -292,9 +324,13 @@ class _MovingPolicy:
             )
         self._frozen_T = None
 
-        ref = self._last_goal[:3, 3] if self._last_goal is not None else T_cam[:3, 3]
-        jumped = math.dist(p_goal.tolist(), ref.tolist()) > cfg.jump_threshold
+        if self._last_goal is not None:
+            ref_p = self._last_goal_p
+        else:
+            ref_p = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
+        jumped = math.dist(p_goal_list, ref_p) > cfg.jump_threshold
         self._last_goal = goal
+        self._last_goal_p = p_goal_list
         if jumped and self._path is None:
             self._path = WaypointPath(intermediate_waypoints(T_cam[:3, 3], p_goal, UP, cfg.d_wp))
             self._s = 0.0
@@ -344,8 +380,13 @@ class OrientationPolicy(_MovingPolicy):
     name = "orientation"
 
     def _goal(self, T_world_ring: FloatArray, T_world_cam: FloatArray) -> FloatArray:
+        return self._goal_rows(np.asarray(T_world_ring).tolist(), T_world_ring, T_world_cam)
+
+    def _goal_rows(
+        self, ring_rows: Rows, T_world_ring: FloatArray, T_world_cam: FloatArray
+    ) -> FloatArray:
         previous = self._last_goal if self._last_goal is not None else T_world_cam
-        T = T_world_ring.tolist()
+        T = ring_rows
         n = (T[0][2], T[1][2], T[2][2])
         norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
         if not norm > 0.0:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -84,7 +85,7 @@ class ConeWorkspace:
             raise ValueError(f"base_radius must be > 0 m, got {base_radius}")
         return cls(apex, axis, float(height), float(base_radius))
 
-    def margin(self, p_world: FloatArray) -> float:
+    def margin(self, p_world: FloatArray | Sequence[float]) -> float:
         """Signed clearance of a point to the cone surface, m: > 0 inside, < 0 outside.
 
         The margin is the smaller of the distance to the lateral surface (measured perpendicular
@@ -96,7 +97,7 @@ class ConeWorkspace:
         p_world : (3,)
             Point in world, m.
         """
-        p = p_world.tolist()
+        p = p_world.tolist() if isinstance(p_world, np.ndarray) else p_world
         a = self._apex
         k = self._axis
         d0, d1, d2 = p[0] - a[0], p[1] - a[1], p[2] - a[2]
@@ -108,7 +109,7 @@ class ConeWorkspace:
             return math.nan
         return min(lateral, self.height - h, h)
 
-    def contains(self, p_world: FloatArray) -> bool:
+    def contains(self, p_world: FloatArray | Sequence[float]) -> bool:
         """Whether a point (3,) in world, m, is inside the cone or on its surface."""
         margin = self.margin(p_world)
         return math.isfinite(margin) and margin >= 0.0
@@ -144,6 +145,50 @@ class ImageWindows:
             )
 
 
+@dataclass(frozen=True)
+class WindowGeometry:
+    """Plain-float constants of the window test for one camera (computed once per episode).
+
+    Attributes
+    ----------
+    fx, fy, cx, cy : float
+        Intrinsics, px.
+    u0, v0 : float
+        Image centre, px.
+    half_baseline : float
+        Half the stereo baseline, m.
+    outer, inner : tuple of float
+        Half width and half height of the outer and inner windows, px.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    u0: float
+    v0: float
+    half_baseline: float
+    outer: tuple[float, float]
+    inner: tuple[float, float]
+
+    @classmethod
+    def of(cls, camera: StereoCamera, windows: ImageWindows) -> WindowGeometry:
+        """Constants for ``camera`` and ``windows``."""
+        k = camera.intrinsics
+        w, h = 0.5 * k.width, 0.5 * k.height
+        return cls(
+            k.fx,
+            k.fy,
+            k.cx,
+            k.cy,
+            w,
+            h,
+            0.5 * camera.baseline,
+            (windows.outer_frac * w, windows.outer_frac * h),
+            (windows.inner_frac * w, windows.inner_frac * h),
+        )
+
+
 def window_status(
     camera: StereoCamera,
     T_world_cam: FloatArray,
@@ -165,27 +210,36 @@ def window_status(
         lost) are ignored; no usable tip counts as "inside inner".
     windows : ImageWindows
     """
-    intr = camera.intrinsics
-    T = T_world_cam.tolist()
-    R0, R1, R2 = T[0][:3], T[1][:3], T[2][:3]
-    t = (T[0][3], T[1][3], T[2][3])
-    half_b = 0.5 * camera.baseline
-    hw_out, hh_out = 0.5 * windows.outer_frac * intr.width, 0.5 * windows.outer_frac * intr.height
-    hw_in, hh_in = 0.5 * windows.inner_frac * intr.width, 0.5 * windows.inner_frac * intr.height
+    tips = np.asarray(p_world_tips, dtype=float).reshape(-1, 3).tolist()
+    return window_status_rows(
+        WindowGeometry.of(camera, windows), np.asarray(T_world_cam).tolist(), tips
+    )
+
+
+def window_status_rows(
+    g: WindowGeometry, T_world_cam: list[list[float]], p_world_tips: list[list[float]]
+) -> WindowStatus:
+    """:func:`window_status` on plain lists (rows of ``T_world_cam``, tip rows), for the loop."""
+    T = T_world_cam
+    R0, R1, R2 = T[0], T[1], T[2]
+    t0, t1, t2 = R0[3], R1[3], R2[3]
+    hw_out, hh_out = g.outer
+    hw_in, hh_in = g.inner
+    fx, fy, du0, dv0, half_b = g.fx, g.fy, g.cx - g.u0, g.cy - g.v0, g.half_baseline
     all_inner = True
-    for p in np.asarray(p_world_tips, dtype=float).reshape(-1, 3).tolist():
+    for p in p_world_tips:
         if not math.isfinite(p[0] + p[1] + p[2]):
             continue
-        d0, d1, d2 = p[0] - t[0], p[1] - t[1], p[2] - t[2]
+        d0, d1, d2 = p[0] - t0, p[1] - t1, p[2] - t2
         # R^T d: the tip in the camera (centre) frame.
         x = R0[0] * d0 + R1[0] * d1 + R2[0] * d2
         y = R0[1] * d0 + R1[1] * d1 + R2[1] * d2
         z = R0[2] * d0 + R1[2] * d1 + R2[2] * d2
         if not z > MIN_DEPTH:  # also catches NaN
             return WindowStatus.OUTSIDE_OUTER
-        dv = abs(intr.fy * y / z + intr.cy - 0.5 * intr.height)
+        dv = abs(fy * y / z + dv0)
         for x_eye in (x + half_b, x - half_b):  # left eye at −b/2, right eye at +b/2
-            du = abs(intr.fx * x_eye / z + intr.cx - 0.5 * intr.width)
+            du = abs(fx * x_eye / z + du0)
             if not (du <= hw_out and dv <= hh_out):
                 return WindowStatus.OUTSIDE_OUTER
             if not (du <= hw_in and dv <= hh_in):

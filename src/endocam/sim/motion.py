@@ -82,18 +82,23 @@ def so3_exp(theta: list[float]) -> Rows:
 
 
 def _matmul(A: Rows, B: Rows) -> Rows:
+    """``A B`` for 3×3 row lists (unrolled: this runs every control step)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = B
     return [
-        [A[i][0] * B[0][j] + A[i][1] * B[1][j] + A[i][2] * B[2][j] for j in range(3)]
-        for i in range(3)
-    ]
+        [a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21,
+         a00 * b02 + a01 * b12 + a02 * b22],
+        [a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21,
+         a10 * b02 + a11 * b12 + a12 * b22],
+        [a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21,
+         a20 * b02 + a21 * b12 + a22 * b22],
+    ]  # fmt: skip
 
 
 def _tmatmul(A: Rows, B: Rows) -> Rows:
     """``A^T B`` for 3×3 row lists."""
-    return [
-        [A[0][i] * B[0][j] + A[1][i] * B[1][j] + A[2][i] * B[2][j] for j in range(3)]
-        for i in range(3)
-    ]
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
+    return _matmul([[a00, a10, a20], [a01, a11, a21], [a02, a12, a22]], B)
 
 
 class MotionStatus(enum.Enum):
@@ -137,6 +142,8 @@ class CartesianLimiter:
         self._v = [0.0] * 6  # linear velocity (world) and angular velocity (body), SI
         self._acc = [0.0] * 6
         self._target = np.eye(4)
+        self._arrived_at: list[float] = []  # flattened target the camera rests on
+        self._pose_array = np.eye(4)
         self.status = MotionStatus.ARRIVED
 
     def reset(self, T_world_cam: FloatArray) -> None:
@@ -147,6 +154,8 @@ class CartesianLimiter:
         self._v = [0.0] * 6
         self._acc = [0.0] * 6
         self._target = np.array(T_world_cam, dtype=float)
+        self._arrived_at = self._target.ravel().tolist()
+        self._pose_array = self.pose
         self.status = MotionStatus.ARRIVED
 
     @property
@@ -190,6 +199,8 @@ class CartesianLimiter:
             flat = T_world_target.ravel().tolist()
         else:
             self._target = T_world_target
+        if self.status is MotionStatus.ARRIVED and flat == self._arrived_at:
+            return self._pose_array.copy()  # at rest on an unchanged target: nothing to do
         # Re-anchor the orientation DoFs at the current orientation: current rotation vector 0,
         # target = log(R_cur^T R_target) (body frame, |θ| ≤ π).
         R_tgt = [flat[0:3], flat[4:7], flat[8:11]]
@@ -212,7 +223,9 @@ class CartesianLimiter:
             self._v = [0.0] * 6
             self._acc = [0.0] * 6
             self.status = MotionStatus.REJECTED if rejected else MotionStatus.ARRIVED
-            return self.pose
+            self._arrived_at = flat
+            self._pose_array = self.pose
+            return self._pose_array
         new = self._out.new_position
         self._p = new[:3]
         self._R = _matmul(self._R, so3_exp(new[3:]))
