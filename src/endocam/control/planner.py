@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -45,33 +44,38 @@ def intermediate_waypoints(
     return np.stack([p_world_cam, p_world_cam + lift, p_world_goal + lift, p_world_goal])
 
 
-@dataclass(frozen=True)
 class WaypointPath:
-    """A polyline through way-points, parametrised by arc length.
+    """A polyline through way-points, parametrised by arc length (immutable).
 
-    Attributes
+    Parameters
     ----------
     points : (M, 3)
-        Way-points in world, m (M ≥ 2).
+        Way-points in world, m (M ≥ 2, finite).
     """
 
-    points: FloatArray
-    # Plain-float copies, computed once: the path is queried every control step.
-    _pts: list[list[float]] = field(init=False, repr=False, compare=False)
-    _cum: list[float] = field(init=False, repr=False, compare=False)
+    __slots__ = ("_cum", "_pts")
 
-    def __post_init__(self) -> None:
-        pts = np.asarray(self.points, dtype=float)
+    def __init__(self, points: FloatArray) -> None:
+        pts = np.asarray(points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
             raise ValueError(f"points must have shape (M ≥ 2, 3), got {pts.shape}")
         rows = pts.tolist()
         if not math.isfinite(math.fsum(v for row in rows for v in row)):
             raise ValueError("points must be finite")
+        self._set(rows)
+
+    def _set(self, rows: list[list[float]]) -> None:
+        # Plain floats: the path is queried every control step.
         cum = [0.0]
         for a, b in itertools.pairwise(rows):
             cum.append(cum[-1] + math.dist(a, b))
-        object.__setattr__(self, "_pts", rows)
-        object.__setattr__(self, "_cum", cum)
+        self._pts = rows
+        self._cum = cum
+
+    @property
+    def points(self) -> FloatArray:
+        """(M, 3) way-points in world, m."""
+        return np.array(self._pts)
 
     @property
     def cumulative(self) -> FloatArray:
@@ -83,25 +87,38 @@ class WaypointPath:
         """Total path length, m."""
         return self._cum[-1]
 
-    def point_at(self, s: float) -> FloatArray:
-        """Position (3,) at arc length ``s`` (m), clamped to ``[0, length]``."""
+    def point_at_list(self, s: float) -> list[float]:
+        """Position at arc length ``s`` (m), clamped to ``[0, length]``, as plain floats."""
         cum, pts = self._cum, self._pts
         if s <= 0.0:
-            return np.array(pts[0])
+            return list(pts[0])
         for k in range(1, len(cum)):
             if s <= cum[k]:
                 seg = cum[k] - cum[k - 1]
                 u = (s - cum[k - 1]) / seg if seg > 0.0 else 1.0
                 a, b = pts[k - 1], pts[k]
-                return np.array([a[i] + u * (b[i] - a[i]) for i in range(3)])
-        return np.array(pts[-1])
+                return [
+                    a[0] + u * (b[0] - a[0]),
+                    a[1] + u * (b[1] - a[1]),
+                    a[2] + u * (b[2] - a[2]),
+                ]
+        return list(pts[-1])
+
+    def point_at(self, s: float) -> FloatArray:
+        """Position (3,) at arc length ``s`` (m), clamped to ``[0, length]``."""
+        return np.array(self.point_at_list(s))
 
     def with_goal(self, p_world_goal: FloatArray, up: FloatArray, d_wp: float) -> WaypointPath:
-        """Same path with the goal (and IWP2 above it) moved to follow a moving feature."""
-        pts = self.points.copy()
-        pts[-1] = p_world_goal
-        pts[-2] = p_world_goal + d_wp * up
-        return WaypointPath(pts)
+        """Same path with the goal (and IWP2 above it) moved to follow a moving feature.
+
+        ``p_world_goal`` (3,) and ``up`` (3,) must be finite (the control loop checked them).
+        """
+        g = p_world_goal.tolist()
+        u = up.tolist()
+        iwp2 = [g[0] + d_wp * u[0], g[1] + d_wp * u[1], g[2] + d_wp * u[2]]
+        path = WaypointPath.__new__(WaypointPath)
+        path._set([*self._pts[:-2], iwp2, g])
+        return path
 
 
 def advance(
@@ -127,6 +144,6 @@ def advance(
     float
         New progress in ``[s, length]``, m (never less than ``s``).
     """
-    if math.dist(path.point_at(s).tolist(), p_world_cam.tolist()) > lookahead:
+    if math.dist(path.point_at_list(s), p_world_cam.tolist()) > lookahead:
         return s
     return min(s + step, path.length)
