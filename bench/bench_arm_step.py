@@ -1,15 +1,23 @@
 """Benchmarks of the camera arm's control step (issue 4): IK alone, and one full step.
 
 Run: ``.venv/bin/pytest bench/bench_arm_step.py --benchmark-enable -o addopts=""``
+
+The ``full_control_step`` benchmarks hold one goal (after the first steps the limiter rests on
+it and the second IK is skipped); the ``moving_goal`` ones move the goal every step, so the
+limiter is always moving and both IK solves run.
 """
 
 from __future__ import annotations
+
+import itertools
+import math
 
 import numpy as np
 from pytest_benchmark.fixture import BenchmarkFixture
 
 from endocam.config import ExperimentConfig
 from endocam.sim.arm import ArmKind, CameraArm, natural_pose
+from endocam.sim.motion import MotionStatus
 
 
 def _arm(kind: ArmKind) -> CameraArm:
@@ -21,6 +29,23 @@ def _arm(kind: ArmKind) -> CameraArm:
 def _reachable_goal(arm: CameraArm) -> np.ndarray:
     q = natural_pose(arm.model) + np.array([0.1, 0.1, 0.0, 0.2, 0.2, 0.1][: arm.model.n_joints])
     return arm.camera_pose(q)
+
+
+MOVING_GOALS = 500  # count, goals along a closed path in joint space, one per control step
+MOVING_AMPLITUDE_RAD = 0.1  # rad (m × 0.1 for the insertion), path amplitude per joint
+
+
+def _moving_goals(arm: CameraArm) -> list[np.ndarray]:
+    """Reachable camera goals on a closed joint-space path: the limiter never comes to rest."""
+    q0 = natural_pose(arm.model)
+    n = arm.model.n_joints
+    scale = np.where(arm.model.prismatic, 0.1, 1.0) * MOVING_AMPLITUDE_RAD
+    goals = []
+    for k in range(MOVING_GOALS):
+        phase = 2.0 * math.pi * k / MOVING_GOALS
+        q = q0 + scale * np.sin(phase + np.arange(n))
+        goals.append(arm.camera_pose(q))
+    return goals
 
 
 def test_psm_camera_ik(benchmark: BenchmarkFixture) -> None:
@@ -44,4 +69,25 @@ def test_ecm_full_control_step(benchmark: BenchmarkFixture) -> None:
     arm = _arm(ArmKind.ECM)
     goal = _reachable_goal(arm)
     out = benchmark(arm.step, goal)
+    assert out.reachable
+
+
+def test_psm_full_control_step_moving_goal(benchmark: BenchmarkFixture) -> None:
+    """One runner step towards a goal that moves every step (both IK solves run)."""
+    arm = _arm(ArmKind.PSM)
+    goals = itertools.cycle(_moving_goals(arm))
+    for _ in range(MOVING_GOALS):  # settle onto the path
+        arm.step(next(goals))
+    out = benchmark(lambda: arm.step(next(goals)))
+    assert out.reachable
+    assert arm._limiter.status is MotionStatus.MOVING  # the second IK ran
+
+
+def test_ecm_full_control_step_moving_goal(benchmark: BenchmarkFixture) -> None:
+    """One ECM runner step towards a goal that moves every step."""
+    arm = _arm(ArmKind.ECM)
+    goals = itertools.cycle(_moving_goals(arm))
+    for _ in range(MOVING_GOALS):
+        arm.step(next(goals))
+    out = benchmark(lambda: arm.step(next(goals)))
     assert out.reachable

@@ -20,6 +20,7 @@ always RCM-relative). :class:`SimulatedArm` follows this: poses are ``T_rcm_tip`
 from __future__ import annotations
 
 import enum
+import math
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -115,6 +116,23 @@ def _positive_vector(x: object, name: str, n: int, allow_inf: bool = False) -> F
     if not allow_inf and not np.all(np.isfinite(arr)):
         raise ValueError(f"{name}: must be finite")
     return arr
+
+
+def _finite_floats(x: object, n: int) -> list[float] | None:
+    """``x`` as n finite floats, or None if it is anything else (fast path of servo_jp)."""
+    if isinstance(x, np.ndarray):
+        if x.shape != (n,):
+            return None
+        values = x.tolist()
+    elif isinstance(x, list | tuple) and len(x) == n:
+        values = list(x)
+    else:
+        return None
+    try:
+        out = [float(v) for v in values]
+    except (TypeError, ValueError):
+        return None
+    return out if all(math.isfinite(v) for v in out) else None
 
 
 class SimulatedArm:
@@ -285,10 +303,13 @@ class SimulatedArm:
         IKStatus
             ``OK``, or ``CLAMPED_TO_LIMITS`` if ``q`` was outside the limits.
         """
-        q_arr = self._model.check_q(q, "q")
-        target = self._model.clamp(q_arr)
-        status = IKStatus.OK if self._model.within_limits(q_arr) else IKStatus.CLAMPED_TO_LIMITS
-        self._set_target(target)
+        values = _finite_floats(q, self._model.n_joints)
+        if values is None:  # raises a ValueError naming the argument
+            values = self._model.check_q(q, "q").tolist()
+        clipped, inside = self._model.clamp_floats(values)
+        status = IKStatus.OK if inside else IKStatus.CLAMPED_TO_LIMITS
+        self._target = np.array(clipped)
+        self._inp.target_position = clipped
         self._command_status = status
         return status
 

@@ -36,6 +36,8 @@ __all__ = [
     "compose_links",
     "geometric_jacobian",
     "link_transform",
+    "pose12_from_matrix",
+    "pose12_times",
     "pose12_to_matrix",
 ]
 
@@ -299,6 +301,45 @@ def compose_links(
         r10, r11 = c * r10 + s * u1, -s * r10 + c * u1
         r20, r21 = c * r20 + s * u2, -s * r20 + c * u2
     return (r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz)
+
+
+def pose12_from_matrix(T: FloatArray) -> Pose12:
+    """The 12-float form of a (4, 4) pose (rotation row-major, then translation), m."""
+    (r00, r01, r02, px), (r10, r11, r12, py), (r20, r21, r22, pz), _ = T.tolist()
+    return (r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz)
+
+
+def pose12_times(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> Pose12:
+    """Product ``T · B`` of a 12-float pose and a transform ``B`` given by its top 3 rows.
+
+    Parameters
+    ----------
+    T : Pose12
+        Rotation row-major, then translation, m.
+    rows : tuple of 3 rows of 4 floats
+        Top three rows of ``B`` (e.g. the tool-tip offset or a camera mount), m.
+
+    Returns
+    -------
+    Pose12
+        ``T · B``, m.
+    """
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = T
+    (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3) = rows
+    return (
+        r00 * a0 + r01 * b0 + r02 * c0,
+        r00 * a1 + r01 * b1 + r02 * c1,
+        r00 * a2 + r01 * b2 + r02 * c2,
+        r10 * a0 + r11 * b0 + r12 * c0,
+        r10 * a1 + r11 * b1 + r12 * c1,
+        r10 * a2 + r11 * b2 + r12 * c2,
+        r20 * a0 + r21 * b0 + r22 * c0,
+        r20 * a1 + r21 * b1 + r22 * c1,
+        r20 * a2 + r21 * b2 + r22 * c2,
+        r00 * a3 + r01 * b3 + r02 * c3 + px,
+        r10 * a3 + r11 * b3 + r12 * c3 + py,
+        r20 * a3 + r21 * b3 + r22 * c3 + pz,
+    )
 
 
 def pose12_to_matrix(T: Pose12, tip: tuple[tuple[float, ...], ...] | None = None) -> FloatArray:

@@ -15,6 +15,7 @@ __all__ = [
     "IKResult",
     "IKStatus",
     "UnreachableError",
+    "pose12_error",
     "pose_error",
     "rotation_angle_between",
     "within_tolerance",
@@ -165,3 +166,39 @@ def pose_error(T_goal: FloatArray, T: FloatArray) -> tuple[float, float]:
     B = T.tolist()
     d0, d1, d2 = A[0][3] - B[0][3], A[1][3] - B[1][3], A[2][3] - B[2][3]
     return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), _angle_between_rows(A, B)
+
+
+def pose12_error(goal: tuple[float, ...], pose: tuple[float, ...]) -> tuple[float, float]:
+    """:func:`pose_error` of two 12-float poses (rotation row-major, then translation).
+
+    The float form used in control loops (``endocam.robot.dh.Pose12``).
+
+    Parameters
+    ----------
+    goal, pose : tuple of 12 floats
+        Poses in the same frame, m.
+
+    Returns
+    -------
+    position_error : float
+        Distance between the origins, m.
+    orientation_error : float
+        Angle between the rotations, rad.
+    """
+    a00, a01, a02, a10, a11, a12, a20, a21, a22, ax, ay, az = goal
+    b00, b01, b02, b10, b11, b12, b20, b21, b22, bx, by, bz = pose
+    # M = A^T B
+    m01 = a00 * b01 + a10 * b11 + a20 * b21
+    m10 = a01 * b00 + a11 * b10 + a21 * b20
+    m02 = a00 * b02 + a10 * b12 + a20 * b22
+    m20 = a02 * b00 + a12 * b10 + a22 * b20
+    m12 = a01 * b02 + a11 * b12 + a21 * b22
+    m21 = a02 * b01 + a12 * b11 + a22 * b21
+    trace = (
+        a00 * b00 + a10 * b10 + a20 * b20
+        + a01 * b01 + a11 * b11 + a21 * b21
+        + a02 * b02 + a12 * b12 + a22 * b22
+    )  # fmt: skip
+    s = 0.5 * math.sqrt((m21 - m12) ** 2 + (m02 - m20) ** 2 + (m10 - m01) ** 2)
+    dx, dy, dz = ax - bx, ay - by, az - bz
+    return math.sqrt(dx * dx + dy * dy + dz * dz), math.atan2(s, 0.5 * (trace - 1.0))

@@ -32,11 +32,14 @@ from endocam.robot.dh import (
     DHChain,
     DHLink,
     JointType,
+    Pose12,
     chain_forward,
     compose_links,
+    pose12_from_matrix,
+    pose12_times,
     pose12_to_matrix,
 )
-from endocam.robot.ik import IKResult, IKStatus, pose_error, within_tolerance
+from endocam.robot.ik import IKResult, IKStatus, pose12_error, pose_error, within_tolerance
 from endocam.robot.kinematics import (
     NEAREST_MAX_NFEV,
     RcmArm,
@@ -95,6 +98,7 @@ class PSM(RcmArm):
         if len(links) != 6:
             raise ValueError("chain: the PSM closed form needs 6 links")
         self._T_tip_inv = invert_pose(chain.T_last_tip)
+        self._tip_inv_rows = tuple(tuple(row) for row in self._T_tip_inv[:3].tolist())
         self._wrist_length = links[5].A  # m, wrist pitch → wrist yaw axis
         self._shaft_offset = links[3].D + links[2].offset  # m, wrist point at insertion 0
         self._cos_alpha6 = math.cos(links[5].alpha)
@@ -118,12 +122,16 @@ class PSM(RcmArm):
             wrist-yaw axis line through the RCM, or wrist point at the RCM) and the numeric
             fallback cannot reach the pose. Non-OK results hold the nearest feasible ``q``.
         """
-        sol = self._closed_form(T_goal, seed)
+        goal12 = pose12_from_matrix(T_goal)
+        sol = self._closed_form(goal12, seed)
         if sol is not None:
-            q, T = sol
-            errors = pose_error(T_goal, T)
-            if not within_tolerance(*errors):  # round-off: polish a few DLS steps
-                q = self._polish(q, T_goal)
+            q_list, T12 = sol
+            errors = pose12_error(goal12, T12)
+            if within_tolerance(*errors):  # the usual case: plain floats, one matrix built
+                T = pose12_to_matrix(T12)
+                q = np.array(q_list)
+            else:  # round-off: polish a few DLS steps
+                q = self._polish(np.array(q_list), T_goal)
                 T = chain_forward(self._chain, q)
                 errors = pose_error(T_goal, T)
             if within_tolerance(*errors):
@@ -139,26 +147,21 @@ class PSM(RcmArm):
                 q_near = self.nearest_feasible(T_goal, self.clamp(q))
                 return self._result(q_near, T_goal, IKStatus.CLAMPED_TO_LIMITS)
         # singular wrist geometry (or a failed closed form): bounded numeric solve
-        q_near = self.nearest_feasible(T_goal, seed if sol is None else self.clamp(sol[0]))
+        seed_near = seed if sol is None else self.clamp(np.array(sol[0]))
+        q_near = self.nearest_feasible(T_goal, seed_near)
         T = chain_forward(self._chain, q_near)
         status = IKStatus.OK if self._reached(T_goal, T) else IKStatus.UNREACHABLE
         return self._result(q_near, T_goal, status, T)
 
-    def _closed_form(
-        self, T_goal: FloatArray, seed: FloatArray
-    ) -> tuple[FloatArray, FloatArray] | None:
-        """Exact joint values for ``T_goal`` ignoring limits, with ``forward(q)``.
+    def _closed_form(self, goal: Pose12, seed: FloatArray) -> tuple[list[float], Pose12] | None:
+        """Exact joint values for the goal ``T_rcm_tip`` (12 floats) ignoring limits.
 
-        Returns None when the wrist geometry is singular. Written on Python floats: at this
-        size they are several times cheaper than numpy 3-vectors.
+        Returns ``(q, forward(q))`` (12 floats), or None when the wrist geometry is singular.
+        Written on Python floats: at this size they are several times cheaper than numpy
+        3-vectors.
         """
         links = self._chain.links
-        (
-            (x0, _, z0, p0),
-            (x1, _, z1, p1),
-            (x2, _, z2, p2),
-            _,
-        ) = (T_goal @ self._T_tip_inv).tolist()
+        x0, _, z0, x1, _, z1, x2, _, z2, p0, p1, p2 = pose12_times(goal, self._tip_inv_rows)
         # step 2: wrist-pitch point on the shaft
         pz = p0 * z0 + p1 * z1 + p2 * z2
         e0, e1, e2 = p0 - pz * z0, p1 - pz * z1, p2 - pz * z2
@@ -201,5 +204,4 @@ class PSM(RcmArm):
         q[5] = branch_in_limits(theta6 - links[5].offset, 0.0, links[5].lower, links[5].upper)
         # forward(q), reusing the product of the first three links (unchanged since)
         T_rcm_6 = compose_links(self._chain, q, 3, 6, T_rcm_3)
-        T = pose12_to_matrix(T_rcm_6, self._chain._tip_rows)
-        return np.array(q), T
+        return q, pose12_times(T_rcm_6, self._chain._tip_rows)

@@ -12,7 +12,8 @@
    :class:`~endocam.sim.motion.CartesianLimiter` (speed, acceleration, jerk).
    Because the limiter only ever heads for feasible poses, it cannot drift into the region the
    arm cannot reach and drag the arm's set points away from its actual pose.
-3. **Joint motion.** The limiter's pose is solved by IK again (seeded by the measured joints);
+3. **Joint motion.** The limiter's pose is solved by IK again (seeded by the measured joints;
+   skipped when the limiter is at rest on the goal, whose IK step 1 already solved);
    :class:`~endocam.robot.arm.SimulatedArm` moves the joints towards it for one control period
    under ruckig's joint velocity and acceleration limits, never beyond the joint limits.
 4. **FK.** The camera pose is ``T_world_rcm · FK(q) · T_tip_cam`` of the new joints: every
@@ -26,6 +27,7 @@ tool tip (identity for the ECM, whose tip frame is its optical frame).
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,7 +35,8 @@ import numpy as np
 from endocam.config import MotionLimits
 from endocam.geometry import FloatArray, as_pose, invert_pose
 from endocam.robot import ECM, PSM, IKResult, IKStatus, RcmArm, SimulatedArm
-from endocam.sim.motion import CartesianLimiter
+from endocam.robot.dh import compose_links, pose12_from_matrix, pose12_to_matrix
+from endocam.sim.motion import CartesianLimiter, MotionStatus
 
 __all__ = [
     "REACH_POSITION_TOL_M",
@@ -149,6 +152,10 @@ class CameraArm:
         self._T_rcm_world = invert_pose(self._T_world_rcm)
         self._T_tip_cam = as_pose(np.asarray(T_tip_cam, dtype=float), "T_tip_cam")
         self._T_cam_tip = invert_pose(self._T_tip_cam)
+        # float forms for the control loop: FK starts at the RCM in world and ends at the camera
+        self._world_rcm12 = pose12_from_matrix(self._T_world_rcm)
+        T_last_cam = self.model.chain.T_last_tip @ self._T_tip_cam
+        self._last_cam_rows = tuple(tuple(row) for row in T_last_cam[:3].tolist())
         self._arm = SimulatedArm(self.model, dt=dt, q0=natural_pose(self.model))
         self._limiter = CartesianLimiter(limits, dt)
         self._q = self._arm.measured_js()[0]
@@ -182,7 +189,12 @@ class CameraArm:
 
     def camera_pose(self, q: object) -> FloatArray:
         """Camera pose for joints ``q`` (n,): ``T_world_cam`` (4, 4), optical frame, m."""
-        return self._T_world_rcm @ self.model.forward(q) @ self._T_tip_cam
+        return self._camera_pose(self.model.check_q(q).tolist())
+
+    def _camera_pose(self, q: list[float]) -> FloatArray:
+        """``T_world_rcm · FK(q) · T_tip_cam`` on plain floats (unchecked ``q``)."""
+        T = compose_links(self.model.chain, q, T0=self._world_rcm12)
+        return pose12_to_matrix(T, self._last_cam_rows)
 
     def camera_poses(self, q: FloatArray) -> FloatArray:
         """:meth:`camera_pose` for joint rows ``q`` (N, n): ``T_world_cam`` (N, 4, 4), m."""
@@ -240,14 +252,19 @@ class CameraArm:
         -------
         ArmStep
         """
-        finite = bool(np.isfinite(T_world_cmd).all())
+        finite = all(map(math.isfinite, np.ravel(T_world_cmd).tolist()))
         T_goal = T_world_cmd if finite else self._limiter.pose
         goal = self._solve(T_goal)
         reachable = self._reachable(goal)
         if not goal.ok:  # head for the nearest feasible pose instead
             T_goal = self._T_world_rcm @ goal.T_rcm_tip @ self._T_tip_cam
         T_limited = self._limiter.step(T_goal)
-        self._arm.servo_jp(self._solve(T_limited).q)
+        if self._limiter.status is MotionStatus.ARRIVED:
+            # the limiter is at rest exactly on the (feasible) goal, whose IK is known
+            q_cmd = goal.q
+        else:
+            q_cmd = self._solve(T_limited).q
+        self._arm.servo_jp(q_cmd)
         self._arm.step()
         self._q = self._arm.measured_js()[0]
-        return ArmStep(self.camera_pose(self._q), self._q.copy(), goal, reachable)
+        return ArmStep(self._camera_pose(self._q.tolist()), self._q.copy(), goal, reachable)

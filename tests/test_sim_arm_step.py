@@ -1,0 +1,82 @@
+"""The fast paths of the camera arm's control step agree with the plain numpy forms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from endocam.config import ExperimentConfig
+from endocam.geometry import make_pose
+from endocam.robot.dh import pose12_from_matrix, pose12_times, pose12_to_matrix
+from endocam.robot.ik import pose12_error, pose_error
+from endocam.sim.arm import ArmKind, CameraArm, natural_pose
+from endocam.sim.motion import MotionStatus
+
+ATOL_M = 1e-12  # m: float kernels vs numpy products, round-off only
+ATOL_RAD = 1e-9  # rad: angle kernels vs numpy (atan2 form), round-off only
+N_RANDOM = 50  # count, random poses per check
+HOLD_STEPS = 400  # count, control steps to come to rest on a held goal (4 s at 100 Hz)
+
+
+def _random_pose(rng: np.random.Generator) -> np.ndarray:
+    R = Rotation.random(random_state=rng).as_matrix()
+    return make_pose(R, rng.uniform(-0.3, 0.3, 3))
+
+
+def _arm(kind: ArmKind) -> CameraArm:
+    cfg = ExperimentConfig()
+    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
+    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, cfg.episode.limits, 0.01)
+
+
+def test_pose12_kernels_match_numpy():
+    rng = np.random.default_rng(4)
+    for _ in range(N_RANDOM):
+        A, B = _random_pose(rng), _random_pose(rng)
+        a12 = pose12_from_matrix(A)
+        np.testing.assert_array_equal(pose12_to_matrix(a12), A)
+        rows = tuple(tuple(r) for r in B[:3].tolist())
+        np.testing.assert_allclose(pose12_to_matrix(pose12_times(a12, rows)), A @ B, atol=ATOL_M)
+        pos, ang = pose12_error(a12, pose12_from_matrix(B))
+        pos_ref, ang_ref = pose_error(A, B)
+        assert pos == pytest.approx(pos_ref, abs=ATOL_M)
+        assert ang == pytest.approx(ang_ref, abs=ATOL_RAD)
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_camera_pose_fast_path_is_fk(kind: ArmKind):
+    arm = _arm(kind)
+    rng = np.random.default_rng(5)
+    for _ in range(N_RANDOM):
+        q = arm.model.clamp(natural_pose(arm.model) + rng.uniform(-0.3, 0.3, arm.model.n_joints))
+        expected = arm.T_world_rcm @ arm.model.forward(q) @ arm.T_tip_cam
+        np.testing.assert_allclose(arm.camera_pose(q), expected, atol=ATOL_M)
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_held_goal_skips_second_ik_and_lands_on_its_solution(kind: ArmKind):
+    arm = _arm(kind)
+    q_goal = (
+        natural_pose(arm.model) + np.array([0.1, 0.1, 0.01, 0.2, 0.2, 0.1])[: arm.model.n_joints]
+    )
+    goal = arm.camera_pose(q_goal)
+    for _ in range(HOLD_STEPS):
+        out = arm.step(goal)
+    assert arm._limiter.status is MotionStatus.ARRIVED  # the second IK was skipped
+    assert out.reachable
+    np.testing.assert_allclose(out.q, out.goal.q, atol=ATOL_M)  # at rest on the goal's IK
+    np.testing.assert_allclose(out.T_world_cam, goal, atol=1e-7)  # IK tolerance, m
+    np.testing.assert_allclose(out.T_world_cam, arm.camera_pose(out.q), atol=ATOL_M)
+
+
+def test_servo_jp_fast_path_validates_and_clamps():
+    arm = _arm(ArmKind.PSM).arm
+    with pytest.raises(ValueError, match="q"):
+        arm.servo_jp([0.0] * 5)
+    with pytest.raises(ValueError, match="q"):
+        arm.servo_jp([0.0, 0.0, 0.1, 0.0, 0.0, float("nan")])
+    q = arm.model.upper + 1.0
+    assert arm.servo_jp(q).value == "clamped_to_limits"
+    np.testing.assert_array_equal(arm.setpoint_js(), arm.model.upper)
+    assert arm.servo_jp(tuple(natural_pose(arm.model))).value == "ok"
