@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 
 import numpy as np
+import pytest
 from pytest_benchmark.fixture import BenchmarkFixture
 
 from endocam.config import ExperimentConfig
@@ -91,3 +93,30 @@ def test_ecm_full_control_step_moving_goal(benchmark: BenchmarkFixture) -> None:
         arm.step(next(goals))
     out = benchmark(lambda: arm.step(next(goals)))
     assert out.reachable
+
+
+RENDER_FPS_TARGET = 30.0  # frames/s at 640x480 (issue 3), with the arm drawn
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_render_frame_with_arm_640x480(benchmark: BenchmarkFixture, kind: ArmKind) -> None:
+    """One video frame of an arm episode: pose ring, camera and arm links, render the left eye."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    from endocam.sim.render import WireChaserScene
+
+    cfg = ExperimentConfig()
+    arm = _arm(kind)
+    goals = _moving_goals(arm)
+    qs = [arm.step(g).q for g in goals[:50]]
+    cams = [arm.camera_pose(q) for q in qs]
+    frames = itertools.cycle(range(len(qs)))
+    with WireChaserScene(cfg.task, cfg.camera.stereo(), arm=kind) as scene:
+
+        def frame() -> np.ndarray:
+            i = next(frames)
+            scene.set_camera_pose(cams[i])
+            scene.set_arm_joints(qs[i])
+            return scene.render("left")
+
+        image = benchmark(frame)
+    assert image.shape == (cfg.camera.height, cfg.camera.width, 3)

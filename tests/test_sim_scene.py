@@ -64,7 +64,7 @@ def test_model_lint_every_element_named_cameras_present() -> None:
     assert all(m.site(i).name for i in range(m.nsite))
     cams = {m.camera(i).name for i in range(m.ncam)}
     assert set(EYE_CAMERAS) <= cams
-    assert m.nmocap == 3 and m.nv == 0  # kinematic only
+    assert m.nmocap == 4 and m.nv == 0  # kinematic only (ring, psm2, camera, observer)
     assert np.all(m.geom_contype == 0) and np.all(m.geom_conaffinity == 0)
     fovy = np.degrees(CAMERA.intrinsics.fovy)
     np.testing.assert_allclose(m.cam_fovy, fovy)

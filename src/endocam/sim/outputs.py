@@ -336,19 +336,20 @@ def video_writer(path: Path, width: int, height: int, fps: float) -> Any:
 
 def render_video(result: EpisodeResult, path: Path, progress: Progress | None = None) -> int:
     """Render the left eye over the episode into an H.264 MP4; returns the number of frames."""
-    from endocam.sim.render import WireChaserScene
+    from endocam.sim.render import WireChaserScene, log_arm
 
     log = result.log
     idx = frame_indices(result)
     k = result.camera.intrinsics
     if k.width % 2 or k.height % 2:
         raise ValueError("video needs an even image width and height (H.264 yuv420p)")
-    with WireChaserScene(result.config.task, result.camera) as scene:
+    with WireChaserScene(result.config.task, result.camera, arm=log_arm(log)) as scene:
         writer = video_writer(path, k.width, k.height, result.config.episode.video_fps)
         try:
             for i in idx:
                 scene.set_ring_pose(log.T_world_ring[i])
                 scene.set_camera_pose(log.T_world_cam[i])
+                scene.set_arm_from_log(log, i)
                 writer.send(np.ascontiguousarray(scene.render("left")))
                 if progress is not None:
                     progress(1)

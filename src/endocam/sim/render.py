@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import mujoco
 import numpy as np
@@ -17,16 +17,23 @@ from numpy.typing import ArrayLike, NDArray
 
 from endocam.camera import Eye, StereoCamera
 from endocam.geometry import FloatArray, as_pose, as_vector3, quat_wxyz_from_R
+from endocam.sim.arm import ArmKind, arm_model, natural_pose
+from endocam.sim.arm_scene import ArmLink, add_camera_arm
 from endocam.sim.scene import (
     CAMERA_BODY,
     EYE_CAMERAS,
+    GROUP_LINK,
     N_GROUPS,
+    OBSERVER,
     PSM2_BODY,
     RING_BODY,
     TIP_SITES,
     build_spec,
 )
 from endocam.task.config import TaskConfig
+
+if TYPE_CHECKING:
+    from endocam.sim.episode import EpisodeLog
 
 DEFAULT_RAY_TOLERANCE = 2.0e-3  # m, occluders closer than this in front of the target are ignored
 
@@ -42,20 +49,38 @@ class WireChaserScene:
     spec : mujoco.MjSpec, optional
         A spec from :func:`endocam.sim.scene.build_spec`, possibly with extra mocap links
         (built from ``task_cfg`` and ``camera`` if omitted).
+    arm : ArmKind, optional
+        Draw this camera arm (``PSM`` or ``ECM``; ``None`` or ``FREE``: no arm), its RCM at
+        ``task_cfg.scene.T_world_rcm`` (:mod:`endocam.sim.arm_scene`); pose it with
+        :meth:`set_arm_joints`.
     """
 
     def __init__(
-        self, task_cfg: TaskConfig, camera: StereoCamera, spec: mujoco.MjSpec | None = None
+        self,
+        task_cfg: TaskConfig,
+        camera: StereoCamera,
+        spec: mujoco.MjSpec | None = None,
+        arm: ArmKind | None = None,
     ) -> None:
         self.task_cfg = task_cfg
         self.camera = camera
-        self.model = (build_spec(task_cfg, camera) if spec is None else spec).compile()
+        if spec is None:
+            spec = build_spec(task_cfg, camera)
+        self.arm = None if arm is ArmKind.FREE else arm
+        self._arm_links: tuple[ArmLink, ...] = ()
+        if self.arm is not None:
+            self._arm_links = add_camera_arm(spec, self.arm, task_cfg.instruments, camera)
+            self._arm_model = arm_model(self.arm)
+            self._T_world_rcm = task_cfg.scene.T_world_rcm
+        self.model = spec.compile()
         self.data = mujoco.MjData(self.model)
         self._mocap = {
             name: int(self.model.body(name).mocapid[0])
-            for name in (RING_BODY, PSM2_BODY, CAMERA_BODY)
+            for name in (RING_BODY, PSM2_BODY, CAMERA_BODY, OBSERVER)
         }
-        self._cam_ids = {eye: int(self.model.camera(eye).id) for eye in EYE_CAMERAS}
+        for link in self._arm_links:
+            self._mocap[link.body] = int(self.model.body(link.body).mocapid[0])
+        self._cam_ids = {name: int(self.model.camera(name).id) for name in (*EYE_CAMERAS, OBSERVER)}
         self._site_ids = [int(self.model.site(s).id) for s in TIP_SITES]
         self._option = mujoco.MjvOption()
         self._option.geomgroup[:] = 1  # MuJoCo hides groups 3-5 by default; show everything
@@ -65,6 +90,8 @@ class WireChaserScene:
         flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
         flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
         flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0
+        if self.arm is not None:
+            self.set_arm_joints(natural_pose(self._arm_model))
         self._update()
 
     # ---------------------------------------------------------------- state
@@ -75,11 +102,38 @@ class WireChaserScene:
             if w.number > 0:
                 raise RuntimeError(f"MuJoCo warning raised (number {w.number}, info {w.lastinfo})")
 
-    def _set_mocap(self, body: str, T_world_body: FloatArray) -> None:
+    def _set_mocap(self, body: str, T_world_body: FloatArray, update: bool = True) -> None:
         i = self._mocap[body]
         self.data.mocap_pos[i] = T_world_body[:3, 3]
         self.data.mocap_quat[i] = quat_wxyz_from_R(T_world_body[:3, :3])
+        if update:
+            self._update()
+
+    def set_arm_joints(self, q: ArrayLike | None) -> None:
+        """Pose the camera arm's links for joints ``q``, or hide the arm (``None``).
+
+        Parameters
+        ----------
+        q : (n,) array_like or None
+            Joint positions of the arm given at construction, rad / m (e.g. a row of
+            ``EpisodeLog.joints``); ``None`` hides the arm's geoms (group ``GROUP_LINK``) in
+            rendered images.
+
+        Raises
+        ------
+        ValueError
+            If the scene has no arm and ``q`` is not None, or ``q`` is malformed.
+        """
+        if q is None:
+            self._option.geomgroup[GROUP_LINK] = 0
+            return
+        if self.arm is None:
+            raise ValueError("q: this scene draws no arm (construct it with arm=...)")
+        frames = self._T_world_rcm @ self._arm_model.frames(q)
+        for link in self._arm_links:
+            self._set_mocap(link.body, frames[link.frame], update=False)
         self._update()
+        self._option.geomgroup[GROUP_LINK] = 1
 
     def set_ring_pose(self, T_world_ring: ArrayLike) -> None:
         """Move the ring, its handle and PSM1 (which holds it) to ``T_world_ring`` (4, 4), m."""
@@ -124,13 +178,41 @@ class WireChaserScene:
         """(2, 3) world positions of the PSM1 and PSM2 tool tips (jaw tips), m."""
         return np.array([self.data.site_xpos[i] for i in self._site_ids], dtype=float)
 
+    def set_arm_from_log(self, log: EpisodeLog, k: int) -> None:
+        """Pose the arm as at control step ``k`` of an episode log (``log.joints[k]``).
+
+        The arm is hidden if that episode's camera was not carried by this scene's arm (a
+        free camera, or the other arm kind).
+        """
+        same = self.arm is not None and log_arm(log) is self.arm
+        self.set_arm_joints(log.joints[k] if same and log.joints is not None else None)
+
     def render(self, eye: Eye = "left") -> NDArray[np.uint8]:
         """Render ``eye``'s image at the camera's resolution: (H, W, 3) uint8 RGB."""
-        if eye not in self._cam_ids:
+        if eye not in EYE_CAMERAS:
             raise ValueError(f"eye must be 'left' or 'right', got {eye!r}")
+        return self._render(self._cam_ids[eye])
+
+    def render_view(self, T_world_view: ArrayLike) -> NDArray[np.uint8]:
+        """Render the scene from a free viewpoint (e.g. an overview showing the arms).
+
+        Parameters
+        ----------
+        T_world_view : (4, 4) array_like
+            Viewpoint pose, OpenCV optical frame, m; the image has the stereo camera's
+            intrinsics (size and ``fovy``).
+
+        Returns
+        -------
+        (H, W, 3) uint8 RGB
+        """
+        self._set_mocap(OBSERVER, as_pose(T_world_view, "T_world_view"))
+        return self._render(self._cam_ids[OBSERVER])
+
+    def _render(self, camera_id: int) -> NDArray[np.uint8]:
         if self._renderer is None:
             raise RuntimeError("the scene is closed")
-        self._renderer.update_scene(self.data, camera=self._cam_ids[eye], scene_option=self._option)
+        self._renderer.update_scene(self.data, camera=camera_id, scene_option=self._option)
         return np.asarray(self._renderer.render(), dtype=np.uint8)
 
     def ray_visible(
@@ -199,3 +281,8 @@ class WireChaserScene:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def log_arm(log: EpisodeLog) -> ArmKind | None:
+    """The arm that carried an episode's camera (to draw it), or None for a free camera."""
+    return None if log.joints is None else ArmKind(log.arm)

@@ -83,12 +83,12 @@ def render_side_by_side(
     results: Sequence[EpisodeResult], paths: Sequence[Path], grid_path: Path
 ) -> None:
     """Render every episode's left eye in one pass: one MP4 each plus a side-by-side MP4."""
-    from endocam.sim.render import WireChaserScene
+    from endocam.sim.render import WireChaserScene, log_arm
 
     idx = frame_indices(results[0])
     k = results[0].camera.intrinsics
     fps = results[0].config.episode.video_fps
-    scenes = [WireChaserScene(r.config.task, r.camera) for r in results]
+    scenes = [WireChaserScene(r.config.task, r.camera, arm=log_arm(r.log)) for r in results]
     writers = [video_writer(p, k.width, k.height, fps) for p in paths]
     grid = video_writer(grid_path, k.width * len(results), k.height, fps)
     try:
@@ -97,6 +97,7 @@ def render_side_by_side(
             for scene, result, writer in zip(scenes, results, writers, strict=True):
                 scene.set_ring_pose(result.log.T_world_ring[i])
                 scene.set_camera_pose(result.log.T_world_cam[i])
+                scene.set_arm_from_log(result.log, i)
                 frame = np.ascontiguousarray(scene.render("left"))
                 writer.send(frame)
                 frames.append(frame)

@@ -15,10 +15,12 @@ Bodies and geoms (geom group in brackets, see ``GROUP_*``):
   ``psm2_shaft`` [3], site ``psm2_tip``;
 - ``stereo_camera`` (mocap, pose = ``T_world_cam`` in the optical frame) with MuJoCo cameras
   ``left`` and ``right`` at ∓baseline/2 along x, rotated by π about x (optical → MuJoCo camera,
-  ``docs/conventions.md``).
+  ``docs/conventions.md``);
+- ``observer`` (mocap, no geoms) with the MuJoCo camera ``observer`` (same intrinsics as the
+  eyes): a free viewpoint for overview pictures (``WireChaserScene.render_view``).
 
-More mocap bodies (e.g. robot arm links, group ``GROUP_LINK``) are added with
-:func:`add_mocap_link` before compiling.
+More mocap bodies (e.g. robot arm links, group ``GROUP_LINK``, see
+:mod:`endocam.sim.arm_scene`) are added with :func:`add_mocap_link` before compiling.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ N_GROUPS = 6  # MuJoCo's number of geom groups
 RING_BODY = "ring"
 PSM2_BODY = "psm2"
 CAMERA_BODY = "stereo_camera"
+OBSERVER = "observer"  # mocap body and MuJoCo camera of the free viewpoint
 EYE_CAMERAS: tuple[Eye, Eye] = ("left", "right")
 TIP_SITES = ("psm1_tip", "psm2_tip")
 Q_MJCAM_OPTICAL = (0.0, 1.0, 0.0, 0.0)  # (w, x, y, z): π about x, optical → MuJoCo camera frame
@@ -379,6 +382,8 @@ def build_spec(task_cfg: TaskConfig, camera: StereoCamera) -> mujoco.MjSpec:
     for eye in EYE_CAMERAS:
         p = camera.T_cam_eye(eye)[:3, 3]
         cam.add_camera(name=eye, pos=p.tolist(), quat=list(Q_MJCAM_OPTICAL), fovy=fovy_deg)
+    observer = spec.worldbody.add_body(name=OBSERVER, mocap=True, pos=[0.0, -0.3, 0.2])
+    observer.add_camera(name=OBSERVER, quat=list(Q_MJCAM_OPTICAL), fovy=fovy_deg)
     for name, direction, diffuse in (
         ("key_light", sc.key_light_direction, sc.key_light_diffuse),
         ("fill_light", sc.fill_light_direction, sc.fill_light_diffuse),
