@@ -33,8 +33,18 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from endocam.robot.dh import DHChain, DHLink, JointType, chain_forward, compose_links
-from endocam.robot.ik import IKResult, IKStatus, rotation_angle_between
+from endocam.robot.dh import (
+    DHChain,
+    DHLink,
+    JointType,
+    Pose12,
+    chain_forward,
+    compose_links,
+    pose12_from_matrix,
+    pose12_times,
+    pose12_to_matrix,
+)
+from endocam.robot.ik import IKResult, IKStatus, pose12_error, within_tolerance
 from endocam.robot.kinematics import (
     LIMIT_SLACK,
     NEAREST_MAX_NFEV,
@@ -113,7 +123,11 @@ class ECM(RcmArm):
             raise ValueError("chain: the ECM closed form needs 4 links")
         links = chain.links
         self._T_tip_inv = invert_pose(chain.T_last_tip)
+        self._tip_inv_rows = tuple(tuple(row) for row in self._T_tip_inv[:3].tolist())
         self._R_tool = chain.T_last_tip[:3, :3].copy()
+        self._tool_rows = self._R_tool.tolist()
+        rows4 = np.hstack([self._R_tool, np.zeros((3, 1))])
+        self._tool_rows4 = tuple(tuple(row) for row in rows4.tolist())
         self._shaft_offset = links[2].offset + links[3].D  # m, tip on axis at insertion 0
 
     def solve_unchecked(self, T_goal: FloatArray, seed: FloatArray) -> IKResult:
@@ -136,48 +150,68 @@ class ECM(RcmArm):
             prevent it. ``q`` is always within the limits.
         """
         links = self._chain.links
-        T4 = T_goal @ self._T_tip_inv
-        p = T4[:3, 3]
-        r = float(np.linalg.norm(p))
-        shaft = p / r if r > _EPS_GEOM else T4[:3, 2]
-        q = np.zeros(4)
-        q[2] = r - self._shaft_offset
-        q[1] = -math.asin(max(-1.0, min(1.0, float(shaft[1]))))
-        q[0] = math.atan2(float(shaft[0]), float(-shaft[2]))
+        goal = pose12_from_matrix(T_goal)
+        g = pose12_times(goal, self._tip_inv_rows)  # last DH frame at the goal
+        p0, p1, p2 = g[9], g[10], g[11]
+        r = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+        s0, s1, s2 = (p0 / r, p1 / r, p2 / r) if r > _EPS_GEOM else (g[2], g[5], g[8])
+        q = [math.atan2(s0, -s2), -math.asin(max(-1.0, min(1.0, s1))), r - self._shaft_offset, 0.0]
         # reachable with unlimited joints iff the best roll on the unclamped axis is exact
-        theta4, R_free = self._best_roll(T_goal, q)
-        exact_orientation = rotation_angle_between(T_goal[:3, :3], R_free) <= _EXACT_TOL_RAD
+        theta4, R_free = self._best_roll(goal, q)
+        exact_orientation = pose12_error(goal, R_free)[1] <= _EXACT_TOL_RAD
         clamped = False
-        if not self.within_limits(np.append(q[:3], 0.0)):
+        if not all(
+            lo - LIMIT_SLACK <= v <= hi + LIMIT_SLACK
+            for v, (lo, hi) in zip(q[:3], self._limit_pairs, strict=False)
+        ):
             clamped = True
-            q[:3] = self._nearest_position(p, self.clamp(q)[:3])
-            theta4, _ = self._best_roll(T_goal, q)
+            q_clip = self.clamp(np.array(q))[:3]
+            q[:3] = self._nearest_position(np.array([p0, p1, p2]), q_clip).tolist()
+            theta4, _ = self._best_roll(goal, q)
         q[3] = clamp_angle_to_limits(
             theta4 - links[3].offset, float(seed[3]), links[3].lower, links[3].upper
         )
         if abs(math.remainder(q[3] + links[3].offset - theta4, 2.0 * math.pi)) > LIMIT_SLACK:
             clamped = True
-        q = self.clamp(q)
+        q, _ = self.clamp_floats(q)
         if not exact_orientation:
             status = IKStatus.UNREACHABLE
         elif clamped:
             status = IKStatus.CLAMPED_TO_LIMITS
         else:
             status = IKStatus.OK
-        result = self._result(q, T_goal, status)
-        if status is IKStatus.OK and not self._reached(T_goal, result.T_rcm_tip):
-            return self._result(q, T_goal, IKStatus.UNREACHABLE, result.T_rcm_tip)
-        return result
+        T12 = pose12_times(compose_links(self._chain, q), self._chain._tip_rows)
+        errors = pose12_error(goal, T12)
+        if status is IKStatus.OK and not within_tolerance(*errors):
+            status = IKStatus.UNREACHABLE
+        return IKResult(np.array(q), status, errors[0], errors[1], pose12_to_matrix(T12))
 
-    def _best_roll(self, T_goal: FloatArray, q: FloatArray) -> tuple[float, FloatArray]:
-        """Roll angle θ4 (rad) maximising trace(R_goal^T R) and the rotation it gives."""
-        a = compose_links(self._chain, q.tolist(), 0, 3)
-        R3 = np.array(a[:9]).reshape(3, 3)
-        M = self._R_tool @ T_goal[:3, :3].T @ R3
-        theta4 = math.atan2(float(M[0, 1] - M[1, 0]), float(M[0, 0] + M[1, 1]))
+    def _best_roll(self, goal: Pose12, q: list[float]) -> tuple[float, Pose12]:
+        """Roll angle θ4 (rad) maximising trace(R_goal^T R), and the pose's rotation it gives.
+
+        ``goal`` is the goal tip pose (12 floats); the rotation is returned in the same form
+        (translation 0). With ``M = R_tool · R_goalᵀ · R_rcm_3``,
+        ``θ4 = atan2(M01 − M10, M00 + M11)``.
+        """
+        a = compose_links(self._chain, q, 0, 3)
+        R3 = (*a[:9], 0.0, 0.0, 0.0)
+        # N = R_goal^T R3 (rows of R_goal^T = columns of R_goal)
+        g00, g01, g02, g10, g11, g12, g20, g21, g22 = goal[:9]
+        a00, a01, _, a10, a11, _, a20, a21, _ = a[:9]
+        n = [
+            [g00 * a00 + g10 * a10 + g20 * a20, g00 * a01 + g10 * a11 + g20 * a21],
+            [g01 * a00 + g11 * a10 + g21 * a20, g01 * a01 + g11 * a11 + g21 * a21],
+            [g02 * a00 + g12 * a10 + g22 * a20, g02 * a01 + g12 * a11 + g22 * a21],
+        ]
+        t = self._tool_rows
+        m = [
+            [t[i][0] * n[0][j] + t[i][1] * n[1][j] + t[i][2] * n[2][j] for j in (0, 1)]
+            for i in (0, 1)
+        ]
+        theta4 = math.atan2(m[0][1] - m[1][0], m[0][0] + m[1][1])
         c, s = math.cos(theta4), math.sin(theta4)
-        Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        return theta4, R3 @ Rz @ self._R_tool
+        rz = ((c, -s, 0.0, 0.0), (s, c, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0))
+        return theta4, pose12_times(pose12_times(R3, rz), self._tool_rows4)
 
     def _nearest_position(self, p_goal: FloatArray, q0: FloatArray) -> FloatArray:
         """Yaw, pitch, insertion within limits whose tip is closest to ``p_goal`` (m)."""
