@@ -21,12 +21,12 @@ ECM (straight 0° endoscope): ``camera_arm_port`` and ``camera_arm_scope`` (fram
 endoscope's camera head above the RCM and its shaft down to the tip (= the optical frame).
 
 **The camera never sees its own arm.** Everything attached near the camera lies *behind the
-eyes*: the camera body spans optical-frame z ∈ [−``CAMERA_BODY_LENGTH``, −``EYE_CLEARANCE``],
-the jaws end ``EYE_CLEARANCE`` short of the optical centre for the default mount, the scope ends
-``EYE_CLEARANCE`` before the ECM's tip. MuJoCo cameras only draw what lies in front of their near
-plane, so the eye images are identical with and without the arm
-(``tests/test_sim_arm_scene.py``). The arm is visible from other viewpoints
-(:meth:`~endocam.sim.render.WireChaserScene.render_view`) and to the other arms' cameras.
+eyes*: the camera body spans optical-frame z from −(``CAMERA_BODY_LENGTH`` + ``EYE_CLEARANCE``)
+to −``EYE_CLEARANCE``, the 8 mm jaws end 7 mm behind the optical centre with the default 15 mm
+mount (``episode.tip_cam_position``), the scope ends ``EYE_CLEARANCE`` before the ECM's tip.
+MuJoCo cameras only draw what lies in front of their near plane, so the eye images are
+identical with and without the arm (``tests/test_sim_arm_scene.py``). The arm is visible from
+other viewpoints (:meth:`~endocam.sim.render.WireChaserScene.render_view`).
 
 Dimensions are simplified engineering values (an 8 mm instrument, a 12 mm endoscope), not CAD.
 """
@@ -38,6 +38,8 @@ from dataclasses import dataclass
 import mujoco
 
 from endocam.camera import StereoCamera
+from endocam.robot.ecm import ECM_CHAIN
+from endocam.robot.psm import PSM_CHAIN
 from endocam.sim.arm import ArmKind
 from endocam.sim.scene import (
     CAMERA_BODY,
@@ -68,11 +70,11 @@ CAMERA_BODY_HALF_HEIGHT = 2.5e-3  # m, half its extent along the optical y axis 
 CAMERA_BODY_SIDE_MARGIN = 2.0e-3  # m, body beyond each eye along the optical x axis
 PORT_RADIUS = 6.0e-3  # m, sphere drawn at the RCM
 TOOL_BACK_END_HALF = (0.015, 0.025, 0.03)  # m, half-extents of the PSM tool's back end (box)
-PSM_ROLL_LINK_D = 0.4670  # m, shaft length from frame 3 to the wrist-pitch axis (DH table)
-PSM_WRIST_A = 0.0107  # m, wrist-pitch to wrist-yaw axis (DH table)
+PSM_ROLL_LINK_D = PSM_CHAIN.links[3].D  # m, frame 3 to the wrist-pitch axis along the shaft
+PSM_WRIST_A = PSM_CHAIN.links[5].A  # m, wrist-pitch to wrist-yaw axis
 SHAFT_WRIST_GAP = 3.0e-3  # m, shaft end before the wrist-pitch axis
 ECM_SCOPE_RADIUS = 6.0e-3  # m, a 12 mm stereo endoscope
-ECM_ROLL_LINK_D = 0.3829  # m, frame 3 to the scope tip (DH table)
+ECM_ROLL_LINK_D = ECM_CHAIN.links[3].D  # m, frame 3 to the scope tip
 ECM_HEAD_HALF = (0.025, 0.025, 0.05)  # m, half-extents of the endoscope's camera head (box)
 PORT_RGBA = (0.3, 0.6, 0.9, 0.6)  # port marker colour
 HEAD_RGBA = (0.2, 0.2, 0.22, 1.0)  # tool back end / camera head colour
