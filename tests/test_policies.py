@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -105,7 +106,9 @@ def test_planner_waypoints_lie_above_their_ends() -> None:
     np.testing.assert_allclose(pts[1] - pts[0], [0, 0, 0.04])
     np.testing.assert_allclose(pts[2] - pts[3], [0, 0, 0.04])
     with pytest.raises(ValueError, match="d_wp"):
-        intermediate_waypoints(p_cam, p_goal, UP, 0.0)
+        intermediate_waypoints(p_cam, p_goal, UP, -0.01)
+    lowered = intermediate_waypoints(p_cam, p_goal, UP, 0.04, 0.01)  # IWP2 lowered (cone)
+    np.testing.assert_allclose(lowered[2] - lowered[3], [0, 0, 0.01])
 
 
 def test_waypoint_path_progress_is_monotone_and_bounded() -> None:
@@ -201,3 +204,72 @@ def test_controller_config_validates() -> None:
     with pytest.raises(ValueError):
         ControllerConfig(d_f=-1.0)
     assert math.isclose(ControllerConfig().d_f_step, 1e-3)
+
+
+def _cone_context(ring0: np.ndarray, base_radius: float) -> tuple[PolicyContext, ControllerConfig]:
+    """Start the camera on its goal, under a narrow vertical cone (apex 0.35 m above the ring)."""
+    cfg = ControllerConfig(cone_height=0.36, cone_base_radius=base_radius)
+    start = goal_pose(ring0[:3, 3], ring0[:3, 2], cfg.d_f)
+    ctx = PolicyContext(CAM, start, ring0, ring0[:3, 3] + np.array([0.0, 0.0, 0.35]), DT)
+    return ctx, cfg
+
+
+def test_waypoints_are_lowered_to_stay_in_the_cone() -> None:
+    p = np.array([0.0, 0.0, 0.05])
+    ring0 = _ring(p, np.array([1.0, 0.0, 0.05]))
+    ctx, cfg = _cone_context(ring0, base_radius=0.055)
+    policy = make_policy("orientation", cfg)
+    # The normal tips 40° below horizontal: the camera must change side, over the top.
+    flipped = _ring(p, np.array([1.0, 0.0, -math.tan(math.radians(40.0))]))
+    cmds = _run(policy, ctx, [ring0] * 50 + [flipped] * 600)
+    cone = policy.cone
+    assert cone.contains(ctx.T_world_cam[:3, 3])  # the camera starts inside
+    planning = [c for c in cmds if c.state is TrackingState.PLANNING]
+    assert planning, "the side change must go through way-points"
+    full_lift = cone.contains(planning[0].T_world_cam[:3, 3] + np.array([0.0, 0.0, cfg.d_wp]))
+    assert not full_lift  # the paper's fixed d_wp would have left this cone
+    for c in cmds:
+        if c.state in (TrackingState.TRACKING, TrackingState.PLANNING):
+            assert cone.margin(c.T_world_cam[:3, 3]) >= -ATOL_M
+    assert cmds[-1].state is TrackingState.TRACKING
+
+
+def test_goal_grazing_the_cone_does_not_toggle_the_freeze() -> None:
+    p = np.array([0.0, 0.0, 0.05])
+    ring0 = _ring(p, np.array([0.0, 0.0, 1.0]))
+    ctx, cfg = _cone_context(ring0, base_radius=0.06)
+    policy = make_policy("orientation", cfg)
+    policy.reset(ctx)
+    cone = policy.cone
+    # Find the ring offset that puts the goal exactly on the cone surface, then wobble ±1 mm.
+    lo, hi = 0.0, 0.1
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        goal = goal_pose(p + np.array([mid, 0.0, 0.0]), [0, 0, 1], cfg.d_f)
+        lo, hi = (mid, hi) if cone.contains(goal[:3, 3]) else (lo, mid)
+    wobble = [
+        _ring(p + np.array([lo + 1e-3 * (-1) ** k, 0.0, 0.0]), np.array([0, 0, 1.0]))
+        for k in range(200)
+    ]
+    cmds = _run(policy, ctx, [ring0] * 300 + wobble)
+    states = [c.state for c in cmds[300:]]
+    changes = sum(a is not b for a, b in itertools.pairwise(states))
+    assert TrackingState.FROZEN_OUTSIDE_CONE in states
+    assert changes <= 1  # freezes once and stays frozen inside the release margin
+
+
+def test_degenerate_ring_pose_holds_instead_of_crashing() -> None:
+    ring = _ring(np.array([0.0, 0.0, 0.05]), np.array([0.0, 0.3, 1.0]))
+    bad = ring.copy()
+    bad[:3, :3] = 0.0  # finite but no normal
+    cmds = _run(make_policy("orientation", WIDE), _context(ring), [ring] * 50 + [bad] * 3)
+    assert all(c.state is TrackingState.LOST_TRACKING for c in cmds[50:])
+    assert "degenerate" in cmds[50].reason
+    np.testing.assert_array_equal(cmds[52].T_world_cam, cmds[49].T_world_cam)
+
+
+def test_unknown_tool_positions_hold_the_working_distance() -> None:
+    ring = _ring(np.array([0.0, 0.0, 0.05]), np.array([0.0, 0.0, 1.0]))
+    nan_tips = np.full((2, 3), np.nan)
+    cmds = _run(make_policy("orientation", WIDE), _context(ring), [ring] * 100, tips=nan_tips)
+    assert {c.d_f for c in cmds} == {WIDE.d_f}

@@ -133,3 +133,9 @@ def test_working_distance_steps_and_clamps() -> None:
 def test_windows_validate() -> None:
     with pytest.raises(ValueError, match="inner_frac"):
         ImageWindows(0.9, 0.5)
+
+
+def test_no_usable_tip_holds() -> None:
+    T = look_at_pose([0.0, -0.1, 0.1], [0.0, 0.0, 0.0])
+    assert window_status(CAM, T, np.zeros((0, 3)), WINDOWS) is WindowStatus.BETWEEN
+    assert window_status(CAM, T, np.full((2, 3), np.nan), WINDOWS) is WindowStatus.BETWEEN

@@ -173,7 +173,7 @@ def test_runner_marks_unreachable_steps(psm_result: EpisodeResult):
     assert np.all(err[hit] > 0.0)
     # the policy's own safety states are never overwritten
     frozen = result.log.state == TrackingState.FROZEN_OUTSIDE_CONE.value
-    assert all("outside the cone" in result.log.reason[k] for k in np.flatnonzero(frozen))
+    assert all("the cone workspace" in result.log.reason[k] for k in np.flatnonzero(frozen))
 
 
 def test_episode_is_deterministic(psm_result: EpisodeResult):

@@ -18,7 +18,11 @@ from endocam.geometry import FloatArray
 
 
 def intermediate_waypoints(
-    p_world_cam: FloatArray, p_world_goal: FloatArray, up: FloatArray, d_wp: float
+    p_world_cam: FloatArray,
+    p_world_goal: FloatArray,
+    up: FloatArray,
+    d_wp: float,
+    d_wp_goal: float | None = None,
 ) -> FloatArray:
     """The paper's four-point path: current, IWP1, IWP2, goal.
 
@@ -31,17 +35,22 @@ def intermediate_waypoints(
     up : (3,)
         Unit world up.
     d_wp : float
-        Height of the intermediate way-points above their ends, m (> 0).
+        Height of IWP1 above the camera, m (≥ 0; the paper's fixed ``d_wp``).
+    d_wp_goal : float, optional
+        Height of IWP2 above the goal, m (≥ 0); ``d_wp`` when omitted. The policies lower the
+        heights where a way-point would leave the cone workspace.
 
     Returns
     -------
     (4, 3)
-        ``[p_cam, p_cam + d_wp·up, p_goal + d_wp·up, p_goal]`` in world, m.
+        ``[p_cam, p_cam + d_wp·up, p_goal + d_wp_goal·up, p_goal]`` in world, m.
     """
-    if not d_wp > 0.0:
-        raise ValueError(f"d_wp must be > 0 m, got {d_wp}")
-    lift = d_wp * up
-    return np.stack([p_world_cam, p_world_cam + lift, p_world_goal + lift, p_world_goal])
+    lift_goal = d_wp if d_wp_goal is None else d_wp_goal
+    if not (d_wp >= 0.0 and lift_goal >= 0.0):
+        raise ValueError(f"d_wp must be ≥ 0 m, got {d_wp} and {lift_goal}")
+    return np.stack(
+        [p_world_cam, p_world_cam + d_wp * up, p_world_goal + lift_goal * up, p_world_goal]
+    )
 
 
 class WaypointPath:

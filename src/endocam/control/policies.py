@@ -184,6 +184,9 @@ class CameraPolicy(Protocol):
 
 
 _UP = (0.0, 0.0, 1.0)  # world up as plain floats
+FREEZE_RELEASE_MARGIN = 5e-3  # m, how far back inside the cone the goal must be to unfreeze
+LIFT_TOL = 1e-4  # m, resolution of the cone-limited way-point height
+_MIN_NORMAL = 1e-9  # unitless, a ring normal shorter than this is degenerate
 
 
 Rows = list[list[float]]
@@ -270,12 +273,13 @@ class _MovingPolicy:
             raise RuntimeError("call reset() before using the policy")
         return self._cone
 
-    def _goal(self, T_world_ring: FloatArray, T_world_cam: FloatArray) -> FloatArray:
+    def _goal(self, T_world_ring: FloatArray, T_world_cam: FloatArray) -> FloatArray | None:
+        """The goal ``T_world_cam`` (4, 4), or ``None`` if the ring pose gives none."""
         raise NotImplementedError
 
     def _goal_rows(
         self, ring_rows: Rows, T_world_ring: FloatArray, T_world_cam: FloatArray
-    ) -> FloatArray:
+    ) -> FloatArray | None:
         """:meth:`_goal` with the ring pose also given as rows of floats (override to use them)."""
         return self._goal(T_world_ring, T_world_cam)
 
@@ -305,22 +309,33 @@ class _MovingPolicy:
         geometry = self._window_geometry
         assert geometry is not None  # set by reset()
         status = window_status_rows(geometry, cam_rows, tip_rows)
+        d_f_before = self.d_f
         self.d_f = adjust_working_distance(self.d_f, status, cfg.d_min, cfg.d_max, cfg.d_f_step)
 
         goal = self._goal_rows(ring_rows, T_ring, T_cam)
+        if goal is None:
+            self.d_f = d_f_before
+            self._last_goal = None
+            self._path = None
+            return self._hold(TrackingState.LOST_TRACKING, "ring pose degenerate (zero normal)")
         p_goal = goal[:3, 3]
         goal_rows = goal.tolist()
         p_goal_list = [goal_rows[0][3], goal_rows[1][3], goal_rows[2][3]]
-        if not self.cone.contains(p_goal_list):
+        margin = self.cone.margin(p_goal_list)
+        # Freeze when the goal leaves the cone; release only once it is FREEZE_RELEASE_MARGIN
+        # inside, so a goal grazing the surface does not toggle the camera every step.
+        release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0
+        if not margin >= release:
             if self._frozen_T is None:
                 self._frozen_T = T_cam
+            self.d_f = d_f_before  # the working distance holds with the camera
             self._last_cmd = self._frozen_T
             self._path = None
             self._last_goal = None  # on recovery, a far goal is planned from the camera
-            margin_mm = -self.cone.margin(p_goal) * 1e3
+            where = "outside" if margin < 0 else "not yet back inside"
             return self._hold(
                 TrackingState.FROZEN_OUTSIDE_CONE,
-                f"goal {margin_mm:.1f} mm outside the cone workspace; holding",
+                f"goal {abs(margin) * 1e3:.1f} mm {where} the cone workspace; holding",
             )
         self._frozen_T = None
 
@@ -332,12 +347,17 @@ class _MovingPolicy:
         self._last_goal = goal
         self._last_goal_p = p_goal_list
         if jumped and self._path is None:
-            self._path = WaypointPath(intermediate_waypoints(T_cam[:3, 3], p_goal, UP, cfg.d_wp))
+            p_cam = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
+            self._path = WaypointPath(
+                intermediate_waypoints(
+                    T_cam[:3, 3], p_goal, UP, self._lift(p_cam), self._lift(p_goal_list)
+                )
+            )
             self._s = 0.0
         state, reason = TrackingState.TRACKING, ""
         cmd = goal
         if self._path is not None:
-            self._path = self._path.with_goal(p_goal, UP, cfg.d_wp)
+            self._path = self._path.with_goal(p_goal, UP, self._lift(p_goal_list))
             self._s = advance(
                 self._path, self._s, T_cam[:3, 3], cfg.planner_speed * ctx.dt, cfg.planner_lookahead
             )
@@ -349,6 +369,29 @@ class _MovingPolicy:
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
         self._last_cmd = cmd
         return CameraCommand(cmd, state, self.d_f, reason)
+
+    def _lift(self, p_world: list[float]) -> float:
+        """Way-point height above ``p_world``: ``d_wp``, lowered so the way-point stays in the cone.
+
+        The cone is convex, so with both way-points and both ends inside it the whole path is
+        inside. A point already outside the cone (the camera at its start pose, say) gets no
+        lift: the camera then heads straight for the raised goal way-point, into the cone.
+        """
+        d_wp = self.config.d_wp
+        cone = self.cone
+        x, y, z = p_world
+        if cone.margin([x, y, z + d_wp]) >= 0.0:
+            return d_wp
+        if not cone.margin(p_world) >= 0.0:
+            return 0.0
+        lo, hi = 0.0, d_wp  # inside at lo, outside at hi: bisect to LIFT_TOL
+        while hi - lo > LIFT_TOL:
+            mid = 0.5 * (lo + hi)
+            if cone.margin([x, y, z + mid]) >= 0.0:
+                lo = mid
+            else:
+                hi = mid
+        return lo
 
     def _waypoint_pose(self, p: FloatArray, T_ring: FloatArray, goal: FloatArray) -> FloatArray:
         """Pose at a way-point: look at the ring centre with a level horizon."""
@@ -379,18 +422,18 @@ class OrientationPolicy(_MovingPolicy):
 
     name = "orientation"
 
-    def _goal(self, T_world_ring: FloatArray, T_world_cam: FloatArray) -> FloatArray:
+    def _goal(self, T_world_ring: FloatArray, T_world_cam: FloatArray) -> FloatArray | None:
         return self._goal_rows(np.asarray(T_world_ring).tolist(), T_world_ring, T_world_cam)
 
     def _goal_rows(
         self, ring_rows: Rows, T_world_ring: FloatArray, T_world_cam: FloatArray
-    ) -> FloatArray:
+    ) -> FloatArray | None:
         previous = self._last_goal if self._last_goal is not None else T_world_cam
         T = ring_rows
         n = (T[0][2], T[1][2], T[2][2])
         norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
-        if not norm > 0.0:
-            raise ValueError("ring normal is zero")
+        if not norm > _MIN_NORMAL:
+            return None
         n = (n[0] / norm, n[1] / norm, n[2] / norm)
         cfg = self.config
         return goal_pose_unchecked(

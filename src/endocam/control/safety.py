@@ -207,7 +207,8 @@ def window_status(
         Current camera pose, optical frame, m.
     p_world_tips : (K, 3)
         Instrument tip positions in world, m. Tips with non-finite coordinates (tool tracking
-        lost) are ignored; no usable tip counts as "inside inner".
+        lost) are ignored; with no usable tip the status is ``BETWEEN``, so ``d_f`` holds
+        rather than moving the camera closer without knowing where the tools are.
     windows : ImageWindows
     """
     tips = np.asarray(p_world_tips, dtype=float).reshape(-1, 3).tolist()
@@ -227,9 +228,11 @@ def window_status_rows(
     hw_in, hh_in = g.inner
     fx, fy, du0, dv0, half_b = g.fx, g.fy, g.cx - g.u0, g.cy - g.v0, g.half_baseline
     all_inner = True
+    usable = False
     for p in p_world_tips:
         if not math.isfinite(p[0] + p[1] + p[2]):
             continue
+        usable = True
         d0, d1, d2 = p[0] - t0, p[1] - t1, p[2] - t2
         # R^T d: the tip in the camera (centre) frame.
         x = R0[0] * d0 + R1[0] * d1 + R2[0] * d2
@@ -244,6 +247,8 @@ def window_status_rows(
                 return WindowStatus.OUTSIDE_OUTER
             if not (du <= hw_in and dv <= hh_in):
                 all_inner = False
+    if not usable:
+        return WindowStatus.BETWEEN  # no tool position known: hold d_f, never zoom in blind
     return WindowStatus.INSIDE_INNER if all_inner else WindowStatus.BETWEEN
 
 

@@ -245,8 +245,8 @@ class CameraArm:
         Parameters
         ----------
         T_world_cmd : (4, 4) ndarray
-            Commanded camera pose, world, optical frame, m. A non-finite command is held
-            (the limiter keeps its last valid target).
+            Commanded camera pose, world, optical frame, m. A non-finite command is replaced
+            by the camera's current pose: the arm brakes to a stop where it is.
 
         Returns
         -------

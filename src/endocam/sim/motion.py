@@ -231,10 +231,5 @@ class CartesianLimiter:
         self._R = _matmul(self._R, so3_exp(new[3:]))
         self._v = self._out.new_velocity
         self._acc = self._out.new_acceleration
-        if rejected:
-            self.status = MotionStatus.REJECTED
-        elif result == Result.Finished:
-            self.status = MotionStatus.ARRIVED
-        else:
-            self.status = MotionStatus.MOVING
+        self.status = MotionStatus.REJECTED if rejected else MotionStatus.MOVING
         return self.pose
