@@ -241,14 +241,14 @@ def test_goal_grazing_the_cone_does_not_toggle_the_freeze() -> None:
     policy = make_policy("orientation", cfg)
     policy.reset(ctx)
     cone = policy.cone
-    # Find the ring offset that puts the goal exactly on the cone surface, then wobble ±1 mm.
+    # Find the ring offset that puts the goal exactly on the cone surface, then wobble ±0.5 mm.
     lo, hi = 0.0, 0.1
     for _ in range(60):
         mid = 0.5 * (lo + hi)
         goal = goal_pose(p + np.array([mid, 0.0, 0.0]), [0, 0, 1], cfg.d_f)
         lo, hi = (mid, hi) if cone.contains(goal[:3, 3]) else (lo, mid)
     wobble = [
-        _ring(p + np.array([lo + 1e-3 * (-1) ** k, 0.0, 0.0]), np.array([0, 0, 1.0]))
+        _ring(p + np.array([lo + 0.5e-3 * (-1) ** k, 0.0, 0.0]), np.array([0, 0, 1.0]))
         for k in range(200)
     ]
     cmds = _run(policy, ctx, [ring0] * 300 + wobble)

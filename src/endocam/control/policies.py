@@ -184,7 +184,7 @@ class CameraPolicy(Protocol):
 
 
 _UP = (0.0, 0.0, 1.0)  # world up as plain floats
-FREEZE_RELEASE_MARGIN = 5e-3  # m, how far back inside the cone the goal must be to unfreeze
+FREEZE_RELEASE_MARGIN = 1e-3  # m, how far back inside the cone the goal must be to unfreeze
 LIFT_TOL = 1e-4  # m, resolution of the cone-limited way-point height
 _MIN_NORMAL = 1e-9  # unitless, a ring normal shorter than this is degenerate
 
