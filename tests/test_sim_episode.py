@@ -181,3 +181,16 @@ def test_video_has_one_frame_per_sample(tmp_path: Path) -> None:
     assert first.std() > 5  # not a blank frame
     html = (out / "report.html").read_text()
     assert 'src="video.mp4"' in html
+
+
+def test_side_by_side_caption_names_each_panel() -> None:
+    from endocam.sim.runs import LABEL_HEIGHT_PX, label_strip
+
+    strip = label_strip(["fixed", "centering", "orientation"], 160)
+    assert strip.shape == (LABEL_HEIGHT_PX, 480, 3)
+    assert strip.dtype == np.uint8
+    bright = strip.max(axis=2) > 200  # white text on a dark strip
+    for j in range(3):  # text in every panel, centred on it
+        cols = np.flatnonzero(bright[:, 160 * j : 160 * (j + 1)].any(axis=0))
+        assert cols.size > 0
+        assert abs(0.5 * (cols.min() + cols.max()) - 80) < 20

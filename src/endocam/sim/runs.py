@@ -79,10 +79,44 @@ def run_and_write(
     return dict(_finite(metrics_dict(result)))
 
 
+LABEL_HEIGHT_PX = 32  # px, height of the caption strip above the side-by-side video (even)
+
+
+def label_strip(labels: Sequence[str], panel_width: int, height: int = LABEL_HEIGHT_PX) -> Any:
+    """(height, len(labels)·panel_width, 3) uint8 strip with each label centred on its panel.
+
+    Drawn once with matplotlib (Agg) and stacked above every frame of the side-by-side video.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    width = panel_width * len(labels)
+    dpi = 100.0
+    fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi, facecolor="#1d232a")
+    canvas = FigureCanvasAgg(fig)
+    for j, text in enumerate(labels):
+        fig.text(
+            (j + 0.5) / len(labels),
+            0.5,
+            text,
+            color="white",
+            ha="center",
+            va="center",
+            fontsize=0.45 * height,
+            fontweight="bold",
+        )
+    canvas.draw()
+    rgba = np.asarray(canvas.buffer_rgba())
+    return np.ascontiguousarray(rgba[:height, :width, :3])
+
+
 def render_side_by_side(
     results: Sequence[EpisodeResult], paths: Sequence[Path], grid_path: Path
 ) -> None:
-    """Render every episode's left eye in one pass: one MP4 each plus a side-by-side MP4."""
+    """Render every episode's left eye in one pass: one MP4 each plus a side-by-side MP4.
+
+    The side-by-side video carries a caption strip naming each panel's policy.
+    """
     from endocam.sim.render import WireChaserScene, log_arm
 
     idx = frame_indices(results[0])
@@ -90,7 +124,8 @@ def render_side_by_side(
     fps = results[0].config.episode.video_fps
     scenes = [WireChaserScene(r.config.task, r.camera, arm=log_arm(r.log)) for r in results]
     writers = [video_writer(p, k.width, k.height, fps) for p in paths]
-    grid = video_writer(grid_path, k.width * len(results), k.height, fps)
+    header = label_strip([r.spec.policy for r in results], k.width)
+    grid = video_writer(grid_path, k.width * len(results), k.height + header.shape[0], fps)
     try:
         for i in tqdm(idx, desc="render", unit="frame", leave=False):
             frames = []
@@ -101,7 +136,7 @@ def render_side_by_side(
                 frame = np.ascontiguousarray(scene.render("left"))
                 writer.send(frame)
                 frames.append(frame)
-            grid.send(np.ascontiguousarray(np.hstack(frames)))
+            grid.send(np.ascontiguousarray(np.vstack([header, np.hstack(frames)])))
     finally:
         for w in [*writers, grid]:
             w.close()
