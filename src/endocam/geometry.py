@@ -17,6 +17,29 @@ UP = np.array([0.0, 0.0, 1.0])  # world up, unitless direction
 EPS_NORM = 1e-12  # below this a vector has no direction (unitless)
 
 
+def as_finite_array(value: object, name: str, shape: tuple[int, ...]) -> FloatArray:
+    """Return ``value`` as a finite float array of ``shape``, or raise ``ValueError`` naming it.
+
+    Parameters
+    ----------
+    value : array_like
+        Input values.
+    name : str
+        Argument name used in the error message.
+    shape : tuple of int
+        Required shape.
+    """
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be numbers of shape {shape}") from exc
+    if arr.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+    return arr
+
+
 def as_vector3(value: ArrayLike, name: str) -> FloatArray:
     """Return ``value`` as a finite float (3,) array, or raise ``ValueError`` naming ``name``.
 
@@ -27,15 +50,7 @@ def as_vector3(value: ArrayLike, name: str) -> FloatArray:
     name : str
         Argument name used in the error message.
     """
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a 3-vector of numbers") from exc
-    if arr.shape != (3,):
-        raise ValueError(f"{name} must have shape (3,), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
-    return arr
+    return as_finite_array(value, name, (3,))
 
 
 def unit_vector(value: ArrayLike, name: str) -> FloatArray:

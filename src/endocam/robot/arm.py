@@ -27,7 +27,7 @@ import numpy as np
 import ruckig
 from numpy.typing import NDArray
 
-from endocam.robot.dh import check_finite
+from endocam.geometry import as_finite_array
 from endocam.robot.ecm import ECM
 from endocam.robot.ik import IKResult, IKStatus
 from endocam.robot.kinematics import LIMIT_SLACK, RcmArm, check_pose, invert_pose
@@ -259,7 +259,7 @@ class SimulatedArm:
         """
         n = self._model.n_joints
         q_arr = self._model.clamp(self._model.check_q(q, "q"))
-        qd_arr = np.zeros(n) if qd is None else check_finite(qd, "qd", (n,))
+        qd_arr = np.zeros(n) if qd is None else as_finite_array(qd, "qd", (n,))
         self._q = q_arr
         self._qd = qd_arr.copy()
         self._qdd = np.zeros(n)

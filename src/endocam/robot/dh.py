@@ -32,7 +32,6 @@ __all__ = [
     "Pose12",
     "chain_forward",
     "chain_frames",
-    "check_finite",
     "compose_links",
     "geometric_jacobian",
     "link_transform",
@@ -164,39 +163,6 @@ class DHChain:
     def names(self) -> tuple[str, ...]:
         """Joint names, base outwards."""
         return tuple(lk.name for lk in self.links)
-
-
-def check_finite(x: object, name: str, shape: tuple[int, ...]) -> FloatArray:
-    """Convert ``x`` to a float array of the given shape; reject NaN/inf.
-
-    Parameters
-    ----------
-    x : array_like
-        Input values.
-    name : str
-        Argument name used in the error message.
-    shape : tuple of int
-        Required shape.
-
-    Returns
-    -------
-    ndarray
-        ``x`` as float64 with shape ``shape``.
-
-    Raises
-    ------
-    ValueError
-        If the shape differs or any entry is NaN or infinite.
-    """
-    try:
-        arr = np.asarray(x, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: expected numbers of shape {shape}") from exc
-    if arr.shape != shape:
-        raise ValueError(f"{name}: expected shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}: contains NaN or inf")
-    return arr
 
 
 def link_transform(link: DHLink, q: float) -> FloatArray:

@@ -16,12 +16,12 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from endocam.geometry import as_finite_array
 from endocam.robot.dh import (
     DHChain,
     JointType,
     chain_forward,
     chain_frames,
-    check_finite,
     geometric_jacobian,
 )
 from endocam.robot.ik import (
@@ -70,7 +70,7 @@ def check_pose(T: object, name: str) -> FloatArray:
     ValueError
         If ``T`` is not a finite (4, 4) matrix with a rotation block and bottom row (0, 0, 0, 1).
     """
-    arr = check_finite(T, name, (4, 4))
+    arr = as_finite_array(T, name, (4, 4))
     (a, b, c, _), (d, e, f, _), (g, h, i, _), bottom = arr.tolist()
     if (
         max(abs(bottom[0]), abs(bottom[1]), abs(bottom[2]), abs(bottom[3] - 1.0))
@@ -203,7 +203,7 @@ class RcmArm(abc.ABC):
     # ------------------------------------------------------------------ helpers
     def check_q(self, q: object, name: str = "q") -> FloatArray:
         """Validate joint values: shape (n,), finite. Raises ValueError naming ``name``."""
-        return check_finite(q, name, (self.n_joints,))
+        return as_finite_array(q, name, (self.n_joints,))
 
     def within_limits(self, q: FloatArray) -> bool:
         """True if every joint of ``q`` (n,) lies within its limits (round-off tolerated)."""

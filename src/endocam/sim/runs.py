@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -110,6 +110,60 @@ def label_strip(labels: Sequence[str], panel_width: int, height: int = LABEL_HEI
     return np.ascontiguousarray(rgba[:height, :width, :3])
 
 
+def render_episodes(
+    results: Sequence[EpisodeResult],
+    paths: Sequence[Path],
+    grid_path: Path | None = None,
+    progress: Callable[[int], object] | None = None,
+) -> None:
+    """Render the left eye of episodes that share one ring trajectory, in one pass.
+
+    One scene serves all of them: per frame the ring is placed once, then each episode's camera
+    (and camera arm, if its log has joints).
+
+    Parameters
+    ----------
+    results : sequence of EpisodeResult
+        Episodes of the same config and trajectory (different policies).
+    paths : sequence of Path
+        One MP4 per episode.
+    grid_path : Path, optional
+        Also write the episodes side by side, under a caption strip naming each policy.
+    progress : callable, optional
+        Called with 1 per rendered frame and episode.
+    """
+    from endocam.sim.render import WireChaserScene, log_arm
+
+    first = results[0]
+    idx = frame_indices(first)
+    k = first.camera.intrinsics
+    fps = first.config.episode.video_fps
+    writers = [video_writer(p, k.width, k.height, fps) for p in paths]
+    header = grid = None
+    if grid_path is not None:
+        header = label_strip([r.spec.policy for r in results], k.width)
+        grid = video_writer(grid_path, k.width * len(results), k.height + header.shape[0], fps)
+    try:
+        arm = next((log_arm(r.log) for r in results if r.log.joints is not None), None)
+        with WireChaserScene(first.config.task, first.camera, arm=arm) as scene:
+            for i in idx:
+                scene.set_ring_pose(first.log.T_world_ring[i])
+                frames = []
+                for result, writer in zip(results, writers, strict=True):
+                    scene.set_camera_pose(result.log.T_world_cam[i])
+                    scene.set_arm_from_log(result.log, i)
+                    frame = np.ascontiguousarray(scene.render("left"))
+                    writer.send(frame)
+                    frames.append(frame)
+                    if progress is not None:
+                        progress(1)
+                if grid is not None and header is not None:
+                    grid.send(np.ascontiguousarray(np.vstack([header, np.hstack(frames)])))
+    finally:
+        for w in writers if grid is None else [*writers, grid]:
+            w.close()
+
+
 def render_side_by_side(
     results: Sequence[EpisodeResult], paths: Sequence[Path], grid_path: Path
 ) -> None:
@@ -117,31 +171,9 @@ def render_side_by_side(
 
     The side-by-side video carries a caption strip naming each panel's policy.
     """
-    from endocam.sim.render import WireChaserScene, log_arm
-
-    idx = frame_indices(results[0])
-    k = results[0].camera.intrinsics
-    fps = results[0].config.episode.video_fps
-    scenes = [WireChaserScene(r.config.task, r.camera, arm=log_arm(r.log)) for r in results]
-    writers = [video_writer(p, k.width, k.height, fps) for p in paths]
-    header = label_strip([r.spec.policy for r in results], k.width)
-    grid = video_writer(grid_path, k.width * len(results), k.height + header.shape[0], fps)
-    try:
-        for i in tqdm(idx, desc="render", unit="frame", leave=False):
-            frames = []
-            for scene, result, writer in zip(scenes, results, writers, strict=True):
-                scene.set_ring_pose(result.log.T_world_ring[i])
-                scene.set_camera_pose(result.log.T_world_cam[i])
-                scene.set_arm_from_log(result.log, i)
-                frame = np.ascontiguousarray(scene.render("left"))
-                writer.send(frame)
-                frames.append(frame)
-            grid.send(np.ascontiguousarray(np.vstack([header, np.hstack(frames)])))
-    finally:
-        for w in [*writers, grid]:
-            w.close()
-        for scene in scenes:
-            scene.close()
+    total = len(frame_indices(results[0])) * len(results)
+    with tqdm(total=total, desc="render", unit="frame", leave=False) as bar:
+        render_episodes(results, paths, grid_path, bar.update)
 
 
 def run_demo(

@@ -162,28 +162,9 @@ def render_conditions(
     progress : callable, optional
         Called with 1 per rendered frame (all episodes).
     """
-    from endocam.sim.outputs import frame_indices, video_writer
-    from endocam.sim.render import WireChaserScene, log_arm
+    from endocam.sim.runs import render_episodes
 
-    first = results[0]
-    idx = frame_indices(first)
-    k = first.camera.intrinsics
-    fps = first.config.episode.video_fps
-    writers = [video_writer(p, k.width, k.height, fps) for p in paths]
-    try:
-        arm = next((log_arm(r.log) for r in results if r.log.joints is not None), None)
-        with WireChaserScene(first.config.task, first.camera, arm=arm) as scene:
-            for i in idx:
-                scene.set_ring_pose(first.log.T_world_ring[i])
-                for result, writer in zip(results, writers, strict=True):
-                    scene.set_camera_pose(result.log.T_world_cam[i])
-                    scene.set_arm_from_log(result.log, i)
-                    writer.send(np.ascontiguousarray(scene.render("left")))
-                    if progress is not None:
-                        progress(1)
-    finally:
-        for w in writers:
-            w.close()
+    render_episodes(results, paths, None, progress)
 
 
 def make_study(
