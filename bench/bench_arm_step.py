@@ -2,9 +2,11 @@
 
 Run: ``.venv/bin/pytest bench/bench_arm_step.py --benchmark-enable -o addopts=""``
 
-The ``full_control_step`` benchmarks hold one goal (after the first steps the limiter rests on
-it and the second IK is skipped); the ``moving_goal`` ones move the goal every step, so the
-limiter is always moving and both IK solves run.
+Each control step is one IK (closed form), one ruckig joint-limited step and FK. The
+``full_control_step`` benchmarks hold one reachable goal; the ``moving_goal`` ones move it every
+step along a closed joint-space path; ``unreachable_goal`` asks for a view the wrist cannot
+bend to, so the step also searches the nearest feasible view (bisection, ``VIEW_BISECTIONS``
+extra IK solves).
 """
 
 from __future__ import annotations
@@ -18,14 +20,16 @@ import pytest
 from pytest_benchmark.fixture import BenchmarkFixture
 
 from endocam.config import ExperimentConfig
-from endocam.sim.arm import ArmKind, CameraArm, natural_pose
-from endocam.sim.motion import MotionStatus
+from endocam.robot.arm import MotionStatus
+from endocam.sim.arm import Approach, ArmKind, CameraArm, natural_pose
+
+LOOK_DISTANCE_M = 0.05  # m: the controller's default working distance
 
 
 def _arm(kind: ArmKind) -> CameraArm:
     cfg = ExperimentConfig()
     T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, cfg.episode.limits, 0.01)
+    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
 
 
 def _reachable_goal(arm: CameraArm) -> np.ndarray:
@@ -62,7 +66,7 @@ def test_psm_full_control_step(benchmark: BenchmarkFixture) -> None:
     """One runner step: goal IK, Cartesian limiter (ruckig), IK, joint ruckig step, FK."""
     arm = _arm(ArmKind.PSM)
     goal = _reachable_goal(arm)
-    out = benchmark(arm.step, goal)
+    out = benchmark(arm.step, goal, LOOK_DISTANCE_M)
     assert out.reachable
 
 
@@ -70,19 +74,19 @@ def test_ecm_full_control_step(benchmark: BenchmarkFixture) -> None:
     """One runner step with the ECM (orientation residual, position reached)."""
     arm = _arm(ArmKind.ECM)
     goal = _reachable_goal(arm)
-    out = benchmark(arm.step, goal)
+    out = benchmark(arm.step, goal, LOOK_DISTANCE_M)
     assert out.reachable
 
 
 def test_psm_full_control_step_moving_goal(benchmark: BenchmarkFixture) -> None:
-    """One runner step towards a goal that moves every step (both IK solves run)."""
+    """One runner step towards a goal that moves every step."""
     arm = _arm(ArmKind.PSM)
     goals = itertools.cycle(_moving_goals(arm))
     for _ in range(MOVING_GOALS):  # settle onto the path
-        arm.step(next(goals))
-    out = benchmark(lambda: arm.step(next(goals)))
+        arm.step(next(goals), LOOK_DISTANCE_M)
+    out = benchmark(lambda: arm.step(next(goals), LOOK_DISTANCE_M))
     assert out.reachable
-    assert arm._limiter.status is MotionStatus.MOVING  # the second IK ran
+    assert arm.arm.motion_status is MotionStatus.MOVING
 
 
 def test_ecm_full_control_step_moving_goal(benchmark: BenchmarkFixture) -> None:
@@ -90,9 +94,21 @@ def test_ecm_full_control_step_moving_goal(benchmark: BenchmarkFixture) -> None:
     arm = _arm(ArmKind.ECM)
     goals = itertools.cycle(_moving_goals(arm))
     for _ in range(MOVING_GOALS):
-        arm.step(next(goals))
-    out = benchmark(lambda: arm.step(next(goals)))
+        arm.step(next(goals), LOOK_DISTANCE_M)
+    out = benchmark(lambda: arm.step(next(goals), LOOK_DISTANCE_M))
     assert out.reachable
+
+
+def test_psm_full_control_step_unreachable_goal(benchmark: BenchmarkFixture) -> None:
+    """A step whose goal needs more wrist bend than ±80°: IK fails, the view search runs."""
+    arm = _arm(ArmKind.PSM)
+    T = arm.camera_pose(natural_pose(arm.model))
+    c = T[:3, 3] + LOOK_DISTANCE_M * T[:3, 2]
+    goal = T.copy()
+    goal[:3, :3] = T[:3, :3] @ np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+    goal[:3, 3] = c - LOOK_DISTANCE_M * goal[:3, 2]  # same point, seen from 90° to the side
+    out = benchmark(arm.step, goal, LOOK_DISTANCE_M)
+    assert out.approach is Approach.VIEW
 
 
 RENDER_FPS_TARGET = 30.0  # frames/s at 640x480 (issue 3), with the arm drawn
@@ -107,7 +123,7 @@ def test_render_frame_with_arm_640x480(benchmark: BenchmarkFixture, kind: ArmKin
     cfg = ExperimentConfig()
     arm = _arm(kind)
     goals = _moving_goals(arm)
-    qs = [arm.step(g).q for g in goals[:50]]
+    qs = [arm.step(g, LOOK_DISTANCE_M).q for g in goals[:50]]
     cams = [arm.camera_pose(q) for q in qs]
     frames = itertools.cycle(range(len(qs)))
     with WireChaserScene(cfg.task, cfg.camera.stereo(), arm=kind) as scene:

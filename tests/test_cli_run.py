@@ -171,5 +171,5 @@ def test_console_script_lists_policies() -> None:
 def test_config_command_prints_validated_defaults(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["config"]) == 0
     text = capsys.readouterr().out
-    assert "cone_base_radius: 0.1" in text
+    assert "cone_base_radius: 0.25" in text
     assert "control_rate: 100.0" in text

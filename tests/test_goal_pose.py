@@ -196,3 +196,55 @@ def test_look_at_pose_centres_the_target() -> None:
         np.testing.assert_allclose(T[:3, 2], d / np.linalg.norm(d), atol=ATOL_UNIT)
     with pytest.raises(ValueError, match="p_target - p_cam"):
         look_at_pose([0, 0, 0], [0, 0, 0])
+
+
+PORT = np.array([0.2, 0.0, 0.12])  # m: a camera port above and beside the features
+
+
+@settings(max_examples=300, deadline=None)
+@given(p=st.tuples(coord, coord, coord), n=normals, d_f=distances)
+@example(p=(0.0, 0.0, 0.05), n=(1.0, 0.0, 0.0), d_f=0.05)  # normal pointing at the port side
+@example(p=(0.0, 0.0, 0.05), n=(0.0, 1.0, 0.0), d_f=0.05)  # normal across the port direction
+def test_port_side_faces_the_port(p: tuple, n: tuple, d_f: float) -> None:
+    p_c = np.array(p)
+    if np.linalg.norm(PORT - p_c) < 1e-3:
+        return
+    T = goal_pose(p, n, d_f, port=PORT)
+    _check_rigid(T)
+    toward = (PORT - p_c) / np.linalg.norm(PORT - p_c)
+    # the camera sits on the port side of the feature, so it looks away from the port
+    assert (T[:3, 3] - p_c) @ toward >= -ATOL_M
+    assert T[:3, 2] @ toward <= ATOL_UNIT
+    assert (p_c - T[:3, 3]) @ T[:3, 2] == pytest.approx(d_f, abs=ATOL_M)
+
+
+def test_port_side_keeps_the_camera_above_min_height() -> None:
+    # normal tipping down towards the port: the port side would put the camera under the board
+    p_c = np.array([0.0, 0.0, 0.03])
+    n = np.array([1.0, 0.0, -1.0]) / math.sqrt(2.0)
+    d_f = 0.05
+    T = goal_pose(p_c, n, d_f, port=PORT)
+    assert T[2, 3] < 0.0  # no floor given: the port side, below the board
+    T_floor = goal_pose(p_c, n, d_f, port=PORT, min_height=0.015)
+    assert T_floor[2, 3] >= 0.015  # with a floor: the other side, above it
+    np.testing.assert_allclose(T_floor[:3, 3], p_c - d_f * n, atol=ATOL_M)
+
+
+def test_port_side_hysteresis_keeps_the_previous_side() -> None:
+    p_c = np.array([0.0, 0.0, 0.05])
+    toward = (PORT - p_c) / np.linalg.norm(PORT - p_c)
+    side = np.cross(toward, UP)
+    side /= np.linalg.norm(side)
+    tipped = math.radians(5.0)  # normal 5° past perpendicular to the port direction
+    n = math.cos(tipped) * side - math.sin(tipped) * toward
+    previous = goal_pose(p_c, side, 0.05, port=PORT)  # camera on the +side half-space
+    on_prev = (previous[:3, 3] - p_c) @ side > 0.0
+    T = goal_pose(p_c, n, 0.05, port=PORT, previous=previous, side_hysteresis=math.radians(10))
+    assert ((T[:3, 3] - p_c) @ side > 0.0) == on_prev  # kept within the hysteresis
+    T = goal_pose(p_c, n, 0.05, port=PORT, previous=previous, side_hysteresis=math.radians(2))
+    assert (T[:3, 3] - p_c) @ toward >= 0.0  # beyond it: the port side
+
+
+def test_port_at_the_feature_is_rejected() -> None:
+    with pytest.raises(ValueError, match="port"):
+        goal_pose((0.0, 0.0, 0.05), (1.0, 0.0, 0.0), 0.05, port=(0.0, 0.0, 0.05))

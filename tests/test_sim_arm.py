@@ -9,9 +9,17 @@ import pytest
 
 from endocam.config import ExperimentConfig
 from endocam.control.policies import POLICIES, TrackingState
-from endocam.geometry import make_pose
+from endocam.geometry import invert_pose, make_pose
+from endocam.robot import PSM_MAX_VELOCITY
 from endocam.robot.kinematics import LIMIT_SLACK
-from endocam.sim.arm import ArmKind, CameraArm, natural_pose
+from endocam.sim.arm import (
+    VIEW_BISECTIONS,
+    Approach,
+    ArmKind,
+    CameraArm,
+    natural_pose,
+    view_towards_port,
+)
 from endocam.sim.episode import EpisodeResult, EpisodeSpec, episode_arm, run_episode
 from endocam.sim.outputs import episode_columns
 from endocam.task.trajectory import TrajectoryKind
@@ -19,6 +27,7 @@ from endocam.task.trajectory import TrajectoryKind
 ATOL_M = 1e-9  # m: logged camera position vs FK(logged q), round-off only
 ATOL_R = 1e-9  # 1: logged rotation-matrix entries vs FK(logged q)
 RESIDUAL_ZERO_RAD = 1e-7  # rad: the ECM IK's tolerance for "orientation reached"
+SPEED_RTOL = 1e-6  # relative slack on a joint speed limit (round-off of ruckig's profiles)
 DURATION_S = 3.0  # s: short episodes keep the file fast
 
 
@@ -41,7 +50,7 @@ def _arm_for(result: EpisodeResult) -> CameraArm:
     kind = ArmKind(result.log.arm)
     T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
     dt = 1.0 / cfg.episode.control_rate
-    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, cfg.episode.limits, dt)
+    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, dt)
 
 
 @pytest.fixture(scope="module")
@@ -72,6 +81,14 @@ def test_joint_limits_never_exceeded(which: str, request: pytest.FixtureRequest)
     q = result.log.joints
     assert q is not None
     assert np.all(q >= model.lower - LIMIT_SLACK) and np.all(q <= model.upper + LIMIT_SLACK)
+
+
+def test_joint_speeds_within_the_arm_limits(psm_result: EpisodeResult):
+    q = psm_result.log.joints
+    assert q is not None
+    qd = np.abs(np.diff(q, axis=0)) / np.diff(psm_result.log.t)[:, None]
+    assert np.all(qd <= np.array(PSM_MAX_VELOCITY) * (1.0 + SPEED_RTOL))
+    assert qd.max() > 0.0
 
 
 def test_joint_columns_in_episode_csv(psm_result: EpisodeResult):
@@ -110,7 +127,11 @@ def _short(duration: float):  # type: ignore[no-untyped-def]
 
 def _ecm_arm() -> CameraArm:
     cfg = ExperimentConfig()
-    return CameraArm(ArmKind.ECM, cfg.task.scene.T_world_rcm, np.eye(4), cfg.episode.limits, 0.01)
+    return CameraArm(ArmKind.ECM, cfg.task.scene.T_world_rcm, np.eye(4), 0.01)
+
+
+LOOK_DISTANCE_M = 0.05  # m: the controller's default working distance
+N_VIEW_CASES = 60  # count: random view goals per check
 
 
 def _look_from(p_world: np.ndarray, z_world: np.ndarray) -> np.ndarray:
@@ -122,51 +143,142 @@ def _look_from(p_world: np.ndarray, z_world: np.ndarray) -> np.ndarray:
 
 def test_ecm_residual_zero_iff_axis_through_rcm():
     arm = _ecm_arm()
-    T_rcm = arm.T_world_rcm
-    p_rcm = T_rcm[:3, 3]
+    p_rcm = arm.T_world_rcm[:3, 3]
     # a reachable point on the scope's mid-range axis, looking away from the RCM
     T_nat = arm.camera_pose(natural_pose(arm.model))
     p = T_nat[:3, 3]
     on_axis = _look_from(p, p - p_rcm)
-    out = arm.step(on_axis)
-    assert out.reachable
-    assert out.goal.orientation_error <= RESIDUAL_ZERO_RAD
+    out = arm.step(on_axis, LOOK_DISTANCE_M)
+    assert out.reachable and out.approach is Approach.EXACT
+    assert out.orientation_error <= RESIDUAL_ZERO_RAD
     tilt = math.radians(10.0)
     R_tilt = np.array(
         [[1, 0, 0], [0, math.cos(tilt), -math.sin(tilt)], [0, math.sin(tilt), math.cos(tilt)]]
     )
     off_axis = on_axis.copy()
     off_axis[:3, :3] = on_axis[:3, :3] @ R_tilt
-    out = arm.step(off_axis)
-    assert out.reachable  # the position is reached; only the orientation is missing
-    assert out.goal.orientation_error == pytest.approx(tilt, abs=1e-6)
+    out = arm.step(off_axis, LOOK_DISTANCE_M)
+    # the 4-DoF scope takes the port view of the same point: only orientation is missing
+    assert out.reachable and out.approach is Approach.VIEW
+    assert out.orientation_error == pytest.approx(_port_view_angle(off_axis, p_rcm), abs=1e-9)
+    assert out.orientation_error > 0.5 * tilt
+    _assert_looks_at_same_point(out.T_world_target, off_axis, LOOK_DISTANCE_M)
+
+
+def _port_view_angle(T: np.ndarray, p_rcm: np.ndarray, d: float = 0.0) -> float:
+    """Angle between the optical axis and the direction from the RCM to the look-at point."""
+    d = d or LOOK_DISTANCE_M
+    c = T[:3, 3] + d * T[:3, 2]
+    v = (c - p_rcm) / np.linalg.norm(c - p_rcm)
+    return math.acos(np.clip(v @ T[:3, 2], -1.0, 1.0))
+
+
+def _assert_looks_at_same_point(T_target: np.ndarray, T_goal: np.ndarray, d: float) -> None:
+    c_goal = T_goal[:3, 3] + d * T_goal[:3, 2]
+    c_target = T_target[:3, 3] + d * T_target[:3, 2]
+    np.testing.assert_allclose(c_target, c_goal, atol=ATOL_M)
+
+
+def _psm_arm() -> CameraArm:
+    cfg = ExperimentConfig()
+    return CameraArm(ArmKind.PSM, cfg.task.scene.T_world_rcm, cfg.episode.T_tip_cam, 0.01)
+
+
+def test_psm_concedes_the_smallest_view_angle_it_can_reach():
+    arm = _psm_arm()
+    p_rcm = arm.T_world_rcm[:3, 3]
+    T_nat = arm.camera_pose(natural_pose(arm.model))
+    rng = np.random.default_rng(11)
+    conceded = 0
+    for _ in range(N_VIEW_CASES):
+        # look at a point ahead of the mid-range camera from a direction up to 150° off the port
+        c = T_nat[:3, 3] + LOOK_DISTANCE_M * T_nat[:3, 2]
+        z = rng.normal(size=3)
+        z /= np.linalg.norm(z)
+        v_port = (c - p_rcm) / np.linalg.norm(c - p_rcm)
+        if v_port @ z < math.cos(math.radians(150.0)):
+            continue
+        goal = _look_from(c - LOOK_DISTANCE_M * z, z)
+        q, T_target, approach = arm.target(goal, LOOK_DISTANCE_M)
+        assert arm.model.within_limits(np.array(q))
+        np.testing.assert_allclose(arm.camera_pose(q), T_target, atol=1e-7)  # IK tolerance, m
+        if approach is Approach.EXACT:
+            np.testing.assert_array_equal(T_target, goal)
+            continue
+        assert approach is Approach.VIEW
+        conceded += 1
+        _assert_looks_at_same_point(T_target, goal, LOOK_DISTANCE_M)
+        # the turn is towards the port, and a turn one bisection step smaller is unreachable
+        assert _port_view_angle(T_target, p_rcm) < _port_view_angle(goal, p_rcm)
+        total = _port_view_angle(goal, p_rcm)
+        smaller = _turned_by(goal, p_rcm, _concession(T_target, goal) - total / 2**VIEW_BISECTIONS)
+        assert (
+            arm.model.exact_unchecked(
+                invert_pose(arm.T_world_rcm) @ smaller @ invert_pose(arm.T_tip_cam), arm.q
+            )
+            is None
+        )
+    assert conceded >= N_VIEW_CASES // 10  # the cases exercised the view search
+
+
+def _concession(T_target: np.ndarray, T_goal: np.ndarray) -> float:
+    c = 0.5 * (np.trace(T_target[:3, :3].T @ T_goal[:3, :3]) - 1.0)
+    return math.acos(np.clip(c, -1.0, 1.0))
+
+
+def _turned_by(T_goal: np.ndarray, p_rcm: np.ndarray, angle: float) -> np.ndarray:
+    total = _port_view_angle(T_goal, p_rcm)
+    return view_towards_port(T_goal, LOOK_DISTANCE_M, p_rcm, max(angle, 0.0) / total)
+
+
+def test_view_towards_port_ends_on_the_port_axis():
+    rng = np.random.default_rng(12)
+    p_rcm = np.array([0.2, 0.0, 0.12])
+    for _ in range(N_VIEW_CASES):
+        z = rng.normal(size=3)
+        goal = _look_from(rng.uniform(-0.1, 0.1, 3), z)
+        T1 = view_towards_port(goal, LOOK_DISTANCE_M, p_rcm, 1.0)
+        assert _port_view_angle(T1, p_rcm) <= 1e-7
+        _assert_looks_at_same_point(T1, goal, LOOK_DISTANCE_M)
+        T0 = view_towards_port(goal, LOOK_DISTANCE_M, p_rcm, 0.0)
+        np.testing.assert_allclose(T0, goal, rtol=0, atol=ATOL_M)
+        half = view_towards_port(goal, LOOK_DISTANCE_M, p_rcm, 0.5)
+        assert _port_view_angle(half, p_rcm) == pytest.approx(
+            0.5 * _port_view_angle(goal, p_rcm), abs=1e-9
+        )
 
 
 def test_unreachable_goal_is_approached_and_reported():
-    cfg = ExperimentConfig()
-    arm = CameraArm(
-        ArmKind.PSM, cfg.task.scene.T_world_rcm, cfg.episode.T_tip_cam, cfg.episode.limits, 0.01
-    )
+    arm = _psm_arm()
     T0 = arm.reset(np.eye(4))
     far = T0.copy()
     far[:3, 3] += np.array([0.0, 0.0, 1.0])  # 1 m away: beyond the insertion stroke
     dists = []
     for _ in range(20):
-        out = arm.step(far)
+        out = arm.step(far, LOOK_DISTANCE_M)
         assert not out.reachable and np.all(np.isfinite(out.T_world_cam))
+        assert out.approach is Approach.NEAREST and out.position_error > 0.5
         assert arm.model.within_limits(out.q)
         dists.append(np.linalg.norm(out.T_world_cam[:3, 3] - far[:3, 3]))
     assert dists[-1] < dists[0]  # approaching the nearest feasible pose
 
 
+def test_non_finite_command_brakes_where_it_is():
+    arm = _psm_arm()
+    T0 = arm.reset(arm.camera_pose(natural_pose(arm.model)))
+    out = arm.step(np.full((4, 4), np.nan), float("nan"))
+    assert out.approach is Approach.EXACT
+    np.testing.assert_allclose(out.T_world_cam, T0, atol=1e-9)
+
+
 def test_runner_marks_unreachable_steps(psm_result: EpisodeResult):
-    # from the default port the PSM cannot reach every orientation goal (docs/robot.md)
+    # the wrist cannot bend far enough for every orientation goal (docs/robot.md)
     result = psm_result
     state = result.log.state
     assert TrackingState.UNREACHABLE.value in set(state)
     assert np.all(np.isfinite(result.log.T_world_cam))
     hit = np.flatnonzero(state == TrackingState.UNREACHABLE.value)
-    assert all("unreachable by the PSM" in result.log.reason[k] for k in hit)
+    assert all("by the PSM" in result.log.reason[k] for k in hit)
     assert result.log.goal_position_error is not None
     assert result.log.goal_orientation_error is not None
     err = np.maximum(result.log.goal_position_error, result.log.goal_orientation_error)
@@ -187,8 +299,6 @@ def test_episode_is_deterministic(psm_result: EpisodeResult):
 def test_bad_mount_rejected():
     cfg = ExperimentConfig()
     with pytest.raises(ValueError, match="T_tip_cam"):
-        CameraArm(
-            ArmKind.PSM, cfg.task.scene.T_world_rcm, np.zeros((4, 4)), cfg.episode.limits, 0.01
-        )
+        CameraArm(ArmKind.PSM, cfg.task.scene.T_world_rcm, np.zeros((4, 4)), 0.01)
     with pytest.raises(ValueError, match="kind"):
-        CameraArm(ArmKind.FREE, np.eye(4), np.eye(4), cfg.episode.limits, 0.01)
+        CameraArm(ArmKind.FREE, np.eye(4), np.eye(4), 0.01)

@@ -50,7 +50,7 @@ def _camera_arm(result: EpisodeResult) -> CameraArm:
     cfg = result.config
     kind = ArmKind(result.log.arm)
     T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, cfg.episode.limits, 0.01)
+    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
 
 
 def _show_step(scene: WireChaserScene, result: EpisodeResult, k: int) -> None:

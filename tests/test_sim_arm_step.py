@@ -8,14 +8,16 @@ from scipy.spatial.transform import Rotation
 
 from endocam.config import ExperimentConfig
 from endocam.geometry import make_pose
+from endocam.robot.arm import MotionStatus
 from endocam.robot.dh import pose12_from_matrix, pose12_times, pose12_to_matrix
 from endocam.robot.ik import pose12_error, pose_error
-from endocam.sim.arm import ArmKind, CameraArm, natural_pose
-from endocam.sim.motion import MotionStatus
+from endocam.sim.arm import Approach, ArmKind, CameraArm, natural_pose
 
 ATOL_M = 1e-12  # m: float kernels vs numpy products, round-off only
 ATOL_RAD = 1e-9  # rad: angle kernels vs numpy (atan2 form), round-off only
 N_RANDOM = 50  # count, random poses per check
+IK_ATOL = 1e-7  # m / rad: the IK tolerance
+LOOK_DISTANCE_M = 0.05  # m: the controller's default working distance
 HOLD_STEPS = 400  # count, control steps to come to rest on a held goal (4 s at 100 Hz)
 
 
@@ -27,7 +29,7 @@ def _random_pose(rng: np.random.Generator) -> np.ndarray:
 def _arm(kind: ArmKind) -> CameraArm:
     cfg = ExperimentConfig()
     T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, cfg.episode.limits, 0.01)
+    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
 
 
 def test_pose12_kernels_match_numpy():
@@ -55,18 +57,18 @@ def test_camera_pose_fast_path_is_fk(kind: ArmKind):
 
 
 @pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
-def test_held_goal_skips_second_ik_and_lands_on_its_solution(kind: ArmKind):
+def test_held_goal_lands_on_its_exact_solution(kind: ArmKind):
     arm = _arm(kind)
     q_goal = (
         natural_pose(arm.model) + np.array([0.1, 0.1, 0.01, 0.2, 0.2, 0.1])[: arm.model.n_joints]
     )
     goal = arm.camera_pose(q_goal)
     for _ in range(HOLD_STEPS):
-        out = arm.step(goal)
-    assert arm._limiter.status is MotionStatus.ARRIVED  # the second IK was skipped
-    assert out.reachable
-    np.testing.assert_allclose(out.q, out.goal.q, atol=ATOL_M)  # at rest on the goal's IK
-    np.testing.assert_allclose(out.T_world_cam, goal, atol=1e-7)  # IK tolerance, m
+        out = arm.step(goal, LOOK_DISTANCE_M)
+    assert out.reachable and out.approach is Approach.EXACT
+    assert arm.arm.motion_status is MotionStatus.FINISHED  # at rest
+    np.testing.assert_allclose(out.q, q_goal, atol=IK_ATOL)  # the goal's own joints
+    np.testing.assert_allclose(out.T_world_cam, goal, atol=IK_ATOL)
     np.testing.assert_allclose(out.T_world_cam, arm.camera_pose(out.q), atol=ATOL_M)
 
 

@@ -76,7 +76,7 @@ class EpisodeConfig(BaseModel):
     )
     limits: MotionLimits = Field(default_factory=MotionLimits, description="Camera motion limits.")
     arm: str = Field(
-        "free",
+        "psm",
         pattern="^(free|psm|ecm)$",
         description="What carries the camera: 'free' (Cartesian limits only), 'psm' or 'ecm' "
         "(through the dVRK arm's kinematics and joint limits). A policy may force an arm "

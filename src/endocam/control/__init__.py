@@ -12,6 +12,7 @@ from endocam.control.policies import (
     Observation,
     OrientationPolicy,
     PolicyContext,
+    SideRule,
     TrackingState,
     make_policy,
 )
@@ -35,6 +36,7 @@ __all__ = [
     "Observation",
     "OrientationPolicy",
     "PolicyContext",
+    "SideRule",
     "TrackingState",
     "WaypointPath",
     "WindowStatus",

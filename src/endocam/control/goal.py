@@ -12,6 +12,10 @@ where ``u`` is world up and ``s = ±1`` keeps the camera above the tissue (``s n
 paper writes ``x = u × n`` for its normal pointing at the camera; with ``z = −n`` that is the same
 axis. ``y·u ≤ 0`` keeps the image upright (image "down" points down in the world).
 
+A camera that enters through a port (an RCM arm) may instead take the side facing the port,
+``s n·(p_port − p_c) ≥ 0``: it then looks away from its port, as a wrist of limited bend must
+(``SideRule.PORT`` in the controller; ``port=`` here).
+
 Two places need care:
 
 * **Side hysteresis.** For a near-horizontal normal the side sign would flip with noise. Given
@@ -216,19 +220,21 @@ def look_at_unchecked(
 
 
 def choose_side(n: Vec, up: Vec, z_prev: Vec | None, sin_hysteresis: float = _SIN_SIDE) -> float:
-    """Sign ``s`` (±1) so the camera at ``p_c + s d_f n`` is above the tissue, with hysteresis.
+    """Sign ``s`` (±1) so the camera at ``p_c + s d_f n`` faces the reference side, with hysteresis.
 
     Parameters
     ----------
     n : 3-tuple
         Unit feature normal in world.
     up : 3-tuple
-        Unit world up.
+        Unit reference direction in world: world up for the paper's "above the tissue" rule,
+        or the direction from the feature to the camera arm's port (``SideRule.PORT``).
     z_prev : 3-tuple or None
         Optical axis of the previous ``T_world_cam`` in world; the side it looked from is kept
         while ``s n·up ≥ −sin_hysteresis``.
     sin_hysteresis : float
-        Sine of how far below horizontal the normal may tip before the side changes (≥ 0).
+        Sine of how far past perpendicular to ``up`` the normal may tip before the side
+        changes (≥ 0).
     """
     n_up = _dot(n, up)
     default = 1.0 if n_up >= 0.0 else -1.0
@@ -251,19 +257,29 @@ def goal_pose_unchecked(
     previous: FloatArray | None,
     side_hysteresis: float = SIDE_HYSTERESIS,
     min_height: float = -math.inf,
+    toward: Vec | None = None,
 ) -> FloatArray:
-    """:func:`goal_pose` without validation, for the control loop; ``n`` and ``up`` unit."""
-    # Keeping the previous side may not take the camera below ``min_height``.
+    """:func:`goal_pose` without validation, for the control loop; ``n``, ``up`` unit.
+
+    ``toward`` is the unit direction from ``p_c`` to the port (``None``: the paper's side rule).
+    """
+    ref = up if toward is None else toward
     sin_h = math.sin(side_hysteresis)
-    if min_height > -math.inf:
+    if min_height > -math.inf and toward is None:
+        # Keeping the previous side may not take the camera below ``min_height``.
         sin_h = max(0.0, min(sin_h, (_dot(p_c, up) - min_height) / d_f))
     if previous is None:
-        s = choose_side(n, up, None)
+        s = choose_side(n, ref, None)
         x_prev = None
     else:
         R = previous[:3, :3].tolist()
-        s = choose_side(n, up, (R[0][2], R[1][2], R[2][2]), sin_h)
+        s = choose_side(n, ref, (R[0][2], R[1][2], R[2][2]), sin_h)
         x_prev = (R[0][0], R[1][0], R[2][0])
+    if toward is not None and min_height > -math.inf:
+        # the port side may never put the camera below ``min_height`` when the other side is higher
+        h_c, n_up = _dot(p_c, up), _dot(n, up)
+        if h_c + s * d_f * n_up < min_height and s * n_up < 0.0:
+            s = -s
     z = _scaled(n, -s)
     x, y, zz = _rotation_columns(z, up, x_prev)
     p = (p_c[0] - d_f * z[0], p_c[1] - d_f * z[1], p_c[2] - d_f * z[2])
@@ -279,6 +295,7 @@ def goal_pose(
     previous: ArrayLike | None = None,
     side_hysteresis: float = SIDE_HYSTERESIS,
     min_height: float = -math.inf,
+    port: ArrayLike | None = None,
 ) -> FloatArray:
     r"""Camera goal pose on the feature normal, looking at the feature (paper Sec. III-B).
 
@@ -301,6 +318,12 @@ def goal_pose(
     min_height : float
         Lowest camera height along ``up`` (m, e.g. the board plus a margin) at which the
         hysteresis may keep the previous side; below it the camera changes side at once.
+    port : (3,) or None
+        Where the camera enters the body (the camera arm's RCM) in world, m. ``None`` (the
+        paper's rule): the camera takes the side above the feature (``s n·up ≥ 0``). Given a
+        port, it takes the side facing the port (``s n·(port − p_c) ≥ 0``, same hysteresis),
+        so a camera on an RCM arm looks away from its port, never back at it; a side whose
+        camera would be below ``min_height`` is left for the other when that is higher.
 
     Returns
     -------
@@ -311,7 +334,8 @@ def goal_pose(
     Raises
     ------
     ValueError
-        If ``p_c``, ``n`` or ``up`` is not a finite 3-vector, ``n`` or ``up`` is zero,
+        If ``p_c``, ``n``, ``up`` or ``port`` is not a finite 3-vector, ``n`` or ``up`` is
+        zero, ``port`` is at ``p_c``,
         ``d_f`` is not a positive finite number, or ``previous`` is not a finite (4, 4) array.
     """
     p = as_vector3(p_c, "p_c")
@@ -330,6 +354,9 @@ def goal_pose(
         raise ValueError(f"side_hysteresis must be in [0, π/2) rad, got {side_hysteresis}")
     if math.isnan(min_height):
         raise ValueError("min_height must be a number of metres or -inf")
+    toward = None
+    if port is not None:
+        toward = _vec(unit_vector(as_vector3(port, "port") - p, "port - p_c"))
     return goal_pose_unchecked(
-        _vec(p), _vec(n_u), float(d_f), _vec(up_u), prev, side_hysteresis, min_height
+        _vec(p), _vec(n_u), float(d_f), _vec(up_u), prev, side_hysteresis, min_height, toward
     )

@@ -29,7 +29,6 @@ from endocam.camera import StereoCamera
 from endocam.control.goal import goal_pose_unchecked, look_at_unchecked
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.safety import (
-    CONE_BASE_RADIUS,
     D_F_STEP,
     ConeWorkspace,
     ImageWindows,
@@ -49,6 +48,15 @@ class TrackingState(enum.Enum):
     FROZEN_OUTSIDE_CONE = "frozen_outside_cone"  # goal left the cone workspace; pose held
     LOST_TRACKING = "lost_tracking"  # no valid feature observation; last safe pose held
     UNREACHABLE = "unreachable"  # the arm cannot reach the goal (set by the robot layer)
+
+
+class SideRule(enum.Enum):
+    """Which side of the feature the orientation camera looks from (see ``control.goal``)."""
+
+    UP = "up"
+    """The paper's rule: the side above the feature, ``s n·up ≥ 0``."""
+    PORT = "port"
+    """The side facing the camera arm's RCM, ``s n·(p_rcm − p_c) ≥ 0``."""
 
 
 class ControllerConfig(BaseModel):
@@ -71,6 +79,12 @@ class ControllerConfig(BaseModel):
         description="how far below horizontal the ring normal may tip before the orientation "
         "camera changes side, rad",
     )
+    side_rule: SideRule = Field(
+        SideRule.PORT,
+        description="which side of the ring the orientation camera takes: 'up' (the paper: "
+        "above the ring) or 'port' (facing the camera arm's RCM, so the camera looks away "
+        "from its port, as an RCM arm's wrist must)",
+    )
     min_camera_height: float = Field(
         0.015,
         description="lowest camera height above the board (world z) the side hysteresis may "
@@ -81,9 +95,19 @@ class ControllerConfig(BaseModel):
         0.01, gt=0, description="how far progress may lead the camera's projection, m"
     )
     cone_height: float = Field(
-        0.35, gt=0, description="cone workspace height (slightly under the instrument length), m"
+        0.30,
+        gt=0,
+        description="cone workspace height, m: the PSM-held camera's reach (0.24 m insertion "
+        "+ 0.046 m to the tip + 0.015 m mount), as the paper sets it slightly under the "
+        "instrument length",
     )
-    cone_base_radius: float = Field(CONE_BASE_RADIUS, gt=0, description="cone base radius, m")
+    cone_base_radius: float = Field(
+        0.25,
+        gt=0,
+        description="cone base radius, m (the paper chose 0.10 m empirically for its port; "
+        "this port is within the PSM's reach of the wire, hence closer and wider-angled: "
+        "see docs/world.md)",
+    )
     window_inner_frac: float = Field(0.5, gt=0, le=1, description="inner window, image fraction")
     window_outer_frac: float = Field(0.9, gt=0, le=1, description="outer window, image fraction")
 
@@ -436,14 +460,24 @@ class OrientationPolicy(_MovingPolicy):
             return None
         n = (n[0] / norm, n[1] / norm, n[2] / norm)
         cfg = self.config
+        p_c = (T[0][3], T[1][3], T[2][3])
+        toward = None
+        if cfg.side_rule is SideRule.PORT:
+            assert self._ctx is not None
+            r = self._ctx.p_world_rcm
+            d = (float(r[0]) - p_c[0], float(r[1]) - p_c[1], float(r[2]) - p_c[2])
+            norm_d = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+            if norm_d > _MIN_NORMAL:  # a ring at the port itself keeps the paper's rule
+                toward = (d[0] / norm_d, d[1] / norm_d, d[2] / norm_d)
         return goal_pose_unchecked(
-            (T[0][3], T[1][3], T[2][3]),
+            p_c,
             n,
             self.d_f,
             _UP,
             previous,
             cfg.side_hysteresis,
             cfg.min_camera_height,
+            toward,
         )
 
 

@@ -20,9 +20,11 @@ from endocam.geometry import as_finite_array
 from endocam.robot.dh import (
     DHChain,
     JointType,
+    Pose12,
     chain_forward,
     chain_frames,
     geometric_jacobian,
+    pose12_to_matrix,
 )
 from endocam.robot.ik import (
     IKResult,
@@ -338,6 +340,30 @@ class RcmArm(abc.ABC):
         IKResult
             As :meth:`solve`.
         """
+
+    def exact_unchecked(self, T_goal: FloatArray, seed: FloatArray) -> list[float] | None:
+        """Joint values reaching ``T_goal`` exactly within the joint limits, else ``None``.
+
+        The cheap question a control loop asks many times (no nearest-feasible search).
+
+        Parameters
+        ----------
+        T_goal : (4, 4) ndarray
+            A valid rigid transform: goal tip pose in the RCM frame, m.
+        seed : (n,) ndarray
+            Finite joint values of the preferred branch, rad / m.
+
+        Returns
+        -------
+        list of float or None
+            ``n`` joint values (rad / m) when IK status would be ``OK``.
+        """
+        result = self.solve_unchecked(T_goal, seed)
+        return result.q.tolist() if result.ok else None
+
+    def exact12_unchecked(self, goal12: Pose12, seed: FloatArray) -> list[float] | None:
+        """:meth:`exact_unchecked` for a goal given as 12 floats (rotation row-major, then m)."""
+        return self.exact_unchecked(pose12_to_matrix(goal12), seed)
 
     def inverse(self, T_rcm_tip: object, q_seed: object | None = None) -> FloatArray:
         """Inverse kinematics that raises when the pose cannot be reached exactly.

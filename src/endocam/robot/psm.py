@@ -153,6 +153,22 @@ class PSM(RcmArm):
         status = IKStatus.OK if self._reached(T_goal, T) else IKStatus.UNREACHABLE
         return self._result(q_near, T_goal, status, T)
 
+    def exact_unchecked(self, T_goal: FloatArray, seed: FloatArray) -> list[float] | None:
+        """The closed form alone: exact joint values within the limits, else ``None``.
+
+        No polish and no nearest-feasible search, so a ``None`` costs no more than a success
+        (see :meth:`RcmArm.exact_unchecked`).
+        """
+        return self.exact12_unchecked(pose12_from_matrix(T_goal), seed)
+
+    def exact12_unchecked(self, goal12: Pose12, seed: FloatArray) -> list[float] | None:
+        """:meth:`exact_unchecked` for a goal given as 12 floats (rotation row-major, then m)."""
+        sol = self._closed_form(goal12, seed)
+        if sol is None or not within_tolerance(*pose12_error(goal12, sol[1])):
+            return None
+        q, inside = self.clamp_floats(sol[0])
+        return q if inside else None
+
     def _closed_form(self, goal: Pose12, seed: FloatArray) -> tuple[list[float], Pose12] | None:
         """Exact joint values for the goal ``T_rcm_tip`` (12 floats) ignoring limits.
 

@@ -3,19 +3,23 @@
 :class:`CameraArm` is the episode runner's actuator when ``episode.arm`` is ``psm`` or ``ecm``
 (see ``docs/robot.md``, "The camera arm in the episode runner"). Each control step:
 
-1. **Goal projection.** The policy's camera command (world) is expressed in the arm's RCM
-   frame and solved by IK (:meth:`~endocam.robot.kinematics.RcmArm.solve_camera`, seeded by
-   the measured joints). A goal the arm cannot reach is replaced by the camera pose of the
-   nearest feasible configuration: the arm *approaches the nearest feasible pose*, and the
-   step is flagged ``reachable = False``.
-2. **Cartesian limits.** The (now feasible) goal goes through the camera's
-   :class:`~endocam.sim.motion.CartesianLimiter` (speed, acceleration, jerk).
-   Because the limiter only ever heads for feasible poses, it cannot drift into the region the
-   arm cannot reach and drag the arm's set points away from its actual pose.
-3. **Joint motion.** The limiter's pose is solved by IK again (seeded by the measured joints;
-   skipped when the limiter is at rest on the goal, whose IK step 1 already solved);
-   :class:`~endocam.robot.arm.SimulatedArm` moves the joints towards it for one control period
-   under ruckig's joint velocity and acceleration limits, never beyond the joint limits.
+1. **IK.** The policy's camera command (world) is expressed in the arm's RCM frame and solved
+   in closed form, seeded by the measured joints (one IK per step).
+2. **Nearest feasible view.** A goal the arm cannot reach exactly is replaced by the reachable
+   view nearest to it that still looks at the same point: the camera is turned about the
+   point it looks at (``look_distance`` ahead on its optical axis, the policy's working
+   distance) towards the view straight from the port, by the smallest angle the arm can
+   deliver (:func:`view_towards_port`, bisection on that angle). The feature stays centred
+   at the working distance; only the view direction is conceded, and the step is flagged
+   ``reachable = False`` with the conceded angle. For the ECM, whose optical axis always passes
+   through its RCM, that view is the port view itself. If even the port view is out of reach
+   (the point is beyond the insertion stroke), the arm approaches the nearest feasible
+   configuration of the goal (bounded least squares).
+3. **Joint motion.** :class:`~endocam.robot.arm.SimulatedArm` moves the joints towards the
+   target for one control period under ruckig's joint velocity and acceleration limits, never
+   beyond the joint limits. The camera's speed is therefore bounded by the arm's joint
+   limits, as on a real dVRK; the Cartesian :class:`~endocam.sim.motion.CartesianLimiter` is
+   the free camera's actuator only.
 4. **FK.** The camera pose is ``T_world_rcm · FK(q) · T_tip_cam`` of the new joints: every
    pose the runner logs is one the arm reaches.
 
@@ -32,23 +36,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from endocam.config import MotionLimits
 from endocam.geometry import FloatArray, as_pose, invert_pose
-from endocam.robot import ECM, PSM, IKResult, IKStatus, RcmArm, SimulatedArm
-from endocam.robot.dh import compose_links, pose12_from_matrix, pose12_to_matrix
-from endocam.sim.motion import CartesianLimiter, MotionStatus
+from endocam.robot import ECM, PSM, RcmArm, SimulatedArm
+from endocam.robot.dh import compose_links, pose12_from_matrix, pose12_times, pose12_to_matrix
+from endocam.robot.ik import rotation_angle_between
+from endocam.sim.motion import so3_exp
 
 __all__ = [
-    "REACH_POSITION_TOL_M",
     "REALTIME_NEAREST_MAX_NFEV",
+    "VIEW_BISECTIONS",
+    "Approach",
     "ArmKind",
     "ArmStep",
     "CameraArm",
     "arm_model",
     "natural_pose",
+    "view_towards_port",
 ]
 
-REACH_POSITION_TOL_M = 1e-6  # m: an ECM goal position closer than this counts as reached
 # count: residual evaluations per nearest-feasible solve in the control loop (≈ 1-3 ms); the
 # default 200 costs up to ~50 ms, and a goal sliding along the reach boundary moves little
 # between control steps, so a short warm-started solve tracks it.
@@ -97,6 +102,21 @@ def natural_pose(model: RcmArm) -> FloatArray:
     return model.clamp(q)
 
 
+class Approach(enum.Enum):
+    """How a :class:`CameraArm` step treated its goal."""
+
+    EXACT = "exact"
+    """The arm reaches the goal exactly (IK status ``OK``)."""
+    VIEW = "view"
+    """Nearest feasible view: the view turned about its look-at point towards the port."""
+    NEAREST = "nearest"
+    """Even the port view is out of reach: nearest feasible configuration (least squares)."""
+
+
+VIEW_BISECTIONS = 7  # count: the conceded view angle is resolved to θ / 2⁷ (< 1.5° for θ ≤ π)
+_EPS_AXIS = 1e-12  # unitless: a cross product shorter than this has no direction
+
+
 @dataclass(frozen=True)
 class ArmStep:
     """Outcome of one control step of a :class:`CameraArm`.
@@ -107,22 +127,91 @@ class ArmStep:
         Camera pose after the step, ``FK(q)`` in world, optical frame, m.
     q : (n,) ndarray
         Measured joint positions after the step, rad / m.
-    goal : IKResult
-        IK of the commanded goal (residuals in m / rad, tip frame in the RCM frame).
+    T_world_target : (4, 4) ndarray
+        The camera pose the joints head for: the goal, or what :class:`Approach` put in its
+        place, m.
+    approach : Approach
+        How the goal was treated.
+    position_error : float
+        Distance between the goal and the target camera positions, m (0 when exact).
+    orientation_error : float
+        Angle between the goal and the target camera orientations, rad (0 when exact): the
+        view direction the arm concedes.
     reachable : bool
-        Whether the arm can reach the commanded goal: PSM — IK status ``OK``; ECM — the goal
-        position is reached (the orientation the 4-DoF ECM cannot deliver is its expected
-        residual, measured by the orientation error, not an unreachable goal).
+        Whether the arm delivers what the policy asked of it: PSM — the goal exactly; ECM —
+        the goal's view through the port (its missing orientation is the 4-DoF scope's
+        expected residual, measured by ``orientation_error``, not an unreachable goal).
     """
 
     T_world_cam: FloatArray
     q: FloatArray
-    goal: IKResult
+    T_world_target: FloatArray
+    approach: Approach
+    position_error: float
+    orientation_error: float
     reachable: bool
 
 
+def view_towards_port(
+    T_world_cam: FloatArray, look_distance: float, p_world_rcm: FloatArray, fraction: float
+) -> FloatArray:
+    """A camera pose turned about the point it looks at, towards the view from the port.
+
+    The camera keeps looking at ``c = p + look_distance · z`` from ``look_distance``; its
+    rotation is turned by ``fraction`` of the smallest rotation that takes its optical axis
+    ``z`` onto ``(c − p_rcm) / |c − p_rcm|``. ``fraction = 1`` is the port view, whose optical
+    axis passes through the RCM (the view any RCM arm can take at a reachable distance).
+
+    Parameters
+    ----------
+    T_world_cam : (4, 4) ndarray
+        Camera pose, world, optical frame (z forward), m.
+    look_distance : float
+        Distance to the look-at point along z, m (> 0).
+    p_world_rcm : (3,) ndarray
+        The port, world, m.
+    fraction : float
+        In [0, 1].
+
+    Returns
+    -------
+    (4, 4) ndarray
+        The turned pose, m. ``T_world_cam`` itself when the look-at point is at the port.
+    """
+    rotvec = _port_rotvec(T_world_cam, look_distance, p_world_rcm)
+    if rotvec is None:
+        return np.array(T_world_cam, dtype=float)
+    return _turned(T_world_cam, look_distance, rotvec, fraction)
+
+
+def _port_rotvec(T: FloatArray, d: float, p_rcm: FloatArray) -> FloatArray | None:
+    """Rotation vector (3,), rad, taking the optical axis onto the port direction."""
+    z = T[:3, 2]
+    v = T[:3, 3] + d * z - p_rcm
+    norm_v = float(np.linalg.norm(v))
+    if norm_v <= _EPS_AXIS:
+        return None
+    v = v / norm_v
+    axis = np.cross(z, v)
+    sin_t, cos_t = float(np.linalg.norm(axis)), float(z @ v)
+    if sin_t <= _EPS_AXIS:
+        if cos_t > 0.0:
+            return np.zeros(3)
+        axis, sin_t = T[:3, 1].copy(), 1.0  # looking straight at the port: pan about image y
+    return axis * (math.atan2(sin_t, cos_t) / sin_t)
+
+
+def _turned(T: FloatArray, d: float, rotvec: FloatArray, fraction: float) -> FloatArray:
+    R_turn = np.array(so3_exp((fraction * rotvec).tolist()))
+    out = np.array(T, dtype=float)
+    c = T[:3, 3] + d * T[:3, 2]
+    out[:3, :3] = R_turn @ T[:3, :3]
+    out[:3, 3] = c - d * out[:3, 2]
+    return out
+
+
 class CameraArm:
-    """A camera on a dVRK arm (PSM or ECM), driven like the free camera's limiter.
+    """A camera on a dVRK arm (PSM or ECM): one IK, one ruckig joint step and FK per step.
 
     Parameters
     ----------
@@ -132,34 +221,27 @@ class CameraArm:
         Pose of the arm's RCM frame in world, m.
     T_tip_cam : (4, 4) array_like
         Camera optical frame in the tool-tip frame, m (identity for the ECM's 0° scope).
-    limits : MotionLimits
-        The camera's Cartesian limits (applied before IK).
     dt : float
         Control period, s.
     """
 
-    def __init__(
-        self,
-        kind: ArmKind,
-        T_world_rcm: object,
-        T_tip_cam: object,
-        limits: MotionLimits,
-        dt: float,
-    ) -> None:
+    def __init__(self, kind: ArmKind, T_world_rcm: object, T_tip_cam: object, dt: float) -> None:
         self.kind = kind
         self.model = arm_model(kind)
         self._T_world_rcm = as_pose(np.asarray(T_world_rcm, dtype=float), "T_world_rcm")
         self._T_rcm_world = invert_pose(self._T_world_rcm)
+        self._p_world_rcm = self._T_world_rcm[:3, 3].copy()
         self._T_tip_cam = as_pose(np.asarray(T_tip_cam, dtype=float), "T_tip_cam")
         self._T_cam_tip = invert_pose(self._T_tip_cam)
         # float forms for the control loop: FK starts at the RCM in world and ends at the camera
         self._world_rcm12 = pose12_from_matrix(self._T_world_rcm)
+        self._rcm_world12 = pose12_from_matrix(self._T_rcm_world)
+        self._cam_tip_rows = tuple(tuple(row) for row in self._T_cam_tip[:3].tolist())
         T_last_cam = self.model.chain.T_last_tip @ self._T_tip_cam
         self._last_cam_rows = tuple(tuple(row) for row in T_last_cam[:3].tolist())
         self._arm = SimulatedArm(self.model, dt=dt, q0=natural_pose(self.model))
-        self._limiter = CartesianLimiter(limits, dt)
         self._q = self._arm.measured_js()[0]
-        self._limiter.reset(self.camera_pose(self._q))  # at rest at the mid-range pose
+        self._T_cam = self.camera_pose(self._q)
 
     # ------------------------------------------------------------------ frames
     @property
@@ -205,25 +287,73 @@ class CameraArm:
         return self._T_world_rcm @ self.model.frames(q)
 
     # ------------------------------------------------------------------ control
-    def _solve(self, T_world_cam: FloatArray) -> IKResult:
-        T_rcm_tip = self._T_rcm_world @ T_world_cam @ self._T_cam_tip
-        return self.model.solve_unchecked(T_rcm_tip, self._q)
+    def _tip_goal(self, T_world_cam: FloatArray) -> FloatArray:
+        return self._T_rcm_world @ T_world_cam @ self._T_cam_tip
 
-    def _reachable(self, result: IKResult) -> bool:
-        if self.kind is ArmKind.ECM:
-            return result.position_error <= REACH_POSITION_TOL_M
-        return result.status is IKStatus.OK
+    def _exact(self, T_world_cam: FloatArray) -> list[float] | None:
+        rows = tuple(map(tuple, T_world_cam[:3].tolist()))
+        goal12 = pose12_times(pose12_times(self._rcm_world12, rows), self._cam_tip_rows)
+        return self.model.exact12_unchecked(goal12, self._q)
 
-    def reset(self, T_world_cam: object) -> FloatArray:
+    def target(
+        self, T_world_goal: FloatArray, look_distance: float
+    ) -> tuple[list[float], FloatArray, Approach]:
+        """Joint target for a camera goal: exact, nearest feasible view, or nearest pose.
+
+        Parameters
+        ----------
+        T_world_goal : (4, 4) ndarray
+            Camera goal, world, optical frame, m (a valid pose).
+        look_distance : float
+            Distance from the goal camera to the point it looks at, m (> 0).
+
+        Returns
+        -------
+        q : list of float
+            Joint target within the limits, rad / m.
+        T_world_target : (4, 4) ndarray
+            The camera pose of ``q``'s goal: the goal, or the view put in its place, m.
+        approach : Approach
+        """
+        q = self._exact(T_world_goal)
+        if q is not None:
+            return q, T_world_goal, Approach.EXACT
+        rotvec = _port_rotvec(T_world_goal, look_distance, self._p_world_rcm)
+        if rotvec is not None:
+            T_port = _turned(T_world_goal, look_distance, rotvec, 1.0)
+            q_port = self._exact(T_port)
+            if q_port is not None:
+                if self.kind is ArmKind.ECM:  # the 4-DoF scope's only view of that point
+                    exact = not np.any(rotvec)
+                    return q_port, T_port, Approach.EXACT if exact else Approach.VIEW
+                lo, hi, q_hi, T_hi = 0.0, 1.0, q_port, T_port
+                for _ in range(VIEW_BISECTIONS):
+                    mid = 0.5 * (lo + hi)
+                    T_mid = _turned(T_world_goal, look_distance, rotvec, mid)
+                    q_mid = self._exact(T_mid)
+                    if q_mid is None:
+                        lo = mid
+                    else:
+                        hi, q_hi, T_hi = mid, q_mid, T_mid
+                return q_hi, T_hi, Approach.VIEW
+        result = self.model.solve_unchecked(self._tip_goal(T_world_goal), self._q)
+        T_near = self._T_world_rcm @ result.T_rcm_tip @ self._T_tip_cam
+        return result.q.tolist(), T_near, Approach.NEAREST
+
+    def reset(self, T_world_cam: object, look_distance: float | None = None) -> FloatArray:
         """Place the arm, at rest, at the configuration nearest to a camera pose.
 
-        IK is seeded by :func:`natural_pose`; an unreachable pose gives the nearest feasible
-        configuration.
+        IK is seeded by :func:`natural_pose`; an unreachable pose is treated as in
+        :meth:`step` (nearest feasible view, then nearest configuration).
 
         Parameters
         ----------
         T_world_cam : (4, 4) array_like
             Wanted initial camera pose, world, optical frame, m.
+        look_distance : float, optional
+            Distance to the point the camera looks at, m; default: the distance from the
+            camera to the RCM (the view is turned about a point as far ahead as the port is
+            behind).
 
         Returns
         -------
@@ -231,15 +361,16 @@ class CameraArm:
             The initial camera pose actually taken, ``FK(q0)``, m.
         """
         T = as_pose(np.asarray(T_world_cam, dtype=float), "T_world_cam")
+        if look_distance is None:
+            look_distance = max(float(np.linalg.norm(T[:3, 3] - self._p_world_rcm)), 1e-3)
         self._q = natural_pose(self.model)
-        q0 = self._solve(T).q
+        q0, _, _ = self.target(T, look_distance)
         self._arm.reset(q0)
         self._q = self._arm.measured_js()[0]
-        T_cam = self.camera_pose(self._q)
-        self._limiter.reset(T_cam)
-        return T_cam
+        self._T_cam = self.camera_pose(self._q)
+        return self._T_cam.copy()
 
-    def step(self, T_world_cmd: FloatArray) -> ArmStep:
+    def step(self, T_world_cmd: FloatArray, look_distance: float) -> ArmStep:
         """One control step towards a commanded camera pose (see the module docstring).
 
         Parameters
@@ -247,24 +378,38 @@ class CameraArm:
         T_world_cmd : (4, 4) ndarray
             Commanded camera pose, world, optical frame, m. A non-finite command is replaced
             by the camera's current pose: the arm brakes to a stop where it is.
+        look_distance : float
+            Distance from the commanded camera to the point it looks at (the policy's working
+            distance), m; the pivot of the nearest feasible view. A non-finite or non-positive
+            value is replaced by the distance to the RCM.
 
         Returns
         -------
         ArmStep
         """
         finite = all(map(math.isfinite, np.ravel(T_world_cmd).tolist()))
-        T_goal = T_world_cmd if finite else self._limiter.pose
-        goal = self._solve(T_goal)
-        reachable = self._reachable(goal)
-        if not goal.ok:  # head for the nearest feasible pose instead
-            T_goal = self._T_world_rcm @ goal.T_rcm_tip @ self._T_tip_cam
-        T_limited = self._limiter.step(T_goal)
-        if self._limiter.status is MotionStatus.ARRIVED:
-            # the limiter is at rest exactly on the (feasible) goal, whose IK is known
-            q_cmd = goal.q
+        T_goal = T_world_cmd if finite else self._T_cam
+        if not (math.isfinite(look_distance) and look_distance > 0.0):
+            look_distance = max(float(np.linalg.norm(T_goal[:3, 3] - self._p_world_rcm)), 1e-3)
+        q_cmd, T_target, approach = self.target(T_goal, look_distance)
+        if approach is Approach.EXACT:
+            pos_err = ang_err = 0.0
         else:
-            q_cmd = self._solve(T_limited).q
+            pos_err = float(np.linalg.norm(T_target[:3, 3] - T_goal[:3, 3]))
+            ang_err = rotation_angle_between(T_target[:3, :3], T_goal[:3, :3])
+        reachable = approach is Approach.EXACT or (
+            self.kind is ArmKind.ECM and approach is Approach.VIEW
+        )
         self._arm.servo_jp(q_cmd)
         self._arm.step()
         self._q = self._arm.measured_js()[0]
-        return ArmStep(self._camera_pose(self._q.tolist()), self._q.copy(), goal, reachable)
+        self._T_cam = self._camera_pose(self._q.tolist())
+        return ArmStep(
+            self._T_cam.copy(),
+            self._q.copy(),
+            T_target,
+            approach,
+            pos_err,
+            ang_err,
+            reachable,
+        )

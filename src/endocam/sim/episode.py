@@ -27,9 +27,9 @@ from endocam.control.policies import (
 )
 from endocam.geometry import FloatArray
 from endocam.metrics import center_error_3d, image_centering_error, orientation_error
-from endocam.sim.arm import ArmKind, ArmStep, CameraArm
+from endocam.sim.arm import Approach, ArmKind, ArmStep, CameraArm
 from endocam.sim.motion import CartesianLimiter
-from endocam.sim.scene import overview_camera_pose, psm1_tip_in_ring
+from endocam.sim.scene import overview_camera_pose, psm1_tip_in_ring, task_centre
 from endocam.task.touches import TouchReport, touch_events
 from endocam.task.trajectory import RingTrajectory, TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
@@ -99,11 +99,11 @@ class EpisodeLog:
     arm : str
         What carried the camera: ``free``, ``psm`` or ``ecm``.
     goal_position_error : (N,) or None
-        With an arm: distance from the commanded camera goal to the nearest pose the arm can
-        reach, m (IK residual of the tip; 0 when reachable).
+        With an arm: distance from the commanded camera goal to the camera pose the joints
+        head for (the nearest feasible view or pose), m; 0 when the goal is reached exactly.
     goal_orientation_error : (N,) or None
-        With an arm: angle from the commanded orientation to the nearest reachable one, rad
-        (for the ECM the orientation its missing DoF cannot deliver).
+        With an arm: angle between the commanded orientation and that target's, rad: the
+        view the arm concedes (for the ECM, what its missing DoF cannot deliver).
     """
 
     t: FloatArray
@@ -212,8 +212,8 @@ def run_episode(
         T_now = T_overview
     else:
         T_tip_cam = ep.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-        arm = CameraArm(kind, config.task.scene.T_world_rcm, T_tip_cam, ep.limits, dt)
-        T_now = arm.reset(T_overview)  # the reachable pose nearest to the overview
+        arm = CameraArm(kind, config.task.scene.T_world_rcm, T_tip_cam, dt)
+        T_now = arm.reset(*arm_start_view(T_overview, task_centre(config.task), p_rcm))
     policy.reset(PolicyContext(camera, T_now, T_sensed[0], p_rcm, dt))
 
     T_cam = np.empty((n, 4, 4))
@@ -236,8 +236,8 @@ def run_episode(
         else:
             assert joints is not None and goal_err is not None
             joints[k] = arm.q
-            out = arm.step(cmd.T_world_cam)
-            goal_err[k] = (out.goal.position_error, out.goal.orientation_error)
+            out = arm.step(cmd.T_world_cam, cmd.d_f)
+            goal_err[k] = (out.position_error, out.orientation_error)
             if not out.reachable and cmd.state not in _SAFETY_STATES:
                 state[k] = TrackingState.UNREACHABLE.value
                 reason.append(_unreachable_reason(kind, out))
@@ -283,6 +283,44 @@ def run_episode(
     )
 
 
+ARM_START_GAP = 0.08  # m: the arm's start view keeps the camera this far ahead of the port
+
+
+def arm_start_view(
+    T_world_overview: FloatArray, p_world_centre: FloatArray, p_world_rcm: FloatArray
+) -> tuple[FloatArray, float]:
+    """The whole-task view an arm camera starts from, and the distance it looks at.
+
+    The free camera starts at the overview pose; a camera on an arm starts at the view of the
+    same task centre that is nearest to it and that the arm can take (:meth:`CameraArm.reset`
+    turns the view towards the port). The look-at distance is the overview's, shortened so the
+    port view keeps the camera ``ARM_START_GAP`` ahead of the port.
+
+    Parameters
+    ----------
+    T_world_overview : (4, 4) ndarray
+        The fixed camera's whole-task pose, m.
+    p_world_centre : (3,) ndarray
+        Task centre the overview looks at, m.
+    p_world_rcm : (3,) ndarray
+        The camera arm's RCM, m.
+
+    Returns
+    -------
+    T_world_cam : (4, 4) ndarray
+        The overview moved along its optical axis to look at the centre from that distance, m.
+    look_distance : float
+        m.
+    """
+    z = T_world_overview[:3, 2]
+    d_overview = float(np.linalg.norm(p_world_centre - T_world_overview[:3, 3]))
+    d_port = float(np.linalg.norm(p_world_centre - p_world_rcm))
+    look = max(min(d_overview, d_port - ARM_START_GAP), 0.5 * d_port)
+    T = np.array(T_world_overview, dtype=float)
+    T[:3, 3] = p_world_centre - look * z
+    return T, look
+
+
 _SAFETY_STATES = (TrackingState.FROZEN_OUTSIDE_CONE, TrackingState.LOST_TRACKING)
 
 
@@ -301,11 +339,16 @@ def episode_arm(config: ExperimentConfig, policy: str) -> ArmKind:
 
 
 def _unreachable_reason(kind: ArmKind, out: ArmStep) -> str:
-    err_mm = out.goal.position_error * 1e3
-    err_deg = math.degrees(out.goal.orientation_error)
+    err_mm = out.position_error * 1e3
+    err_deg = math.degrees(out.orientation_error)
+    if out.approach is Approach.VIEW:
+        return (
+            f"goal unreachable by the {kind.value.upper()}: view turned {err_deg:.1f}° towards "
+            "the port, still centred at the working distance"
+        )
     return (
-        f"goal unreachable by the {kind.value.upper()} ({out.goal.status.value}): nearest "
-        f"feasible pose {err_mm:.1f} mm, {err_deg:.1f}° away; approaching it"
+        f"goal beyond the {kind.value.upper()}'s reach: approaching the nearest feasible "
+        f"pose, {err_mm:.1f} mm and {err_deg:.1f}° away"
     )
 
 

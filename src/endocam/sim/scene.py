@@ -506,6 +506,18 @@ def _add_ring_and_psm1(spec: mujoco.MjSpec, task_cfg: TaskConfig) -> None:
     body.add_site(name=TIP_SITES[0], pos=tip.tolist(), size=[1e-3, 0, 0], group=5)
 
 
+def _task_points(task_cfg: TaskConfig) -> FloatArray:
+    """(N, 3) points the whole-task view must show: wire, post bases, PSM2's tip, m."""
+    wire = Wire(task_cfg.wire)
+    return np.vstack([wire.polyline(), wire.post_bases, np.asarray(task_cfg.instruments.psm2_tip)])
+
+
+def task_centre(task_cfg: TaskConfig) -> FloatArray:
+    """(3,) centre of the bounding box of the wire, its posts and PSM2's tip, world, m."""
+    pts = _task_points(task_cfg)
+    return np.asarray(0.5 * (pts.min(axis=0) + pts.max(axis=0)), dtype=float)
+
+
 def overview_camera_pose(
     task_cfg: TaskConfig,
     camera: StereoCamera,
@@ -537,9 +549,8 @@ def overview_camera_pose(
         raise ValueError(f"elevation must be in (0, π/2] rad, got {elevation}")
     if not 0.0 <= margin < 1.0:
         raise ValueError(f"margin must be in [0, 1), got {margin}")
-    wire = Wire(task_cfg.wire)
-    pts = np.vstack([wire.polyline(), wire.post_bases, np.asarray(task_cfg.instruments.psm2_tip)])
-    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    pts = _task_points(task_cfg)
+    centre = task_centre(task_cfg)
     z = np.array([0.0, math.cos(elevation), -math.sin(elevation)])
     x = np.array([1.0, 0.0, 0.0])
     y = np.cross(z, x)

@@ -249,13 +249,14 @@ class SceneConfig(BaseModel):
         (64, 16), description="Torus mesh resolution (around the core, around the tube), count."
     )
     rcm_position: Vec3 = Field(
-        (0.25, -0.05, 0.15),
+        (0.20, 0.0, 0.12),
         description="Camera arm's remote centre of motion (cone workspace tip) in world, m: "
-        "a port 0.15 m above the board, right of the task (+x), so the cone from it towards "
-        "the ring's start (the wire's left end) runs along the wire (see docs/world.md).",
+        "a port 0.12 m above the board, right of the task (+x), within the PSM-held camera's "
+        "0.30 m reach of the whole wire, so the cone from it towards the ring's start (the "
+        "wire's left end) runs along the wire (see docs/world.md).",
     )
     rcm_euler_xyz: Vec3 = Field(
-        (0.444, 1.135, 2.658),
+        (0.0, 1.2121, 3.1416),
         description="Orientation of the RCM frame in world, Tait-Bryan (α, β, γ), rad. The "
         "default aims the frame's −z axis (the shaft of a dVRK arm at mid-range yaw/pitch) from "
         "the default RCM at the task centre (0, 0, 45) mm, with y horizontal: the ECM's image "
