@@ -166,12 +166,18 @@ class Observation:
         Measured camera pose, optical frame, m.
     p_world_tips : (K, 3)
         Instrument tip positions in world, m.
+    p_world_reach_offset : (3,) or None
+        How far the actuator's target for the previous command lies from that command's
+        position, m (world): non-zero when an arm concedes a goal it cannot reach (the
+        nearest feasible view). The way-point planner measures the camera's progress against
+        where the actuator can put it; ``None``: the actuator reaches what it is sent.
     """
 
     t: float
     T_world_ring: FloatArray | None
     T_world_cam: FloatArray
     p_world_tips: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    p_world_reach_offset: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -382,8 +388,12 @@ class _MovingPolicy:
         cmd = goal
         if self._path is not None:
             self._path = self._path.with_goal(p_goal, UP, self._lift(p_goal_list))
+            p_progress = T_cam[:3, 3]
+            offset = obs.p_world_reach_offset
+            if offset is not None and all(map(math.isfinite, offset)):
+                p_progress = p_progress - np.asarray(offset, dtype=float)
             self._s = advance(
-                self._path, self._s, T_cam[:3, 3], cfg.planner_speed * ctx.dt, cfg.planner_lookahead
+                self._path, self._s, p_progress, cfg.planner_speed * ctx.dt, cfg.planner_lookahead
             )
             if self._s >= self._path.length - 1e-9:
                 self._path = None  # arrived: back to plain tracking

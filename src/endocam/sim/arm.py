@@ -114,6 +114,7 @@ class Approach(enum.Enum):
 
 
 VIEW_BISECTIONS = 7  # count: the conceded view angle is resolved to θ / 2⁷ (< 1.5° for θ ≤ π)
+VIEW_POSITION_TOL_M = 1e-6  # m: an ECM port view whose camera is this close counts as reached
 _EPS_AXIS = 1e-12  # unitless: a cross product shorter than this has no direction
 
 
@@ -321,11 +322,15 @@ class CameraArm:
         rotvec = _port_rotvec(T_world_goal, look_distance, self._p_world_rcm)
         if rotvec is not None:
             T_port = _turned(T_world_goal, look_distance, rotvec, 1.0)
-            q_port = self._exact(T_port)
+            if self.kind is ArmKind.ECM:
+                # the 4-DoF scope's only view of that point; a roll beyond its limits is
+                # conceded too (the horizon tilts), as long as the view itself is reached
+                port = self.model.solve_unchecked(self._tip_goal(T_port), self._q)
+                if port.position_error <= VIEW_POSITION_TOL_M:
+                    T_reached = self._T_world_rcm @ port.T_rcm_tip @ self._T_tip_cam
+                    return port.q.tolist(), T_reached, Approach.VIEW
+            q_port = None if self.kind is ArmKind.ECM else self._exact(T_port)
             if q_port is not None:
-                if self.kind is ArmKind.ECM:  # the 4-DoF scope's only view of that point
-                    exact = not np.any(rotvec)
-                    return q_port, T_port, Approach.EXACT if exact else Approach.VIEW
                 lo, hi, q_hi, T_hi = 0.0, 1.0, q_port, T_port
                 for _ in range(VIEW_BISECTIONS):
                     mid = 0.5 * (lo + hi)

@@ -224,9 +224,10 @@ def run_episode(
     joints = None if arm is None else np.empty((n, arm.model.n_joints))
     goal_err = None if arm is None else np.empty((n, 2))
     chunk = max(1, n // 100)
+    reach_offset: FloatArray | None = None
     for k in range(n):
         T_cam[k] = T_now
-        cmd = policy.step(Observation(float(t[k]), T_sensed[k], T_now, tips[k]))
+        cmd = policy.step(Observation(float(t[k]), T_sensed[k], T_now, tips[k], reach_offset))
         T_cmd[k] = cmd.T_world_cam
         d_f[k] = cmd.d_f
         state[k] = cmd.state.value
@@ -236,7 +237,8 @@ def run_episode(
         else:
             assert joints is not None and goal_err is not None
             joints[k] = arm.q
-            out = arm.step(cmd.T_world_cam, cmd.d_f)
+            out = arm.step(cmd.T_world_cam, _look_distance(cmd.T_world_cam, T_sensed[k], cmd.d_f))
+            reach_offset = out.T_world_target[:3, 3] - cmd.T_world_cam[:3, 3]
             goal_err[k] = (out.position_error, out.orientation_error)
             if not out.reachable and cmd.state not in _SAFETY_STATES:
                 state[k] = TrackingState.UNREACHABLE.value
@@ -281,6 +283,19 @@ def run_episode(
         center_error=center_error_3d(T_cam, T_ring[:, :3, 3]),
         orientation_error=orientation_error(T_cam, T_ring[:, :3, 2]),
     )
+
+
+_MIN_LOOK_M = 1e-3  # m: a ring closer than this along the optical axis gives no look-at point
+
+
+def _look_distance(T_world_cmd: FloatArray, T_world_ring: FloatArray, d_f: float) -> float:
+    """Depth of the (sensed) ring centre along a commanded optical axis, m; else ``d_f``.
+
+    The nearest feasible view of a command turns about the point the command looks at: the
+    ring centre for the tracking goal (at ``d_f``) and for the way-point poses (farther).
+    """
+    depth = float((T_world_ring[:3, 3] - T_world_cmd[:3, 3]) @ T_world_cmd[:3, 2])
+    return depth if depth > _MIN_LOOK_M and math.isfinite(depth) else d_f
 
 
 ARM_START_GAP = 0.08  # m: the arm's start view keeps the camera this far ahead of the port
