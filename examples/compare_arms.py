@@ -45,7 +45,7 @@ def main() -> None:
         results = [run_episode(config, spec) for spec in paper_specs(policy)]
         for kind in ("ideal", "noisy"):
             group = [r for r in results if r.spec.trajectory.value == kind]
-            img = np.mean([np.nanmean(r.image_error) for r in group])
+            img = np.mean([np.mean(r.image_error_saturated) for r in group])
             mm = 1e3 * np.mean([np.mean(r.center_error) for r in group])
             deg = math.degrees(np.mean([np.mean(r.orientation_error) for r in group]))
             fr = [state_fractions(r.log) for r in group]

@@ -105,3 +105,17 @@ def test_stereo_eyes_and_projection() -> None:
         CAM.project(IDENTITY, p, "middle")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="baseline"):
         StereoCamera(baseline=-1.0)
+
+
+def test_saturated_image_error_counts_a_lost_ring_as_the_worst_in_view_error() -> None:
+    from endocam.metrics import image_error_bound, saturate_image_error
+
+    k = CAM.intrinsics
+    bound = image_error_bound(CAM)
+    assert bound == pytest.approx(math.hypot(k.width / 2, k.height / 2), abs=ATOL_PX)
+    raw = np.array([0.0, 12.5, bound - 1.0, bound + 1.0, 1e9, np.nan, np.inf])
+    got = saturate_image_error(CAM, raw)
+    np.testing.assert_array_equal(got, [0.0, 12.5, bound - 1.0, bound, bound, bound, bound])
+    # a ring behind the camera: raw NaN, saturated to the bound
+    behind = image_centering_error(CAM, IDENTITY, np.array([0.0, 0.0, -0.1]))
+    assert saturate_image_error(CAM, behind)[0] == bound

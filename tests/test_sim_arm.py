@@ -210,8 +210,9 @@ def test_psm_concedes_the_smallest_view_angle_it_can_reach():
         _assert_looks_at_same_point(T_target, goal, LOOK_DISTANCE_M)
         # the turn is towards the port, and a turn one bisection step smaller is unreachable
         assert _port_view_angle(T_target, p_rcm) < _port_view_angle(goal, p_rcm)
-        total = _port_view_angle(goal, p_rcm)
-        smaller = _turned_by(goal, p_rcm, _concession(T_target, goal) - total / 2**VIEW_BISECTIONS)
+        # the view angle to the port falls linearly along the turn: (1 - fraction) · total
+        fraction = 1.0 - _port_view_angle(T_target, p_rcm) / _port_view_angle(goal, p_rcm)
+        smaller = view_towards_port(goal, LOOK_DISTANCE_M, p_rcm, fraction - 2.0**-VIEW_BISECTIONS)
         assert (
             arm.model.exact_unchecked(
                 invert_pose(arm.T_world_rcm) @ smaller @ invert_pose(arm.T_tip_cam), arm.q
@@ -219,16 +220,6 @@ def test_psm_concedes_the_smallest_view_angle_it_can_reach():
             is None
         )
     assert conceded >= N_VIEW_CASES // 10  # the cases exercised the view search
-
-
-def _concession(T_target: np.ndarray, T_goal: np.ndarray) -> float:
-    c = 0.5 * (np.trace(T_target[:3, :3].T @ T_goal[:3, :3]) - 1.0)
-    return math.acos(np.clip(c, -1.0, 1.0))
-
-
-def _turned_by(T_goal: np.ndarray, p_rcm: np.ndarray, angle: float) -> np.ndarray:
-    total = _port_view_angle(T_goal, p_rcm)
-    return view_towards_port(T_goal, LOOK_DISTANCE_M, p_rcm, max(angle, 0.0) / total)
 
 
 def test_view_towards_port_ends_on_the_port_axis():
@@ -246,6 +237,9 @@ def test_view_towards_port_ends_on_the_port_axis():
         assert _port_view_angle(half, p_rcm) == pytest.approx(
             0.5 * _port_view_angle(goal, p_rcm), abs=1e-9
         )
+        # the horizon stays level (image x horizontal) wherever it is defined
+        if abs(half[2, 2]) < math.cos(math.radians(30.0)):
+            assert abs(half[2, 0]) <= 1e-9
 
 
 def test_unreachable_goal_is_approached_and_reported():

@@ -1,7 +1,8 @@
 """Tracking metrics of the paper (Sec. IV-C), vectorised over time.
 
 * image centring error: pixel distance of the projected ring centre from the left eye's principal
-  point;
+  point (raw per frame: NaN behind the camera, unbounded near its image plane; summaries use
+  :func:`saturate_image_error`, which counts a ring out of view as the image's largest error);
 * 3D centring error: distance from the ring centre to the camera's optical axis (the line through
   the camera centre along its z axis);
 * orientation error: the acute angle between the optical axis and the ring normal (the ring
@@ -61,6 +62,35 @@ def image_centering_error(
         err = np.hypot(du, dv)
     err[~(z > 0)] = np.nan
     return np.asarray(err)
+
+
+def image_error_bound(camera: StereoCamera) -> float:
+    """The largest in-image centring error: principal point to the farthest image corner, px."""
+    k = camera.intrinsics
+    return math.hypot(max(k.cx, k.width - k.cx), max(k.cy, k.height - k.cy))
+
+
+def saturate_image_error(camera: StereoCamera, error_px: FloatArray) -> FloatArray:
+    """Image centring errors (N,) with a ring out of view counted as :func:`image_error_bound`.
+
+    A ring centre behind the camera (NaN) or projecting beyond the farthest image corner
+    gets the bound, so a lost ring weighs as the worst in-view error: a mean over the episode
+    neither skips it (NaN) nor explodes (a ring near the image plane projects to any number).
+
+    Parameters
+    ----------
+    camera : StereoCamera
+    error_px : (N,)
+        Raw errors from :func:`image_centering_error`, px.
+
+    Returns
+    -------
+    (N,)
+        Errors in ``[0, bound]``, px.
+    """
+    bound = image_error_bound(camera)
+    err = np.asarray(error_px, dtype=float)
+    return np.where(np.isfinite(err) & (err < bound), err, bound)
 
 
 def center_error_3d(T_world_cam: FloatArray, p_world_ring: FloatArray) -> FloatArray:

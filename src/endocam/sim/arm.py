@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from endocam.control.goal import look_at_unchecked
 from endocam.geometry import FloatArray, as_pose, invert_pose
 from endocam.robot import ECM, PSM, RcmArm, SimulatedArm
 from endocam.robot.dh import compose_links, pose12_from_matrix, pose12_times, pose12_to_matrix
@@ -156,12 +157,14 @@ class ArmStep:
 def view_towards_port(
     T_world_cam: FloatArray, look_distance: float, p_world_rcm: FloatArray, fraction: float
 ) -> FloatArray:
-    """A camera pose turned about the point it looks at, towards the view from the port.
+    """A camera pose moved about the point it looks at, towards the view from the port.
 
     The camera keeps looking at ``c = p + look_distance · z`` from ``look_distance``; its
-    rotation is turned by ``fraction`` of the smallest rotation that takes its optical axis
-    ``z`` onto ``(c − p_rcm) / |c − p_rcm|``. ``fraction = 1`` is the port view, whose optical
-    axis passes through the RCM (the view any RCM arm can take at a reachable distance).
+    optical axis is turned by ``fraction`` of the smallest rotation that takes ``z`` onto
+    ``(c − p_rcm) / |c − p_rcm|``, and its horizon is levelled again (the roll of ``T`` is kept
+    only where the view is near vertical, as in :func:`~endocam.control.goal.look_at_pose`).
+    ``fraction = 1`` is the port view, whose optical axis passes through the RCM (the view any
+    RCM arm can take at a reachable distance).
 
     Parameters
     ----------
@@ -203,12 +206,13 @@ def _port_rotvec(T: FloatArray, d: float, p_rcm: FloatArray) -> FloatArray | Non
 
 
 def _turned(T: FloatArray, d: float, rotvec: FloatArray, fraction: float) -> FloatArray:
-    R_turn = np.array(so3_exp((fraction * rotvec).tolist()))
-    out = np.array(T, dtype=float)
+    """``T`` moved about its look-at point by ``fraction`` of ``rotvec``, horizon re-levelled."""
+    R_turn = so3_exp((fraction * rotvec).tolist())
+    z = T[:3, 2].tolist()
+    z_t = [R_turn[i][0] * z[0] + R_turn[i][1] * z[1] + R_turn[i][2] * z[2] for i in range(3)]
     c = T[:3, 3] + d * T[:3, 2]
-    out[:3, :3] = R_turn @ T[:3, :3]
-    out[:3, 3] = c - d * out[:3, 2]
-    return out
+    p_t = c - d * np.array(z_t)
+    return look_at_unchecked(p_t, c, T, T)
 
 
 class CameraArm:

@@ -127,7 +127,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=["free", "psm", "ecm"],
         default=None,
         help="what carries the camera: free (Cartesian limits only), psm or ecm (dVRK "
-        "kinematics, IK and joint limits); default: the config's episode.arm (free). "
+        "kinematics, IK and joint limits); default: the config's episode.arm (psm). "
         "orientation-ecm always uses the ECM",
     )
     p.add_argument("--config", help="TOML or YAML config file (see `endocam config`)")

@@ -26,7 +26,12 @@ from endocam.control.policies import (
     make_policy,
 )
 from endocam.geometry import FloatArray
-from endocam.metrics import center_error_3d, image_centering_error, orientation_error
+from endocam.metrics import (
+    center_error_3d,
+    image_centering_error,
+    orientation_error,
+    saturate_image_error,
+)
 from endocam.sim.arm import Approach, ArmKind, ArmStep, CameraArm
 from endocam.sim.motion import CartesianLimiter
 from endocam.sim.scene import overview_camera_pose, psm1_tip_in_ring, task_centre
@@ -130,6 +135,8 @@ class EpisodeResult:
 
     The errors are measured against the *true* ring pose, in SI: ``image_error`` px (the only
     non-SI quantity, pixels having no SI unit), ``center_error`` m, ``orientation_error`` rad.
+    ``image_error`` is raw (NaN behind the camera); summaries use
+    :attr:`image_error_saturated`.
     """
 
     config: ExperimentConfig
@@ -143,6 +150,11 @@ class EpisodeResult:
     image_error: FloatArray = field(repr=False)
     center_error: FloatArray = field(repr=False)
     orientation_error: FloatArray = field(repr=False)
+
+    @property
+    def image_error_saturated(self) -> FloatArray:
+        """(N,) image errors, px, a ring out of view counted as the largest in-image error."""
+        return saturate_image_error(self.camera, self.image_error)
 
 
 def contact_at(touches: TouchReport, t: FloatArray) -> np.ndarray:

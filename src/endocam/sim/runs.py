@@ -249,7 +249,7 @@ def run_paper_experiment(
     table_rows: list[dict[str, Any]] = []
     for kind in ("ideal", "noisy"):
         group = [r for r in results if r.spec.trajectory.value == kind]
-        img = float(np.mean([np.nanmean(r.image_error) for r in group]))
+        img = float(np.mean([np.mean(r.image_error_saturated) for r in group]))
         mm = float(np.mean([np.mean(r.center_error) for r in group])) * 1e3
         deg = float(np.degrees(np.mean([np.mean(r.orientation_error) for r in group])))
         frozen = float(np.mean([np.mean(r.log.state == "frozen_outside_cone") for r in group]))
