@@ -16,19 +16,22 @@ from endocam.sim.episode import EpisodeSpec, run_episode
 from endocam.sim.runs import ground_truth
 from endocam.task.trajectory import TrajectoryKind
 
-CFG = ExperimentConfig()  # 60 s episodes at 100 Hz
+CFG = ExperimentConfig()  # 60 s episodes at 100 Hz, the camera on the PSM (the default)
+ARMS = ("free", "psm")  # the free camera (Cartesian limiter) and the default PSM (IK + ruckig)
 
 
+@pytest.mark.parametrize("arm", ARMS)
 @pytest.mark.parametrize("policy", ["fixed", "centering", "orientation"])
-def test_episode_loop(benchmark, policy: str) -> None:
-    touches = ground_truth(CFG, TrajectoryKind.NOISY, 71, 1)
+def test_episode_loop(benchmark, policy: str, arm: str) -> None:
+    cfg = CFG.model_copy(update={"episode": CFG.episode.model_copy(update={"arm": arm})})
+    touches = ground_truth(cfg, TrajectoryKind.NOISY, 71, 1)
     spec = EpisodeSpec(policy, TrajectoryKind.NOISY, 71, 1)
     result = benchmark.pedantic(
-        run_episode, args=(CFG, spec), kwargs={"touches": touches}, rounds=5, iterations=1
+        run_episode, args=(cfg, spec), kwargs={"touches": touches}, rounds=5, iterations=1
     )
     median = benchmark.stats.stats.median
     benchmark.extra_info["sim_seconds_per_wall_second"] = result.trajectory.duration / median
-    print(f"\n{policy}: {result.trajectory.duration / median:.0f}x real time")
+    print(f"\n{policy} ({arm}): {result.trajectory.duration / median:.0f}x real time")
 
 
 def test_episode_with_touch_detection(benchmark) -> None:

@@ -3,8 +3,11 @@
 Runs ``orientation`` (free camera and PSM) and ``orientation-ecm`` (ECM) on the six episodes of
 ``endocam experiment paper`` (3 ideal trajectories with 36/54/71 control points, 3 noisy
 71-point trajectories, seeds 1-3) and prints a Markdown table of the means: image centring
-error (px), 3D centring error (mm), orientation error (deg), and the fraction of control steps
-the arm could not reach the goal (``unreachable``) or the goal left the cone (``frozen``).
+error (px, a ring out of view counted as the farthest image corner), 3D centring error (mm),
+orientation error (deg), the view the arm conceded (deg: the angle between the goal and the
+nearest feasible view, averaged over all steps), the share of steps with the ring out of view,
+and the fraction of control steps the arm could not reach the goal (``unreachable``) or the
+goal left the cone (``frozen``).
 
 Usage::
 
@@ -19,7 +22,8 @@ import math
 import numpy as np
 
 from endocam.config import ExperimentConfig
-from endocam.sim.episode import run_episode, state_fractions
+from endocam.metrics import image_error_bound
+from endocam.sim.episode import EpisodeResult, run_episode, state_fractions
 from endocam.sim.runs import paper_specs
 
 ROWS = {
@@ -29,6 +33,11 @@ ROWS = {
 }
 
 
+def bound(result: EpisodeResult) -> float:
+    """The saturated image error that marks a ring out of view, px."""
+    return image_error_bound(result.camera)
+
+
 def main() -> None:
     """Run the comparison and print the table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -36,9 +45,9 @@ def main() -> None:
     args = parser.parse_args()
     print(
         "| camera | trajectories | image error (px) | 3D error (mm) | orientation error (deg) "
-        "| unreachable | frozen |"
+        "| view conceded (deg) | ring out of view | unreachable | frozen |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for arm in args.arms:
         policy, episode_arm = ROWS[arm]
         config = ExperimentConfig.model_validate({"episode": {"arm": episode_arm}})
@@ -48,12 +57,15 @@ def main() -> None:
             img = np.mean([np.mean(r.image_error_saturated) for r in group])
             mm = 1e3 * np.mean([np.mean(r.center_error) for r in group])
             deg = math.degrees(np.mean([np.mean(r.orientation_error) for r in group]))
+            conceded = [r.log.goal_orientation_error for r in group]
+            ceded = "–" if conceded[0] is None else f"{math.degrees(np.mean(conceded)):.1f}"
+            out = 100 * np.mean([r.image_error_saturated >= bound(r) for r in group])
             fr = [state_fractions(r.log) for r in group]
             unreach = 100 * np.mean([f["unreachable"] for f in fr])
             frozen = 100 * np.mean([f["frozen_outside_cone"] for f in fr])
             print(
-                f"| {arm} ({policy}) | {kind} | {img:.0f} | {mm:.1f} | {deg:.1f} | "
-                f"{unreach:.0f} % | {frozen:.0f} % |",
+                f"| {arm} ({policy}) | {kind} | {img:.0f} | {mm:.1f} | {deg:.1f} | {ceded} | "
+                f"{out:.1f} % | {unreach:.0f} % | {frozen:.0f} % |",
                 flush=True,
             )
 

@@ -9,9 +9,9 @@
    view nearest to it that still looks at the same point: the camera is turned about the
    point it looks at (``look_distance`` ahead on its optical axis, the policy's working
    distance) towards the view straight from the port, by the smallest angle the arm can
-   deliver (:func:`view_towards_port`, bisection on that angle). The feature stays centred
-   at the working distance; only the view direction is conceded, and the step is flagged
-   ``reachable = False`` with the conceded angle. For the ECM, whose optical axis always passes
+   deliver (:func:`view_towards_port`; a search over that angle, warm-started from the last
+   step). The feature stays centred at the working distance; only the view direction is
+   conceded, and the step is flagged ``reachable = False`` with the conceded angle. For the ECM, whose optical axis always passes
    through its RCM, that view is the port view itself. If even the port view is out of reach
    (the point is beyond the insertion stroke), the arm approaches the nearest feasible
    configuration of the goal (bounded least squares).
@@ -115,6 +115,7 @@ class Approach(enum.Enum):
 
 
 VIEW_BISECTIONS = 7  # count: the conceded view angle is resolved to θ / 2⁷ (< 1.5° for θ ≤ π)
+VIEW_STEPS = 2**VIEW_BISECTIONS  # count: the turn towards the port view is searched in these steps
 VIEW_POSITION_TOL_M = 1e-6  # m: an ECM port view whose camera is this close counts as reached
 _EPS_AXIS = 1e-12  # unitless: a cross product shorter than this has no direction
 
@@ -247,6 +248,7 @@ class CameraArm:
         self._arm = SimulatedArm(self.model, dt=dt, q0=natural_pose(self.model))
         self._q = self._arm.measured_js()[0]
         self._T_cam = self.camera_pose(self._q)
+        self._k_prev: int | None = None  # the last conceded turn, in VIEW_STEPS (warm start)
 
     # ------------------------------------------------------------------ frames
     @property
@@ -322,32 +324,76 @@ class CameraArm:
         """
         q = self._exact(T_world_goal)
         if q is not None:
+            self._k_prev = None
             return q, T_world_goal, Approach.EXACT
         rotvec = _port_rotvec(T_world_goal, look_distance, self._p_world_rcm)
         if rotvec is not None:
-            T_port = _turned(T_world_goal, look_distance, rotvec, 1.0)
             if self.kind is ArmKind.ECM:
                 # the 4-DoF scope's only view of that point; a roll beyond its limits is
                 # conceded too (the horizon tilts), as long as the view itself is reached
+                T_port = _turned(T_world_goal, look_distance, rotvec, 1.0)
                 port = self.model.solve_unchecked(self._tip_goal(T_port), self._q)
                 if port.position_error <= VIEW_POSITION_TOL_M:
                     T_reached = self._T_world_rcm @ port.T_rcm_tip @ self._T_tip_cam
                     return port.q.tolist(), T_reached, Approach.VIEW
-            q_port = None if self.kind is ArmKind.ECM else self._exact(T_port)
-            if q_port is not None:
-                lo, hi, q_hi, T_hi = 0.0, 1.0, q_port, T_port
-                for _ in range(VIEW_BISECTIONS):
-                    mid = 0.5 * (lo + hi)
-                    T_mid = _turned(T_world_goal, look_distance, rotvec, mid)
-                    q_mid = self._exact(T_mid)
-                    if q_mid is None:
-                        lo = mid
-                    else:
-                        hi, q_hi, T_hi = mid, q_mid, T_mid
-                return q_hi, T_hi, Approach.VIEW
+            else:
+                found = self._view_search(T_world_goal, look_distance, rotvec)
+                if found is not None:
+                    return found[0], found[1], Approach.VIEW
+        self._k_prev = None
         result = self.model.solve_unchecked(self._tip_goal(T_world_goal), self._q)
         T_near = self._T_world_rcm @ result.T_rcm_tip @ self._T_tip_cam
         return result.q.tolist(), T_near, Approach.NEAREST
+
+    def _view_search(
+        self, T_goal: FloatArray, d: float, rotvec: FloatArray
+    ) -> tuple[list[float], FloatArray] | None:
+        """Smallest reachable turn ``k / VIEW_STEPS`` towards the port view (k in 1…VIEW_STEPS).
+
+        Reachability is taken to grow along the turn (the port view, k = VIEW_STEPS, is the
+        easiest). Cold, it bisects over k (``VIEW_BISECTIONS`` solves after the port view);
+        warm (the previous step conceded too), it starts at the previous k and gallops towards
+        the boundary, so a boundary that moves little costs two or three solves.
+        """
+        cache: dict[int, tuple[list[float], FloatArray] | None] = {}
+
+        def reach(k: int) -> tuple[list[float], FloatArray] | None:
+            if k not in cache:
+                T = _turned(T_goal, d, rotvec, k / VIEW_STEPS)
+                q = self._exact(T)
+                cache[k] = None if q is None else (q, T)
+            return cache[k]
+
+        guess = self._k_prev
+        if guess is None:
+            if reach(VIEW_STEPS) is None:
+                return None
+            lo, hi = 0, VIEW_STEPS
+        elif reach(guess) is not None:  # gallop down towards the goal
+            hi, step = guess, 1
+            while True:
+                lo = max(hi - step, 0)
+                if lo == 0 or reach(lo) is None:
+                    break
+                hi, step = lo, 2 * step
+        else:  # gallop up towards the port view
+            lo, step = guess, 1
+            while True:
+                hi = min(lo + step, VIEW_STEPS)
+                if reach(hi) is not None:
+                    break
+                if hi == VIEW_STEPS:
+                    self._k_prev = None
+                    return None
+                lo, step = hi, 2 * step
+        while hi - lo > 1:  # reach(lo) is None (k = 0 is the goal itself), reach(hi) is not
+            mid = (lo + hi) // 2
+            if reach(mid) is None:
+                lo = mid
+            else:
+                hi = mid
+        self._k_prev = hi
+        return reach(hi)
 
     def reset(self, T_world_cam: object, look_distance: float | None = None) -> FloatArray:
         """Place the arm, at rest, at the configuration nearest to a camera pose.
@@ -370,6 +416,7 @@ class CameraArm:
             The initial camera pose actually taken, ``FK(q0)``, m.
         """
         T = as_pose(np.asarray(T_world_cam, dtype=float), "T_world_cam")
+        self._k_prev = None
         if look_distance is None:
             look_distance = max(float(np.linalg.norm(T[:3, 3] - self._p_world_rcm)), 1e-3)
         self._q = natural_pose(self.model)

@@ -162,8 +162,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     ep.add_argument(
         "--arm",
         choices=["free", "psm", "ecm"],
-        default=None,
-        help="what carries the camera (default: the config's episode.arm)",
+        default="free",
+        help="what carries the camera (default free: the paper's simulated 6-DoF endoscope, "
+        "Cartesian limits only; psm or ecm: through that dVRK arm)",
     )
     ep.add_argument("--config", help="TOML or YAML config file")
     ep.set_defaults(handler=_experiment)

@@ -158,7 +158,11 @@ def episode_columns(result: EpisodeResult) -> dict[str, np.ndarray]:
     if log.joints is not None:
         for j, name in enumerate(log.joint_names):
             cols[f"q_{name}"] = log.joints[:, j]
-    cols["image_error_px"] = result.image_error
+    if log.goal_position_error is not None and log.goal_orientation_error is not None:
+        # how far the pose the arm heads for lies from the commanded goal (0: reached exactly)
+        cols["goal_conceded_mm"] = log.goal_position_error * 1e3
+        cols["goal_conceded_deg"] = np.degrees(log.goal_orientation_error)
+    cols["image_error_px"] = result.image_error  # raw: NaN behind the camera
     cols["center_error_mm"] = result.center_error * 1e3
     cols["orientation_error_deg"] = np.degrees(result.orientation_error)
     cols["reason"] = np.array(log.reason, dtype=object)
@@ -276,7 +280,7 @@ def plot_tracking(results: Sequence[EpisodeResult], labels: Sequence[str], path:
     FigureCanvasAgg(fig)
     axes = fig.subplots(3, 1, sharex=True)
     series = [
-        ("image_error", 1.0, "Image centring error (px)"),
+        ("image_error_saturated", 1.0, "Image centring error (px; out of view = corner)"),
         ("center_error", 1e3, "3D centring error (mm)"),
         ("orientation_error", math.degrees(1.0), "Orientation error (deg)"),
     ]
