@@ -11,10 +11,10 @@
    distance) towards the view straight from the port, by the smallest angle the arm can
    deliver (:func:`view_towards_port`; a search over that angle, warm-started from the last
    step). The feature stays centred at the working distance; only the view direction is
-   conceded, and the step is flagged ``reachable = False`` with the conceded angle. For the ECM, whose optical axis always passes
-   through its RCM, that view is the port view itself. If even the port view is out of reach
-   (the point is beyond the insertion stroke), the arm approaches the nearest feasible
-   configuration of the goal (bounded least squares).
+   conceded, and the step is flagged ``reachable = False`` with the conceded angle. For the
+   ECM, whose optical axis always passes through its RCM, that view is the port view itself.
+   If even the port view is out of reach (the point is beyond the insertion stroke), the arm
+   approaches the nearest feasible configuration of the goal (bounded least squares).
 3. **Joint motion.** :class:`~endocam.robot.arm.SimulatedArm` moves the joints towards the
    target for one control period under ruckig's joint velocity and acceleration limits, never
    beyond the joint limits. The camera's speed is therefore bounded by the arm's joint
