@@ -300,3 +300,14 @@ def test_bad_mount_rejected():
         CameraArm(ArmKind.PSM, cfg.task.scene.T_world_rcm, np.zeros((4, 4)), 0.01)
     with pytest.raises(ValueError, match="kind"):
         CameraArm(ArmKind.FREE, np.eye(4), np.eye(4), 0.01)
+
+
+def test_goal_looking_at_the_port_itself_is_handled():
+    # the look-at point is the RCM: no port view exists (no direction), the arm falls back to
+    # the nearest feasible configuration, within limits, finite, and says so
+    arm = _psm_arm()
+    p_rcm = arm.T_world_rcm[:3, 3]
+    goal = _look_from(p_rcm + np.array([0.0, -LOOK_DISTANCE_M, 0.0]), np.array([0.0, 1.0, 0.0]))
+    out = arm.step(goal, LOOK_DISTANCE_M)
+    assert not out.reachable and out.approach is Approach.NEAREST
+    assert np.all(np.isfinite(out.T_world_cam)) and arm.model.within_limits(out.q)
