@@ -276,6 +276,10 @@ class SimulatedArm:
         """Joint positions and velocities, each (n,), rad(/s) or m(/s) (copies)."""
         return self._q.copy(), self._qd.copy()
 
+    def measured_jp(self) -> FloatArray:
+        """Joint positions, (n,), rad / m (a copy; CRTK's position-only ``measured_jp``)."""
+        return self._q.copy()
+
     def measured_ja(self) -> FloatArray:
         """Joint accelerations, (n,), rad/s² or m/s² (simulation only)."""
         return self._qdd.copy()

@@ -127,9 +127,9 @@ class ArmStep:
     Attributes
     ----------
     T_world_cam : (4, 4) ndarray
-        Camera pose after the step, ``FK(q)`` in world, optical frame, m.
+        Camera pose after the step, ``FK(q)`` in world, optical frame, m (read-only).
     q : (n,) ndarray
-        Measured joint positions after the step, rad / m.
+        Measured joint positions after the step, rad / m (read-only).
     T_world_target : (4, 4) ndarray
         The camera pose the joints head for: the goal, or what :class:`Approach` put in its
         place, m.
@@ -443,8 +443,7 @@ class CameraArm:
         -------
         ArmStep
         """
-        finite = all(map(math.isfinite, np.ravel(T_world_cmd).tolist()))
-        T_goal = T_world_cmd if finite else self._T_cam
+        T_goal = T_world_cmd if bool(np.isfinite(T_world_cmd).all()) else self._T_cam
         if not (math.isfinite(look_distance) and look_distance > 0.0):
             look_distance = max(float(np.linalg.norm(T_goal[:3, 3] - self._p_world_rcm)), 1e-3)
         q_cmd, T_target, approach = self.target(T_goal, look_distance)
@@ -458,11 +457,13 @@ class CameraArm:
         )
         self._arm.servo_jp(q_cmd)
         self._arm.step()
-        self._q = self._arm.measured_js()[0]
+        self._q = self._arm.measured_jp()
         self._T_cam = self._camera_pose(self._q.tolist())
+        self._q.setflags(write=False)  # handed out below without a copy
+        self._T_cam.setflags(write=False)
         return ArmStep(
-            self._T_cam.copy(),
-            self._q.copy(),
+            self._T_cam,
+            self._q,
             T_target,
             approach,
             pos_err,
