@@ -82,3 +82,18 @@ def test_servo_jp_fast_path_validates_and_clamps():
     assert arm.servo_jp(q).value == "clamped_to_limits"
     np.testing.assert_array_equal(arm.setpoint_js(), arm.model.upper)
     assert arm.servo_jp(tuple(natural_pose(arm.model))).value == "ok"
+
+
+def test_held_goal_is_solved_once(monkeypatch: pytest.MonkeyPatch):
+    arm = _arm(ArmKind.PSM)
+    goal = arm.camera_pose(natural_pose(arm.model) + 0.05)
+    calls = []
+    solve = arm.target
+    monkeypatch.setattr(arm, "target", lambda T, d: calls.append(1) or solve(T, d))
+    outs = [arm.step(goal, LOOK_DISTANCE_M) for _ in range(HOLD_STEPS)]
+    assert len(calls) == 1
+    np.testing.assert_allclose(outs[-1].T_world_cam, goal, atol=IK_ATOL)
+    moved = goal.copy()
+    moved[0, 3] += 1e-3  # a new goal is solved again
+    arm.step(moved, LOOK_DISTANCE_M)
+    assert len(calls) == 2

@@ -249,6 +249,8 @@ class CameraArm:
         self._q = self._arm.measured_js()[0]
         self._T_cam = self.camera_pose(self._q)
         self._k_prev: int | None = None  # the last conceded turn, in VIEW_STEPS (warm start)
+        self._last_key: tuple[bytes, float] | None = None  # the last goal and look distance
+        self._last_target: tuple[list[float], FloatArray, Approach] | None = None
 
     # ------------------------------------------------------------------ frames
     @property
@@ -417,6 +419,7 @@ class CameraArm:
         """
         T = as_pose(np.asarray(T_world_cam, dtype=float), "T_world_cam")
         self._k_prev = None
+        self._last_key = self._last_target = None
         if look_distance is None:
             look_distance = max(float(np.linalg.norm(T[:3, 3] - self._p_world_rcm)), 1e-3)
         self._q = natural_pose(self.model)
@@ -442,11 +445,21 @@ class CameraArm:
         Returns
         -------
         ArmStep
+
+        Notes
+        -----
+        A goal (and look distance) identical to the last step's reuses its joint target: a held
+        camera (``fixed``, frozen, lost tracking) costs no IK.
         """
         T_goal = T_world_cmd if bool(np.isfinite(T_world_cmd).all()) else self._T_cam
         if not (math.isfinite(look_distance) and look_distance > 0.0):
             look_distance = max(float(np.linalg.norm(T_goal[:3, 3] - self._p_world_rcm)), 1e-3)
-        q_cmd, T_target, approach = self.target(T_goal, look_distance)
+        key = (T_goal.tobytes(), look_distance)
+        if key == self._last_key and self._last_target is not None:
+            q_cmd, T_target, approach = self._last_target  # a held goal: same answer
+        else:
+            q_cmd, T_target, approach = self.target(T_goal, look_distance)
+            self._last_key, self._last_target = key, (q_cmd, T_target, approach)
         if approach is Approach.EXACT:
             pos_err = ang_err = 0.0
         else:
