@@ -4,9 +4,9 @@ Run: ``.venv/bin/pytest bench/bench_arm_step.py --benchmark-enable -o addopts=""
 
 Each control step is one IK (closed form), one ruckig joint-limited step and FK. The
 ``full_control_step`` benchmarks hold one reachable goal; the ``moving_goal`` ones move it every
-step along a closed joint-space path; ``unreachable_goal`` asks for a view the wrist cannot
-bend to, so the step also searches the nearest feasible view (bisection, ``VIEW_BISECTIONS``
-extra IK solves).
+step along a closed joint-space path; ``unreachable_goal`` asks for views the wrist cannot
+bend to, moving every step, so each step also searches the nearest feasible view (warm-started
+from the last step's). A held goal reuses its joint target (no IK).
 """
 
 from __future__ import annotations
@@ -99,15 +99,31 @@ def test_ecm_full_control_step_moving_goal(benchmark: BenchmarkFixture) -> None:
     assert out.reachable
 
 
-def test_psm_full_control_step_unreachable_goal(benchmark: BenchmarkFixture) -> None:
-    """A step whose goal needs more wrist bend than ±80°: IK fails, the view search runs."""
-    arm = _arm(ArmKind.PSM)
+def _side_views(arm: CameraArm) -> list[np.ndarray]:
+    """Views of one point from ~90° beside the mid-range camera, swaying ±5° (a closed cycle)."""
     T = arm.camera_pose(natural_pose(arm.model))
     c = T[:3, 3] + LOOK_DISTANCE_M * T[:3, 2]
-    goal = T.copy()
-    goal[:3, :3] = T[:3, :3] @ np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
-    goal[:3, 3] = c - LOOK_DISTANCE_M * goal[:3, 2]  # same point, seen from 90° to the side
-    out = benchmark(arm.step, goal, LOOK_DISTANCE_M)
+    goals = []
+    for k in range(MOVING_GOALS):
+        a = math.radians(90.0 + 5.0 * math.sin(2.0 * math.pi * k / MOVING_GOALS))
+        R_side = np.array(
+            [[math.cos(a), 0.0, math.sin(a)], [0.0, 1.0, 0.0], [-math.sin(a), 0.0, math.cos(a)]]
+        )
+        goal = T.copy()
+        goal[:3, :3] = T[:3, :3] @ R_side
+        goal[:3, 3] = c - LOOK_DISTANCE_M * goal[:3, 2]  # the same point, seen from the side
+        goals.append(goal)
+    return goals
+
+
+def test_psm_full_control_step_unreachable_goal(benchmark: BenchmarkFixture) -> None:
+    """A goal that needs more wrist bend than ±80°, moving every step: the view search runs
+    each step, warm-started from the last one."""
+    arm = _arm(ArmKind.PSM)
+    goals = itertools.cycle(_side_views(arm))
+    for _ in range(MOVING_GOALS):
+        arm.step(next(goals), LOOK_DISTANCE_M)
+    out = benchmark(lambda: arm.step(next(goals), LOOK_DISTANCE_M))
     assert out.approach is Approach.VIEW
 
 
