@@ -63,7 +63,7 @@ def test_psm_camera_ik(benchmark: BenchmarkFixture) -> None:
 
 
 def test_psm_full_control_step(benchmark: BenchmarkFixture) -> None:
-    """One runner step: goal IK, Cartesian limiter (ruckig), IK, joint ruckig step, FK."""
+    """One runner step towards a held goal: its joint target is reused (no IK), ruckig, FK."""
     arm = _arm(ArmKind.PSM)
     goal = _reachable_goal(arm)
     out = benchmark(arm.step, goal, LOOK_DISTANCE_M)

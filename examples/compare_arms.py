@@ -22,8 +22,7 @@ import math
 import numpy as np
 
 from endocam.config import ExperimentConfig
-from endocam.metrics import image_error_bound
-from endocam.sim.episode import EpisodeResult, run_episode, state_fractions
+from endocam.sim.episode import run_episode, state_fractions
 from endocam.sim.runs import paper_specs
 
 ROWS = {
@@ -31,11 +30,6 @@ ROWS = {
     "psm": ("orientation", "psm"),
     "ecm": ("orientation-ecm", "free"),
 }
-
-
-def bound(result: EpisodeResult) -> float:
-    """The saturated image error that marks a ring out of view, px."""
-    return image_error_bound(result.camera)
 
 
 def main() -> None:
@@ -59,7 +53,7 @@ def main() -> None:
             deg = math.degrees(np.mean([np.mean(r.orientation_error) for r in group]))
             conceded = [r.log.goal_orientation_error for r in group]
             ceded = "–" if conceded[0] is None else f"{math.degrees(np.mean(conceded)):.1f}"
-            out = 100 * np.mean([r.image_error_saturated >= bound(r) for r in group])
+            out = 100 * np.mean([np.mean(r.ring_out_of_view) for r in group])
             fr = [state_fractions(r.log) for r in group]
             unreach = 100 * np.mean([f["unreachable"] for f in fr])
             frozen = 100 * np.mean([f["frozen_outside_cone"] for f in fr])

@@ -119,3 +119,31 @@ def test_saturated_image_error_counts_a_lost_ring_as_the_worst_in_view_error() -
     # a ring behind the camera: raw NaN, saturated to the bound
     behind = image_centering_error(CAM, IDENTITY, np.array([0.0, 0.0, -0.1]))
     assert saturate_image_error(CAM, behind)[0] == bound
+
+
+def test_ring_out_of_view_is_outside_the_image_not_only_beyond_the_corner() -> None:
+    from endocam.metrics import ring_out_of_view, saturate_image_error
+
+    k = CAM.intrinsics
+    depth = 0.1  # m
+    x_left_eye = -0.5 * CAM.baseline  # the left eye sits half a baseline to the left
+
+    def at_pixel(u: float, v: float) -> np.ndarray:
+        return np.array([x_left_eye + (u - k.cx) * depth / k.fx, (v - k.cy) * depth / k.fy, depth])
+
+    inside, beyond_edge = at_pixel(k.width - 10.0, k.cy), at_pixel(k.width + 10.0, k.cy)
+    behind = np.array([0.0, 0.0, -0.1])
+    out = [ring_out_of_view(CAM, IDENTITY, p)[0] for p in (inside, beyond_edge, behind)]
+    assert out == [False, True, True]
+    # just past the right edge the raw error (330 px) is below the corner bound (400 px),
+    # but the saturated error counts the ring as lost
+    raw = image_centering_error(CAM, IDENTITY, beyond_edge)
+    assert raw[0] < image_error_bound_px()
+    sat = saturate_image_error(CAM, raw, ring_out_of_view(CAM, IDENTITY, beyond_edge))
+    assert sat[0] == image_error_bound_px()
+
+
+def image_error_bound_px() -> float:
+    from endocam.metrics import image_error_bound
+
+    return image_error_bound(CAM)

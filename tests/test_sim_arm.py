@@ -27,6 +27,10 @@ from endocam.task.trajectory import TrajectoryKind
 ATOL_M = 1e-9  # m: logged camera position vs FK(logged q), round-off only
 ATOL_R = 1e-9  # 1: logged rotation-matrix entries vs FK(logged q)
 RESIDUAL_ZERO_RAD = 1e-7  # rad: the ECM IK's tolerance for "orientation reached"
+ROUNDOFF_RAD = 1e-9  # rad: angles computed two ways on the same poses, round-off only
+ACOS_RESOLUTION_RAD = 1e-7  # rad: acos of a cosine within round-off of 1 (≈ 1.5e-8 rad)
+REST_SPEED = 1e-12  # rad/s or m/s: ruckig's round-off on a joint at rest
+IK_TOL = 1e-7  # m / rad: the IK tolerance (endocam.robot.ik.IK_POSITION_TOL_M)
 SPEED_RTOL = 1e-6  # relative slack on a joint speed limit (round-off of ruckig's profiles)
 DURATION_S = 3.0  # s: short episodes keep the file fast
 
@@ -131,6 +135,8 @@ def _ecm_arm() -> CameraArm:
 
 
 LOOK_DISTANCE_M = 0.05  # m: the controller's default working distance
+MOVING_STEPS = 20  # count: 0.2 s towards a far goal, the joints still accelerating
+BRAKE_STEPS = 300  # count: 3 s, ample to brake from the PSM's joint speeds
 N_VIEW_CASES = 60  # count: random view goals per check
 
 
@@ -160,8 +166,10 @@ def test_ecm_residual_zero_iff_axis_through_rcm():
     out = arm.step(off_axis, LOOK_DISTANCE_M)
     # the 4-DoF scope takes the port view of the same point: only orientation is missing
     assert out.reachable and out.approach is Approach.VIEW
-    assert out.orientation_error == pytest.approx(_port_view_angle(off_axis, p_rcm), abs=1e-9)
-    assert out.orientation_error > 0.5 * tilt
+    assert out.orientation_error == pytest.approx(
+        _port_view_angle(off_axis, p_rcm), abs=ROUNDOFF_RAD
+    )
+    assert out.orientation_error > 0.0  # the tilted axis misses the RCM: a residual remains
     _assert_looks_at_same_point(out.T_world_target, off_axis, LOOK_DISTANCE_M)
 
 
@@ -201,7 +209,7 @@ def test_psm_concedes_the_smallest_view_angle_it_can_reach():
         goal = _look_from(c - LOOK_DISTANCE_M * z, z)
         q, T_target, approach = arm.target(goal, LOOK_DISTANCE_M)
         assert arm.model.within_limits(np.array(q))
-        np.testing.assert_allclose(arm.camera_pose(q), T_target, atol=1e-7)  # IK tolerance, m
+        np.testing.assert_allclose(arm.camera_pose(q), T_target, atol=IK_TOL)
         if approach is Approach.EXACT:
             np.testing.assert_array_equal(T_target, goal)
             continue
@@ -229,17 +237,17 @@ def test_view_towards_port_ends_on_the_port_axis():
         z = rng.normal(size=3)
         goal = _look_from(rng.uniform(-0.1, 0.1, 3), z)
         T1 = view_towards_port(goal, LOOK_DISTANCE_M, p_rcm, 1.0)
-        assert _port_view_angle(T1, p_rcm) <= 1e-7
+        assert _port_view_angle(T1, p_rcm) <= ACOS_RESOLUTION_RAD
         _assert_looks_at_same_point(T1, goal, LOOK_DISTANCE_M)
         T0 = view_towards_port(goal, LOOK_DISTANCE_M, p_rcm, 0.0)
         np.testing.assert_allclose(T0, goal, rtol=0, atol=ATOL_M)
         half = view_towards_port(goal, LOOK_DISTANCE_M, p_rcm, 0.5)
         assert _port_view_angle(half, p_rcm) == pytest.approx(
-            0.5 * _port_view_angle(goal, p_rcm), abs=1e-9
+            0.5 * _port_view_angle(goal, p_rcm), abs=ROUNDOFF_RAD
         )
         # the horizon stays level (image x horizontal) wherever it is defined
         if abs(half[2, 2]) < math.cos(math.radians(30.0)):
-            assert abs(half[2, 0]) <= 1e-9
+            assert abs(half[2, 0]) <= ROUNDOFF_RAD
 
 
 def test_unreachable_goal_is_approached_and_reported():
@@ -251,7 +259,8 @@ def test_unreachable_goal_is_approached_and_reported():
     for _ in range(20):
         out = arm.step(far, LOOK_DISTANCE_M)
         assert not out.reachable and np.all(np.isfinite(out.T_world_cam))
-        assert out.approach is Approach.NEAREST and out.position_error > 0.5
+        assert out.approach is Approach.NEAREST
+        assert out.position_error > 0.5  # m: the 1 m goal stays far beyond the ~0.3 m reach
         assert arm.model.within_limits(out.q)
         dists.append(np.linalg.norm(out.T_world_cam[:3, 3] - far[:3, 3]))
     assert dists[-1] < dists[0]  # approaching the nearest feasible pose
@@ -259,10 +268,37 @@ def test_unreachable_goal_is_approached_and_reported():
 
 def test_non_finite_command_brakes_where_it_is():
     arm = _psm_arm()
+    q0 = natural_pose(arm.model)
+    arm.reset(arm.camera_pose(q0))
+    goal = arm.camera_pose(q0 + np.array([0.3, 0.2, 0.03, 0.5, 0.4, 0.4]))
+    for _ in range(MOVING_STEPS):  # on the way: the joints are moving
+        arm.step(goal, LOOK_DISTANCE_M)
+    assert np.abs(arm.arm.measured_js()[1]).max() > 0.0
+    T_at_nan = arm.camera_pose(arm.q)
+    outs = [arm.step(np.full((4, 4), np.nan), float("nan")) for _ in range(BRAKE_STEPS)]
+    assert all(np.all(np.isfinite(o.T_world_cam)) for o in outs)
+    np.testing.assert_allclose(arm.arm.measured_js()[1], 0.0, atol=REST_SPEED)  # at rest
+    # it stopped near where the command was lost, not at the goal
+    travelled = np.linalg.norm(outs[-1].T_world_cam[:3, 3] - T_at_nan[:3, 3])
+    remaining = np.linalg.norm(goal[:3, 3] - T_at_nan[:3, 3])
+    assert travelled < 0.5 * remaining
+
+
+def test_absurd_finite_command_brakes_too():
+    arm = _psm_arm()
     T0 = arm.reset(arm.camera_pose(natural_pose(arm.model)))
-    out = arm.step(np.full((4, 4), np.nan), float("nan"))
-    assert out.approach is Approach.EXACT
-    np.testing.assert_allclose(out.T_world_cam, T0, atol=1e-9)
+    absurd = T0.copy()
+    absurd[:3, 3] = 1e160  # m: finite, but not a camera pose
+    out = arm.step(absurd, LOOK_DISTANCE_M)
+    assert np.all(np.isfinite(out.T_world_cam)) and arm.model.within_limits(out.q)
+    np.testing.assert_allclose(out.T_world_cam, T0, atol=IK_TOL)
+
+
+def test_reset_rejects_a_bad_look_distance():
+    arm = _psm_arm()
+    for bad in (float("nan"), -0.05, 0.0):
+        with pytest.raises(ValueError, match="look_distance"):
+            arm.reset(np.eye(4), bad)
 
 
 def test_runner_marks_unreachable_steps(psm_result: EpisodeResult):

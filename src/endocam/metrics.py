@@ -2,7 +2,8 @@
 
 * image centring error: pixel distance of the projected ring centre from the left eye's principal
   point (raw per frame: NaN behind the camera, unbounded near its image plane; summaries use
-  :func:`saturate_image_error`, which counts a ring out of view as the image's largest error);
+  :func:`saturate_image_error`, which counts a ring outside the image as the image's largest
+  error);
 * 3D centring error: distance from the ring centre to the camera's optical axis (the line through
   the camera centre along its z axis);
 * orientation error: the acute angle between the optical axis and the ring normal (the ring
@@ -70,18 +71,54 @@ def image_error_bound(camera: StereoCamera) -> float:
     return math.hypot(max(k.cx, k.width - k.cx), max(k.cy, k.height - k.cy))
 
 
-def saturate_image_error(camera: StereoCamera, error_px: FloatArray) -> FloatArray:
+def ring_out_of_view(
+    camera: StereoCamera, T_world_cam: FloatArray, p_world_ring: FloatArray
+) -> FloatArray:
+    """Whether the ring centre is outside the left eye's image (or at or behind its plane).
+
+    Parameters
+    ----------
+    camera : StereoCamera
+    T_world_cam : (N, 4, 4) or (4, 4)
+        Camera poses (optical frame) in world, m.
+    p_world_ring : (N, 3) or (3,)
+        Ring centres in world, m.
+
+    Returns
+    -------
+    (N,) bool
+    """
+    T = _stack(T_world_cam, "T_world_cam")
+    p = np.asarray(p_world_ring, dtype=float).reshape(-1, 3)
+    T_world_left = T @ camera.T_cam_left
+    d = p - T_world_left[:, :3, 3]
+    p_left = np.einsum("nji,nj->ni", T_world_left[:, :3, :3], d)  # R^T (p - t)
+    k = camera.intrinsics
+    z = p_left[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = k.cx + k.fx * p_left[:, 0] / z
+        v = k.cy + k.fy * p_left[:, 1] / z
+        inside = (z > 0) & (u >= 0) & (u <= k.width) & (v >= 0) & (v <= k.height)
+    return np.asarray(~inside)
+
+
+def saturate_image_error(
+    camera: StereoCamera, error_px: FloatArray, out_of_view: FloatArray | None = None
+) -> FloatArray:
     """Image centring errors (N,) with a ring out of view counted as :func:`image_error_bound`.
 
-    A ring centre behind the camera (NaN) or projecting beyond the farthest image corner
-    gets the bound, so a lost ring weighs as the worst in-view error: a mean over the episode
-    neither skips it (NaN) nor explodes (a ring near the image plane projects to any number).
+    A ring centre outside the image (``out_of_view``, from :func:`ring_out_of_view`), behind
+    the camera (NaN) or projecting beyond the farthest image corner gets the bound, so a lost
+    ring weighs as the worst in-view error: a mean over the episode neither skips it (NaN) nor
+    explodes (a ring near the image plane projects to any number).
 
     Parameters
     ----------
     camera : StereoCamera
     error_px : (N,)
         Raw errors from :func:`image_centering_error`, px.
+    out_of_view : (N,) bool, optional
+        Steps whose ring centre is outside the image.
 
     Returns
     -------
@@ -90,7 +127,10 @@ def saturate_image_error(camera: StereoCamera, error_px: FloatArray) -> FloatArr
     """
     bound = image_error_bound(camera)
     err = np.asarray(error_px, dtype=float)
-    return np.where(np.isfinite(err) & (err < bound), err, bound)
+    lost = ~(np.isfinite(err) & (err < bound))
+    if out_of_view is not None:
+        lost |= np.asarray(out_of_view, dtype=bool)
+    return np.where(lost, bound, err)
 
 
 def center_error_3d(T_world_cam: FloatArray, p_world_ring: FloatArray) -> FloatArray:

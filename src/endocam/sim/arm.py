@@ -116,6 +116,7 @@ class Approach(enum.Enum):
 
 VIEW_BISECTIONS = 7  # count: the conceded view angle is resolved to θ / 2⁷ (< 1.5° for θ ≤ π)
 VIEW_STEPS = 2**VIEW_BISECTIONS  # count: the turn towards the port view is searched in these steps
+MAX_COMMAND_RANGE_M = 10.0  # m: a command farther than this from the port is not a camera pose
 VIEW_POSITION_TOL_M = 1e-6  # m: an ECM port view whose camera is this close counts as reached
 _EPS_AXIS = 1e-12  # unitless: a cross product shorter than this has no direction
 
@@ -249,7 +250,8 @@ class CameraArm:
         self._q = self._arm.measured_js()[0]
         self._T_cam = self.camera_pose(self._q)
         self._k_prev: int | None = None  # the last conceded turn, in VIEW_STEPS (warm start)
-        self._last_key: tuple[bytes, float] | None = None  # the last goal and look distance
+        self._last_key: bytes | None = None  # the last goal (bytes) and its look distance
+        self._last_look = math.nan
         self._last_target: tuple[list[float], FloatArray, Approach] | None = None
 
     # ------------------------------------------------------------------ frames
@@ -327,7 +329,9 @@ class CameraArm:
         q = self._exact(T_world_goal)
         if q is not None:
             self._k_prev = None
-            return q, T_world_goal, Approach.EXACT
+            T_target = np.array(T_world_goal, dtype=float)  # not the caller's array
+            T_target.setflags(write=False)
+            return q, T_target, Approach.EXACT
         rotvec = _port_rotvec(T_world_goal, look_distance, self._p_world_rcm)
         if rotvec is not None:
             if self.kind is ArmKind.ECM:
@@ -350,12 +354,18 @@ class CameraArm:
     def _view_search(
         self, T_goal: FloatArray, d: float, rotvec: FloatArray
     ) -> tuple[list[float], FloatArray] | None:
-        """Smallest reachable turn ``k / VIEW_STEPS`` towards the port view (k in 1…VIEW_STEPS).
+        """A locally smallest reachable turn ``k / VIEW_STEPS`` towards the port view.
 
-        Reachability is taken to grow along the turn (the port view, k = VIEW_STEPS, is the
-        easiest). Cold, it bisects over k (``VIEW_BISECTIONS`` solves after the port view);
-        warm (the previous step conceded too), it starts at the previous k and gallops towards
-        the boundary, so a boundary that moves little costs two or three solves.
+        Returns the ``k`` in 1…VIEW_STEPS whose turn the arm reaches while ``k − 1``'s it does
+        not (``k = 0`` is the goal itself). Reachability mostly grows along the turn (the port
+        view, ``k = VIEW_STEPS``, is the easiest), but not always: a wrist joint can touch its
+        limit in the middle of the turn, leaving a gap, and then a smaller reachable ``k`` may
+        exist below the gap. Cold, the search bisects over ``k`` (``VIEW_BISECTIONS`` solves
+        after the port view); warm (the previous step conceded too), it starts at the previous
+        ``k`` and gallops towards the boundary, so a boundary that moves little costs two or
+        three solves and the view stays on the same side of any gap from step to step
+        (continuity before minimality; at most about ``2 · VIEW_BISECTIONS`` solves when the
+        boundary jumps).
         """
         cache: dict[int, tuple[list[float], FloatArray] | None] = {}
 
@@ -418,8 +428,12 @@ class CameraArm:
             The initial camera pose actually taken, ``FK(q0)``, m.
         """
         T = as_pose(np.asarray(T_world_cam, dtype=float), "T_world_cam")
+        if look_distance is not None and not (math.isfinite(look_distance) and look_distance > 0.0):
+            raise ValueError(
+                f"look_distance: must be a positive number of metres, got {look_distance}"
+            )
         self._k_prev = None
-        self._last_key = self._last_target = None
+        self._last_key, self._last_target = None, None
         if look_distance is None:
             look_distance = max(float(np.linalg.norm(T[:3, 3] - self._p_world_rcm)), 1e-3)
         self._q = natural_pose(self.model)
@@ -448,18 +462,35 @@ class CameraArm:
 
         Notes
         -----
-        A goal (and look distance) identical to the last step's reuses its joint target: a held
-        camera (``fixed``, frozen, lost tracking) costs no IK.
+        A goal identical to the last step's reuses its joint target (a conceded view only at the
+        same look distance): a held camera (``fixed``, frozen, lost tracking) costs no IK. A
+        command more than ``MAX_COMMAND_RANGE_M`` from the port, or one no solver can digest,
+        is treated like a non-finite one: the arm brakes where it is.
         """
-        T_goal = T_world_cmd if bool(np.isfinite(T_world_cmd).all()) else self._T_cam
+        finite = bool(np.isfinite(T_world_cmd).all())
+        if finite and np.abs(T_world_cmd[:3, 3] - self._p_world_rcm).max() <= MAX_COMMAND_RANGE_M:
+            T_goal = T_world_cmd
+        else:  # not a camera command: brake where the arm is
+            T_goal = self._T_cam
         if not (math.isfinite(look_distance) and look_distance > 0.0):
             look_distance = max(float(np.linalg.norm(T_goal[:3, 3] - self._p_world_rcm)), 1e-3)
-        key = (T_goal.tobytes(), look_distance)
-        if key == self._last_key and self._last_target is not None:
-            q_cmd, T_target, approach = self._last_target  # a held goal: same answer
+        key = T_goal.tobytes()
+        last = self._last_target
+        if (
+            last is not None
+            and key == self._last_key
+            and (last[2] is Approach.EXACT or look_distance == self._last_look)
+        ):
+            q_cmd, T_target, approach = last  # a held goal: same answer (exact: any distance)
         else:
-            q_cmd, T_target, approach = self.target(T_goal, look_distance)
-            self._last_key, self._last_target = key, (q_cmd, T_target, approach)
+            try:
+                q_cmd, T_target, approach = self.target(T_goal, look_distance)
+            except (ArithmeticError, ValueError, np.linalg.LinAlgError):
+                # a command no solver can digest (finite but absurd): brake where the arm is
+                T_goal = self._T_cam
+                q_cmd, T_target, approach = self.target(T_goal, look_distance)
+            self._last_key, self._last_look = key, look_distance
+            self._last_target = (q_cmd, T_target, approach)
         if approach is Approach.EXACT:
             pos_err = ang_err = 0.0
         else:

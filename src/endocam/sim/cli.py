@@ -164,7 +164,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=["free", "psm", "ecm"],
         default="free",
         help="what carries the camera (default free: the paper's simulated 6-DoF endoscope, "
-        "Cartesian limits only; psm or ecm: through that dVRK arm)",
+        "Cartesian limits only; psm or ecm: through that dVRK arm); overrides a --config "
+        "file's episode.arm",
     )
     ep.add_argument("--config", help="TOML or YAML config file")
     ep.set_defaults(handler=_experiment)

@@ -30,6 +30,7 @@ from endocam.metrics import (
     center_error_3d,
     image_centering_error,
     orientation_error,
+    ring_out_of_view,
     saturate_image_error,
 )
 from endocam.sim.arm import Approach, ArmKind, ArmStep, CameraArm
@@ -152,9 +153,14 @@ class EpisodeResult:
     orientation_error: FloatArray = field(repr=False)
 
     @property
+    def ring_out_of_view(self) -> FloatArray:
+        """(N,) bool: the true ring centre is outside the left eye's image."""
+        return ring_out_of_view(self.camera, self.log.T_world_cam, self.log.T_world_ring[:, :3, 3])
+
+    @property
     def image_error_saturated(self) -> FloatArray:
         """(N,) image errors, px, a ring out of view counted as the largest in-image error."""
-        return saturate_image_error(self.camera, self.image_error)
+        return saturate_image_error(self.camera, self.image_error, self.ring_out_of_view)
 
 
 def contact_at(touches: TouchReport, t: FloatArray) -> np.ndarray:

@@ -29,7 +29,7 @@ from matplotlib.figure import Figure
 from endocam import __version__
 from endocam.control.policies import TrackingState
 from endocam.geometry import quat_wxyz_from_R
-from endocam.metrics import image_error_bound, summarize
+from endocam.metrics import summarize
 from endocam.sim.episode import EpisodeResult, state_fractions
 
 SCENE_JSON = "scene.json"
@@ -193,9 +193,7 @@ def metrics_dict(result: EpisodeResult) -> dict[str, Any]:
     """The ``metrics.json`` content: tracking errors in px / mm / deg, touches, states, config."""
     return {
         "image_error_px": summarize(result.image_error_saturated),
-        "ring_out_of_view_fraction": float(
-            np.mean(result.image_error_saturated >= image_error_bound(result.camera))
-        ),
+        "ring_out_of_view_fraction": float(np.mean(result.ring_out_of_view)),
         "center_error_mm": summarize(result.center_error, 1e3),
         "orientation_error_deg": summarize(result.orientation_error, math.degrees(1.0)),
         "touches": result.touches.count,
