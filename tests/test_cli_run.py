@@ -155,6 +155,10 @@ def test_run_writes_everything(short_config: Path, tmp_path: Path) -> None:
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["config"] == load_config(short_config).model_dump(mode="json")
     assert metrics["episode"]["seed"] == 2
+    # the default carrier is the PSM, and the report says so; the out-of-view share is reported
+    assert metrics["arm"] == "psm"
+    assert 0.0 <= metrics["ring_out_of_view_fraction"] <= 1.0
+    assert "carried by a dVRK PSM" in (out / "report.html").read_text()
 
 
 def test_console_script_lists_policies() -> None:

@@ -206,6 +206,7 @@ def metrics_dict(result: EpisodeResult) -> dict[str, Any]:
             }
             for ev in result.touches.events
         ],
+        "arm": result.log.arm,
         "state_fractions": state_fractions(result.log),
         "by_state": {
             state: {
@@ -381,6 +382,13 @@ def fmt(x: Any, digits: int = 2) -> str:
     return f"{x:.{digits}f}"
 
 
+CARRIERS = {
+    "free": "a free 6-DoF camera (Cartesian speed, acceleration and jerk limits)",
+    "psm": "a dVRK PSM (closed-form IK, joint limits, ruckig joint motion)",
+    "ecm": "the dVRK ECM (4 DoF: the view from its port)",
+}
+
+
 def render_template(name: str, **context: Any) -> str:
     """Render one of the report templates."""
     return _env().get_template(name).render(fmt=fmt, version=__version__, **context)
@@ -412,6 +420,7 @@ def write_run(
             "run.html",
             metrics=metrics,
             spec=result.spec,
+            carrier=CARRIERS[result.log.arm],
             video=VIDEO_MP4 if video else None,
             plot=TRACKING_PNG,
             files=[SCENE_JSON, EPISODE_CSV, METRICS_JSON],

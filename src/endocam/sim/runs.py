@@ -17,6 +17,7 @@ from tqdm import tqdm
 from endocam.config import ExperimentConfig
 from endocam.sim.episode import EpisodeResult, EpisodeSpec, run_episode
 from endocam.sim.outputs import (
+    CARRIERS,
     METRICS_JSON,
     REPORT_HTML,
     _finite,
@@ -212,6 +213,7 @@ def run_demo(
         html = render_template(
             "compare.html",
             rows=rows,
+            carrier=CARRIERS[results[-1].log.arm],
             video=GRID_MP4 if video else None,
             plot=COMPARISON_PNG,
             touches=touches.count,
@@ -225,7 +227,14 @@ def run_demo(
 def _summary(metrics: dict[str, Any]) -> dict[str, Any]:
     return {
         key: metrics[key]
-        for key in ("image_error_px", "center_error_mm", "orientation_error_deg", "state_fractions")
+        for key in (
+            "image_error_px",
+            "center_error_mm",
+            "orientation_error_deg",
+            "ring_out_of_view_fraction",
+            "state_fractions",
+            "arm",
+        )
     }
 
 
