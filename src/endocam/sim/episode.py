@@ -33,7 +33,7 @@ from endocam.metrics import (
     ring_out_of_view,
     saturate_image_error,
 )
-from endocam.sim.arm import Approach, ArmKind, ArmStep, CameraArm
+from endocam.sim.arm import Approach, ArmKind, ArmStep, CameraArm, view_towards_port
 from endocam.sim.motion import CartesianLimiter
 from endocam.sim.scene import overview_camera_pose, psm1_tip_in_ring, task_centre
 from endocam.task.touches import TouchReport, touch_events
@@ -324,10 +324,11 @@ def arm_start_view(
 ) -> tuple[FloatArray, float]:
     """The whole-task view an arm camera starts from, and the distance it looks at.
 
-    The free camera starts at the overview pose; a camera on an arm starts at the view of the
-    same task centre that is nearest to it and that the arm can take (:meth:`CameraArm.reset`
-    turns the view towards the port). The look-at distance is the overview's, shortened so the
-    port view keeps the camera ``ARM_START_GAP`` ahead of the port.
+    The free camera starts at the overview pose. A camera on an arm starts where a surgeon
+    would aim an endoscope just inserted: at the view of the task centre straight from the
+    port (optical axis through the RCM, level horizon), which every RCM arm can take with its
+    wrist straight. The look-at distance is the overview's, shortened so the camera stays
+    ``ARM_START_GAP`` ahead of the port.
 
     Parameters
     ----------
@@ -341,17 +342,16 @@ def arm_start_view(
     Returns
     -------
     T_world_cam : (4, 4) ndarray
-        The overview moved along its optical axis to look at the centre from that distance, m.
+        The port view of the centre from that distance, m.
     look_distance : float
         m.
     """
-    z = T_world_overview[:3, 2]
     d_overview = float(np.linalg.norm(p_world_centre - T_world_overview[:3, 3]))
     d_port = float(np.linalg.norm(p_world_centre - p_world_rcm))
     look = max(min(d_overview, d_port - ARM_START_GAP), 0.5 * d_port)
     T = np.array(T_world_overview, dtype=float)
-    T[:3, 3] = p_world_centre - look * z
-    return T, look
+    T[:3, 3] = p_world_centre - look * T[:3, 2]  # the overview, looking at the centre from there
+    return view_towards_port(T, look, p_world_rcm, 1.0), look
 
 
 _SAFETY_STATES = (TrackingState.FROZEN_OUTSIDE_CONE, TrackingState.LOST_TRACKING)
