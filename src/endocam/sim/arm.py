@@ -298,6 +298,10 @@ class CameraArm:
         return self._T_world_rcm @ self.model.frames(q)
 
     # ------------------------------------------------------------------ control
+    def _port_distance(self, T_world_cam: FloatArray) -> float:
+        """Distance from a camera to the port, m (≥ 1 mm): the default look distance."""
+        return max(float(np.linalg.norm(T_world_cam[:3, 3] - self._p_world_rcm)), 1e-3)
+
     def _tip_goal(self, T_world_cam: FloatArray) -> FloatArray:
         return self._T_rcm_world @ T_world_cam @ self._T_cam_tip
 
@@ -435,7 +439,7 @@ class CameraArm:
         self._k_prev = None
         self._last_key, self._last_target = None, None
         if look_distance is None:
-            look_distance = max(float(np.linalg.norm(T[:3, 3] - self._p_world_rcm)), 1e-3)
+            look_distance = self._port_distance(T)
         self._q = natural_pose(self.model)
         q0, _, _ = self.target(T, look_distance)
         self._arm.reset(q0)
@@ -473,7 +477,7 @@ class CameraArm:
         else:  # not a camera command: brake where the arm is
             T_goal = self._T_cam
         if not (math.isfinite(look_distance) and look_distance > 0.0):
-            look_distance = max(float(np.linalg.norm(T_goal[:3, 3] - self._p_world_rcm)), 1e-3)
+            look_distance = self._port_distance(T_goal)
         key = T_goal.tobytes()
         last = self._last_target
         if (

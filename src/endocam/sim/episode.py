@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -152,12 +153,12 @@ class EpisodeResult:
     center_error: FloatArray = field(repr=False)
     orientation_error: FloatArray = field(repr=False)
 
-    @property
+    @cached_property
     def ring_out_of_view(self) -> FloatArray:
         """(N,) bool: the true ring centre is outside the left eye's image."""
         return ring_out_of_view(self.camera, self.log.T_world_cam, self.log.T_world_ring[:, :3, 3])
 
-    @property
+    @cached_property
     def image_error_saturated(self) -> FloatArray:
         """(N,) image errors, px, a ring out of view counted as the largest in-image error."""
         return saturate_image_error(self.camera, self.image_error, self.ring_out_of_view)
