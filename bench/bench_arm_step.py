@@ -20,8 +20,9 @@ import pytest
 from pytest_benchmark.fixture import BenchmarkFixture
 
 from endocam.config import ExperimentConfig
+from endocam.robot.actuator import ActuatorStatus, ArmKind
 from endocam.robot.arm import MotionStatus
-from endocam.sim.arm import Approach, ArmKind, CameraArm, natural_pose
+from endocam.robot.camera_arm import CameraArm, natural_pose
 
 LOOK_DISTANCE_M = 0.05  # m: the controller's default working distance
 
@@ -124,7 +125,7 @@ def test_psm_full_control_step_unreachable_goal(benchmark: BenchmarkFixture) -> 
     for _ in range(MOVING_GOALS):
         arm.step(next(goals), LOOK_DISTANCE_M)
     out = benchmark(lambda: arm.step(next(goals), LOOK_DISTANCE_M))
-    assert out.approach is Approach.VIEW
+    assert out.status is ActuatorStatus.VIEW
 
 
 RENDER_FPS_TARGET = 30.0  # frames/s at 640x480 (issue 3), with the arm drawn

@@ -12,8 +12,9 @@ from __future__ import annotations
 import pytest
 
 from endocam.config import ExperimentConfig
-from endocam.sim.episode import EpisodeSpec, run_episode
-from endocam.sim.runs import ground_truth
+from endocam.robot.actuator import ArmKind
+from endocam.runner.episode import EpisodeSpec, run_episode
+from endocam.runner.experiments import ground_truth
 from endocam.task.trajectory import TrajectoryKind
 
 CFG = ExperimentConfig()  # 60 s episodes at 100 Hz, the camera on the PSM (the default)
@@ -23,7 +24,7 @@ ARMS = ("free", "psm")  # the free camera (Cartesian limiter) and the default PS
 @pytest.mark.parametrize("arm", ARMS)
 @pytest.mark.parametrize("policy", ["fixed", "centering", "orientation"])
 def test_episode_loop(benchmark, policy: str, arm: str) -> None:
-    cfg = CFG.model_copy(update={"episode": CFG.episode.model_copy(update={"arm": arm})})
+    cfg = CFG.model_copy(update={"episode": CFG.episode.model_copy(update={"arm": ArmKind(arm)})})
     touches = ground_truth(cfg, TrajectoryKind.NOISY, 71, 1)
     spec = EpisodeSpec(policy, TrajectoryKind.NOISY, 71, 1)
     result = benchmark.pedantic(

@@ -16,8 +16,8 @@ import pytest
 
 from endocam.camera import StereoCamera
 from endocam.sim.render import WireChaserScene
-from endocam.sim.scene import overview_camera_pose
 from endocam.task.config import TaskConfig
+from endocam.task.layout import overview_camera_pose
 from endocam.task.touches import touch_events
 from endocam.task.trajectory import TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire

@@ -22,8 +22,8 @@ import math
 import numpy as np
 
 from endocam.config import ExperimentConfig
-from endocam.sim.episode import run_episode, state_fractions
-from endocam.sim.runs import paper_specs
+from endocam.runner.episode import run_episode, state_fractions
+from endocam.runner.experiments import paper_specs
 
 ROWS = {
     "free": ("orientation", "free"),

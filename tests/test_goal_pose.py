@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from endocam import goal_pose, look_at_pose
-from endocam.control.goal import ROLL_HOLD_ANGLE, ROLL_LEVEL_ANGLE, SIDE_HYSTERESIS
+from endocam.control.goal import SIDE_HYSTERESIS
+from endocam.view import ROLL_HOLD_ANGLE, ROLL_LEVEL_ANGLE
 
 ATOL_M = 1e-9  # m, float round-off on positions of order 0.1 m
 ATOL_UNIT = 1e-9  # unitless, round-off on unit-vector products

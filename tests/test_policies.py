@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from endocam import POLICIES, ControllerConfig, StereoCamera, TrackingState, make_policy
-from endocam.control.goal import goal_pose, look_at_pose
+from endocam.control.goal import goal_pose
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.policies import Observation, PolicyContext
 from endocam.geometry import make_pose
+from endocam.view import look_at_pose
 
 ATOL_M = 1e-9  # m
 CENTRE_TOL_PX = 1e-6  # px: a look-at pose puts the target exactly at the principal point

@@ -1,4 +1,4 @@
-"""The camera carried by a dVRK arm in the episode runner (endocam.sim.arm, issue 4)."""
+"""The camera carried by a dVRK arm in the episode runner (endocam.robot.camera_arm, issue 4)."""
 
 from __future__ import annotations
 
@@ -8,20 +8,19 @@ import numpy as np
 import pytest
 
 from endocam.config import ExperimentConfig
-from endocam.control.policies import POLICIES, TrackingState
+from endocam.control.policies import POLICIES
 from endocam.geometry import invert_pose, make_pose
 from endocam.robot import PSM_MAX_VELOCITY
-from endocam.robot.kinematics import LIMIT_SLACK
-from endocam.sim.arm import (
+from endocam.robot.actuator import ActuatorStatus, ArmKind
+from endocam.robot.camera_arm import (
     VIEW_BISECTIONS,
-    Approach,
-    ArmKind,
     CameraArm,
     natural_pose,
     view_towards_port,
 )
-from endocam.sim.episode import EpisodeResult, EpisodeSpec, episode_arm, run_episode
-from endocam.sim.outputs import episode_columns
+from endocam.robot.kinematics import LIMIT_SLACK
+from endocam.runner.episode import UNREACHABLE, EpisodeResult, EpisodeSpec, episode_arm, run_episode
+from endocam.runner.outputs import episode_columns
 from endocam.task.trajectory import TrajectoryKind
 
 ATOL_M = 1e-9  # m: logged camera position vs FK(logged q), round-off only
@@ -103,7 +102,7 @@ def test_joint_columns_in_episode_csv(psm_result: EpisodeResult):
 
 
 def test_orientation_ecm_forces_the_ecm(ecm_result: EpisodeResult):
-    assert POLICIES["orientation-ecm"].arm == "ecm"
+    assert POLICIES["orientation-ecm"].arm is ArmKind.ECM
     assert episode_arm(_config("psm"), "orientation-ecm") is ArmKind.ECM
     assert episode_arm(_config("psm"), "orientation") is ArmKind.PSM
     assert episode_arm(_config(), "orientation") is ArmKind.FREE
@@ -122,7 +121,7 @@ def test_free_camera_logs_no_joints():
         EpisodeSpec("orientation", TrajectoryKind.IDEAL, 36),
     )
     assert result.log.joints is None and result.log.arm == "free"
-    assert TrackingState.UNREACHABLE.value not in set(result.log.state)
+    assert UNREACHABLE not in set(result.log.state)
 
 
 def _short(duration: float):  # type: ignore[no-untyped-def]
@@ -155,7 +154,7 @@ def test_ecm_residual_zero_iff_axis_through_rcm():
     p = T_nat[:3, 3]
     on_axis = _look_from(p, p - p_rcm)
     out = arm.step(on_axis, LOOK_DISTANCE_M)
-    assert out.reachable and out.approach is Approach.EXACT
+    assert out.reachable and out.status is ActuatorStatus.EXACT
     assert out.orientation_error <= RESIDUAL_ZERO_RAD
     tilt = math.radians(10.0)
     R_tilt = np.array(
@@ -165,7 +164,7 @@ def test_ecm_residual_zero_iff_axis_through_rcm():
     off_axis[:3, :3] = on_axis[:3, :3] @ R_tilt
     out = arm.step(off_axis, LOOK_DISTANCE_M)
     # the 4-DoF scope takes the port view of the same point: only orientation is missing
-    assert out.reachable and out.approach is Approach.VIEW
+    assert out.reachable and out.status is ActuatorStatus.VIEW
     assert out.orientation_error == pytest.approx(
         _port_view_angle(off_axis, p_rcm), abs=ROUNDOFF_RAD
     )
@@ -210,10 +209,10 @@ def test_psm_concedes_the_smallest_view_angle_it_can_reach():
         q, T_target, approach = arm.target(goal, LOOK_DISTANCE_M)
         assert arm.model.within_limits(np.array(q))
         np.testing.assert_allclose(arm.camera_pose(q), T_target, atol=IK_TOL)
-        if approach is Approach.EXACT:
+        if approach is ActuatorStatus.EXACT:
             np.testing.assert_array_equal(T_target, goal)
             continue
-        assert approach is Approach.VIEW
+        assert approach is ActuatorStatus.VIEW
         conceded += 1
         _assert_looks_at_same_point(T_target, goal, LOOK_DISTANCE_M)
         # the turn is towards the port, and a turn one bisection step smaller is unreachable
@@ -259,7 +258,7 @@ def test_unreachable_goal_is_approached_and_reported():
     for _ in range(20):
         out = arm.step(far, LOOK_DISTANCE_M)
         assert not out.reachable and np.all(np.isfinite(out.T_world_cam))
-        assert out.approach is Approach.NEAREST
+        assert out.status is ActuatorStatus.NEAREST
         assert out.position_error > 0.5  # m: the 1 m goal stays far beyond the ~0.3 m reach
         assert arm.model.within_limits(out.q)
         dists.append(np.linalg.norm(out.T_world_cam[:3, 3] - far[:3, 3]))
@@ -305,9 +304,9 @@ def test_runner_marks_unreachable_steps(psm_result: EpisodeResult):
     # the wrist cannot bend far enough for every orientation goal (docs/robot.md)
     result = psm_result
     state = result.log.state
-    assert TrackingState.UNREACHABLE.value in set(state)
+    assert UNREACHABLE in set(state)
     assert np.all(np.isfinite(result.log.T_world_cam))
-    hit = np.flatnonzero(state == TrackingState.UNREACHABLE.value)
+    hit = np.flatnonzero(state == UNREACHABLE)
     assert all("the PSM" in result.log.reason[k] for k in hit)
     assert all(
         "view turned" in result.log.reason[k] or "nearest feasible" in result.log.reason[k]
@@ -318,7 +317,7 @@ def test_runner_marks_unreachable_steps(psm_result: EpisodeResult):
     err = np.maximum(result.log.goal_position_error, result.log.goal_orientation_error)
     assert np.all(err[hit] > 0.0)
     # the policy's own safety states are never overwritten
-    frozen = result.log.state == TrackingState.FROZEN_OUTSIDE_CONE.value
+    frozen = result.log.state == "frozen_outside_cone"
     assert all("the cone workspace" in result.log.reason[k] for k in np.flatnonzero(frozen))
 
 
@@ -345,5 +344,5 @@ def test_goal_looking_at_the_port_itself_is_handled():
     p_rcm = arm.T_world_rcm[:3, 3]
     goal = _look_from(p_rcm + np.array([0.0, -LOOK_DISTANCE_M, 0.0]), np.array([0.0, 1.0, 0.0]))
     out = arm.step(goal, LOOK_DISTANCE_M)
-    assert not out.reachable and out.approach is Approach.NEAREST
+    assert not out.reachable and out.status is ActuatorStatus.NEAREST
     assert np.all(np.isfinite(out.T_world_cam)) and arm.model.within_limits(out.q)

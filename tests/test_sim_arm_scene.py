@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 
 from endocam.config import ExperimentConfig
-from endocam.control.goal import look_at_pose
-from endocam.sim.arm import ArmKind, CameraArm
+from endocam.robot.actuator import ArmKind
+from endocam.robot.camera_arm import CameraArm
+from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode
 from endocam.sim.arm_scene import ARM_PREFIX, CAMERA_BODY_GEOM, camera_arm_links
-from endocam.sim.episode import EpisodeResult, EpisodeSpec, run_episode
 from endocam.sim.render import WireChaserScene, log_arm
 from endocam.sim.scene import GROUP_LINK, build_spec
 from endocam.task.trajectory import TrajectoryKind
+from endocam.view import look_at_pose
 
 ATOL_M = 1e-9  # m: mocap body pose vs the arm's link frame (float32-free: mocap is float64)
 ATOL_R = 1e-9  # 1: rotation-matrix entries
@@ -174,8 +175,8 @@ def test_renderer_flags_unchanged_by_the_arm(psm_scene: WireChaserScene):
 
 
 def test_videos_of_arm_episodes_render(psm_episode: EpisodeResult, tmp_path: Path):
-    from endocam.sim.outputs import frame_indices, render_video
-    from endocam.sim.runs import render_side_by_side
+    from endocam.runner.experiments import render_side_by_side
+    from endocam.runner.outputs import frame_indices, render_video
     from endocam.study.make import render_conditions
 
     free = _episode("free", "fixed")  # same trajectory, no arm: the arm is hidden for it

@@ -8,10 +8,11 @@ from scipy.spatial.transform import Rotation
 
 from endocam.config import ExperimentConfig
 from endocam.geometry import make_pose
+from endocam.robot.actuator import ActuatorStatus, ArmKind
 from endocam.robot.arm import MotionStatus
+from endocam.robot.camera_arm import CameraArm, natural_pose
 from endocam.robot.dh import pose12_from_matrix, pose12_times, pose12_to_matrix
 from endocam.robot.ik import pose12_error, pose_error
-from endocam.sim.arm import Approach, ArmKind, CameraArm, natural_pose
 
 ATOL_M = 1e-12  # m: float kernels vs numpy products, round-off only
 ATOL_RAD = 1e-9  # rad: angle kernels vs numpy (atan2 form), round-off only
@@ -65,7 +66,7 @@ def test_held_goal_lands_on_its_exact_solution(kind: ArmKind):
     goal = arm.camera_pose(q_goal)
     for _ in range(HOLD_STEPS):
         out = arm.step(goal, LOOK_DISTANCE_M)
-    assert out.reachable and out.approach is Approach.EXACT
+    assert out.reachable and out.status is ActuatorStatus.EXACT
     assert arm.arm.motion_status is MotionStatus.FINISHED  # at rest
     np.testing.assert_allclose(out.q, q_goal, atol=IK_ATOL)  # the goal's own joints
     np.testing.assert_allclose(out.T_world_cam, goal, atol=IK_ATOL)

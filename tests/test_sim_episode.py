@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from endocam.config import ExperimentConfig
-from endocam.sim import outputs
-from endocam.sim.episode import EpisodeSpec, contact_at, run_episode
-from endocam.sim.motion import CartesianLimiter
+from endocam.robot.cartesian import CartesianLimiter
+from endocam.runner import outputs
+from endocam.runner.episode import EpisodeSpec, contact_at, run_episode
 from endocam.task.trajectory import TrajectoryKind
 
 DURATION = 4.0  # s, short episodes keep the suite fast
@@ -184,7 +184,7 @@ def test_video_has_one_frame_per_sample(tmp_path: Path) -> None:
 
 
 def test_side_by_side_caption_names_each_panel() -> None:
-    from endocam.sim.runs import LABEL_HEIGHT_PX, label_strip
+    from endocam.runner.experiments import LABEL_HEIGHT_PX, label_strip
 
     strip = label_strip(["fixed", "centering", "orientation"], 160)
     assert strip.shape == (LABEL_HEIGHT_PX, 480, 3)

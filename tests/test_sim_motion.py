@@ -8,7 +8,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from endocam.config import MotionLimits
-from endocam.sim.motion import CartesianLimiter, MotionStatus, so3_exp, so3_log
+from endocam.kernels import so3_exp, so3_log
+from endocam.robot.arm import MotionStatus
+from endocam.robot.cartesian import CartesianLimiter
 
 ATOL_RAD = 1e-12  # rad, float round-off on angles of order 1
 DT = 0.01  # s
@@ -42,7 +44,7 @@ def test_rotation_reaches_target_within_angular_limits() -> None:
         step = Rotation.from_matrix(prev[:3, :3].T @ T[:3, :3]).magnitude()
         assert step <= limits.max_angular_speed * DT * (1 + 1e-9)
         prev = T
-        if lim.status is MotionStatus.ARRIVED:
+        if lim.status is MotionStatus.FINISHED:
             break
-    assert lim.status is MotionStatus.ARRIVED
+    assert lim.status is MotionStatus.FINISHED
     np.testing.assert_array_equal(lim.pose, target)

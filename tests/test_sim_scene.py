@@ -16,12 +16,11 @@ from endocam.sim.scene import (
     build_model,
     build_spec,
     check_ideal_camera,
-    overview_camera_pose,
-    psm1_tip_in_ring,
     torus_mesh,
     tube_mesh,
 )
 from endocam.task.config import TaskConfig
+from endocam.task.layout import overview_camera_pose, psm1_tip_in_ring
 from endocam.task.trajectory import TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
 

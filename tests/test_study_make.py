@@ -7,7 +7,7 @@ import pytest
 
 from endocam.cli import main
 from endocam.config import load_config
-from endocam.sim.runs import ground_truth
+from endocam.runner.experiments import ground_truth
 from endocam.study.counterbalance import presentation_orders
 from endocam.study.make import (
     DESIGN_JSON,

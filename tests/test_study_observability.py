@@ -11,7 +11,6 @@ from endocam.geometry import R_from_euler_xyz, make_pose
 from endocam.sim.render import WireChaserScene
 from endocam.study.observability import (
     TouchObservation,
-    contact_normal,
     in_image,
     load_summary,
     observability_csv,
@@ -21,6 +20,7 @@ from endocam.study.observability import (
     summarize,
 )
 from endocam.task.config import TaskConfig
+from endocam.task.touches import contact_normal
 
 CFG = TaskConfig()
 CAMERA = StereoCamera(Intrinsics.from_fovy(160, 120, math.radians(60.0)))

@@ -13,7 +13,7 @@ try:
 except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
     __version__ = "0.0.0+unknown"
 
-from endocam.camera import Intrinsics, StereoCamera, project_points
+from endocam.camera import Intrinsics, StereoCamera
 from endocam.control import (
     POLICIES,
     CameraCommand,
@@ -23,11 +23,11 @@ from endocam.control import (
     PolicyContext,
     TrackingState,
     goal_pose,
-    look_at_pose,
     make_policy,
 )
 from endocam.metrics import center_error_3d, image_centering_error, orientation_error
 from endocam.robot import ECM, PSM
+from endocam.view import look_at_pose
 
 __all__ = [
     "ECM",
@@ -48,5 +48,4 @@ __all__ = [
     "look_at_pose",
     "make_policy",
     "orientation_error",
-    "project_points",
 ]

@@ -14,7 +14,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from endocam.geometry import FloatArray, invert_pose, make_pose
+from endocam.geometry import FloatArray, make_pose
 
 Eye = Literal["left", "right"]
 
@@ -151,37 +151,93 @@ class StereoCamera:
         Returns
         -------
         (N, 2) or (2,)
-            Pixel coordinates (u, v), px; NaN for points at or behind the eye's image plane.
+            Pixel coordinates (u, v), px; NaN for points closer than ``MIN_DEPTH`` to the eye's
+            image plane or behind it.
         """
-        T_world_eye = T_world_cam @ self.T_cam_eye(eye)
-        return project_points(self.intrinsics.K, invert_pose(T_world_eye), p_world)
+        p = np.asarray(p_world, dtype=float)
+        single = p.ndim == 1
+        p2 = np.atleast_2d(p)
+        T = np.broadcast_to(np.asarray(T_world_cam, dtype=float), (p2.shape[0], 4, 4))
+        du, dv, _ = pixel_offsets(self, T, p2, eye)
+        k = self.intrinsics
+        uv = np.stack([k.cx + du, k.cy + dv], axis=1)
+        return uv[0] if single else uv
+
+    def in_image(
+        self, T_world_cam: FloatArray, p_world: FloatArray, eye: Eye = "left"
+    ) -> np.ndarray:
+        """Whether world points (N, 3) or (3,), m, project inside ``eye``'s image: (N,) or ()."""
+        uv = self.project(T_world_cam, p_world, eye)
+        return inside_image(self.intrinsics, uv[..., 0], uv[..., 1])
 
 
-def project_points(K: FloatArray, T_eye_world: FloatArray, p_world: FloatArray) -> FloatArray:
-    """Pinhole projection of world points into an eye.
+def points_in_eye(
+    camera: StereoCamera, T_world_cam: FloatArray, p_world: FloatArray, eye: Eye = "left"
+) -> FloatArray:
+    """World points in an eye's optical frame: the one world → eye transform of the package.
 
     Parameters
     ----------
-    K : (3, 3)
-        Camera matrix, px.
-    T_eye_world : (4, 4)
-        World frame expressed in the eye's optical frame (the inverse of the eye's pose), m.
+    camera : StereoCamera
+    T_world_cam : (N, 4, 4) or (4, 4)
+        Camera (centre, optical frame) poses in world, m.
     p_world : (N, 3) or (3,)
-        Points in world, m.
+        One point per pose, world, m.
+    eye : {"left", "right"}
 
     Returns
     -------
-    (N, 2) or (2,)
-        Pixels (u, v); NaN where the depth is below ``MIN_DEPTH``.
+    (N, 3)
+        ``p_eye = R_world_eye^T (p_world − t_world_eye)``, m.
     """
-    p = np.asarray(p_world, dtype=float)
-    single = p.ndim == 1
-    p2 = np.atleast_2d(p)
-    p_eye = p2 @ T_eye_world[:3, :3].T + T_eye_world[:3, 3]
+    T = np.asarray(T_world_cam, dtype=float)
+    if T.shape == (4, 4):
+        T = T[None]
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise ValueError(f"T_world_cam must have shape (4, 4) or (N, 4, 4), got {T.shape}")
+    p = np.asarray(p_world, dtype=float).reshape(-1, 3)
+    T_world_eye = T @ camera.T_cam_eye(eye)
+    d = p - T_world_eye[:, :3, 3]
+    return np.asarray(np.einsum("nji,nj->ni", T_world_eye[:, :3, :3], d))  # R^T (p - t)
+
+
+def pixel_offsets(
+    camera: StereoCamera, T_world_cam: FloatArray, p_world: FloatArray, eye: Eye = "left"
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Pinhole image offsets of points from an eye's principal point, and their depths.
+
+    Parameters
+    ----------
+    camera : StereoCamera
+    T_world_cam : (N, 4, 4) or (4, 4)
+        Camera poses, world, m.
+    p_world : (N, 3) or (3,)
+        One point per pose, world, m.
+    eye : {"left", "right"}
+
+    Returns
+    -------
+    du, dv : (N,)
+        ``f_x x / z`` and ``f_y y / z``, px; NaN where ``z < MIN_DEPTH`` (the one depth
+        threshold: a point closer to the image plane, or behind it, has no image).
+    z : (N,)
+        Depth along the optical axis, m.
+    """
+    p_eye = points_in_eye(camera, T_world_cam, p_world, eye)
+    k = camera.intrinsics
     z = p_eye[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        uv = np.stack(
-            [K[0, 0] * p_eye[:, 0] / z + K[0, 2], K[1, 1] * p_eye[:, 1] / z + K[1, 2]], axis=1
+        du = k.fx * p_eye[:, 0] / z
+        dv = k.fy * p_eye[:, 1] / z
+    behind = ~(z >= MIN_DEPTH)
+    du[behind] = np.nan
+    dv[behind] = np.nan
+    return du, dv, z
+
+
+def inside_image(intrinsics: Intrinsics, u: FloatArray, v: FloatArray) -> np.ndarray:
+    """The one image-edge rule: ``0 ≤ u < width`` and ``0 ≤ v < height`` (px); NaN is outside."""
+    with np.errstate(invalid="ignore"):
+        return np.asarray(
+            (u >= 0.0) & (u < intrinsics.width) & (v >= 0.0) & (v < intrinsics.height)
         )
-    uv[z < MIN_DEPTH] = np.nan
-    return uv[0] if single else uv

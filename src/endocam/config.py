@@ -16,8 +16,9 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from endocam.camera import DEFAULT_BASELINE, DEFAULT_FOVY, Intrinsics, StereoCamera
-from endocam.control.policies import ControllerConfig
+from endocam.control.config import ControllerConfig
 from endocam.geometry import FloatArray, R_from_euler_xyz, make_pose
+from endocam.robot.actuator import ArmKind
 from endocam.task.config import TaskConfig
 
 _FROZEN = ConfigDict(frozen=True, extra="forbid")
@@ -75,9 +76,8 @@ class EpisodeConfig(BaseModel):
         0.05, ge=0.0, le=2.0, description="Delay of the ring pose the controller sees, s."
     )
     limits: MotionLimits = Field(default_factory=MotionLimits, description="Camera motion limits.")
-    arm: str = Field(
-        "psm",
-        pattern="^(free|psm|ecm)$",
+    arm: ArmKind = Field(
+        ArmKind.PSM,
         description="What carries the camera: 'free' (Cartesian limits only), 'psm' or 'ecm' "
         "(through the dVRK arm's kinematics and joint limits). A policy may force an arm "
         "(orientation-ecm uses the ECM).",

@@ -70,26 +70,49 @@ def unit_vector(value: ArrayLike, name: str) -> FloatArray:
     return arr / norm
 
 
-def as_pose(value: ArrayLike, name: str) -> FloatArray:
-    """Validate a homogeneous transform: finite (4, 4), last row [0, 0, 0, 1], orthonormal R.
+ROTATION_ORTHO_TOL = 1e-6  # unitless: largest |R^T R − I| entry (and bottom-row offset) accepted
+
+
+def as_pose(value: object, name: str) -> FloatArray:
+    """Validate a homogeneous transform: the one pose checker of the package.
 
     Parameters
     ----------
     value : array_like, shape (4, 4)
-        Candidate ``T_a_b``.
+        Candidate ``T_a_b``, m.
     name : str
         Argument name used in the error message.
+
+    Returns
+    -------
+    (4, 4) ndarray
+        ``value`` as float64.
+
+    Raises
+    ------
+    ValueError
+        Naming ``name``, unless ``value`` is a finite (4, 4) matrix whose bottom row is
+        (0, 0, 0, 1) and whose upper-left block is a proper rotation, each within
+        ``ROTATION_ORTHO_TOL``.
     """
-    arr = np.asarray(value, dtype=float)
-    if arr.shape != (4, 4):
-        raise ValueError(f"{name} must have shape (4, 4), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite")
-    R = arr[:3, :3]
-    if not np.allclose(arr[3], [0.0, 0.0, 0.0, 1.0]) or not np.allclose(
-        R.T @ R, np.eye(3), atol=1e-6
+    arr = as_finite_array(value, name, (4, 4))
+    (a, b, c, _), (d, e, f, _), (g, h, i, _), bottom = arr.tolist()
+    if (
+        max(abs(bottom[0]), abs(bottom[1]), abs(bottom[2]), abs(bottom[3] - 1.0))
+        > ROTATION_ORTHO_TOL
     ):
-        raise ValueError(f"{name} is not a rigid transform")
+        raise ValueError(f"{name}: bottom row must be (0, 0, 0, 1)")
+    gram = (
+        a * a + d * d + g * g - 1.0,
+        b * b + e * e + h * h - 1.0,
+        c * c + f * f + i * i - 1.0,
+        a * b + d * e + g * h,
+        a * c + d * f + g * i,
+        b * c + e * f + h * i,
+    )
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if max(abs(x) for x in gram) > ROTATION_ORTHO_TOL or det < 0.0:
+        raise ValueError(f"{name}: upper-left 3x3 block is not a rotation matrix")
     return arr
 
 
@@ -139,6 +162,16 @@ def euler_xyz_from_R(R: FloatArray) -> FloatArray:
 def rotation_angle(R_a_b: FloatArray, R_a_c: FloatArray) -> float:
     """Angle (rad, in [0, π]) of the relative rotation between two orientations (3, 3)."""
     return float(Rotation.from_matrix(R_a_b.T @ R_a_c).magnitude())
+
+
+def so3_log(R: FloatArray) -> FloatArray:
+    """Rotation vector (3,) or (N, 3), rad, |θ| ≤ π, of rotation matrices (3, 3) or (N, 3, 3)."""
+    return np.asarray(Rotation.from_matrix(R).as_rotvec(), dtype=float)
+
+
+def so3_exp(theta: ArrayLike) -> FloatArray:
+    """Rotation matrix (3, 3) or (N, 3, 3) of rotation vectors (3,) or (N, 3), rad."""
+    return np.asarray(Rotation.from_rotvec(theta).as_matrix(), dtype=float)
 
 
 def angle_between(u: FloatArray, v: FloatArray) -> float:

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from endocam.camera import StereoCamera
+from endocam.camera import StereoCamera, inside_image, pixel_offsets
 from endocam.geometry import FloatArray
 
 
@@ -47,32 +47,11 @@ def image_centering_error(
     Returns
     -------
     (N,)
-        Error, px; NaN where the ring centre is at or behind the left eye's image plane.
+        Error, px; NaN where the ring centre is closer than ``MIN_DEPTH`` to the left eye's
+        image plane.
     """
-    du, dv, z = _left_eye_offsets(camera, T_world_cam, p_world_ring)
-    err = np.hypot(du, dv)
-    err[~(z > 0)] = np.nan
-    return np.asarray(err)
-
-
-def _left_eye_offsets(
-    camera: StereoCamera, T_world_cam: FloatArray, p_world_ring: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Pixel offsets (du, dv) of points from the left principal point, and their depth z (m).
-
-    Each (N,); du, dv are inf/NaN where z ≤ 0 (callers mask them).
-    """
-    T = _stack(T_world_cam, "T_world_cam")
-    p = np.asarray(p_world_ring, dtype=float).reshape(-1, 3)
-    T_world_left = T @ camera.T_cam_left
-    d = p - T_world_left[:, :3, 3]
-    p_left = np.einsum("nji,nj->ni", T_world_left[:, :3, :3], d)  # R^T (p - t)
-    k = camera.intrinsics
-    z = p_left[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        du = k.fx * p_left[:, 0] / z
-        dv = k.fy * p_left[:, 1] / z
-    return du, dv, z
+    du, dv, _ = pixel_offsets(camera, _stack(T_world_cam, "T_world_cam"), p_world_ring)
+    return np.asarray(np.hypot(du, dv))
 
 
 def image_error_bound(camera: StereoCamera) -> float:
@@ -98,12 +77,9 @@ def ring_out_of_view(
     -------
     (N,) bool
     """
-    du, dv, z = _left_eye_offsets(camera, T_world_cam, p_world_ring)
+    du, dv, _ = pixel_offsets(camera, _stack(T_world_cam, "T_world_cam"), p_world_ring)
     k = camera.intrinsics
-    with np.errstate(invalid="ignore"):
-        u, v = k.cx + du, k.cy + dv
-        inside = (z > 0) & (u >= 0) & (u <= k.width) & (v >= 0) & (v <= k.height)
-    return np.asarray(~inside)
+    return np.asarray(~inside_image(k, k.cx + du, k.cy + dv))
 
 
 def saturate_image_error(

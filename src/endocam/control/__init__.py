@@ -1,19 +1,13 @@
 """The camera controller: goal pose, way-point planner, safety rules and policies."""
 
-from endocam.control.goal import goal_pose, look_at_pose
+from endocam.control.config import ControllerConfig, SideRule
+from endocam.control.goal import goal_pose
 from endocam.control.planner import WaypointPath, intermediate_waypoints
 from endocam.control.policies import (
     POLICIES,
-    CameraCommand,
-    CameraPolicy,
     CenteringPolicy,
-    ControllerConfig,
     FixedPolicy,
-    Observation,
     OrientationPolicy,
-    PolicyContext,
-    SideRule,
-    TrackingState,
     make_policy,
 )
 from endocam.control.safety import (
@@ -22,6 +16,13 @@ from endocam.control.safety import (
     WindowStatus,
     adjust_working_distance,
     window_status,
+)
+from endocam.control.types import (
+    CameraCommand,
+    CameraPolicy,
+    Observation,
+    PolicyContext,
+    TrackingState,
 )
 
 __all__ = [
@@ -43,7 +44,6 @@ __all__ = [
     "adjust_working_distance",
     "goal_pose",
     "intermediate_waypoints",
-    "look_at_pose",
     "make_policy",
     "window_status",
 ]

@@ -39,184 +39,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from endocam.geometry import UP, FloatArray, as_vector3, unit_vector
+from endocam.kernels import Vec, dot, scaled
+from endocam.view import pose_from_columns, rotation_columns, vec
 
-ROLL_HOLD_ANGLE = math.radians(2.0)  # rad, tilt of z from vertical below which roll is held
-ROLL_LEVEL_ANGLE = math.radians(20.0)  # rad, tilt above which the horizon is exactly level
-SIDE_HYSTERESIS = math.radians(10.0)  # rad, default tip below horizontal before a side change
-_SIN_HOLD = math.sin(ROLL_HOLD_ANGLE)
-_SIN_LEVEL = math.sin(ROLL_LEVEL_ANGLE)
+SIDE_HYSTERESIS = math.radians(25.0)  # rad, tip below horizontal before a side change
 _SIN_SIDE = math.sin(SIDE_HYSTERESIS)
 _EPS = 1e-9  # unitless, a projected direction shorter than this is degenerate
-
-
-def _smoothstep(x: float) -> float:
-    """Cubic smoothstep on [0, 1]: 0 below 0, 1 above 1, C¹ in between."""
-    if x <= 0.0:
-        return 0.0
-    if x >= 1.0:
-        return 1.0
-    return x * x * (3.0 - 2.0 * x)
-
-
-Vec = tuple[float, float, float]
-
-
-def _cross(a: Vec, b: Vec) -> Vec:
-    """Cross product of two 3-tuples (plain floats: the control loop runs at 1 kHz)."""
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def _dot(a: Vec, b: Vec) -> float:
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _norm(a: Vec) -> float:
-    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
-
-
-def _scaled(a: Vec, k: float) -> Vec:
-    return (a[0] * k, a[1] * k, a[2] * k)
-
-
-def _reject(a: Vec, z: Vec) -> Vec:
-    """Component of ``a`` perpendicular to the unit vector ``z``."""
-    k = _dot(a, z)
-    return (a[0] - k * z[0], a[1] - k * z[1], a[2] - k * z[2])
-
-
-def _default_roll_reference(z: Vec) -> Vec:
-    """Documented default roll when there is no ``previous``: world x projected, else world y."""
-    for ref in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)):
-        x = _reject(ref, z)
-        norm = _norm(x)
-        if norm > 0.1:
-            return _scaled(x, 1.0 / norm)
-    raise AssertionError("unreachable: world x and y cannot both be parallel to z")
-
-
-def _rotation_columns(z: Vec, up: Vec, x_prev: Vec | None) -> tuple[Vec, Vec, Vec]:
-    """Columns (x, y, z) of ``R_world_cam`` for the unit optical axis ``z``; see the module doc."""
-    x_level = _cross(z, up)
-    c = _norm(x_level)
-    x_ref: Vec | None = None
-    if x_prev is not None:
-        x_ref = _reject(x_prev, z)
-        n_ref = _norm(x_ref)
-        x_ref = _scaled(x_ref, 1.0 / n_ref) if n_ref > _EPS else None
-    if x_ref is None:
-        if c > _EPS:  # nothing to keep: the level, upright horizon
-            return _scaled(x_level, 1.0 / c), _cross(z, _scaled(x_level, 1.0 / c)), z
-        x_ref = _default_roll_reference(z)
-
-    if c >= _SIN_LEVEL:
-        x = _scaled(x_level, 1.0 / c)
-    elif c <= _EPS:
-        x = x_ref
-    else:
-        x_level = _scaled(x_level, 1.0 / c)
-        # Signed roll φ from the level horizon to the reference, about z.
-        phi = math.atan2(_dot(_cross(x_level, x_ref), z), _dot(x_level, x_ref))
-        phi_max = math.pi * (1.0 - _smoothstep((c - _SIN_HOLD) / (_SIN_LEVEL - _SIN_HOLD)))
-        phi = min(max(phi, -phi_max), phi_max)
-        y_level = _cross(z, x_level)
-        cp, sp = math.cos(phi), math.sin(phi)
-        x = (
-            cp * x_level[0] + sp * y_level[0],
-            cp * x_level[1] + sp * y_level[1],
-            cp * x_level[2] + sp * y_level[2],
-        )
-    return x, _cross(z, x), z
-
-
-def _pose(x: Vec, y: Vec, z: Vec, p: Vec) -> FloatArray:
-    return np.array(
-        [
-            [x[0], y[0], z[0], p[0]],
-            [x[1], y[1], z[1], p[1]],
-            [x[2], y[2], z[2], p[2]],
-            [0.0, 0.0, 0.0, 1.0],
-        ]
-    )
-
-
-def _vec(a: FloatArray) -> Vec:
-    v = a.tolist()
-    return (v[0], v[1], v[2])
-
-
-def rotation_looking_along(
-    z: FloatArray, up: FloatArray, previous_R: FloatArray | None
-) -> FloatArray:
-    """Camera rotation ``R_world_cam`` (3, 3) whose optical axis is ``z``, with a level horizon.
-
-    Parameters
-    ----------
-    z : (3,)
-        Unit optical axis in world (from the camera towards the scene).
-    up : (3,)
-        Unit world up.
-    previous_R : (3, 3) or None
-        Previous camera rotation in world; its roll is kept near the singularity ``z ∥ up``.
-
-    Returns
-    -------
-    (3, 3)
-        Columns x (right), y (down), z (forward) of the OpenCV optical frame in world.
-    """
-    x_prev = None if previous_R is None else _vec(previous_R[:, 0])
-    x, y, zz = _rotation_columns(_vec(z), _vec(up), x_prev)
-    return np.array(_pose(x, y, zz, (0.0, 0.0, 0.0))[:3, :3])
-
-
-def look_at_pose(
-    p_cam: ArrayLike,
-    p_target: ArrayLike,
-    *,
-    up: ArrayLike = UP,
-    previous: FloatArray | None = None,
-) -> FloatArray:
-    """Pose at ``p_cam`` looking at ``p_target`` with a level horizon (paper Sec. III-B, IWPs).
-
-    Parameters
-    ----------
-    p_cam : (3,)
-        Camera position in world, m.
-    p_target : (3,)
-        Point to look at in world, m; must differ from ``p_cam``.
-    up : (3,)
-        World up direction (normalised here).
-    previous : (4, 4) or None
-        Previous ``T_world_cam``; only its rotation is used, for the roll near the singularity.
-
-    Returns
-    -------
-    (4, 4)
-        ``T_world_cam`` in the OpenCV optical frame.
-    """
-    p = as_vector3(p_cam, "p_cam")
-    z = unit_vector(as_vector3(p_target, "p_target") - p, "p_target - p_cam")
-    up_u = unit_vector(up, "up")
-    x_prev = None if previous is None else _vec(previous[:3, 0])
-    x, y, zz = _rotation_columns(_vec(z), _vec(up_u), x_prev)
-    return _pose(x, y, zz, _vec(p))
-
-
-def look_at_unchecked(
-    p_cam: FloatArray, p_target: FloatArray, fallback: FloatArray, previous: FloatArray | None
-) -> FloatArray:
-    """:func:`look_at_pose` without validation, for the control loop.
-
-    Returns ``fallback`` (4, 4) when the two points coincide (no direction to look along).
-    """
-    p = _vec(p_cam)
-    d = _vec(p_target)
-    d = (d[0] - p[0], d[1] - p[1], d[2] - p[2])
-    norm = _norm(d)
-    if not norm > 1e-9:
-        return fallback
-    x_prev = None if previous is None else _vec(previous[:3, 0])
-    x, y, z = _rotation_columns(_scaled(d, 1.0 / norm), (0.0, 0.0, 1.0), x_prev)
-    return _pose(x, y, z, p)
 
 
 def choose_side(n: Vec, up: Vec, z_prev: Vec | None, sin_hysteresis: float = _SIN_SIDE) -> float:
@@ -236,11 +64,11 @@ def choose_side(n: Vec, up: Vec, z_prev: Vec | None, sin_hysteresis: float = _SI
         Sine of how far past perpendicular to ``up`` the normal may tip before the side
         changes (≥ 0).
     """
-    n_up = _dot(n, up)
+    n_up = dot(n, up)
     default = 1.0 if n_up >= 0.0 else -1.0
     if z_prev is None:
         return default
-    along = -_dot(z_prev, n)  # > 0: the previous camera looked from the +n side
+    along = -dot(z_prev, n)  # > 0: the previous camera looked from the +n side
     if abs(along) < _EPS:
         return default
     s_prev = 1.0 if along > 0.0 else -1.0
@@ -267,7 +95,7 @@ def goal_pose_unchecked(
     sin_h = math.sin(side_hysteresis)
     if min_height > -math.inf and toward is None:
         # Keeping the previous side may not take the camera below ``min_height``.
-        sin_h = max(0.0, min(sin_h, (_dot(p_c, up) - min_height) / d_f))
+        sin_h = max(0.0, min(sin_h, (dot(p_c, up) - min_height) / d_f))
     if previous is None:
         s = choose_side(n, ref, None)
         x_prev = None
@@ -277,13 +105,13 @@ def goal_pose_unchecked(
         x_prev = (R[0][0], R[1][0], R[2][0])
     if toward is not None and min_height > -math.inf:
         # the port side may never put the camera below ``min_height`` when the other side is higher
-        h_c, n_up = _dot(p_c, up), _dot(n, up)
+        h_c, n_up = dot(p_c, up), dot(n, up)
         if h_c + s * d_f * n_up < min_height and s * n_up < 0.0:
             s = -s
-    z = _scaled(n, -s)
-    x, y, zz = _rotation_columns(z, up, x_prev)
+    z = scaled(n, -s)
+    x, y, zz = rotation_columns(z, up, x_prev)
     p = (p_c[0] - d_f * z[0], p_c[1] - d_f * z[1], p_c[2] - d_f * z[2])
-    return _pose(x, y, zz, p)
+    return pose_from_columns(x, y, zz, p)
 
 
 def goal_pose(
@@ -356,7 +184,7 @@ def goal_pose(
         raise ValueError("min_height must be a number of metres or -inf")
     toward = None
     if port is not None:
-        toward = _vec(unit_vector(as_vector3(port, "port") - p, "port - p_c"))
+        toward = vec(unit_vector(as_vector3(port, "port") - p, "port - p_c"))
     return goal_pose_unchecked(
-        _vec(p), _vec(n_u), float(d_f), _vec(up_u), prev, side_hysteresis, min_height, toward
+        vec(p), vec(n_u), float(d_f), vec(up_u), prev, side_hysteresis, min_height, toward
     )

@@ -16,228 +16,37 @@ and a one-line reason.
 
 from __future__ import annotations
 
-import enum
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Protocol
+from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from endocam.camera import StereoCamera
-from endocam.control.goal import goal_pose_unchecked, look_at_unchecked
+from endocam.control.config import ControllerConfig, SideRule
+from endocam.control.goal import goal_pose_unchecked
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.safety import (
-    D_F_STEP,
     ConeWorkspace,
-    ImageWindows,
     WindowGeometry,
     adjust_working_distance,
     window_status_rows,
 )
+from endocam.control.types import (
+    CameraCommand,
+    CameraPolicy,
+    Observation,
+    PolicyContext,
+    TrackingState,
+)
 from endocam.geometry import UP, FloatArray
-
-
-class TrackingState(enum.Enum):
-    """What a policy is doing this control step."""
-
-    HOLDING = "holding"  # deliberately still (the fixed camera)
-    TRACKING = "tracking"  # moving to the goal
-    PLANNING = "planning"  # following intermediate way-points around a goal jump
-    FROZEN_OUTSIDE_CONE = "frozen_outside_cone"  # goal left the cone workspace; pose held
-    LOST_TRACKING = "lost_tracking"  # no valid feature observation; last safe pose held
-    UNREACHABLE = "unreachable"  # the arm cannot reach the goal (set by the robot layer)
-
-
-class SideRule(enum.Enum):
-    """Which side of the feature the orientation camera looks from (see ``control.goal``)."""
-
-    UP = "up"
-    """The paper's rule: the side above the feature, ``s n·up ≥ 0``."""
-    PORT = "port"
-    """The side facing the camera arm's RCM, ``s n·(p_rcm − p_c) ≥ 0``."""
-
-
-class ControllerConfig(BaseModel):
-    """Parameters of the moving policies, SI units. Validated at construction."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    d_f: float = Field(0.05, gt=0, description="initial working distance, m")
-    d_min: float = Field(0.03, gt=0, description="smallest working distance, m")
-    d_max: float = Field(0.08, gt=0, description="largest working distance, m")
-    d_f_step: float = Field(D_F_STEP, gt=0, description="working-distance change per step, m")
-    jump_threshold: float = Field(
-        0.02, gt=0, description="goal jump between control steps that triggers way-points, m"
-    )
-    d_wp: float = Field(0.04, gt=0, description="height of intermediate way-points, m")
-    side_hysteresis: float = Field(
-        math.radians(25.0),
-        ge=0,
-        lt=math.pi / 2,
-        description="how far below horizontal the ring normal may tip before the orientation "
-        "camera changes side, rad",
-    )
-    side_rule: SideRule = Field(
-        SideRule.PORT,
-        description="which side of the ring the orientation camera takes: 'up' (the paper: "
-        "above the ring) or 'port' (facing the camera arm's RCM, so the camera looks away "
-        "from its port, as an RCM arm's wrist must)",
-    )
-    min_camera_height: float = Field(
-        0.015,
-        description="lowest camera height above the board (world z) the side hysteresis may "
-        "keep, m",
-    )
-    planner_speed: float = Field(0.15, gt=0, description="progress speed along way-points, m/s")
-    planner_lookahead: float = Field(
-        0.01, gt=0, description="how far progress may lead the camera's projection, m"
-    )
-    cone_height: float = Field(
-        0.30,
-        gt=0,
-        description="cone workspace height, m: the PSM-held camera's reach (0.24 m insertion "
-        "+ 0.046 m to the tip + 0.015 m mount), as the paper sets it slightly under the "
-        "instrument length",
-    )
-    cone_base_radius: float = Field(
-        0.25,
-        gt=0,
-        description="cone base radius, m (the paper chose 0.10 m empirically for its port; "
-        "this port is within the PSM's reach of the wire, hence closer and wider-angled: "
-        "see docs/world.md)",
-    )
-    window_inner_frac: float = Field(0.5, gt=0, le=1, description="inner window, image fraction")
-    window_outer_frac: float = Field(0.9, gt=0, le=1, description="outer window, image fraction")
-
-    @model_validator(mode="after")
-    def _check_ranges(self) -> ControllerConfig:
-        if not self.d_min <= self.d_f <= self.d_max:
-            raise ValueError(
-                f"need d_min ≤ d_f ≤ d_max, got {self.d_min}, {self.d_f}, {self.d_max}"
-            )
-        if not self.window_inner_frac < self.window_outer_frac:
-            raise ValueError("window_inner_frac must be smaller than window_outer_frac")
-        return self
-
-    @property
-    def windows(self) -> ImageWindows:
-        """The tool-in-view windows."""
-        return ImageWindows(self.window_inner_frac, self.window_outer_frac)
-
-
-@dataclass(frozen=True)
-class PolicyContext:
-    """What a policy is told at ``reset``.
-
-    Attributes
-    ----------
-    camera : StereoCamera
-        The stereo camera (intrinsics, baseline).
-    T_world_cam : (4, 4)
-        Initial camera pose (the fixed condition's whole-task view), optical frame, m.
-    T_world_ring : (4, 4)
-        The ring pose at initialisation, m (gives the cone axis).
-    p_world_rcm : (3,)
-        Remote centre of motion of the camera arm = cone tip, m.
-    dt : float
-        Control period, s.
-    """
-
-    camera: StereoCamera
-    T_world_cam: FloatArray
-    T_world_ring: FloatArray
-    p_world_rcm: FloatArray
-    dt: float
-
-
-@dataclass(frozen=True)
-class Observation:
-    """What a policy sees each control step.
-
-    Attributes
-    ----------
-    t : float
-        Time, s.
-    T_world_ring : (4, 4) or None
-        Sensed ring pose (ring z = face normal), m; ``None`` or non-finite when tracking is lost.
-    T_world_cam : (4, 4)
-        Measured camera pose, optical frame, m.
-    p_world_tips : (K, 3)
-        Instrument tip positions in world, m.
-    p_world_reach_offset : (3,) or None
-        How far the actuator's target for the previous command lies from that command's
-        position, m (world): non-zero when an arm concedes a goal it cannot reach (the
-        nearest feasible view). The way-point planner measures the camera's progress against
-        where the actuator can put it; ``None``: the actuator reaches what it is sent.
-    """
-
-    t: float
-    T_world_ring: FloatArray | None
-    T_world_cam: FloatArray
-    p_world_tips: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
-    p_world_reach_offset: FloatArray | None = None
-
-
-@dataclass(frozen=True)
-class CameraCommand:
-    """A policy's output: the camera pose to move to, and why.
-
-    Attributes
-    ----------
-    T_world_cam : (4, 4)
-        Commanded camera pose, optical frame, m.
-    state : TrackingState
-    d_f : float
-        Working distance in use, m.
-    reason : str
-        One line for the log when the state is not plain tracking.
-    """
-
-    T_world_cam: FloatArray
-    state: TrackingState
-    d_f: float
-    reason: str = ""
-
-
-class CameraPolicy(Protocol):
-    """The interface every camera policy implements."""
-
-    name: str
-
-    def reset(self, context: PolicyContext) -> None:
-        """Start an episode."""
-
-    def step(self, obs: Observation) -> CameraCommand:
-        """One control step: map an observation to a camera command."""
-
+from endocam.kernels import Rows, finite_rows
+from endocam.robot.actuator import ArmKind
+from endocam.view import look_at_unchecked
 
 _UP = (0.0, 0.0, 1.0)  # world up as plain floats
 FREEZE_RELEASE_MARGIN = 1e-3  # m, how far back inside the cone the goal must be to unfreeze
 LIFT_TOL = 1e-4  # m, resolution of the cone-limited way-point height
 _MIN_NORMAL = 1e-9  # unitless, a ring normal shorter than this is degenerate
-
-
-Rows = list[list[float]]
-
-
-def _rows(T: FloatArray | None) -> Rows | None:
-    """Rows of a finite (4, 4) array as plain floats, or ``None`` if missing or not finite."""
-    if T is None:
-        return None
-    arr = T if isinstance(T, np.ndarray) else np.asarray(T, dtype=float)
-    if arr.shape != (4, 4):
-        return None
-    rows: Rows = arr.tolist()
-    if not math.isfinite(math.fsum(rows[0] + rows[1] + rows[2] + rows[3])):
-        return None  # any NaN or inf makes the sum non-finite
-    return rows
-
-
-def _valid_pose(T: FloatArray | None) -> bool:
-    """A (4, 4) array of finite numbers."""
-    return _rows(T) is not None
 
 
 class FixedPolicy:
@@ -303,15 +112,12 @@ class _MovingPolicy:
             raise RuntimeError("call reset() before using the policy")
         return self._cone
 
-    def _goal(self, T_world_ring: FloatArray, T_world_cam: FloatArray) -> FloatArray | None:
-        """The goal ``T_world_cam`` (4, 4), or ``None`` if the ring pose gives none."""
-        raise NotImplementedError
+    def _goal(self, ring_rows: Rows, T_world_cam: FloatArray) -> FloatArray | None:
+        """The goal ``T_world_cam`` (4, 4) for the ring pose (rows of floats), or ``None``.
 
-    def _goal_rows(
-        self, ring_rows: Rows, T_world_ring: FloatArray, T_world_cam: FloatArray
-    ) -> FloatArray | None:
-        """:meth:`_goal` with the ring pose also given as rows of floats (override to use them)."""
-        return self._goal(T_world_ring, T_world_cam)
+        ``None``: the ring pose gives no goal (a degenerate normal).
+        """
+        raise NotImplementedError
 
     def _hold(self, state: TrackingState, reason: str) -> CameraCommand:
         assert self._last_cmd is not None
@@ -323,11 +129,11 @@ class _MovingPolicy:
         if ctx is None:
             raise RuntimeError("call reset() before step()")
         cfg = self.config
-        cam_rows = _rows(obs.T_world_cam)
+        cam_rows = finite_rows(obs.T_world_cam)
         if cam_rows is None:
             return self._hold(TrackingState.LOST_TRACKING, "camera pose not finite; holding")
         T_cam = np.asarray(obs.T_world_cam, dtype=float)
-        ring_rows = _rows(obs.T_world_ring)
+        ring_rows = finite_rows(obs.T_world_ring)
         if ring_rows is None:
             self._last_goal = None
             self._path = None
@@ -342,16 +148,15 @@ class _MovingPolicy:
         d_f_before = self.d_f
         self.d_f = adjust_working_distance(self.d_f, status, cfg.d_min, cfg.d_max, cfg.d_f_step)
 
-        goal = self._goal_rows(ring_rows, T_ring, T_cam)
+        goal = self._goal(ring_rows, T_cam)
         if goal is None:
             self.d_f = d_f_before
             self._last_goal = None
             self._path = None
             return self._hold(TrackingState.LOST_TRACKING, "ring pose degenerate (zero normal)")
-        p_goal = goal[:3, 3]
         goal_rows = goal.tolist()
-        p_goal_list = [goal_rows[0][3], goal_rows[1][3], goal_rows[2][3]]
-        margin = self.cone.margin(p_goal_list)
+        p_goal = [goal_rows[0][3], goal_rows[1][3], goal_rows[2][3]]
+        margin = self.cone.margin(p_goal)
         # Freeze when the goal leaves the cone; release only once it is FREEZE_RELEASE_MARGIN
         # inside, so a goal grazing the surface does not toggle the camera every step.
         release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0
@@ -373,21 +178,21 @@ class _MovingPolicy:
             ref_p = self._last_goal_p
         else:
             ref_p = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
-        jumped = math.dist(p_goal_list, ref_p) > cfg.jump_threshold
+        jumped = math.dist(p_goal, ref_p) > cfg.jump_threshold
         self._last_goal = goal
-        self._last_goal_p = p_goal_list
+        self._last_goal_p = p_goal
         if jumped and self._path is None:
             p_cam = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
             self._path = WaypointPath(
                 intermediate_waypoints(
-                    T_cam[:3, 3], p_goal, UP, self._lift(p_cam), self._lift(p_goal_list)
+                    T_cam[:3, 3], np.array(p_goal), UP, self._lift(p_cam), self._lift(p_goal)
                 )
             )
             self._s = 0.0
         state, reason = TrackingState.TRACKING, ""
         cmd = goal
         if self._path is not None:
-            self._path = self._path.with_goal(p_goal, UP, self._lift(p_goal_list))
+            self._path = self._path.with_goal(np.array(p_goal), UP, self._lift(p_goal))
             p_progress = T_cam[:3, 3]
             offset = obs.p_world_reach_offset
             if offset is not None and all(map(math.isfinite, offset)):
@@ -437,12 +242,13 @@ class CenteringPolicy(_MovingPolicy):
 
     name = "centering"
 
-    def _goal(self, T_world_ring: FloatArray, T_world_cam: FloatArray) -> FloatArray:
+    def _goal(self, ring_rows: Rows, T_world_cam: FloatArray) -> FloatArray:
         assert self._ctx is not None
         R0 = self._ctx.T_world_cam[:3, :3]
         T = np.eye(4)
         T[:3, :3] = R0
-        T[:3, 3] = T_world_ring[:3, 3] - self.d_f * R0[:, 2]
+        p_c = np.array([ring_rows[0][3], ring_rows[1][3], ring_rows[2][3]])
+        T[:3, 3] = p_c - self.d_f * R0[:, 2]
         return T
 
     def _waypoint_pose(self, p: FloatArray, T_ring: FloatArray, goal: FloatArray) -> FloatArray:
@@ -456,12 +262,7 @@ class OrientationPolicy(_MovingPolicy):
 
     name = "orientation"
 
-    def _goal(self, T_world_ring: FloatArray, T_world_cam: FloatArray) -> FloatArray | None:
-        return self._goal_rows(np.asarray(T_world_ring).tolist(), T_world_ring, T_world_cam)
-
-    def _goal_rows(
-        self, ring_rows: Rows, T_world_ring: FloatArray, T_world_cam: FloatArray
-    ) -> FloatArray | None:
+    def _goal(self, ring_rows: Rows, T_world_cam: FloatArray) -> FloatArray | None:
         previous = self._last_goal if self._last_goal is not None else T_world_cam
         T = ring_rows
         n = (T[0][2], T[1][2], T[2][2])
@@ -512,13 +313,13 @@ class PolicyEntry:
         Builds the policy from a :class:`ControllerConfig`.
     summary : str
         One line for ``endocam policies``.
-    arm : {"free", "psm", "ecm"} or None
-        The arm that must carry the camera; ``None`` uses the config's ``episode.arm``.
+    arm : ArmKind or None
+        The carrier the policy needs; ``None`` uses the config's ``episode.arm``.
     """
 
     factory: Callable[[ControllerConfig], CameraPolicy]
     summary: str
-    arm: str | None = None
+    arm: ArmKind | None = None
 
 
 POLICIES: dict[str, PolicyEntry] = {
@@ -532,7 +333,7 @@ POLICIES: dict[str, PolicyEntry] = {
     "orientation-ecm": PolicyEntry(
         OrientationEcmPolicy,
         "condition III's goal carried out by the 4-DoF dVRK ECM (always uses the ECM)",
-        arm="ecm",
+        arm=ArmKind.ECM,
     ),
 }
 

@@ -20,7 +20,8 @@ from numpy.typing import ArrayLike
 from endocam.camera import MIN_DEPTH, StereoCamera
 from endocam.geometry import FloatArray, as_vector3, unit_vector
 
-CONE_BASE_RADIUS = 0.10  # m, the paper's empirical base radius
+CONE_HEIGHT = 0.30  # m, the PSM-held camera's reach, slightly under the instrument (paper III-C)
+CONE_BASE_RADIUS = 0.25  # m; the paper chose 0.10 m for its farther port (docs/world.md)
 D_F_STEP = 1.0e-3  # m, working-distance change per control step (paper: ±1 mm)
 
 

@@ -25,12 +25,11 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 import ruckig
-from numpy.typing import NDArray
 
-from endocam.geometry import as_finite_array
+from endocam.geometry import FloatArray, as_finite_array, as_pose, invert_pose
 from endocam.robot.ecm import ECM
 from endocam.robot.ik import IKResult, IKStatus
-from endocam.robot.kinematics import LIMIT_SLACK, RcmArm, check_pose, invert_pose
+from endocam.robot.kinematics import LIMIT_SLACK, RcmArm
 from endocam.robot.psm import PSM
 
 __all__ = [
@@ -44,7 +43,6 @@ __all__ = [
     "UnreachablePolicy",
 ]
 
-FloatArray = NDArray[np.float64]
 
 # Conservative engineering limits (not dVRK-measured): rad/s, rad/s² (m/s, m/s² for insertion)
 PSM_MAX_VELOCITY = (1.0, 1.0, 0.2, 3.0, 3.0, 3.0)
@@ -79,7 +77,7 @@ class CrtkArm(Protocol):
 
 
 class MotionStatus(enum.Enum):
-    """State of the simulated arm's joint motion after a step."""
+    """State of a carrier's motion after a step (the joint arm and the Cartesian limiter)."""
 
     FINISHED = "finished"
     """At the set point and at rest."""
@@ -87,6 +85,8 @@ class MotionStatus(enum.Enum):
     """Moving towards the set point within the velocity / acceleration limits."""
     LIMIT_STOP = "limit_stop"
     """A joint would have crossed its position limit and was stopped hard at it."""
+    REJECTED = "rejected"
+    """The target was not finite; still heading for the last valid one."""
 
 
 class UnreachablePolicy(enum.Enum):
@@ -191,7 +191,7 @@ class SimulatedArm:
             self._T_base_rcm: FloatArray | None = None
             self._T_rcm_base: FloatArray | None = None
         else:
-            self._T_base_rcm = check_pose(T_base_rcm, "T_base_rcm")
+            self._T_base_rcm = as_pose(T_base_rcm, "T_base_rcm")
             self._T_rcm_base = invert_pose(self._T_base_rcm)
         self._unreachable = unreachable
         self._lower = model.lower.tolist()
@@ -340,7 +340,7 @@ class SimulatedArm:
             ``result.q`` (nearest feasible); with ``HOLD`` a non-OK result keeps the previous
             set point.
         """
-        T = check_pose(T_base_tip, "T_base_tip")
+        T = as_pose(T_base_tip, "T_base_tip")
         T_rcm_tip = T if self._T_rcm_base is None else self._T_rcm_base @ T
         result = self._model.solve_unchecked(T_rcm_tip, self._target)
         self._last_ik = result

@@ -22,7 +22,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+
+from endocam.geometry import FloatArray
 
 __all__ = [
     "IDENTITY12",
@@ -39,8 +40,6 @@ __all__ = [
     "pose12_times",
     "pose12_to_matrix",
 ]
-
-FloatArray = NDArray[np.float64]
 
 
 class JointType(enum.Enum):

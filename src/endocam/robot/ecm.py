@@ -30,9 +30,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from endocam.geometry import FloatArray, invert_pose
 from endocam.robot.dh import (
     DHChain,
     DHLink,
@@ -50,12 +50,10 @@ from endocam.robot.kinematics import (
     NEAREST_MAX_NFEV,
     RcmArm,
     branch_in_limits,
-    invert_pose,
 )
 
 __all__ = ["ECM", "ECM_CHAIN"]
 
-FloatArray = NDArray[np.float64]
 
 _HALF_PI = math.pi / 2.0  # rad; the dVRK's 1.5708, as its parser reads it
 _R = JointType.REVOLUTE

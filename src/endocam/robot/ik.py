@@ -6,8 +6,8 @@ import enum
 import math
 from dataclasses import dataclass
 
-import numpy as np
-from numpy.typing import NDArray
+from endocam.geometry import FloatArray
+from endocam.kernels import rotation_angle
 
 __all__ = [
     "IK_ORIENTATION_TOL_RAD",
@@ -17,11 +17,9 @@ __all__ = [
     "UnreachableError",
     "pose12_error",
     "pose_error",
-    "rotation_angle_between",
     "within_tolerance",
 ]
 
-FloatArray = NDArray[np.float64]
 
 IK_POSITION_TOL_M = 1e-7  # m: a pose closer than this is "reached"
 IK_ORIENTATION_TOL_RAD = 1e-7  # rad: an orientation closer than this is "reached"
@@ -116,37 +114,6 @@ class UnreachableError(ValueError):
         return self.result.orientation_error
 
 
-def rotation_angle_between(R_a: FloatArray, R_b: FloatArray) -> float:
-    """Angle of the relative rotation ``R_a^T R_b``.
-
-    Uses ``atan2(|sin|, cos)`` from the skew and trace parts of ``M = R_a^T R_b``, which is
-    accurate near 0 and π (``arccos`` of the trace is not).
-
-    Parameters
-    ----------
-    R_a, R_b : (3, 3) ndarray
-        Rotation matrices in the same frame.
-
-    Returns
-    -------
-    float
-        Angle in [0, π], rad.
-    """
-    return _angle_between_rows(R_a.tolist(), R_b.tolist())
-
-
-def _angle_between_rows(A: list[list[float]], B: list[list[float]]) -> float:
-    # M_ij = sum_k A_ki B_kj
-    def m(i: int, j: int) -> float:
-        return A[0][i] * B[0][j] + A[1][i] * B[1][j] + A[2][i] * B[2][j]
-
-    s = 0.5 * math.sqrt(
-        (m(2, 1) - m(1, 2)) ** 2 + (m(0, 2) - m(2, 0)) ** 2 + (m(1, 0) - m(0, 1)) ** 2
-    )
-    c = 0.5 * (m(0, 0) + m(1, 1) + m(2, 2) - 1.0)
-    return math.atan2(s, c)
-
-
 def pose_error(T_goal: FloatArray, T: FloatArray) -> tuple[float, float]:
     """Position and orientation distance between two poses in the same frame.
 
@@ -165,7 +132,7 @@ def pose_error(T_goal: FloatArray, T: FloatArray) -> tuple[float, float]:
     A = T_goal.tolist()
     B = T.tolist()
     d0, d1, d2 = A[0][3] - B[0][3], A[1][3] - B[1][3], A[2][3] - B[2][3]
-    return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), _angle_between_rows(A, B)
+    return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), rotation_angle(A, B)
 
 
 def pose12_error(goal: tuple[float, ...], pose: tuple[float, ...]) -> tuple[float, float]:
@@ -187,18 +154,9 @@ def pose12_error(goal: tuple[float, ...], pose: tuple[float, ...]) -> tuple[floa
     """
     a00, a01, a02, a10, a11, a12, a20, a21, a22, ax, ay, az = goal
     b00, b01, b02, b10, b11, b12, b20, b21, b22, bx, by, bz = pose
-    # M = A^T B
-    m01 = a00 * b01 + a10 * b11 + a20 * b21
-    m10 = a01 * b00 + a11 * b10 + a21 * b20
-    m02 = a00 * b02 + a10 * b12 + a20 * b22
-    m20 = a02 * b00 + a12 * b10 + a22 * b20
-    m12 = a01 * b02 + a11 * b12 + a21 * b22
-    m21 = a02 * b01 + a12 * b11 + a22 * b21
-    trace = (
-        a00 * b00 + a10 * b10 + a20 * b20
-        + a01 * b01 + a11 * b11 + a21 * b21
-        + a02 * b02 + a12 * b12 + a22 * b22
-    )  # fmt: skip
-    s = 0.5 * math.sqrt((m21 - m12) ** 2 + (m02 - m20) ** 2 + (m10 - m01) ** 2)
+    angle = rotation_angle(
+        [[a00, a01, a02], [a10, a11, a12], [a20, a21, a22]],
+        [[b00, b01, b02], [b10, b11, b12], [b20, b21, b22]],
+    )
     dx, dy, dz = ax - bx, ay - by, az - bz
-    return math.sqrt(dx * dx + dy * dy + dz * dz), math.atan2(s, 0.5 * (trace - 1.0))
+    return math.sqrt(dx * dx + dy * dy + dz * dz), angle

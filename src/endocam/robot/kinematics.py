@@ -10,13 +10,11 @@ from __future__ import annotations
 import abc
 import math
 
-import mujoco
 import numpy as np
-from numpy.typing import NDArray
 from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
-from endocam.geometry import as_finite_array
+from endocam.geometry import FloatArray, as_finite_array, as_pose, invert_pose, so3_log
+from endocam.kernels import so3_log as so3_log_rows
 from endocam.robot.dh import (
     DHChain,
     JointType,
@@ -38,79 +36,14 @@ __all__ = [
     "NEAREST_MAX_NFEV",
     "ORIENTATION_WEIGHT_M_PER_RAD",
     "RcmArm",
-    "check_pose",
-    "invert_pose",
 ]
 
-FloatArray = NDArray[np.float64]
 
 ORIENTATION_WEIGHT_M_PER_RAD = 0.05  # m/rad: 1 rad of orientation error weighs like 5 cm
-ROTATION_ORTHO_TOL = 1e-6  # 1: max |R^T R - I| entry accepted as a rotation
 LIMIT_SLACK = 1e-12  # rad or m: round-off tolerated at a joint limit
 _DLS_DAMPING = 1e-6  # damping (m) of the damped-least-squares polish
 _DLS_STEPS = 5  # polish iterations after a closed-form solution
 NEAREST_MAX_NFEV = 200  # count: default residual evaluations of the nearest-feasible solve
-
-
-def check_pose(T: object, name: str) -> FloatArray:
-    """Validate a homogeneous transform.
-
-    Parameters
-    ----------
-    T : array_like
-        Candidate (4, 4) pose, m.
-    name : str
-        Argument name for error messages.
-
-    Returns
-    -------
-    (4, 4) ndarray
-        ``T`` as float64.
-
-    Raises
-    ------
-    ValueError
-        If ``T`` is not a finite (4, 4) matrix with a rotation block and bottom row (0, 0, 0, 1).
-    """
-    arr = as_finite_array(T, name, (4, 4))
-    (a, b, c, _), (d, e, f, _), (g, h, i, _), bottom = arr.tolist()
-    if (
-        max(abs(bottom[0]), abs(bottom[1]), abs(bottom[2]), abs(bottom[3] - 1.0))
-        > ROTATION_ORTHO_TOL
-    ):
-        raise ValueError(f"{name}: bottom row must be (0, 0, 0, 1)")
-    gram = (
-        a * a + d * d + g * g - 1.0,
-        b * b + e * e + h * h - 1.0,
-        c * c + f * f + i * i - 1.0,
-        a * b + d * e + g * h,
-        a * c + d * f + g * i,
-        b * c + e * f + h * i,
-    )
-    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
-    if max(abs(x) for x in gram) > ROTATION_ORTHO_TOL or det < 0.0:
-        raise ValueError(f"{name}: upper-left 3x3 block is not a rotation matrix")
-    return arr
-
-
-def invert_pose(T_a_b: FloatArray) -> FloatArray:
-    """Inverse of a rigid transform.
-
-    Parameters
-    ----------
-    T_a_b : (4, 4) ndarray
-        Pose of b in a, m.
-
-    Returns
-    -------
-    T_b_a : (4, 4) ndarray
-        Pose of a in b, m.
-    """
-    out = np.eye(4)
-    R_t = T_a_b[:3, :3].T
-    out[:3, :3] = R_t
-    out[:3, 3] = -R_t @ T_a_b[:3, 3]
-    return out
 
 
 def wrap_to_nearest(angle: float, reference: float) -> float:
@@ -297,7 +230,7 @@ class RcmArm(abc.ABC):
         T_rcm_cam : (4, 4) ndarray
             Camera pose in the RCM frame, m.
         """
-        return self.forward(q) @ check_pose(T_tip_cam, "T_tip_cam")
+        return self.forward(q) @ as_pose(T_tip_cam, "T_tip_cam")
 
     # ------------------------------------------------------------------ inverse
     def solve(self, T_rcm_tip: object, q_seed: object | None = None) -> IKResult:
@@ -322,7 +255,7 @@ class RcmArm(abc.ABC):
         ValueError
             If ``T_rcm_tip`` is not a finite rigid transform or ``q_seed`` is malformed.
         """
-        return self.solve_unchecked(check_pose(T_rcm_tip, "T_rcm_tip"), self._seed(q_seed))
+        return self.solve_unchecked(as_pose(T_rcm_tip, "T_rcm_tip"), self._seed(q_seed))
 
     @abc.abstractmethod
     def solve_unchecked(self, T_goal: FloatArray, seed: FloatArray) -> IKResult:
@@ -413,8 +346,8 @@ class RcmArm(abc.ABC):
             mount is rigid, the orientation error equals the camera's, and the position error
             is the camera's when the tip orientation is reached.
         """
-        T_goal = check_pose(T_rcm_cam, "T_rcm_cam")
-        T_mount = check_pose(T_tip_cam, "T_tip_cam")
+        T_goal = as_pose(T_rcm_cam, "T_rcm_cam")
+        T_mount = as_pose(T_tip_cam, "T_tip_cam")
         return self.solve(T_goal @ invert_pose(T_mount), q_seed)
 
     # ------------------------------------------------------------------ shared solvers
@@ -450,7 +383,7 @@ class RcmArm(abc.ABC):
             err = np.concatenate(
                 [
                     T_goal[:3, 3] - T[:3, 3],
-                    Rotation.from_matrix(R_err).as_rotvec(),
+                    so3_log(R_err),
                 ]
             )
             J = geometric_jacobian(self._chain, q)
@@ -460,14 +393,9 @@ class RcmArm(abc.ABC):
 
     def _pose_residual(self, q: FloatArray, T_goal: FloatArray, weight: float) -> FloatArray:
         T = chain_forward(self._chain, q)
-        # rotation vector of R_goal^T R via MuJoCo's quaternion kernels: scipy's Rotation
-        # costs ~0.2 ms per call, too slow inside the control loop's nearest-feasible solve
-        quat = np.empty(4)
-        mujoco.mju_mat2Quat(quat, np.ascontiguousarray(T_goal[:3, :3].T @ T[:3, :3]).ravel())
-        if quat[0] < 0.0:
-            quat = -quat
-        rot_err = np.empty(3)
-        mujoco.mju_quat2Vel(rot_err, quat, 1.0)
+        # rotation vector of R_goal^T R on floats: scipy's Rotation costs ~0.2 ms per call, too
+        # slow inside the control loop's nearest-feasible solve
+        rot_err = np.array(so3_log_rows((T_goal[:3, :3].T @ T[:3, :3]).tolist()))
         return np.concatenate([T[:3, 3] - T_goal[:3, 3], weight * rot_err])
 
     def _pose_residual_jac(self, q: FloatArray, T_goal: FloatArray, weight: float) -> FloatArray:

@@ -26,8 +26,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 
+from endocam.geometry import FloatArray, invert_pose
 from endocam.robot.dh import (
     DHChain,
     DHLink,
@@ -44,12 +44,10 @@ from endocam.robot.kinematics import (
     NEAREST_MAX_NFEV,
     RcmArm,
     branch_in_limits,
-    invert_pose,
 )
 
 __all__ = ["PSM", "PSM_CHAIN", "PSM_TOOLTIP_OFFSET"]
 
-FloatArray = NDArray[np.float64]
 
 # The dVRK files write ±1.5708; cisst's robManipulator parser replaces that value by π/2,
 # so the kinematics the dVRK actually runs (and this module) use π/2 exactly.

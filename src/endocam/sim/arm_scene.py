@@ -1,6 +1,6 @@
 """The camera arm drawn in the MuJoCo scene: a kinematic chain of simple mocap links.
 
-When an episode's camera is carried by a dVRK arm (:class:`~endocam.sim.arm.ArmKind` ``PSM``
+When an episode's camera is carried by a dVRK arm (:class:`~endocam.robot.actuator.ArmKind` ``PSM``
 or ``ECM``), :func:`add_camera_arm` adds one mocap body per drawn link, each posed at a
 modified-DH frame of the arm (:meth:`~endocam.robot.kinematics.RcmArm.frames`, placed in the
 world by ``T_world_rcm``). Geoms are in group ``GROUP_LINK`` and named ``camera_arm_*``.
@@ -38,9 +38,9 @@ from dataclasses import dataclass
 import mujoco
 
 from endocam.camera import StereoCamera
+from endocam.robot.camera_arm import ArmKind
 from endocam.robot.ecm import ECM_CHAIN
 from endocam.robot.psm import PSM_CHAIN
-from endocam.sim.arm import ArmKind
 from endocam.sim.scene import (
     CAMERA_BODY,
     GROUP_LINK,

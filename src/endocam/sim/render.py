@@ -17,7 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from endocam.camera import Eye, StereoCamera
 from endocam.geometry import FloatArray, as_pose, as_vector3, quat_wxyz_from_R
-from endocam.sim.arm import ArmKind, arm_model, natural_pose
+from endocam.robot.camera_arm import ArmKind, arm_model, natural_pose
 from endocam.sim.arm_scene import ArmLink, add_camera_arm
 from endocam.sim.scene import (
     CAMERA_BODY,
@@ -33,7 +33,7 @@ from endocam.sim.scene import (
 from endocam.task.config import TaskConfig
 
 if TYPE_CHECKING:
-    from endocam.sim.episode import EpisodeLog
+    from endocam.runner.episode import EpisodeLog
 
 DEFAULT_RAY_TOLERANCE = 2.0e-3  # m, occluders closer than this in front of the target are ignored
 

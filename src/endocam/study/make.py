@@ -62,7 +62,7 @@ from endocam.study.observability import (
 from endocam.task.trajectory import TrajectoryKind
 
 if TYPE_CHECKING:  # the simulator (MuJoCo) is imported only when a study is made
-    from endocam.sim.episode import EpisodeResult
+    from endocam.runner.episode import EpisodeResult
 
 DEFAULT_SEED = 2024
 ID_STREAM = 1  # second entry of the id generator's seed, keeps ids apart from trajectory seeds
@@ -162,7 +162,7 @@ def render_conditions(
     progress : callable, optional
         Called with 1 per rendered frame (all episodes).
     """
-    from endocam.sim.runs import render_episodes
+    from endocam.runner.experiments import render_episodes
 
     render_episodes(results, paths, None, progress)
 
@@ -192,10 +192,10 @@ def make_study(
     Manifest
         The manifest written (validated).
     """
-    from endocam.sim.episode import EpisodeSpec
-    from endocam.sim.outputs import atomic_dir, check_writable, frame_indices, write_run
+    from endocam.runner.episode import EpisodeSpec
+    from endocam.runner.experiments import ground_truth, run_with_progress
+    from endocam.runner.outputs import atomic_dir, check_writable, frame_indices, write_run
     from endocam.sim.render import WireChaserScene
-    from endocam.sim.runs import ground_truth, run_with_progress
 
     check_study_config(config)
     out = Path(out_dir)

@@ -54,13 +54,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from endocam.camera import Eye, StereoCamera
-from endocam.geometry import FloatArray, as_pose, as_vector3, invert_pose
+from endocam.camera import MIN_DEPTH, Eye, StereoCamera, points_in_eye
+from endocam.geometry import as_pose, as_vector3
 from endocam.metrics import orientation_error
 from endocam.study.manifest import Condition
+from endocam.task.touches import contact_normal
 
 if TYPE_CHECKING:
-    from endocam.sim.episode import EpisodeResult
+    from endocam.runner.episode import EpisodeResult
     from endocam.sim.render import WireChaserScene
 
 OBSERVABILITY_JSON = "observability.json"
@@ -70,59 +71,12 @@ _EPS = 1e-12  # m, below this a direction is undefined
 
 
 # --------------------------------------------------------------------------- pure geometry
-def contact_normal(
-    p_world_contact: ArrayLike, T_world_ring: ArrayLike, major_radius: float
-) -> FloatArray:
-    """Unit contact normal at a ring–wire contact point, pointing from the wire to the ring.
-
-    The contact point lies on the shortest segment from the wire's centre line to the ring's core
-    circle (:mod:`endocam.task.touches`), so the normal is the direction from the point to its
-    nearest core-circle point.
-
-    Parameters
-    ----------
-    p_world_contact : (3,)
-        Contact point in world, m.
-    T_world_ring : (4, 4)
-        Ring pose (z = face normal), m.
-    major_radius : float
-        Core-circle radius R, m (> 0).
-
-    Returns
-    -------
-    (3,)
-        Unit vector in world.
-
-    Raises
-    ------
-    ValueError
-        If the point is on the ring's axis or on its core circle (normal undefined).
-    """
-    p = as_vector3(p_world_contact, "p_world_contact")
-    T = as_pose(T_world_ring, "T_world_ring")
-    if not math.isfinite(major_radius) or major_radius <= 0.0:
-        raise ValueError(f"major_radius must be > 0 m, got {major_radius}")
-    c, n = T[:3, 3], T[:3, 2]
-    d = p - c
-    radial = d - (d @ n) * n
-    rho = float(np.linalg.norm(radial))
-    if rho < _EPS:
-        raise ValueError("p_world_contact lies on the ring's axis: contact normal undefined")
-    q = c + major_radius * radial / rho
-    u = q - p
-    dist = float(np.linalg.norm(u))
-    if dist < _EPS:
-        raise ValueError("p_world_contact lies on the ring's core circle: contact normal undefined")
-    return u / dist
-
-
 def in_image(
     camera: StereoCamera, T_world_cam: ArrayLike, p_world: ArrayLike, eye: Eye = "left"
 ) -> bool:
     """Whether ``p_world`` (3,), m, projects inside ``eye``'s image (and lies in front of it)."""
-    uv = camera.project(as_pose(T_world_cam, "T_world_cam"), as_vector3(p_world, "p_world"), eye)
-    k = camera.intrinsics
-    return bool(np.all(np.isfinite(uv)) and 0 <= uv[0] < k.width and 0 <= uv[1] < k.height)
+    T = as_pose(T_world_cam, "T_world_cam")
+    return bool(camera.in_image(T, as_vector3(p_world, "p_world"), eye))
 
 
 def pixel_scales(
@@ -158,11 +112,11 @@ def pixel_scales(
         Image length of a step along ``u_world``, px per m (NaN behind the eye).
     """
     T = as_pose(T_world_cam, "T_world_cam")
-    T_eye_world = invert_pose(T @ camera.T_cam_eye(eye))
-    p = T_eye_world[:3, :3] @ as_vector3(p_world, "p_world") + T_eye_world[:3, 3]
-    a, b, c = T_eye_world[:3, :3] @ as_vector3(u_world, "u_world")
+    p = points_in_eye(camera, T, as_vector3(p_world, "p_world"), eye)[0]
+    R_world_eye = (T @ camera.T_cam_eye(eye))[:3, :3]
+    a, b, c = R_world_eye.T @ as_vector3(u_world, "u_world")
     K = camera.intrinsics.K
-    if p[2] <= _EPS:
+    if not p[2] >= MIN_DEPTH:
         return math.nan, math.nan
     du = K[0, 0] * (a - c * p[0] / p[2]) / p[2]
     dv = K[1, 1] * (b - c * p[1] / p[2]) / p[2]

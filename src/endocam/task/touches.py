@@ -33,10 +33,10 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import elementwise, minimize_scalar
 
-from endocam.geometry import FloatArray
+from endocam.geometry import FloatArray, as_pose, as_vector3
 from endocam.task.config import RingConfig
 from endocam.task.trajectory import RingTrajectory
 from endocam.task.wire import Wire
@@ -361,3 +361,52 @@ def _events(
         t1 = t_fall.get(b, float(t[-1]))
         events.append(TouchEvent(float(t0), float(t1), p[k].copy(), float(c[k])))
     return events
+
+
+_EPS_DIRECTION = 1e-12  # m, below this a direction is undefined
+
+
+def contact_normal(
+    p_world_contact: ArrayLike, T_world_ring: ArrayLike, major_radius: float
+) -> FloatArray:
+    """Unit contact normal at a ring–wire contact point, pointing from the wire to the ring.
+
+    The contact point lies on the shortest segment from the wire's centre line to the ring's core
+    circle (:mod:`endocam.task.touches`), so the normal is the direction from the point to its
+    nearest core-circle point.
+
+    Parameters
+    ----------
+    p_world_contact : (3,)
+        Contact point in world, m.
+    T_world_ring : (4, 4)
+        Ring pose (z = face normal), m.
+    major_radius : float
+        Core-circle radius R, m (> 0).
+
+    Returns
+    -------
+    (3,)
+        Unit vector in world.
+
+    Raises
+    ------
+    ValueError
+        If the point is on the ring's axis or on its core circle (normal undefined).
+    """
+    p = as_vector3(p_world_contact, "p_world_contact")
+    T = as_pose(T_world_ring, "T_world_ring")
+    if not math.isfinite(major_radius) or major_radius <= 0.0:
+        raise ValueError(f"major_radius must be > 0 m, got {major_radius}")
+    c, n = T[:3, 3], T[:3, 2]
+    d = p - c
+    radial = d - (d @ n) * n
+    rho = float(np.linalg.norm(radial))
+    if rho < _EPS_DIRECTION:
+        raise ValueError("p_world_contact lies on the ring's axis: contact normal undefined")
+    q = c + major_radius * radial / rho
+    u = q - p
+    dist = float(np.linalg.norm(u))
+    if dist < _EPS_DIRECTION:
+        raise ValueError("p_world_contact lies on the ring's core circle: contact normal undefined")
+    return u / dist

@@ -4,7 +4,7 @@ Time advances at the control rate. Each step the policy sees the ring pose as it
 ``sensing_latency`` seconds ago, the measured camera pose and the instrument tips; its command
 goes through the camera's actuator model (Cartesian speed/acceleration limits, and optionally a
 dVRK arm's IK and joint limits), so the camera never teleports. Rendering is separate
-(:mod:`endocam.sim.outputs`): the control loop runs headless and is deterministic, so the same
+(:mod:`endocam.runner.outputs`): the control loop runs headless and is deterministic, so the same
 config and seed give identical logs.
 """
 
@@ -19,13 +19,8 @@ import numpy as np
 
 from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
-from endocam.control.policies import (
-    POLICIES,
-    Observation,
-    PolicyContext,
-    TrackingState,
-    make_policy,
-)
+from endocam.control.policies import POLICIES, make_policy
+from endocam.control.types import Observation, PolicyContext, TrackingState
 from endocam.geometry import FloatArray
 from endocam.metrics import (
     center_error_3d,
@@ -34,12 +29,17 @@ from endocam.metrics import (
     ring_out_of_view,
     saturate_image_error,
 )
-from endocam.sim.arm import Approach, ArmKind, ArmStep, CameraArm, view_towards_port
-from endocam.sim.motion import CartesianLimiter
-from endocam.sim.scene import overview_camera_pose, psm1_tip_in_ring, task_centre
+from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
+from endocam.robot.carriers import make_actuator
+from endocam.task.layout import overview_camera_pose, psm1_tip_in_ring, task_centre
 from endocam.task.touches import TouchReport, touch_events
 from endocam.task.trajectory import RingTrajectory, TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
+
+UNREACHABLE = "unreachable"
+"""Log state of a step whose goal the carrier concedes (``ActuatorStep.reachable`` is false)."""
+LOG_STATES = (*(s.value for s in TrackingState), UNREACHABLE)
+"""Every value of the log's ``state`` column: the controller's states, then the carrier's."""
 
 
 @dataclass(frozen=True)
@@ -224,15 +224,8 @@ def run_episode(
     T_overview = overview_camera_pose(config.task, camera)
     p_rcm = np.array(config.task.scene.rcm_position)
     kind = episode_arm(config, spec.policy)
-    limiter = CartesianLimiter(ep.limits, dt)
-    arm: CameraArm | None = None
-    if kind is ArmKind.FREE:
-        limiter.reset(T_overview)
-        T_now = T_overview
-    else:
-        T_tip_cam = ep.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-        arm = CameraArm(kind, config.task.scene.T_world_rcm, T_tip_cam, dt)
-        T_now = arm.reset(*arm_start_view(T_overview, task_centre(config.task), p_rcm))
+    actuator = make_actuator(kind, ep, config.task.scene.T_world_rcm, dt)
+    T_now = actuator.reset(*actuator.start_view(T_overview, task_centre(config.task)))
     policy.reset(PolicyContext(camera, T_now, T_sensed[0], p_rcm, dt))
 
     T_cam = np.empty((n, 4, 4))
@@ -240,31 +233,30 @@ def run_episode(
     d_f = np.empty(n)
     state = np.empty(n, dtype=object)
     reason: list[str] = []
-    joints = None if arm is None else np.empty((n, arm.model.n_joints))
-    goal_err = None if arm is None else np.empty((n, 2))
+    joint_names = actuator.joint_names
+    jointed = len(joint_names) > 0  # a carrier with joints logs them and the view it concedes
+    joints = np.empty((n, len(joint_names)))
+    goal_err = np.empty((n, 2))
+    q_now = actuator.q
     chunk = max(1, n // 100)
     reach_offset: FloatArray | None = None
     for k in range(n):
         T_cam[k] = T_now
+        joints[k] = q_now
         cmd = policy.step(Observation(float(t[k]), T_sensed[k], T_now, tips[k], reach_offset))
         T_cmd[k] = cmd.T_world_cam
         d_f[k] = cmd.d_f
-        state[k] = cmd.state.value
-        if arm is None:
-            reason.append(cmd.reason)
-            T_now = limiter.step(cmd.T_world_cam)
-        else:
-            assert joints is not None and goal_err is not None
-            joints[k] = arm.q
-            out = arm.step(cmd.T_world_cam, _look_distance(cmd.T_world_cam, T_sensed[k], cmd.d_f))
+        out = actuator.step(cmd.T_world_cam, _look_distance(cmd.T_world_cam, T_sensed[k], cmd.d_f))
+        if jointed:
             reach_offset = out.T_world_target[:3, 3] - cmd.T_world_cam[:3, 3]
-            goal_err[k] = (out.position_error, out.orientation_error)
-            if not out.reachable and cmd.state not in _SAFETY_STATES:
-                state[k] = TrackingState.UNREACHABLE.value
-                reason.append(_unreachable_reason(kind, out))
-            else:
-                reason.append(cmd.reason)
-            T_now = out.T_world_cam
+        goal_err[k] = (out.position_error, out.orientation_error)
+        if not out.reachable and cmd.state not in _SAFETY_STATES:
+            state[k] = UNREACHABLE
+            reason.append(_unreachable_reason(kind, out))
+        else:
+            state[k] = cmd.state.value
+            reason.append(cmd.reason)
+        T_now, q_now = out.T_world_cam, out.q
         if progress is not None and (k + 1) % chunk == 0:
             progress(chunk)
     if progress is not None and n % chunk:
@@ -283,11 +275,11 @@ def run_episode(
         p_world_tips=tips,
         contact=contact_at(touches, t),
         clearance=clearance,
-        joints=joints,
-        joint_names=() if arm is None else arm.joint_names,
+        joints=joints if jointed else None,
+        joint_names=joint_names,
         arm=kind.value,
-        goal_position_error=None if goal_err is None else goal_err[:, 0],
-        goal_orientation_error=None if goal_err is None else goal_err[:, 1],
+        goal_position_error=goal_err[:, 0] if jointed else None,
+        goal_orientation_error=goal_err[:, 1] if jointed else None,
     )
     return EpisodeResult(
         config=config,
@@ -317,44 +309,6 @@ def _look_distance(T_world_cmd: FloatArray, T_world_ring: FloatArray, d_f: float
     return depth if depth > _MIN_LOOK_M and math.isfinite(depth) else d_f
 
 
-ARM_START_GAP = 0.08  # m: the arm's start view keeps the camera this far ahead of the port
-
-
-def arm_start_view(
-    T_world_overview: FloatArray, p_world_centre: FloatArray, p_world_rcm: FloatArray
-) -> tuple[FloatArray, float]:
-    """The whole-task view an arm camera starts from, and the distance it looks at.
-
-    The free camera starts at the overview pose. A camera on an arm starts where a surgeon
-    would aim an endoscope just inserted: at the view of the task centre straight from the
-    port (optical axis through the RCM, level horizon), which every RCM arm can take with its
-    wrist straight. The look-at distance is the overview's, shortened so the camera stays
-    ``ARM_START_GAP`` ahead of the port.
-
-    Parameters
-    ----------
-    T_world_overview : (4, 4) ndarray
-        The fixed camera's whole-task pose, m.
-    p_world_centre : (3,) ndarray
-        Task centre the overview looks at, m.
-    p_world_rcm : (3,) ndarray
-        The camera arm's RCM, m.
-
-    Returns
-    -------
-    T_world_cam : (4, 4) ndarray
-        The port view of the centre from that distance, m.
-    look_distance : float
-        m.
-    """
-    d_overview = float(np.linalg.norm(p_world_centre - T_world_overview[:3, 3]))
-    d_port = float(np.linalg.norm(p_world_centre - p_world_rcm))
-    look = max(min(d_overview, d_port - ARM_START_GAP), 0.5 * d_port)
-    T = np.array(T_world_overview, dtype=float)
-    T[:3, 3] = p_world_centre - look * T[:3, 2]  # the overview, looking at the centre from there
-    return view_towards_port(T, look, p_world_rcm, 1.0), look
-
-
 _SAFETY_STATES = (TrackingState.FROZEN_OUTSIDE_CONE, TrackingState.LOST_TRACKING)
 
 
@@ -369,13 +323,13 @@ def episode_arm(config: ExperimentConfig, policy: str) -> ArmKind:
     if policy not in POLICIES:
         make_policy(policy, config.controller)  # raises ValueError listing the choices
     forced = POLICIES[policy].arm
-    return ArmKind(forced if forced is not None else config.episode.arm)
+    return forced if forced is not None else config.episode.arm
 
 
-def _unreachable_reason(kind: ArmKind, out: ArmStep) -> str:
+def _unreachable_reason(kind: ArmKind, out: ActuatorStep) -> str:
     err_mm = out.position_error * 1e3
     err_deg = math.degrees(out.orientation_error)
-    if out.approach is Approach.VIEW:
+    if out.status is ActuatorStatus.VIEW:
         return (
             f"goal unreachable by the {kind.value.upper()}: view turned {err_deg:.1f}° towards "
             "the port, still centred at the working distance"
@@ -387,6 +341,6 @@ def _unreachable_reason(kind: ArmKind, out: ArmStep) -> str:
 
 
 def state_fractions(log: EpisodeLog) -> dict[str, float]:
-    """Fraction of control steps spent in each :class:`TrackingState` (all states listed)."""
+    """Fraction of control steps spent in each state of :data:`LOG_STATES` (all listed)."""
     n = len(log.state)
-    return {s.value: float(np.count_nonzero(log.state == s.value)) / n for s in TrackingState}
+    return {s: float(np.count_nonzero(log.state == s)) / n for s in LOG_STATES}

@@ -13,7 +13,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from endocam.cli import UsageError
+from endocam.cli.common import UsageError
 from endocam.study.analysis import AnalysisConfig, OutlierRule
 
 ADMIN_TOKEN_ENV = "ENDOCAM_ADMIN_TOKEN"
@@ -22,7 +22,7 @@ _EXTRA_HINT = "install the study extra: pip install 'endocam[study]'"
 
 def _make(args: argparse.Namespace) -> int:
     from endocam.config import ExperimentConfig, load_config
-    from endocam.sim.outputs import check_writable
+    from endocam.runner.outputs import check_writable
     from endocam.study.make import check_study_config, make_study
 
     if args.seed < 0:

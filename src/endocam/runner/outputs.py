@@ -27,10 +27,10 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from endocam import __version__
-from endocam.control.policies import TrackingState
+from endocam.control.types import TrackingState
 from endocam.geometry import quat_wxyz_from_R
 from endocam.metrics import summarize
-from endocam.sim.episode import EpisodeResult, state_fractions
+from endocam.runner.episode import UNREACHABLE, EpisodeResult, state_fractions
 
 SCENE_JSON = "scene.json"
 EPISODE_CSV = "episode.csv"
@@ -46,7 +46,7 @@ _SHADE = {
     TrackingState.PLANNING.value: ("#f5c542", "planning (way-points)"),
     TrackingState.FROZEN_OUTSIDE_CONE.value: ("#9aa5b1", "frozen outside cone"),
     TrackingState.LOST_TRACKING.value: ("#e06666", "lost tracking"),
-    TrackingState.UNREACHABLE.value: ("#c27ba0", "unreachable"),
+    UNREACHABLE: ("#c27ba0", "unreachable"),
 }
 
 Progress = Callable[[int], object]

@@ -18,7 +18,7 @@
 3. **Joint motion.** :class:`~endocam.robot.arm.SimulatedArm` moves the joints towards the
    target for one control period under ruckig's joint velocity and acceleration limits, never
    beyond the joint limits. The camera's speed is therefore bounded by the arm's joint
-   limits, as on a real dVRK; the Cartesian :class:`~endocam.sim.motion.CartesianLimiter` is
+   limits, as on a real dVRK; the Cartesian :class:`~endocam.robot.cartesian.CartesianLimiter` is
    the free camera's actuator only.
 4. **FK.** The camera pose is ``T_world_rcm · FK(q) · T_tip_cam`` of the new joints: every
    pose the runner logs is one the arm reaches.
@@ -30,27 +30,27 @@ tool tip (identity for the ECM, whose tip frame is its optical frame).
 
 from __future__ import annotations
 
-import enum
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
-from endocam.control.goal import look_at_unchecked
 from endocam.geometry import FloatArray, as_pose, invert_pose
-from endocam.robot import ECM, PSM, RcmArm, SimulatedArm
+from endocam.kernels import rotation_angle, so3_exp
+from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
+from endocam.robot.arm import SimulatedArm
 from endocam.robot.dh import compose_links, pose12_from_matrix, pose12_times, pose12_to_matrix
-from endocam.robot.ik import rotation_angle_between
-from endocam.sim.motion import so3_exp
+from endocam.robot.ecm import ECM
+from endocam.robot.kinematics import RcmArm
+from endocam.robot.psm import PSM
+from endocam.view import look_at_unchecked
 
 __all__ = [
+    "ARM_START_GAP",
     "REALTIME_NEAREST_MAX_NFEV",
     "VIEW_BISECTIONS",
-    "Approach",
-    "ArmKind",
-    "ArmStep",
     "CameraArm",
     "arm_model",
+    "arm_start_view",
     "natural_pose",
     "view_towards_port",
 ]
@@ -59,17 +59,6 @@ __all__ = [
 # default 200 costs up to ~50 ms, and a goal sliding along the reach boundary moves little
 # between control steps, so a short warm-started solve tracks it.
 REALTIME_NEAREST_MAX_NFEV = 10
-
-
-class ArmKind(enum.Enum):
-    """What carries the camera."""
-
-    FREE = "free"
-    """No arm: the camera moves under Cartesian limits only."""
-    PSM = "psm"
-    """A pickup camera held by a dVRK PSM (6 DoF)."""
-    ECM = "ecm"
-    """The dVRK's 4-DoF endoscope arm (straight 0° scope)."""
 
 
 def arm_model(kind: ArmKind) -> RcmArm:
@@ -103,57 +92,11 @@ def natural_pose(model: RcmArm) -> FloatArray:
     return model.clamp(q)
 
 
-class Approach(enum.Enum):
-    """How a :class:`CameraArm` step treated its goal."""
-
-    EXACT = "exact"
-    """The arm reaches the goal exactly (IK status ``OK``)."""
-    VIEW = "view"
-    """Nearest feasible view: the view turned about its look-at point towards the port."""
-    NEAREST = "nearest"
-    """Even the port view is out of reach: nearest feasible configuration (least squares)."""
-
-
 VIEW_BISECTIONS = 7  # count: the conceded view angle is resolved to θ / 2⁷ (< 1.5° for θ ≤ π)
 VIEW_STEPS = 2**VIEW_BISECTIONS  # count: the turn towards the port view is searched in these steps
 MAX_COMMAND_RANGE_M = 10.0  # m: a command farther than this from the port is not a camera pose
 VIEW_POSITION_TOL_M = 1e-6  # m: an ECM port view whose camera is this close counts as reached
 _EPS_AXIS = 1e-12  # unitless: a cross product shorter than this has no direction
-
-
-@dataclass(frozen=True)
-class ArmStep:
-    """Outcome of one control step of a :class:`CameraArm`.
-
-    Attributes
-    ----------
-    T_world_cam : (4, 4) ndarray
-        Camera pose after the step, ``FK(q)`` in world, optical frame, m (read-only).
-    q : (n,) ndarray
-        Measured joint positions after the step, rad / m (read-only).
-    T_world_target : (4, 4) ndarray
-        The camera pose the joints head for: the goal, or what :class:`Approach` put in its
-        place, m.
-    approach : Approach
-        How the goal was treated.
-    position_error : float
-        Distance between the goal and the target camera positions, m (0 when exact).
-    orientation_error : float
-        Angle between the goal and the target camera orientations, rad (0 when exact): the
-        view direction the arm concedes.
-    reachable : bool
-        Whether the arm delivers what the policy asked of it: PSM — the goal exactly; ECM —
-        the goal's view through the port (its missing orientation is the 4-DoF scope's
-        expected residual, measured by ``orientation_error``, not an unreachable goal).
-    """
-
-    T_world_cam: FloatArray
-    q: FloatArray
-    T_world_target: FloatArray
-    approach: Approach
-    position_error: float
-    orientation_error: float
-    reachable: bool
 
 
 def view_towards_port(
@@ -252,13 +195,19 @@ class CameraArm:
         self._k_prev: int | None = None  # the last conceded turn, in VIEW_STEPS (warm start)
         self._last_key: bytes | None = None  # the last goal (bytes) and its look distance
         self._last_look = math.nan
-        self._last_target: tuple[list[float], FloatArray, Approach] | None = None
+        self._last_target: tuple[list[float], FloatArray, ActuatorStatus] | None = None
 
     # ------------------------------------------------------------------ frames
     @property
     def joint_names(self) -> tuple[str, ...]:
         """Joint names from the base outwards."""
         return self.model.joint_names
+
+    def start_view(
+        self, T_world_overview: FloatArray, p_world_centre: FloatArray
+    ) -> tuple[FloatArray, float]:
+        """The port view of the task centre this arm starts from (:func:`arm_start_view`)."""
+        return arm_start_view(T_world_overview, p_world_centre, self._p_world_rcm)
 
     @property
     def q(self) -> FloatArray:
@@ -312,7 +261,7 @@ class CameraArm:
 
     def target(
         self, T_world_goal: FloatArray, look_distance: float
-    ) -> tuple[list[float], FloatArray, Approach]:
+    ) -> tuple[list[float], FloatArray, ActuatorStatus]:
         """Joint target for a camera goal: exact, nearest feasible view, or nearest pose.
 
         Parameters
@@ -328,14 +277,14 @@ class CameraArm:
             Joint target within the limits, rad / m.
         T_world_target : (4, 4) ndarray
             The camera pose of ``q``'s goal: the goal, or the view put in its place, m.
-        approach : Approach
+        status : ActuatorStatus
         """
         q = self._exact(T_world_goal)
         if q is not None:
             self._k_prev = None
             T_target = np.array(T_world_goal, dtype=float)  # not the caller's array
             T_target.setflags(write=False)
-            return q, T_target, Approach.EXACT
+            return q, T_target, ActuatorStatus.EXACT
         rotvec = _port_rotvec(T_world_goal, look_distance, self._p_world_rcm)
         if rotvec is not None:
             if self.kind is ArmKind.ECM:
@@ -345,15 +294,15 @@ class CameraArm:
                 port = self.model.solve_unchecked(self._tip_goal(T_port), self._q)
                 if port.position_error <= VIEW_POSITION_TOL_M:
                     T_reached = self._T_world_rcm @ port.T_rcm_tip @ self._T_tip_cam
-                    return port.q.tolist(), T_reached, Approach.VIEW
+                    return port.q.tolist(), T_reached, ActuatorStatus.VIEW
             else:
                 found = self._view_search(T_world_goal, look_distance, rotvec)
                 if found is not None:
-                    return found[0], found[1], Approach.VIEW
+                    return found[0], found[1], ActuatorStatus.VIEW
         self._k_prev = None
         result = self.model.solve_unchecked(self._tip_goal(T_world_goal), self._q)
         T_near = self._T_world_rcm @ result.T_rcm_tip @ self._T_tip_cam
-        return result.q.tolist(), T_near, Approach.NEAREST
+        return result.q.tolist(), T_near, ActuatorStatus.NEAREST
 
     def _view_search(
         self, T_goal: FloatArray, d: float, rotvec: FloatArray
@@ -447,7 +396,7 @@ class CameraArm:
         self._T_cam = self.camera_pose(self._q)
         return self._T_cam.copy()
 
-    def step(self, T_world_cmd: FloatArray, look_distance: float) -> ArmStep:
+    def step(self, T_world_cmd: FloatArray, look_distance: float) -> ActuatorStep:
         """One control step towards a commanded camera pose (see the module docstring).
 
         Parameters
@@ -462,7 +411,7 @@ class CameraArm:
 
         Returns
         -------
-        ArmStep
+        ActuatorStep
 
         Notes
         -----
@@ -483,7 +432,7 @@ class CameraArm:
         if (
             last is not None
             and key == self._last_key
-            and (last[2] is Approach.EXACT or look_distance == self._last_look)
+            and (last[2] is ActuatorStatus.EXACT or look_distance == self._last_look)
         ):
             q_cmd, T_target, approach = last  # a held goal: same answer (exact: any distance)
         else:
@@ -495,13 +444,13 @@ class CameraArm:
                 q_cmd, T_target, approach = self.target(T_goal, look_distance)
             self._last_key, self._last_look = key, look_distance
             self._last_target = (q_cmd, T_target, approach)
-        if approach is Approach.EXACT:
+        if approach is ActuatorStatus.EXACT:
             pos_err = ang_err = 0.0
         else:
             pos_err = float(np.linalg.norm(T_target[:3, 3] - T_goal[:3, 3]))
-            ang_err = rotation_angle_between(T_target[:3, :3], T_goal[:3, :3])
-        reachable = approach is Approach.EXACT or (
-            self.kind is ArmKind.ECM and approach is Approach.VIEW
+            ang_err = rotation_angle(T_target[:3, :3].tolist(), T_goal[:3, :3].tolist())
+        reachable = approach is ActuatorStatus.EXACT or (
+            self.kind is ArmKind.ECM and approach is ActuatorStatus.VIEW
         )
         self._arm.servo_jp(q_cmd)
         self._arm.step()
@@ -509,7 +458,7 @@ class CameraArm:
         self._T_cam = self._camera_pose(self._q.tolist())
         self._q.setflags(write=False)  # handed out below without a copy
         self._T_cam.setflags(write=False)
-        return ArmStep(
+        return ActuatorStep(
             self._T_cam,
             self._q,
             T_target,
@@ -518,3 +467,41 @@ class CameraArm:
             ang_err,
             reachable,
         )
+
+
+ARM_START_GAP = 0.08  # m: the arm's start view keeps the camera this far ahead of the port
+
+
+def arm_start_view(
+    T_world_overview: FloatArray, p_world_centre: FloatArray, p_world_rcm: FloatArray
+) -> tuple[FloatArray, float]:
+    """The whole-task view an arm camera starts from, and the distance it looks at.
+
+    The free camera starts at the overview pose. A camera on an arm starts where a surgeon
+    would aim an endoscope just inserted: at the view of the task centre straight from the
+    port (optical axis through the RCM, level horizon), which every RCM arm can take with its
+    wrist straight. The look-at distance is the overview's, shortened so the camera stays
+    ``ARM_START_GAP`` ahead of the port.
+
+    Parameters
+    ----------
+    T_world_overview : (4, 4) ndarray
+        The fixed camera's whole-task pose, m.
+    p_world_centre : (3,) ndarray
+        Task centre the overview looks at, m.
+    p_world_rcm : (3,) ndarray
+        The camera arm's RCM, m.
+
+    Returns
+    -------
+    T_world_cam : (4, 4) ndarray
+        The port view of the centre from that distance, m.
+    look_distance : float
+        m.
+    """
+    d_overview = float(np.linalg.norm(p_world_centre - T_world_overview[:3, 3]))
+    d_port = float(np.linalg.norm(p_world_centre - p_world_rcm))
+    look = max(min(d_overview, d_port - ARM_START_GAP), 0.5 * d_port)
+    T = np.array(T_world_overview, dtype=float)
+    T[:3, 3] = p_world_centre - look * T[:3, 2]  # the overview, looking at the centre from there
+    return view_towards_port(T, look, p_world_rcm, 1.0), look

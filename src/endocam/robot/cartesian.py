@@ -12,14 +12,16 @@ overhead, too much for a 1 kHz loop. The kernels are checked against scipy in th
 
 from __future__ import annotations
 
-import enum
 import math
 
 import numpy as np
 from ruckig import InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
 
 from endocam.config import MotionLimits
-from endocam.geometry import FloatArray
+from endocam.geometry import FloatArray, as_pose
+from endocam.kernels import Rows, matmul, so3_exp, so3_log, tmatmul
+from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
+from endocam.robot.arm import MotionStatus
 
 _SQRT3 = math.sqrt(3.0)
 _SNAP_POS = 1e-12  # m or rad: smaller target offsets are round-off
@@ -30,83 +32,6 @@ _SNAP_ACC = 1e-10  # m/s² or rad/s²: smaller accelerations are round-off
 def _snap(values: list[float], tol: float) -> list[float]:
     """Values with magnitude below ``tol`` set to exactly 0."""
     return [0.0 if abs(v) < tol else v for v in values]
-
-
-Rows = list[list[float]]
-_SMALL_ANGLE = 1e-8  # rad, below this the first-order series of log/exp is exact in floats
-
-
-def so3_log(R: Rows) -> list[float]:
-    """Rotation vector (3,) of a rotation matrix given as rows, rad; |θ| ≤ π.
-
-    Uses the quaternion of ``R`` (Shepperd's branch choice, stable for every angle) and
-    ``θ = 2 atan2(|v|, w) v/|v|`` with ``w ≥ 0``.
-    """
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
-    tr = r00 + r11 + r22
-    if tr > 0.0:
-        k = math.sqrt(tr + 1.0) * 2.0
-        w, x, y, z = 0.25 * k, (r21 - r12) / k, (r02 - r20) / k, (r10 - r01) / k
-    elif r00 > r11 and r00 > r22:
-        k = math.sqrt(1.0 + r00 - r11 - r22) * 2.0
-        w, x, y, z = (r21 - r12) / k, 0.25 * k, (r01 + r10) / k, (r02 + r20) / k
-    elif r11 > r22:
-        k = math.sqrt(1.0 + r11 - r00 - r22) * 2.0
-        w, x, y, z = (r02 - r20) / k, (r01 + r10) / k, 0.25 * k, (r12 + r21) / k
-    else:
-        k = math.sqrt(1.0 + r22 - r00 - r11) * 2.0
-        w, x, y, z = (r10 - r01) / k, (r02 + r20) / k, (r12 + r21) / k, 0.25 * k
-    if w < 0.0:
-        w, x, y, z = -w, -x, -y, -z
-    s = math.sqrt(x * x + y * y + z * z)
-    if s < _SMALL_ANGLE:
-        return [2.0 * x, 2.0 * y, 2.0 * z]
-    scale = 2.0 * math.atan2(s, w) / s
-    return [scale * x, scale * y, scale * z]
-
-
-def so3_exp(theta: list[float]) -> Rows:
-    """Rotation matrix (rows) of a rotation vector (3,), rad (Rodrigues' formula)."""
-    x, y, z = theta
-    a2 = x * x + y * y + z * z
-    if a2 < _SMALL_ANGLE * _SMALL_ANGLE:
-        s, c = 1.0, 0.5  # sin(a)/a and (1 − cos a)/a² to first order
-    else:
-        a = math.sqrt(a2)
-        s, c = math.sin(a) / a, (1.0 - math.cos(a)) / a2
-    return [
-        [1.0 - c * (y * y + z * z), c * x * y - s * z, c * x * z + s * y],
-        [c * x * y + s * z, 1.0 - c * (x * x + z * z), c * y * z - s * x],
-        [c * x * z - s * y, c * y * z + s * x, 1.0 - c * (x * x + y * y)],
-    ]
-
-
-def _matmul(A: Rows, B: Rows) -> Rows:
-    """``A B`` for 3×3 row lists (unrolled: this runs every control step)."""
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
-    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = B
-    return [
-        [a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21,
-         a00 * b02 + a01 * b12 + a02 * b22],
-        [a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21,
-         a10 * b02 + a11 * b12 + a12 * b22],
-        [a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21,
-         a20 * b02 + a21 * b12 + a22 * b22],
-    ]  # fmt: skip
-
-
-def _tmatmul(A: Rows, B: Rows) -> Rows:
-    """``A^T B`` for 3×3 row lists."""
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
-    return _matmul([[a00, a10, a20], [a01, a11, a21], [a02, a12, a22]], B)
-
-
-class MotionStatus(enum.Enum):
-    """Outcome of one limiter step."""
-
-    MOVING = "moving"  # still on the way to the target
-    ARRIVED = "arrived"  # at the target, at rest
-    REJECTED = "rejected"  # the target was not finite; still heading for the last valid one
 
 
 class CartesianLimiter:
@@ -144,7 +69,7 @@ class CartesianLimiter:
         self._target = np.eye(4)
         self._arrived_at: list[float] = []  # flattened target the camera rests on
         self._pose_array = np.eye(4)
-        self.status = MotionStatus.ARRIVED
+        self.status = MotionStatus.FINISHED
 
     def reset(self, T_world_cam: FloatArray) -> None:
         """Start at rest at ``T_world_cam`` (4, 4)."""
@@ -156,7 +81,7 @@ class CartesianLimiter:
         self._target = np.array(T_world_cam, dtype=float)
         self._arrived_at = self._target.ravel().tolist()
         self._pose_array = self.pose
-        self.status = MotionStatus.ARRIVED
+        self.status = MotionStatus.FINISHED
 
     @property
     def pose(self) -> FloatArray:
@@ -199,12 +124,12 @@ class CartesianLimiter:
             flat = T_world_target.ravel().tolist()
         else:
             self._target = T_world_target
-        if self.status is MotionStatus.ARRIVED and flat == self._arrived_at:
+        if self.status is MotionStatus.FINISHED and flat == self._arrived_at:
             return self._pose_array.copy()  # at rest on an unchanged target: nothing to do
         # Re-anchor the orientation DoFs at the current orientation: current rotation vector 0,
         # target = log(R_cur^T R_target) (body frame, |θ| ≤ π).
         R_tgt = [flat[0:3], flat[4:7], flat[8:11]]
-        theta = so3_log(_tmatmul(self._R, R_tgt))
+        theta = so3_log(tmatmul(self._R, R_tgt))
         p = self._p
         inp = self._inp
         inp.current_position = [p[0], p[1], p[2], 0.0, 0.0, 0.0]
@@ -222,14 +147,66 @@ class CartesianLimiter:
             self._R = R_tgt
             self._v = [0.0] * 6
             self._acc = [0.0] * 6
-            self.status = MotionStatus.REJECTED if rejected else MotionStatus.ARRIVED
+            self.status = MotionStatus.REJECTED if rejected else MotionStatus.FINISHED
             self._arrived_at = flat
             self._pose_array = self.pose
             return self._pose_array
         new = self._out.new_position
         self._p = new[:3]
-        self._R = _matmul(self._R, so3_exp(new[3:]))
+        self._R = matmul(self._R, so3_exp(new[3:]))
         self._v = self._out.new_velocity
         self._acc = self._out.new_acceleration
         self.status = MotionStatus.REJECTED if rejected else MotionStatus.MOVING
         return self.pose
+
+
+_NO_JOINTS = np.zeros(0)
+_NO_JOINTS.setflags(write=False)
+
+
+class FreeCamera:
+    """The free 6-DoF camera (the paper's simulated endoscope) behind the ``Actuator`` interface.
+
+    It has no joints and reaches every command, within the Cartesian limits of its
+    :class:`CartesianLimiter`; it starts at the whole-task overview pose.
+
+    Parameters
+    ----------
+    limits : MotionLimits
+        Speed, acceleration and jerk norms.
+    dt : float
+        Control period, s.
+    """
+
+    kind = ArmKind.FREE
+
+    def __init__(self, limits: MotionLimits, dt: float) -> None:
+        self.limiter = CartesianLimiter(limits, dt)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """No joints."""
+        return ()
+
+    @property
+    def q(self) -> FloatArray:
+        """No joints: ``(0,)``."""
+        return _NO_JOINTS
+
+    def start_view(
+        self, T_world_overview: FloatArray, p_world_centre: FloatArray
+    ) -> tuple[FloatArray, float]:
+        """The free camera starts at the overview pose itself, looking at the task centre."""
+        look = float(np.linalg.norm(np.asarray(p_world_centre) - T_world_overview[:3, 3]))
+        return T_world_overview, look
+
+    def reset(self, T_world_cam: object, look_distance: float | None = None) -> FloatArray:
+        """Start at rest at ``T_world_cam`` (4, 4); returns it."""
+        T = as_pose(T_world_cam, "T_world_cam")
+        self.limiter.reset(T)
+        return T
+
+    def step(self, T_world_cmd: FloatArray, look_distance: float) -> ActuatorStep:
+        """One limiter step towards the command (a non-finite one keeps the last valid target)."""
+        T = self.limiter.step(T_world_cmd)
+        return ActuatorStep(T, _NO_JOINTS, T_world_cmd, ActuatorStatus.EXACT, 0.0, 0.0, True)

@@ -3,61 +3,38 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import yaml
 
-from endocam.cli import UsageError
-from endocam.config import ExperimentConfig, load_config
+from endocam.cli.common import ARM_CHOICES, UsageError, integer, load_config_arg, out_dir
+from endocam.config import ExperimentConfig
 from endocam.control.policies import POLICIES
+from endocam.robot.actuator import ArmKind
 from endocam.task.trajectory import TrajectoryKind
 
 
 def _config(args: argparse.Namespace) -> ExperimentConfig:
-    if getattr(args, "config", None) is None:
-        return ExperimentConfig()
-    try:
-        return load_config(args.config)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
+    return load_config_arg(getattr(args, "config", None))
 
 
 def _with_arm(cfg: ExperimentConfig, arm: str | None) -> ExperimentConfig:
     """The config with ``episode.arm`` replaced when ``--arm`` was given."""
     if arm is None:
         return cfg
-    return cfg.model_copy(update={"episode": cfg.episode.model_copy(update={"arm": arm})})
-
-
-def _out_dir(path: str) -> Path:
-    from endocam.sim.outputs import check_writable
-
-    out = Path(path)
-    try:
-        check_writable(out)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    return out
-
-
-def _int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    return value
+    episode = cfg.episode.model_copy(update={"arm": ArmKind(arm)})
+    return cfg.model_copy(update={"episode": episode})
 
 
 def _run(args: argparse.Namespace) -> int:
-    from endocam.sim.episode import EpisodeSpec
-    from endocam.sim.runs import run_and_write
+    from endocam.runner.episode import EpisodeSpec
+    from endocam.runner.experiments import run_and_write
 
     if args.control_points < 2:
         raise UsageError(f"--control-points must be ≥ 2, got {args.control_points}")
     if args.seed < 0:
         raise UsageError(f"--seed must be ≥ 0, got {args.seed}")
     cfg = _with_arm(_config(args), args.arm)
-    out = _out_dir(args.out)
+    out = out_dir(args.out)
     spec = EpisodeSpec(args.policy, TrajectoryKind(args.trajectory), args.control_points, args.seed)
     metrics = run_and_write(cfg, spec, out, video=not args.no_video)
     print(
@@ -70,10 +47,10 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from endocam.sim.runs import run_demo
+    from endocam.runner.experiments import run_demo
 
     cfg = _config(args)
-    out = _out_dir(args.out)
+    out = out_dir(args.out)
     report = run_demo(
         cfg, out, control_points=args.control_points, seed=args.seed, video=not args.no_video
     )
@@ -82,10 +59,10 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _experiment(args: argparse.Namespace) -> int:
-    from endocam.sim.runs import run_paper_experiment
+    from endocam.runner.experiments import run_paper_experiment
 
     cfg = _config(args)
-    out = _out_dir(args.out)
+    out = out_dir(args.out)
     table = run_paper_experiment(_with_arm(cfg, args.arm), out, policy=args.policy)
     print(table)
     return 0
@@ -115,16 +92,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--control-points",
-        type=_int,
+        type=integer,
         default=71,
         help="control points along the wire, ≥ 2 (paper: 36 or 71; default 71)",
     )
-    p.add_argument("--seed", type=_int, default=1, help="noise seed (default 1)")
+    p.add_argument("--seed", type=integer, default=1, help="noise seed (default 1)")
     p.add_argument("--out", required=True, help="output folder (replaced atomically)")
     p.add_argument("--no-video", action="store_true", help="skip rendering video.mp4")
     p.add_argument(
         "--arm",
-        choices=["free", "psm", "ecm"],
+        choices=ARM_CHOICES,
         default=None,
         help="what carries the camera: free (Cartesian limits only), psm or ecm (dVRK "
         "kinematics, IK and joint limits); default: the config's episode.arm (psm). "
@@ -138,8 +115,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="the three camera conditions on one noisy trajectory, side by side (make demo)",
     )
     d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    d.add_argument("--control-points", type=_int, default=71, help="control points (default 71)")
-    d.add_argument("--seed", type=_int, default=1, help="noise seed (default 1)")
+    d.add_argument("--control-points", type=integer, default=71, help="control points (default 71)")
+    d.add_argument("--seed", type=integer, default=1, help="noise seed (default 1)")
     d.add_argument("--no-video", action="store_true", help="skip the videos")
     d.add_argument("--config", help="TOML or YAML config file")
     d.set_defaults(handler=_demo)
@@ -161,7 +138,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     ep.add_argument(
         "--arm",
-        choices=["free", "psm", "ecm"],
+        choices=ARM_CHOICES,
         default="free",
         help="what carries the camera (default free: the paper's simulated 6-DoF endoscope, "
         "Cartesian limits only; psm or ecm: through that dVRK arm); overrides a --config "

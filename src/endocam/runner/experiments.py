@@ -15,8 +15,8 @@ import numpy as np
 from tqdm import tqdm
 
 from endocam.config import ExperimentConfig
-from endocam.sim.episode import EpisodeResult, EpisodeSpec, run_episode
-from endocam.sim.outputs import (
+from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode
+from endocam.runner.outputs import (
     CARRIERS,
     METRICS_JSON,
     REPORT_HTML,

@@ -1,0 +1,58 @@
+"""What every ``endocam`` subcommand shares: the one-line usage error and argument types.
+
+Nothing here imports a subcommand module, so the subcommands import it without a cycle.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import NoReturn
+
+from endocam.config import ExperimentConfig, load_config
+from endocam.robot.carriers import ArmKind
+
+EXIT_USAGE = 2
+ARM_CHOICES = tuple(k.value for k in ArmKind)  # the carrier choices, from their one source
+
+
+class UsageError(Exception):
+    """A problem with what the user typed or pointed at; reported as one line, exit code 2."""
+
+
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line on stderr with exit code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print ``prog: error: message`` (no usage block) and exit with code 2."""
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def integer(text: str) -> int:
+    """``type=`` for integer options: a one-line error for anything else."""
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+def load_config_arg(path: str | None) -> ExperimentConfig:
+    """The defaults, or the ``--config`` file validated (its problem as a :class:`UsageError`)."""
+    if path is None:
+        return ExperimentConfig()
+    try:
+        return load_config(path)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def out_dir(path: str) -> Path:
+    """An output folder that can be written (else a :class:`UsageError`)."""
+    from endocam.runner.outputs import check_writable
+
+    out = Path(path)
+    try:
+        check_writable(out)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    return out

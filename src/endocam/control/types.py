@@ -1,0 +1,120 @@
+"""The data of the control loop: what a policy sees, what it commands, and its state.
+
+Every pose is a (4, 4) ``T_world_*`` ndarray at this boundary (``docs/conventions.md``); the
+policies work on plain floats inside (:mod:`endocam.kernels`).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from endocam.camera import StereoCamera
+from endocam.geometry import FloatArray
+
+__all__ = [
+    "CameraCommand",
+    "CameraPolicy",
+    "Observation",
+    "PolicyContext",
+    "TrackingState",
+]
+
+
+class TrackingState(enum.Enum):
+    """What a policy is doing this control step."""
+
+    HOLDING = "holding"  # deliberately still (the fixed camera)
+    TRACKING = "tracking"  # moving to the goal
+    PLANNING = "planning"  # following intermediate way-points around a goal jump
+    FROZEN_OUTSIDE_CONE = "frozen_outside_cone"  # goal left the cone workspace; pose held
+    LOST_TRACKING = "lost_tracking"  # no valid feature observation; last safe pose held
+
+
+@dataclass(frozen=True)
+class PolicyContext:
+    """What a policy is told at ``reset``.
+
+    Attributes
+    ----------
+    camera : StereoCamera
+        The stereo camera (intrinsics, baseline).
+    T_world_cam : (4, 4)
+        Initial camera pose (the fixed condition's whole-task view), optical frame, m.
+    T_world_ring : (4, 4)
+        The ring pose at initialisation, m (gives the cone axis).
+    p_world_rcm : (3,)
+        Remote centre of motion of the camera arm = cone tip, m.
+    dt : float
+        Control period, s.
+    """
+
+    camera: StereoCamera
+    T_world_cam: FloatArray
+    T_world_ring: FloatArray
+    p_world_rcm: FloatArray
+    dt: float
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What a policy sees each control step.
+
+    Attributes
+    ----------
+    t : float
+        Time, s.
+    T_world_ring : (4, 4) or None
+        Sensed ring pose (ring z = face normal), m; ``None`` or non-finite when tracking is lost.
+    T_world_cam : (4, 4)
+        Measured camera pose, optical frame, m.
+    p_world_tips : (K, 3)
+        Instrument tip positions in world, m.
+    p_world_reach_offset : (3,) or None
+        How far the actuator's target for the previous command lies from that command's
+        position, m (world): non-zero when an arm concedes a goal it cannot reach (the
+        nearest feasible view). The way-point planner measures the camera's progress against
+        where the actuator can put it; ``None``: the actuator reaches what it is sent.
+    """
+
+    t: float
+    T_world_ring: FloatArray | None
+    T_world_cam: FloatArray
+    p_world_tips: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    p_world_reach_offset: FloatArray | None = None
+
+
+@dataclass(frozen=True)
+class CameraCommand:
+    """A policy's output: the camera pose to move to, and why.
+
+    Attributes
+    ----------
+    T_world_cam : (4, 4)
+        Commanded camera pose, optical frame, m.
+    state : TrackingState
+    d_f : float
+        Working distance in use, m.
+    reason : str
+        One line for the log when the state is not plain tracking.
+    """
+
+    T_world_cam: FloatArray
+    state: TrackingState
+    d_f: float
+    reason: str = ""
+
+
+class CameraPolicy(Protocol):
+    """The interface every camera policy implements."""
+
+    name: str
+
+    def reset(self, context: PolicyContext) -> None:
+        """Start an episode."""
+
+    def step(self, obs: Observation) -> CameraCommand:
+        """One control step: map an observation to a camera command."""

@@ -1,0 +1,161 @@
+"""Plain-float kernels of the hot-path maths: 3-vectors, 3×3 rotations as row lists, SO(3).
+
+The control loop runs every 10 ms and must take tens of microseconds: on this machine scipy's
+``Rotation.from_matrix`` costs ~150 µs per call and each MuJoCo ``mju_*`` call ~3 µs of binding
+overhead. So the loop works on Python floats, with these kernels. The rule
+(``docs/conventions.md``): each kernel has a checked numpy counterpart in
+:mod:`endocam.geometry` (scipy's ``Rotation``), and a property test (hypothesis) pins the two
+together over random inputs; nothing else in the package re-implements them.
+
+Types: ``Vec`` is a 3-tuple of floats; ``Rows`` is a 3×3 (or 4×4) matrix as a list of row lists.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = [
+    "Rows",
+    "Vec",
+    "cross",
+    "dot",
+    "finite_rows",
+    "matmul",
+    "norm",
+    "reject",
+    "rotation_angle",
+    "scaled",
+    "so3_exp",
+    "so3_log",
+    "tmatmul",
+]
+
+Vec = tuple[float, float, float]
+Rows = list[list[float]]
+_SMALL_ANGLE = 1e-8  # rad, below this the first-order series of log/exp is exact in floats
+
+
+def cross(a: Vec, b: Vec) -> Vec:
+    """Cross product ``a × b`` of two 3-vectors."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def dot(a: Vec, b: Vec) -> float:
+    """Dot product ``a · b``."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def norm(a: Vec) -> float:
+    """Euclidean length ``|a|``."""
+    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+
+
+def scaled(a: Vec, k: float) -> Vec:
+    """``k a``."""
+    return (a[0] * k, a[1] * k, a[2] * k)
+
+
+def reject(a: Vec, z: Vec) -> Vec:
+    """Component of ``a`` perpendicular to the unit vector ``z``."""
+    k = dot(a, z)
+    return (a[0] - k * z[0], a[1] - k * z[1], a[2] - k * z[2])
+
+
+def so3_log(R: Rows) -> list[float]:
+    """Rotation vector (3,) of a rotation matrix given as rows, rad; |θ| ≤ π.
+
+    Uses the quaternion of ``R`` (Shepperd's branch choice, stable for every angle) and
+    ``θ = 2 atan2(|v|, w) v/|v|`` with ``w ≥ 0``.
+    """
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
+    tr = r00 + r11 + r22
+    if tr > 0.0:
+        k = math.sqrt(tr + 1.0) * 2.0
+        w, x, y, z = 0.25 * k, (r21 - r12) / k, (r02 - r20) / k, (r10 - r01) / k
+    elif r00 > r11 and r00 > r22:
+        k = math.sqrt(1.0 + r00 - r11 - r22) * 2.0
+        w, x, y, z = (r21 - r12) / k, 0.25 * k, (r01 + r10) / k, (r02 + r20) / k
+    elif r11 > r22:
+        k = math.sqrt(1.0 + r11 - r00 - r22) * 2.0
+        w, x, y, z = (r02 - r20) / k, (r01 + r10) / k, 0.25 * k, (r12 + r21) / k
+    else:
+        k = math.sqrt(1.0 + r22 - r00 - r11) * 2.0
+        w, x, y, z = (r10 - r01) / k, (r02 + r20) / k, (r12 + r21) / k, 0.25 * k
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    s = math.sqrt(x * x + y * y + z * z)
+    if s < _SMALL_ANGLE:
+        return [2.0 * x, 2.0 * y, 2.0 * z]
+    scale = 2.0 * math.atan2(s, w) / s
+    return [scale * x, scale * y, scale * z]
+
+
+def so3_exp(theta: list[float]) -> Rows:
+    """Rotation matrix (rows) of a rotation vector (3,), rad (Rodrigues' formula)."""
+    x, y, z = theta
+    a2 = x * x + y * y + z * z
+    if a2 < _SMALL_ANGLE * _SMALL_ANGLE:
+        s, c = 1.0, 0.5  # sin(a)/a and (1 − cos a)/a² to first order
+    else:
+        a = math.sqrt(a2)
+        s, c = math.sin(a) / a, (1.0 - math.cos(a)) / a2
+    return [
+        [1.0 - c * (y * y + z * z), c * x * y - s * z, c * x * z + s * y],
+        [c * x * y + s * z, 1.0 - c * (x * x + z * z), c * y * z - s * x],
+        [c * x * z - s * y, c * y * z + s * x, 1.0 - c * (x * x + y * y)],
+    ]
+
+
+def matmul(A: Rows, B: Rows) -> Rows:
+    """``A B`` for 3×3 row lists (unrolled: this runs every control step)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = B
+    return [
+        [a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21,
+         a00 * b02 + a01 * b12 + a02 * b22],
+        [a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21,
+         a10 * b02 + a11 * b12 + a12 * b22],
+        [a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21,
+         a20 * b02 + a21 * b12 + a22 * b22],
+    ]  # fmt: skip
+
+
+def tmatmul(A: Rows, B: Rows) -> Rows:
+    """``A^T B`` for 3×3 row lists."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
+    return matmul([[a00, a10, a20], [a01, a11, a21], [a02, a12, a22]], B)
+
+
+def rotation_angle(A: Rows, B: Rows) -> float:
+    """Angle of the relative rotation ``A^T B`` of two rotations (rows), rad, in [0, π].
+
+    ``atan2(|sin|, cos)`` from the skew and trace parts of ``M = A^T B``: accurate near 0 and π
+    (``arccos`` of the trace is not).
+    """
+
+    def m(i: int, j: int) -> float:  # M_ij = sum_k A_ki B_kj
+        return A[0][i] * B[0][j] + A[1][i] * B[1][j] + A[2][i] * B[2][j]
+
+    s = 0.5 * math.sqrt(
+        (m(2, 1) - m(1, 2)) ** 2 + (m(0, 2) - m(2, 0)) ** 2 + (m(1, 0) - m(0, 1)) ** 2
+    )
+    c = 0.5 * (m(0, 0) + m(1, 1) + m(2, 2) - 1.0)
+    return math.atan2(s, c)
+
+
+def finite_rows(T: object) -> Rows | None:
+    """Rows of a finite (4, 4) array as plain floats, or ``None`` if missing or not finite.
+
+    The boundary from the numpy API into the loop's floats.
+    """
+    if T is None:
+        return None
+    arr = T if isinstance(T, np.ndarray) else np.asarray(T, dtype=float)
+    if arr.shape != (4, 4):
+        return None
+    rows: Rows = arr.tolist()
+    if not math.isfinite(math.fsum(rows[0] + rows[1] + rows[2] + rows[3])):
+        return None  # any NaN or inf makes the sum non-finite
+    return rows

@@ -1,0 +1,113 @@
+"""What carries the camera: the carrier kinds and the one interface the episode runner calls.
+
+Every camera carrier — the free 6-DoF camera (:class:`~endocam.robot.cartesian.FreeCamera`),
+the camera on a dVRK PSM or ECM (:class:`~endocam.robot.camera_arm.CameraArm`) — implements
+:class:`Actuator`: ``reset`` to a start view, then one ``step`` per control period from a
+commanded camera pose to the camera pose it reaches. The runner has no carrier branches; what a
+carrier did with a command is its own :class:`ActuatorStatus`, kept apart from the controller's
+``TrackingState``. This module is a leaf (numpy only), so the config, the CLI and the policy
+registry take the carrier choices from :class:`ArmKind` without importing any carrier.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Protocol
+
+from endocam.geometry import FloatArray
+
+
+class ArmKind(enum.Enum):
+    """What carries the camera: the single source of the carrier choices."""
+
+    FREE = "free"
+    """No arm: the camera moves under Cartesian limits only."""
+    PSM = "psm"
+    """A pickup camera held by a dVRK PSM (6 DoF)."""
+    ECM = "ecm"
+    """The dVRK's 4-DoF endoscope arm (straight 0° scope)."""
+
+
+class ActuatorStatus(enum.Enum):
+    """How a carrier treated the command of one control step."""
+
+    EXACT = "exact"
+    """The carrier heads for the command itself."""
+    VIEW = "view"
+    """Nearest feasible view: the view turned about its look-at point towards the port."""
+    NEAREST = "nearest"
+    """Even the port view is out of reach: nearest feasible configuration (least squares)."""
+
+
+@dataclass(frozen=True)
+class ActuatorStep:
+    """Outcome of one control step of a carrier.
+
+    Attributes
+    ----------
+    T_world_cam : (4, 4) ndarray
+        Camera pose after the step, world, optical frame, m (read-only).
+    q : (n,) ndarray
+        Measured joint positions after the step, rad / m; ``(0,)`` for the free camera.
+    T_world_target : (4, 4) ndarray
+        The camera pose the carrier heads for: the command, or what ``status`` put in its
+        place, m.
+    status : ActuatorStatus
+        How the command was treated.
+    position_error : float
+        Distance between the command and the target camera positions, m (0 when exact).
+    orientation_error : float
+        Angle between the command and the target camera orientations, rad (0 when exact): the
+        view direction the carrier concedes.
+    reachable : bool
+        Whether the carrier delivers what the policy asked of it: PSM — the command exactly;
+        ECM — the command's view through the port (its missing orientation is the 4-DoF
+        scope's expected residual, measured by ``orientation_error``); free — always.
+    """
+
+    T_world_cam: FloatArray
+    q: FloatArray
+    T_world_target: FloatArray
+    status: ActuatorStatus
+    position_error: float
+    orientation_error: float
+    reachable: bool
+
+
+class Actuator(Protocol):
+    """The interface of every camera carrier (free camera, PSM, ECM)."""
+
+    kind: ArmKind
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Names of the joints reported in :attr:`ActuatorStep.q` (``()`` without joints)."""
+        ...
+
+    @property
+    def q(self) -> FloatArray:
+        """Measured joint positions (n,), rad / m (``(0,)`` without joints)."""
+        ...
+
+    def start_view(
+        self, T_world_overview: FloatArray, p_world_centre: FloatArray
+    ) -> tuple[FloatArray, float]:
+        """The camera pose (4, 4) this carrier starts an episode from, and its look distance (m).
+
+        ``T_world_overview`` is the whole-task view, ``p_world_centre`` (3,) the task centre it
+        looks at, m.
+        """
+        ...
+
+    def reset(self, T_world_cam: object, look_distance: float | None = None) -> FloatArray:
+        """Start at rest as near as possible to ``T_world_cam`` (4, 4); returns the pose taken.
+
+        ``look_distance`` (m) is the distance to the point the view looks at, the pivot of a
+        conceded view.
+        """
+        ...
+
+    def step(self, T_world_cmd: FloatArray, look_distance: float) -> ActuatorStep:
+        """One control period towards the commanded camera pose (4, 4), world, m."""
+        ...
