@@ -19,6 +19,7 @@ from endocam.camera import DEFAULT_BASELINE, DEFAULT_FOVY, Intrinsics, StereoCam
 from endocam.control.config import ControllerConfig
 from endocam.geometry import FloatArray, R_from_euler_xyz, make_pose
 from endocam.robot.actuator import ArmKind
+from endocam.robot.cartesian import MotionLimits
 from endocam.task.config import TaskConfig
 
 _FROZEN = ConfigDict(frozen=True, extra="forbid")
@@ -44,25 +45,6 @@ class CameraConfig(BaseModel):
     def stereo(self) -> StereoCamera:
         """The :class:`StereoCamera` this config describes."""
         return StereoCamera(Intrinsics.from_fovy(self.width, self.height, self.fovy), self.baseline)
-
-
-class MotionLimits(BaseModel):
-    """Limits on the camera's Cartesian motion: it never teleports."""
-
-    model_config = _FROZEN
-
-    max_linear_speed: float = Field(0.15, gt=0.0, description="Camera speed limit, m/s.")
-    max_linear_acceleration: float = Field(1.0, gt=0.0, description="Acceleration limit, m/s².")
-    max_angular_speed: float = Field(
-        math.radians(120.0), gt=0.0, description="Angular speed limit, rad/s."
-    )
-    max_angular_acceleration: float = Field(
-        math.radians(1200.0), gt=0.0, description="Angular acceleration limit, rad/s²."
-    )
-    max_linear_jerk: float = Field(20.0, gt=0.0, description="Jerk limit, m/s³.")
-    max_angular_jerk: float = Field(
-        math.radians(24000.0), gt=0.0, description="Angular jerk limit, rad/s³."
-    )
 
 
 class EpisodeConfig(BaseModel):

@@ -52,7 +52,7 @@ class ConeWorkspace:
     _cos_half: float = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        # Plain-float copies for the 1 kHz control loop.
+        # Plain-float copies for the control loop (endocam.kernels rule).
         tan_half = self.base_radius / self.height
         object.__setattr__(self, "_apex", tuple(np.asarray(self.apex, dtype=float).tolist()))
         object.__setattr__(self, "_axis", tuple(np.asarray(self.axis, dtype=float).tolist()))

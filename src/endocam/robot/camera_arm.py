@@ -133,10 +133,10 @@ def view_towards_port(
     return _turned(T_world_cam, look_distance, rotvec, fraction)
 
 
-def _port_rotvec(T: FloatArray, d: float, p_rcm: FloatArray) -> FloatArray | None:
+def _port_rotvec(T: FloatArray, look_distance: float, p_rcm: FloatArray) -> FloatArray | None:
     """Rotation vector (3,), rad, taking the optical axis onto the port direction."""
     z = T[:3, 2]
-    v = T[:3, 3] + d * z - p_rcm
+    v = T[:3, 3] + look_distance * z - p_rcm
     norm_v = float(np.linalg.norm(v))
     if norm_v <= _EPS_AXIS:
         return None
@@ -150,13 +150,13 @@ def _port_rotvec(T: FloatArray, d: float, p_rcm: FloatArray) -> FloatArray | Non
     return axis * (math.atan2(sin_t, cos_t) / sin_t)
 
 
-def _turned(T: FloatArray, d: float, rotvec: FloatArray, fraction: float) -> FloatArray:
+def _turned(T: FloatArray, look_distance: float, rotvec: FloatArray, fraction: float) -> FloatArray:
     """``T`` moved about its look-at point by ``fraction`` of ``rotvec``, horizon re-levelled."""
     R_turn = so3_exp((fraction * rotvec).tolist())
     z = T[:3, 2].tolist()
     z_t = [R_turn[i][0] * z[0] + R_turn[i][1] * z[1] + R_turn[i][2] * z[2] for i in range(3)]
-    c = T[:3, 3] + d * T[:3, 2]
-    p_t = c - d * np.array(z_t)
+    c = T[:3, 3] + look_distance * T[:3, 2]
+    p_t = c - look_distance * np.array(z_t)
     return look_at_unchecked(p_t, c, T, T)
 
 
@@ -305,7 +305,7 @@ class CameraArm:
         return result.q.tolist(), T_near, ActuatorStatus.NEAREST
 
     def _view_search(
-        self, T_goal: FloatArray, d: float, rotvec: FloatArray
+        self, T_goal: FloatArray, look_distance: float, rotvec: FloatArray
     ) -> tuple[list[float], FloatArray] | None:
         """A locally smallest reachable turn ``k / VIEW_STEPS`` towards the port view.
 
@@ -324,7 +324,7 @@ class CameraArm:
 
         def reach(k: int) -> tuple[list[float], FloatArray] | None:
             if k not in cache:
-                T = _turned(T_goal, d, rotvec, k / VIEW_STEPS)
+                T = _turned(T_goal, look_distance, rotvec, k / VIEW_STEPS)
                 q = self._exact(T)
                 cache[k] = None if q is None else (q, T)
             return cache[k]

@@ -5,9 +5,8 @@ A policy commands a pose; the camera does not teleport there. Each control step,
 degrees of freedom, the position and the rotation vector relative to the current orientation,
 under per-axis velocity, acceleration and jerk limits. The per-axis limits are the configured
 norms divided by √3, so the speed and acceleration *norms* never exceed the configured limits.
-The rotation-vector map (SO(3) log and exp) is done on plain floats: on this machine scipy's
-``Rotation.from_matrix`` costs ~150 µs per call and each MuJoCo ``mju_*`` call ~3 µs of binding
-overhead, too much for a 1 kHz loop. The kernels are checked against scipy in the tests.
+The rotation-vector map (SO(3) log and exp) runs on plain floats (:mod:`endocam.kernels`):
+the limiter steps once per control period (100 Hz by default, ``EpisodeConfig.control_rate``).
 """
 
 from __future__ import annotations
@@ -15,13 +14,33 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 from ruckig import InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
 
-from endocam.config import MotionLimits
 from endocam.geometry import FloatArray, as_pose
 from endocam.kernels import Rows, matmul, so3_exp, so3_log, tmatmul
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
 from endocam.robot.arm import MotionStatus
+
+
+class MotionLimits(BaseModel):
+    """Limits on the camera's Cartesian motion: it never teleports."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    max_linear_speed: float = Field(0.15, gt=0.0, description="Camera speed limit, m/s.")
+    max_linear_acceleration: float = Field(1.0, gt=0.0, description="Acceleration limit, m/s².")
+    max_angular_speed: float = Field(
+        math.radians(120.0), gt=0.0, description="Angular speed limit, rad/s."
+    )
+    max_angular_acceleration: float = Field(
+        math.radians(1200.0), gt=0.0, description="Angular acceleration limit, rad/s²."
+    )
+    max_linear_jerk: float = Field(20.0, gt=0.0, description="Jerk limit, m/s³.")
+    max_angular_jerk: float = Field(
+        math.radians(24000.0), gt=0.0, description="Angular jerk limit, rad/s³."
+    )
+
 
 _SQRT3 = math.sqrt(3.0)
 _SNAP_POS = 1e-12  # m or rad: smaller target offsets are round-off

@@ -224,7 +224,7 @@ def run_episode(
     T_overview = overview_camera_pose(config.task, camera)
     p_rcm = np.array(config.task.scene.rcm_position)
     kind = episode_arm(config, spec.policy)
-    actuator = make_actuator(kind, ep, config.task.scene.T_world_rcm, dt)
+    actuator = make_actuator(kind, ep.limits, ep.T_tip_cam, config.task.scene.T_world_rcm, dt)
     T_now = actuator.reset(*actuator.start_view(T_overview, task_centre(config.task)))
     policy.reset(PolicyContext(camera, T_now, T_sensed[0], p_rcm, dt))
 

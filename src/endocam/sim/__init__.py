@@ -1,1 +1,5 @@
-"""MuJoCo scene and renderer of the wire-chaser world (the only module that speaks MuJoCo)."""
+"""MuJoCo only: the wire-chaser scene, the camera arm's drawing, rendering and ray visibility.
+
+The only package that imports MuJoCo; the episode loop (:mod:`endocam.runner.episode`) runs
+without it.
+"""

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import mujoco
 import numpy as np
@@ -32,8 +32,28 @@ from endocam.sim.scene import (
 )
 from endocam.task.config import TaskConfig
 
-if TYPE_CHECKING:
-    from endocam.runner.episode import EpisodeLog
+
+class ArmLog(Protocol):
+    """What the renderer reads of an episode log to draw its camera arm.
+
+    Attributes
+    ----------
+    arm : str
+        ``ArmKind`` value of the carrier.
+    joints : (N, J) ndarray or None
+        Joint positions per control step, rad / m; ``None`` for a carrier without joints.
+    """
+
+    @property
+    def arm(self) -> str:
+        """``ArmKind`` value of the carrier."""
+        ...
+
+    @property
+    def joints(self) -> NDArray[np.float64] | None:
+        """Joint positions per control step (N, J), rad / m, or ``None``."""
+        ...
+
 
 DEFAULT_RAY_TOLERANCE = 2.0e-3  # m, occluders closer than this in front of the target are ignored
 
@@ -178,7 +198,7 @@ class WireChaserScene:
         """(2, 3) world positions of the PSM1 and PSM2 tool tips (jaw tips), m."""
         return np.array([self.data.site_xpos[i] for i in self._site_ids], dtype=float)
 
-    def set_arm_from_log(self, log: EpisodeLog, k: int) -> None:
+    def set_arm_from_log(self, log: ArmLog, k: int) -> None:
         """Pose the arm as at control step ``k`` of an episode log (``log.joints[k]``).
 
         The arm is hidden if that episode's camera was not carried by this scene's arm (a
@@ -283,6 +303,6 @@ class WireChaserScene:
         self.close()
 
 
-def log_arm(log: EpisodeLog) -> ArmKind | None:
+def log_arm(log: ArmLog) -> ArmKind | None:
     """The arm that carried an episode's camera (to draw it), or None for a free camera."""
     return None if log.joints is None else ArmKind(log.arm)

@@ -1,1 +1,1 @@
-"""The wire-chaser task: configuration, wire geometry, ring trajectories and touches."""
+"""The wire-chaser task: configuration, wire geometry, layout, ring trajectories and touches."""
