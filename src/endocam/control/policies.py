@@ -36,6 +36,7 @@ from endocam.control.safety import (
     adjust_working_distance,
     window_status_rows,
 )
+from endocam.control.tracker_config import TrackerConfig
 from endocam.geometry import UP, FloatArray
 
 
@@ -110,6 +111,9 @@ class ControllerConfig(BaseModel):
     )
     window_inner_frac: float = Field(0.5, gt=0, le=1, description="inner window, image fraction")
     window_outer_frac: float = Field(0.9, gt=0, le=1, description="outer window, image fraction")
+    tracker: TrackerConfig = Field(
+        default_factory=TrackerConfig, description="the endocam tracker's switches (policy endocam)"
+    )
 
     @model_validator(mode="after")
     def _check_ranges(self) -> ControllerConfig:
@@ -143,6 +147,8 @@ class PolicyContext:
         Remote centre of motion of the camera arm = cone tip, m.
     dt : float
         Control period, s.
+    sensing_latency : float
+        How old the ring pose in each observation is, s (a tracker may predict across it).
     """
 
     camera: StereoCamera
@@ -150,6 +156,7 @@ class PolicyContext:
     T_world_ring: FloatArray
     p_world_rcm: FloatArray
     dt: float
+    sensing_latency: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -193,12 +200,17 @@ class CameraCommand:
         Working distance in use, m.
     reason : str
         One line for the log when the state is not plain tracking.
+    twist : (6,) or None
+        Velocity of the commanded pose: linear in world (m/s), then angular in world (rad/s).
+        A carrier that supports it arrives moving with it (no lag on steady motion);
+        ``None``: arrive at rest.
     """
 
     T_world_cam: FloatArray
     state: TrackingState
     d_f: float
     reason: str = ""
+    twist: FloatArray | None = None
 
 
 class CameraPolicy(Protocol):
@@ -535,6 +547,18 @@ POLICIES: dict[str, PolicyEntry] = {
         arm="ecm",
     ),
 }
+
+
+def _endocam_tracker(config: ControllerConfig) -> CameraPolicy:
+    from endocam.control.tracker import EndocamPolicy  # the tracker builds on this module
+
+    return EndocamPolicy(config)
+
+
+POLICIES["endocam"] = PolicyEntry(
+    _endocam_tracker,
+    "orientation goal kept on one side, orbit transfers, latency prediction, left-eye centring",
+)
 
 
 def make_policy(name: str, config: ControllerConfig | None = None) -> CameraPolicy:

@@ -138,7 +138,10 @@ class EpisodeResult:
     The errors are measured against the *true* ring pose, in SI: ``image_error`` px (the only
     non-SI quantity, pixels having no SI unit), ``center_error`` m, ``orientation_error`` rad.
     ``image_error`` is raw (NaN behind the camera); summaries use
-    :attr:`image_error_saturated`.
+    :attr:`image_error_saturated`. ``center_error`` is measured from the optical axis the
+    policy centres (``centred_eye``: ``mid``, the midpoint between the eyes, or ``left``, the
+    eye the image error is measured in); both are kept (:attr:`center_error_mid`,
+    :attr:`center_error_left`).
     """
 
     config: ExperimentConfig
@@ -152,6 +155,18 @@ class EpisodeResult:
     image_error: FloatArray = field(repr=False)
     center_error: FloatArray = field(repr=False)
     orientation_error: FloatArray = field(repr=False)
+    centred_eye: str = "mid"
+
+    @cached_property
+    def center_error_mid(self) -> FloatArray:
+        """(N,) distance of the true ring centre from the axis through the eyes' midpoint, m."""
+        return center_error_3d(self.log.T_world_cam, self.log.T_world_ring[:, :3, 3])
+
+    @cached_property
+    def center_error_left(self) -> FloatArray:
+        """(N,) distance of the true ring centre from the left eye's optical axis, m."""
+        T = self.log.T_world_cam @ self.camera.T_cam_left
+        return center_error_3d(T, self.log.T_world_ring[:, :3, 3])
 
     @cached_property
     def ring_out_of_view(self) -> FloatArray:
@@ -233,7 +248,7 @@ def run_episode(
         T_tip_cam = ep.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
         arm = CameraArm(kind, config.task.scene.T_world_rcm, T_tip_cam, dt)
         T_now = arm.reset(*arm_start_view(T_overview, task_centre(config.task), p_rcm))
-    policy.reset(PolicyContext(camera, T_now, T_sensed[0], p_rcm, dt))
+    policy.reset(PolicyContext(camera, T_now, T_sensed[0], p_rcm, dt, ep.sensing_latency))
 
     T_cam = np.empty((n, 4, 4))
     T_cmd = np.empty((n, 4, 4))
@@ -252,7 +267,7 @@ def run_episode(
         state[k] = cmd.state.value
         if arm is None:
             reason.append(cmd.reason)
-            T_now = limiter.step(cmd.T_world_cam)
+            T_now = limiter.step(cmd.T_world_cam, cmd.twist)
         else:
             assert joints is not None and goal_err is not None
             joints[k] = arm.q
@@ -271,6 +286,7 @@ def run_episode(
         progress(n % chunk)
 
     clearance = np.interp(t, touches.t, touches.clearance)
+    centred_eye = str(getattr(policy, "centred_eye", "mid"))  # the axis the policy centres
     log = EpisodeLog(
         t=t,
         T_world_ring=T_ring,
@@ -299,8 +315,11 @@ def run_episode(
         log=log,
         T_world_overview=T_overview,
         image_error=image_centering_error(camera, T_cam, T_ring[:, :3, 3]),
-        center_error=center_error_3d(T_cam, T_ring[:, :3, 3]),
+        center_error=center_error_3d(
+            T_cam @ camera.T_cam_left if centred_eye == "left" else T_cam, T_ring[:, :3, 3]
+        ),
         orientation_error=orientation_error(T_cam, T_ring[:, :3, 2]),
+        centred_eye=centred_eye,
     )
 
 
