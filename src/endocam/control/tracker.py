@@ -344,7 +344,8 @@ class EndocamPolicy(_MovingPolicy):
         state, reason = TrackingState.TRACKING, ""
         cmd, twist = goal, None
         if self._transfer is Transfer.ORBIT:
-            orbit = self._orbit(p_c, u, d, p_cam)
+            z_cam = (cam_rows[0][2], cam_rows[1][2], cam_rows[2][2])
+            orbit = self._orbit(p_c, u, d, p_cam, z_cam)
             if orbit is not None:
                 cmd = orbit
                 state, reason = TrackingState.PLANNING, "orbiting the ring to the other side"
@@ -392,12 +393,15 @@ class EndocamPolicy(_MovingPolicy):
             )
             self._s = 0.0
 
-    def _orbit(self, p_c: Vec, u_goal: Vec, r: float, p_cam: Vec) -> FloatArray | None:
+    def _orbit(
+        self, p_c: Vec, u_goal: Vec, r: float, p_cam: Vec, z_cam: Vec
+    ) -> FloatArray | None:
         """Next orbit pose about ``p_c`` towards the direction ``u_goal``; ``None`` when done.
 
         The commanded direction turns on the great circle to ``u_goal`` (over the top when the
         two are opposite) at the fastest rate the orbit's per-axis limits allow, and waits
-        while the camera lags more than ``orbit_lookahead`` behind it. A step that would leave
+        while the camera's position (seen from ``p_c``) or its optical axis ``z_cam`` (world,
+        unit) lags more than ``orbit_lookahead`` behind it. A step that would leave
         the cone hands over to the paper's way-points.
         """
         tc = self.tracker
@@ -415,7 +419,12 @@ class EndocamPolicy(_MovingPolicy):
         # The camera turns about k; its per-axis share is largest when k is along one axis.
         rate = min(rate, tc.orbit_max_rate)
         to_cam = _unit((p_cam[0] - p_c[0], p_cam[1] - p_c[1], p_cam[2] - p_c[2]))
-        if to_cam is not None and _angle(to_cam, u) <= tc.orbit_lookahead:
+        keeping_up = (
+            to_cam is not None
+            and _angle(to_cam, u) <= tc.orbit_lookahead
+            and _angle(z_cam, (-u[0], -u[1], -u[2])) <= tc.orbit_lookahead
+        )
+        if keeping_up:
             step = min(rate * self._ctx_dt, ang)
             c, sn = math.cos(step), math.sin(step)
             u_next = (
