@@ -92,6 +92,9 @@ def test_touches_add_up(noisy_orientation) -> None:
     assert m["touches"] == len(r.touches.events) == len(m["touch_events"])
     if r.log.contact.any():
         assert m["touches"] >= 1
+    # the time in contact reported equals the events' total duration over the trajectory's
+    spent = sum(e.t_end - e.t_start for e in r.touches.events)
+    assert m["contact_fraction"] == pytest.approx(spent / (r.touches.t[-1] - r.touches.t[0]))
 
 
 def test_touches_do_not_depend_on_the_policy(noisy_orientation) -> None:
