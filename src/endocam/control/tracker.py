@@ -393,9 +393,7 @@ class EndocamPolicy(_MovingPolicy):
             )
             self._s = 0.0
 
-    def _orbit(
-        self, p_c: Vec, u_goal: Vec, r: float, p_cam: Vec, z_cam: Vec
-    ) -> FloatArray | None:
+    def _orbit(self, p_c: Vec, u_goal: Vec, r: float, p_cam: Vec, z_cam: Vec) -> FloatArray | None:
         """Next orbit pose about ``p_c`` towards the direction ``u_goal``; ``None`` when done.
 
         The commanded direction turns on the great circle to ``u_goal`` (over the top when the
@@ -475,5 +473,6 @@ def _flip(n2: Vec, u: Vec, n: Vec) -> Vec:
     """``n2`` signed like ``u`` is relative to ``n`` (the side kept for the twist)."""
     s = 1.0 if _dot(u, n) >= 0.0 else -1.0
     return (s * n2[0], s * n2[1], s * n2[2])
+
 
 __all__ = ["EndocamPolicy", "RingPredictor"]

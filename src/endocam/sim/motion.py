@@ -209,9 +209,7 @@ class CartesianLimiter:
             R[0][2] * w[3] + R[1][2] * w[4] + R[2][2] * w[5],
         ]
         vmax = self._inp.max_velocity
-        return [
-            min(max(v, -m), m) for v, m in zip([w[0], w[1], w[2], *body], vmax, strict=True)
-        ]
+        return [min(max(v, -m), m) for v, m in zip([w[0], w[1], w[2], *body], vmax, strict=True)]
 
     def step(self, T_world_target: FloatArray, twist: FloatArray | None = None) -> FloatArray:
         """Advance one control period towards ``T_world_target`` (4, 4); returns the new pose.
