@@ -28,3 +28,9 @@ def test_controller_demo_writes_a_plot(tmp_path: Path) -> None:
     # Only the orientation camera aligns with the normal; the others keep their orientation.
     assert errors["orientation"] < 0.2 * errors["fixed"]
     assert errors["centering"] == errors["fixed"]
+
+
+def test_touch_distribution_prints_a_table() -> None:
+    out = _run(str(EXAMPLES / "touch_distribution.py"), "--seeds", "1", "--points", "36")
+    row = [line for line in out.splitlines() if line.startswith("| 36 ")]
+    assert len(row) == 1 and row[0].count("|") == 5

@@ -87,7 +87,9 @@ def test_centering_keeps_orientation_and_centres_ring() -> None:
     for ring, cmd in zip(rings[-50:], cmds[-50:], strict=True):
         assert cmd.state is TrackingState.TRACKING
         np.testing.assert_allclose(cmd.T_world_cam[:3, :3], ctx.T_world_cam[:3, :3], atol=1e-12)
-        d = ring[:3, 3] - cmd.T_world_cam[:3, 3]
+        # the left eye (ControllerConfig.centre_left_eye) looks straight at the ring centre
+        p_left = (cmd.T_world_cam @ ctx.camera.T_cam_left)[:3, 3]
+        d = ring[:3, 3] - p_left
         np.testing.assert_allclose(d, cmd.d_f * cmd.T_world_cam[:3, 2], atol=ATOL_M)
 
 

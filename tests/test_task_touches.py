@@ -143,6 +143,27 @@ def test_touches_deterministic_and_consistent(wire: Wire) -> None:
                 assert abs(clearance(traj.pose(t_edge), wire, cfg.ring)[0]) < 1e-6
 
 
+def test_noisy_71_point_path_touches_in_discrete_events(wire: Wire) -> None:
+    # paper Sec. IV-B: noise introduces "a number of collisions" a viewer can count; the old
+    # signed-magnitude reading kept the ring on the wire ~75 % of the time.
+    cfg = TaskConfig()
+    max_contact = 0.25  # unitless, the ring is in contact at most a quarter of the time
+    traj = make_trajectory(cfg, TrajectoryKind.NOISY, 71, seed=0, wire=wire)
+    rep = touch_events(traj, wire, cfg.ring, dt=0.01)
+    assert rep.count >= 5
+    assert 0.0 < rep.contact_fraction <= max_contact
+    assert rep.contact_fraction == pytest.approx(
+        sum(e.duration for e in rep.events) / traj.duration, abs=T_TOL_S / traj.duration
+    )
+    assert rep.duration == pytest.approx(traj.duration, abs=T_TOL_S)
+
+
+def test_contact_fraction_of_an_ideal_path_is_zero(wire: Wire) -> None:
+    cfg = TaskConfig()
+    traj = make_trajectory(cfg, TrajectoryKind.IDEAL, 36, wire=wire)
+    assert touch_events(traj, wire, cfg.ring, dt=0.05).contact_fraction == 0.0
+
+
 def test_coarse_sampling_misses_no_touch(wire: Wire) -> None:
     cfg = TaskConfig()
     traj = make_trajectory(cfg, TrajectoryKind.NOISY, 71, seed=11, wire=wire)

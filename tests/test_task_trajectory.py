@@ -9,9 +9,11 @@ from endocam.task.trajectory import (
     ControlPoints,
     RingTrajectory,
     TrajectoryKind,
+    angle_offsets,
     control_points,
     ideal_ring_rotations,
     make_trajectory,
+    position_offsets,
 )
 from endocam.task.wire import Wire
 
@@ -59,20 +61,77 @@ def test_ideal_rotation_falls_back_when_tangent_vertical() -> None:
     np.testing.assert_allclose(R[0], np.eye(3), atol=ATOL_RAD)
 
 
-def test_noisy_offsets_within_thresholds(wire: Wire) -> None:
+def test_noisy_thresholds_drawn_within_ranges(wire: Wire) -> None:
+    cfg = TrajectoryConfig()
+    ideal = control_points(wire, 71, TrajectoryKind.IDEAL, cfg)
+    assert ideal.position_threshold == 0.0 and ideal.angle_threshold == 0.0
+    drawn_p, drawn_a = [], []
+    for seed in range(20):
+        noisy = control_points(wire, 71, TrajectoryKind.NOISY, cfg, seed=seed)
+        lo, hi = cfg.position_noise
+        assert lo <= noisy.position_threshold <= hi
+        lo, hi = cfg.angle_noise
+        assert lo <= noisy.angle_threshold <= hi
+        drawn_p.append(noisy.position_threshold)
+        drawn_a.append(noisy.angle_threshold)
+    # one threshold per trajectory, not a constant: the seeds draw different ones
+    assert len(set(drawn_p)) == 20 and len(set(drawn_a)) == 20
+
+
+def test_noisy_offsets_bounded_by_the_drawn_thresholds(wire: Wire) -> None:
     cfg = TrajectoryConfig()
     ideal = control_points(wire, 71, TrajectoryKind.IDEAL, cfg)
     for seed in range(5):
         noisy = control_points(wire, 71, TrajectoryKind.NOISY, cfg, seed=seed)
-        dp = np.abs(noisy.positions - ideal.positions)
+        dist = np.linalg.norm(noisy.positions - ideal.positions, axis=1)
         da = np.abs(noisy.euler_xyz - ideal.euler_xyz)
-        lo, hi = cfg.position_noise
-        assert dp.min() >= lo - ATOL_M and dp.max() <= hi + ATOL_M
-        lo, hi = cfg.angle_noise
-        assert da.min() >= lo - ATOL_RAD and da.max() <= hi + ATOL_RAD
-        # both signs occur
+        assert dist.max() <= noisy.position_threshold + ATOL_M
+        assert da.max() <= noisy.angle_threshold + ATOL_RAD
+        # both signs occur on every axis
         d = noisy.positions - ideal.positions
-        assert (d > 0).any() and (d < 0).any()
+        assert np.all((d > 0).any(axis=0)) and np.all((d < 0).any(axis=0))
+
+
+def test_noise_is_a_limit_not_a_magnitude(wire: Wire) -> None:
+    # The old reading drew every |offset| in [lo, hi]: no small offsets, and a position moved
+    # by ≥ √3·lo. Under the limit reading small offsets are common.
+    cfg = TrajectoryConfig()
+    ideal = control_points(wire, 71, TrajectoryKind.IDEAL, cfg)
+    noisy = control_points(wire, 71, TrajectoryKind.NOISY, cfg, seed=0)
+    dist = np.linalg.norm(noisy.positions - ideal.positions, axis=1)
+    da = np.abs(noisy.euler_xyz - ideal.euler_xyz)
+    assert np.any(dist < cfg.position_noise[0])
+    assert np.any(da < cfg.angle_noise[0])
+
+
+def test_offsets_uniform_in_ball_and_interval() -> None:
+    rng = np.random.default_rng(0)
+    n = 20_000
+    sigmas = 5.0  # unitless, binomial standard deviations allowed
+    t_p, dp = position_offsets(rng, (3e-3, 3.5e-3), n)
+    t_a, da = angle_offsets(rng, (0.2, 0.5), n)
+    assert dp.shape == (n, 3) and da.shape == (n, 3)
+    # uniform in the ball: P(|d| < t/2) = 1/8; uniform in [−t, t]: P(|a| < t/2) = 1/2
+    for frac, p, k in (
+        (np.mean(np.linalg.norm(dp, axis=1) < t_p / 2), 1 / 8, n),
+        (np.mean(np.abs(da) < t_a / 2), 1 / 2, 3 * n),
+    ):
+        assert abs(frac - p) < sigmas * math.sqrt(p * (1 - p) / k)
+    # isotropic: no world axis preferred
+    np.testing.assert_allclose(np.mean(dp, axis=0), 0.0, atol=sigmas * t_p / math.sqrt(5 * n))
+    with pytest.raises(ValueError, match="threshold_range"):
+        position_offsets(rng, (3e-3, 2e-3), 3)
+    with pytest.raises(ValueError, match="threshold_range"):
+        angle_offsets(rng, (-0.1, 0.2), 3)
+
+
+def test_study_angle_override_bounds_the_angles(wire: Wire) -> None:
+    low = (math.radians(5.0), math.radians(10.0))  # the study's easiest trajectory
+    cfg = TrajectoryConfig(angle_noise=low)
+    ideal = control_points(wire, 36, TrajectoryKind.IDEAL, cfg)
+    noisy = control_points(wire, 36, TrajectoryKind.NOISY, cfg, seed=7)
+    assert low[0] <= noisy.angle_threshold <= low[1]
+    assert np.abs(noisy.euler_xyz - ideal.euler_xyz).max() <= low[1] + ATOL_RAD
 
 
 def test_noise_seeded_and_deterministic(wire: Wire) -> None:

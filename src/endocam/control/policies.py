@@ -249,6 +249,8 @@ class CenteringPolicy(_MovingPolicy):
         T[:3, :3] = R0
         p_c = np.array([ring_rows[0][3], ring_rows[1][3], ring_rows[2][3]])
         T[:3, 3] = p_c - self.d_f * R0[:, 2]
+        if self.config.centre_left_eye:  # the left eye, b/2 along −x, onto the ring's line
+            T[:3, 3] += 0.5 * self._ctx.camera.baseline * R0[:, 0]
         return T
 
     def _waypoint_pose(self, p: FloatArray, T_ring: FloatArray, goal: FloatArray) -> FloatArray:
@@ -336,6 +338,18 @@ POLICIES: dict[str, PolicyEntry] = {
         arm=ArmKind.ECM,
     ),
 }
+
+
+def _endocam_tracker(config: ControllerConfig) -> CameraPolicy:
+    from endocam.control.tracker import EndocamPolicy  # the tracker builds on this module
+
+    return EndocamPolicy(config)
+
+
+POLICIES["endocam"] = PolicyEntry(
+    _endocam_tracker,
+    "orientation goal kept on one side, orbit transfers, latency prediction, left-eye centring",
+)
 
 
 def make_policy(name: str, config: ControllerConfig | None = None) -> CameraPolicy:

@@ -50,6 +50,8 @@ class PolicyContext:
         Remote centre of motion of the camera arm = cone tip, m.
     dt : float
         Control period, s.
+    sensing_latency : float
+        How old the ring pose in each observation is, s (a tracker may predict across it).
     """
 
     camera: StereoCamera
@@ -57,6 +59,7 @@ class PolicyContext:
     T_world_ring: FloatArray
     p_world_rcm: FloatArray
     dt: float
+    sensing_latency: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -100,12 +103,17 @@ class CameraCommand:
         Working distance in use, m.
     reason : str
         One line for the log when the state is not plain tracking.
+    twist : (6,) or None
+        Velocity of the commanded pose: linear in world (m/s), then angular in world (rad/s).
+        A carrier that supports it arrives moving with it (no lag on steady motion);
+        ``None``: arrive at rest.
     """
 
     T_world_cam: FloatArray
     state: TrackingState
     d_f: float
     reason: str = ""
+    twist: FloatArray | None = None
 
 
 class CameraPolicy(Protocol):

@@ -108,6 +108,12 @@ class Actuator(Protocol):
         """
         ...
 
-    def step(self, T_world_cmd: FloatArray, look_distance: float) -> ActuatorStep:
-        """One control period towards the commanded camera pose (4, 4), world, m."""
+    def step(
+        self, T_world_cmd: FloatArray, look_distance: float, twist: FloatArray | None = None
+    ) -> ActuatorStep:
+        """One control period towards the commanded camera pose (4, 4), world, m.
+
+        ``twist`` (6,) is the command's velocity (linear, then angular; world; m/s, rad/s), or
+        ``None``; a carrier that cannot use it ignores it.
+        """
         ...

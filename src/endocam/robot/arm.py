@@ -44,11 +44,17 @@ __all__ = [
 ]
 
 
-# Conservative engineering limits (not dVRK-measured): rad/s, rad/s² (m/s, m/s² for insertion)
-PSM_MAX_VELOCITY = (1.0, 1.0, 0.2, 3.0, 3.0, 3.0)
-PSM_MAX_ACCELERATION = (2.0, 2.0, 0.4, 8.0, 8.0, 8.0)
-ECM_MAX_VELOCITY = (0.5, 0.5, 0.1, 0.5)
-ECM_MAX_ACCELERATION = (1.0, 1.0, 0.2, 1.0)
+# Joint trajectory limits: the dVRK's own defaults for its joint trajectories (Reflexxes), set in
+# the arm classes' Init() of jhu-dvrk/sawIntuitiveResearchKit (components/code/
+# mtsIntuitiveResearchKitPSM.cpp and mtsIntuitiveResearchKitECM.cpp, commits 02d4b7cf and
+# 94060de4; docs/robot.md). rad/s, rad/s² (m/s, m/s² for insertion).
+# PSM: yaw/pitch 180°/s and 180°/s², insertion 0.2 m/s and 0.2 m/s², roll and wrist
+# 3·360°/s and 2·360°/s².
+PSM_MAX_VELOCITY = (math.pi, math.pi, 0.2, 6.0 * math.pi, 6.0 * math.pi, 6.0 * math.pi)
+PSM_MAX_ACCELERATION = (math.pi, math.pi, 0.2, 4.0 * math.pi, 4.0 * math.pi, 4.0 * math.pi)
+# ECM: yaw/pitch 30°/s and 30°/s², insertion 0.05 m/s and 0.05 m/s², roll 20°/s and 30°/s².
+ECM_MAX_VELOCITY = (math.radians(30.0), math.radians(30.0), 0.05, math.radians(20.0))
+ECM_MAX_ACCELERATION = (math.radians(30.0), math.radians(30.0), 0.05, math.radians(30.0))
 
 
 @runtime_checkable

@@ -396,7 +396,9 @@ class CameraArm:
         self._T_cam = self.camera_pose(self._q)
         return self._T_cam.copy()
 
-    def step(self, T_world_cmd: FloatArray, look_distance: float) -> ActuatorStep:
+    def step(
+        self, T_world_cmd: FloatArray, look_distance: float, twist: FloatArray | None = None
+    ) -> ActuatorStep:
         """One control step towards a commanded camera pose (see the module docstring).
 
         Parameters
@@ -408,6 +410,8 @@ class CameraArm:
             Distance from the commanded camera to the point it looks at (the policy's working
             distance), m; the pivot of the nearest feasible view. A non-finite or non-positive
             value is replaced by the distance to the RCM.
+        twist : (6,) ndarray, optional
+            The command's velocity; the joint motion does not use it (yet).
 
         Returns
         -------

@@ -87,6 +87,7 @@ class CartesianLimiter:
         self._acc = [0.0] * 6
         self._target = np.eye(4)
         self._arrived_at: list[float] = []  # flattened target the camera rests on
+        self._moving_target = False  # the last step had a target velocity
         self._pose_array = np.eye(4)
         self.status = MotionStatus.FINISHED
 
@@ -101,6 +102,9 @@ class CartesianLimiter:
         self._arrived_at = self._target.ravel().tolist()
         self._pose_array = self.pose
         self.status = MotionStatus.FINISHED
+        if self._moving_target:
+            self._inp.target_velocity = [0.0] * 6
+            self._moving_target = False
 
     @property
     def pose(self) -> FloatArray:
@@ -130,19 +134,52 @@ class CartesianLimiter:
         ]
         return self._otg.update(inp, self._out)
 
-    def step(self, T_world_target: FloatArray) -> FloatArray:
+    def _target_velocity(self, twist: FloatArray | None) -> list[float] | None:
+        """Target velocity in ruckig's coordinates, clipped to the per-axis limits, or ``None``.
+
+        ``twist`` (6,): linear velocity in world (m/s), angular velocity in world (rad/s); the
+        angular part is expressed in the current camera frame (the orientation DoFs' frame).
+        ``None`` for no twist, a non-finite one or an all-zero one (arrive at rest).
+        """
+        if twist is None:
+            return None
+        w = np.ravel(twist).tolist()
+        if len(w) != 6 or not math.isfinite(math.fsum(w)) or not any(w):
+            return None
+        R = self._R
+        body = [
+            R[0][0] * w[3] + R[1][0] * w[4] + R[2][0] * w[5],
+            R[0][1] * w[3] + R[1][1] * w[4] + R[2][1] * w[5],
+            R[0][2] * w[3] + R[1][2] * w[4] + R[2][2] * w[5],
+        ]
+        vmax = self._inp.max_velocity
+        return [min(max(v, -m), m) for v, m in zip([w[0], w[1], w[2], *body], vmax, strict=True)]
+
+    def step(self, T_world_target: FloatArray, twist: FloatArray | None = None) -> FloatArray:
         """Advance one control period towards ``T_world_target`` (4, 4); returns the new pose.
 
         A non-finite target is rejected: the camera keeps going to the last valid target,
         within its limits, and ``status`` says ``REJECTED``.
+
+        ``twist`` (6,), optional: the target's velocity, linear in world (m/s) then angular in
+        world (rad/s). The camera then reaches the target moving with it (clipped to the
+        per-axis speed limits), so a steadily moving target is followed without lag. ``None``
+        (the default) arrives at rest, exactly as without the argument.
         """
         flat = np.ravel(T_world_target).tolist()
         rejected = len(flat) != 16 or not math.isfinite(math.fsum(flat))
         if rejected:
             T_world_target = self._target
             flat = T_world_target.ravel().tolist()
+            twist = None
         else:
             self._target = T_world_target
+        v_target = self._target_velocity(twist)
+        if v_target is not None or self._moving_target:
+            self._inp.target_velocity = v_target if v_target is not None else [0.0] * 6
+            self._moving_target = v_target is not None
+            if v_target is not None:
+                self.status = MotionStatus.MOVING
         if self.status is MotionStatus.FINISHED and flat == self._arrived_at:
             return self._pose_array.copy()  # at rest on an unchanged target: nothing to do
         # Re-anchor the orientation DoFs at the current orientation: current rotation vector 0,
@@ -161,7 +198,8 @@ class CartesianLimiter:
             result = self._retry(inp)
         if result not in (Result.Working, Result.Finished):
             raise RuntimeError(f"ruckig failed with {result} for a finite target")
-        if result == Result.Finished:  # at rest on the target: take it exactly (no round-off)
+        if result == Result.Finished and v_target is None:
+            # at rest on the target: take it exactly (no round-off)
             self._p = [flat[3], flat[7], flat[11]]
             self._R = R_tgt
             self._v = [0.0] * 6
@@ -225,7 +263,12 @@ class FreeCamera:
         self.limiter.reset(T)
         return T
 
-    def step(self, T_world_cmd: FloatArray, look_distance: float) -> ActuatorStep:
-        """One limiter step towards the command (a non-finite one keeps the last valid target)."""
-        T = self.limiter.step(T_world_cmd)
+    def step(
+        self, T_world_cmd: FloatArray, look_distance: float, twist: FloatArray | None = None
+    ) -> ActuatorStep:
+        """One limiter step towards the command (a non-finite one keeps the last valid target).
+
+        ``twist`` (6,): the command's velocity, linear then angular, world, m/s and rad/s.
+        """
+        T = self.limiter.step(T_world_cmd, twist)
         return ActuatorStep(T, _NO_JOINTS, T_world_cmd, ActuatorStatus.EXACT, 0.0, 0.0, True)

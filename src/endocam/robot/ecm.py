@@ -68,7 +68,12 @@ ECM_CHAIN = DHChain(
     ),
     T_last_tip=np.eye(4),
 )
-"""The Classic ECM's modified-DH chain, base frame = RCM, identity tool-tip offset."""
+"""The Classic ECM's modified-DH chain, base frame = RCM, identity tool-tip offset.
+
+DH values and joint limits from jhu-dvrk/sawIntuitiveResearchKit ``share/kinematic/ecm.json``
+(commit 09fdffe8): yaw ±1.5708 rad (±90°), pitch −0.76794-1.1344 rad (−44°-65°), insertion
+0-0.255 m, roll ±1.552 rad (±88°).
+"""
 
 _EPS_GEOM = 1e-9  # m: a goal this close to the RCM has no defined shaft direction
 _EXACT_TOL_RAD = 1e-9  # rad: orientation residual counted as zero with unlimited joints

@@ -62,7 +62,7 @@ PSM_TOOLTIP_OFFSET = np.array(
 
 PSM_CHAIN = DHChain(
     links=(
-        DHLink("outer_yaw", _HALF_PI, 0.0, 0.0, 0.0, _HALF_PI, _R, -4.71239, 4.71239),
+        DHLink("outer_yaw", _HALF_PI, 0.0, 0.0, 0.0, _HALF_PI, _R, -1.588, 1.588),
         DHLink("outer_pitch", -_HALF_PI, 0.0, 0.0, 0.0, -_HALF_PI, _R, -0.925025, 0.925025),
         DHLink("outer_insertion", _HALF_PI, 0.0, 0.0, 0.0, -0.4318, _P, 0.0, 0.24),
         DHLink("roll", 0.0, 0.0, 0.4670, 0.0, 0.0, _R, -4.53786, 4.53786),
@@ -71,7 +71,17 @@ PSM_CHAIN = DHChain(
     ),
     T_last_tip=PSM_TOOLTIP_OFFSET,
 )
-"""The PSM's modified-DH chain, base frame = RCM (dVRK ``psm-pro-grasp`` values)."""
+"""The PSM's modified-DH chain, base frame = RCM.
+
+Values from jhu-dvrk/sawIntuitiveResearchKit: the arm's first three joints from
+``share/kinematic/psm.json`` (commit bb73358d: outer yaw ±1.588 rad = ±91°, outer pitch
+±0.925025 rad = ±53°, insertion 0-0.24 m), the tool's from
+``share/tool/PROGRASP_FORCEPS_420093.json`` (commit 23f23dbe: roll ±4.53786 rad = ±260°, wrist
+pitch and yaw ±1.39626 rad = ±80°, D = 0.4670 m, A = 0.0107 m). Another stored version of
+psm.json (commit 47f86f38) gives outer yaw ±4.71239 rad (±270°); the ±91° of bb73358d agrees
+with the dVRK's own no-tool limits (``mtsIntuitiveResearchKitPSM.cpp``) and the dVRK 1.x
+``share/arm/psm-pro-grasp.json``, so it is used (docs/robot.md).
+"""
 
 _EPS_GEOM = 1e-9  # m: below this the wrist geometry is singular
 

@@ -138,7 +138,10 @@ class EpisodeResult:
     The errors are measured against the *true* ring pose, in SI: ``image_error`` px (the only
     non-SI quantity, pixels having no SI unit), ``center_error`` m, ``orientation_error`` rad.
     ``image_error`` is raw (NaN behind the camera); summaries use
-    :attr:`image_error_saturated`.
+    :attr:`image_error_saturated`. Both centring errors are measured in the left eye, where the
+    paper measures (Sec. V: "with respect to the left image space"): ``center_error`` is the
+    distance of the ring centre from the left eye's optical axis; the distance from the axis
+    through the eyes' midpoint is :attr:`center_error_mid`.
     """
 
     config: ExperimentConfig
@@ -152,6 +155,11 @@ class EpisodeResult:
     image_error: FloatArray = field(repr=False)
     center_error: FloatArray = field(repr=False)
     orientation_error: FloatArray = field(repr=False)
+
+    @cached_property
+    def center_error_mid(self) -> FloatArray:
+        """(N,) distance of the true ring centre from the axis through the eyes' midpoint, m."""
+        return center_error_3d(self.log.T_world_cam, self.log.T_world_ring[:, :3, 3])
 
     @cached_property
     def ring_out_of_view(self) -> FloatArray:
@@ -226,7 +234,7 @@ def run_episode(
     kind = episode_arm(config, spec.policy)
     actuator = make_actuator(kind, ep.limits, ep.T_tip_cam, config.task.scene.T_world_rcm, dt)
     T_now = actuator.reset(*actuator.start_view(T_overview, task_centre(config.task)))
-    policy.reset(PolicyContext(camera, T_now, T_sensed[0], p_rcm, dt))
+    policy.reset(PolicyContext(camera, T_now, T_sensed[0], p_rcm, dt, ep.sensing_latency))
 
     T_cam = np.empty((n, 4, 4))
     T_cmd = np.empty((n, 4, 4))
@@ -246,7 +254,8 @@ def run_episode(
         cmd = policy.step(Observation(float(t[k]), T_sensed[k], T_now, tips[k], reach_offset))
         T_cmd[k] = cmd.T_world_cam
         d_f[k] = cmd.d_f
-        out = actuator.step(cmd.T_world_cam, _look_distance(cmd.T_world_cam, T_sensed[k], cmd.d_f))
+        look = _look_distance(cmd.T_world_cam, T_sensed[k], cmd.d_f)
+        out = actuator.step(cmd.T_world_cam, look, cmd.twist)
         if jointed:
             reach_offset = out.T_world_target[:3, 3] - cmd.T_world_cam[:3, 3]
         goal_err[k] = (out.position_error, out.orientation_error)
@@ -291,7 +300,7 @@ def run_episode(
         log=log,
         T_world_overview=T_overview,
         image_error=image_centering_error(camera, T_cam, T_ring[:, :3, 3]),
-        center_error=center_error_3d(T_cam, T_ring[:, :3, 3]),
+        center_error=center_error_3d(T_cam @ camera.T_cam_left, T_ring[:, :3, 3]),
         orientation_error=orientation_error(T_cam, T_ring[:, :3, 2]),
     )
 

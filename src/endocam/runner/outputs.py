@@ -197,6 +197,7 @@ def metrics_dict(result: EpisodeResult) -> dict[str, Any]:
         "center_error_mm": summarize(result.center_error, 1e3),
         "orientation_error_deg": summarize(result.orientation_error, math.degrees(1.0)),
         "touches": result.touches.count,
+        "contact_fraction": result.touches.contact_fraction,
         "touch_events": [
             {
                 "t_start": ev.t_start,

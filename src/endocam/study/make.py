@@ -89,7 +89,7 @@ class StudyTrajectory:
     control_points : int
         Control points along the wire.
     angle_noise : (2,) or None
-        Per-angle noise magnitude range [lo, hi], rad; None keeps the config's.
+        Range [lo, hi] of the angular threshold, rad; None keeps the config's.
     """
 
     name: str

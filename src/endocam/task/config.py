@@ -121,9 +121,12 @@ class RingConfig(BaseModel):
 class TrajectoryConfig(BaseModel):
     """Ring trajectories along the wire (paper Sec. IV-B).
 
-    Noise reading of the paper's "threshold" (3-3.5 mm, 10-30°): for a noisy trajectory each of
-    the six values (x, y, z, α, β, γ) of each control point gets an independent offset whose
-    magnitude is uniform in ``[lo, hi]`` and whose sign is random (±1 with equal probability).
+    Noise reading of the paper's "threshold" (3-3.5 mm, 10-30°) as a limit drawn once per noisy
+    trajectory: a position threshold ``t_p`` uniform in ``position_noise`` and an angular
+    threshold ``t_a`` uniform in ``angle_noise``. Every control point then moves by an offset
+    (dx, dy, dz) uniform in the ball ``|d| ≤ t_p`` and turns by offsets (dα, dβ, dγ) each uniform
+    in ``[−t_a, t_a]``. Noisy 71-point paths then touch the wire in discrete events (≈ 12 per
+    60 s, in contact ≈ 8 % of the time; docs/world.md).
     """
 
     model_config = _FROZEN
@@ -133,13 +136,15 @@ class TrajectoryConfig(BaseModel):
     )
     position_noise: Range = Field(
         (3.0e-3, 3.5e-3),
-        description="Per-component position offset magnitude range [lo, hi] of noisy control "
-        "points, m.",
+        description="Range [lo, hi] of the position threshold t_p, m, drawn uniformly once per "
+        "noisy trajectory; every control point's position offset is uniform in the ball of "
+        "radius t_p (paper Sec. IV-B: 3-3.5 mm).",
     )
     angle_noise: Range = Field(
         (math.radians(10.0), math.radians(30.0)),
-        description="Per-angle (α, β, γ) offset magnitude range [lo, hi] of noisy control "
-        "points, rad.",
+        description="Range [lo, hi] of the angular threshold t_a, rad, drawn uniformly once per "
+        "noisy trajectory; every offset of α, β and γ is uniform in [−t_a, t_a] (paper "
+        "Sec. IV-B: 10-30°).",
     )
     duration: float = Field(
         60.0,

@@ -112,6 +112,19 @@ class TouchReport:
         """Number of touch events."""
         return len(self.events)
 
+    @property
+    def duration(self) -> float:
+        """Time covered by the samples, s (the trajectory's duration)."""
+        return float(self.t[-1] - self.t[0]) if self.t.size else 0.0
+
+    @property
+    def contact_fraction(self) -> float:
+        """Time in contact over the duration, unitless in [0, 1] (0 for a zero duration)."""
+        span = self.duration
+        if span <= 0.0:
+            return 0.0
+        return float(sum(e.duration for e in self.events) / span)
+
 
 def _core_distance(p: FloatArray, c: FloatArray, n: FloatArray, major: float) -> FloatArray:
     """Distance, m, from points ``p`` (…, 3) to core circles (centres ``c``, normals ``n``)."""

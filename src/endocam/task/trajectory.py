@@ -6,13 +6,17 @@
 spline (zero velocity at both ends) and a C² rotation spline (scipy ``RotationSpline``).
 
 Ideal control points centre the ring on the wire with its face normal (ring z) along the wire's
-tangent and its handle (ring +x) pointing as far up as possible. Noisy control points add, to each
-of the six values, an offset of magnitude uniform in the configured ``[lo, hi]`` with a random
-sign (our reading of the paper's "position threshold 3-3.5 mm, angular threshold 10-30°").
+tangent and its handle (ring +x) pointing as far up as possible. Noisy control points add noise
+to all six values. Our reading of the paper's "position threshold 3-3.5 mm, angular threshold
+10-30°" treats a threshold as a limit drawn once per trajectory: ``t_p`` uniform in
+``position_noise`` bounds how far any control point moves (its offset is uniform in the ball of
+radius ``t_p``), ``t_a`` uniform in ``angle_noise`` bounds each angle offset (uniform in
+``[−t_a, t_a]``). See docs/world.md for why (touches a person can count).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -47,11 +51,18 @@ class ControlPoints:
         Tait–Bryan angles (α, β, γ), rad, with ``R_world_ring = Rx(α) Ry(β) Rz(γ)``.
     arc_length : (n,)
         Arc length of the wire point each control point was built from, m.
+    position_threshold : float
+        Drawn bound on every point's position offset (its distance from the ideal point), m;
+        0 for ideal points.
+    angle_threshold : float
+        Drawn bound on every angle offset ``|dα|, |dβ|, |dγ|``, rad; 0 for ideal points.
     """
 
     positions: FloatArray
     euler_xyz: FloatArray
     arc_length: FloatArray
+    position_threshold: float = 0.0
+    angle_threshold: float = 0.0
 
     def __post_init__(self) -> None:
         n = self.positions.shape[0] if self.positions.ndim == 2 else -1
@@ -63,6 +74,11 @@ class ControlPoints:
             raise ValueError(f"arc_length must have shape ({n},), got {self.arc_length.shape}")
         if not (np.all(np.isfinite(self.positions)) and np.all(np.isfinite(self.euler_xyz))):
             raise ValueError("control points must be finite")
+        if not (self.position_threshold >= 0.0 and self.angle_threshold >= 0.0):
+            raise ValueError(
+                "position_threshold and angle_threshold must be ≥ 0, got "
+                f"{self.position_threshold}, {self.angle_threshold}"
+            )
 
     def __len__(self) -> int:
         return int(self.positions.shape[0])
@@ -104,12 +120,69 @@ def ideal_ring_rotations(wire: Wire, s: ArrayLike) -> FloatArray:
     return np.stack([x, y, z], axis=2)
 
 
-def _signed_uniform(
-    rng: np.random.Generator, lo: float, hi: float, shape: tuple[int, int]
-) -> FloatArray:
-    magnitude = rng.uniform(lo, hi, size=shape)
-    sign = rng.choice(np.array([-1.0, 1.0]), size=shape)
-    return np.asarray(magnitude * sign, dtype=float)
+def _draw_threshold(rng: np.random.Generator, threshold_range: tuple[float, float]) -> float:
+    lo, hi = threshold_range
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 <= lo <= hi):
+        raise ValueError(f"threshold_range must satisfy 0 ≤ lo ≤ hi, got {threshold_range}")
+    return float(rng.uniform(lo, hi))
+
+
+def position_offsets(
+    rng: np.random.Generator, threshold_range: tuple[float, float], n: int
+) -> tuple[float, FloatArray]:
+    """Position noise of ``n`` control points: offsets within a distance drawn per trajectory.
+
+    The position threshold ``t_p`` is drawn once, uniform in ``threshold_range``; each point's
+    offset (dx, dy, dz) is then uniform in the ball ``|d| ≤ t_p`` (paper Sec. IV-B: the
+    threshold bounds how far noise moves a control point).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    threshold_range : (2,)
+        ``[lo, hi]`` of the threshold, m.
+    n : int
+        Control points.
+
+    Returns
+    -------
+    threshold : float
+        The drawn ``t_p``, m.
+    offsets : (n, 3)
+        Offsets in world, m, each of norm ≤ ``t_p``.
+    """
+    threshold = _draw_threshold(rng, threshold_range)
+    direction = rng.normal(size=(n, 3))
+    direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), _EPS_DIR)
+    radius = threshold * rng.uniform(size=(n, 1)) ** (1.0 / 3.0)  # uniform in the ball's volume
+    return threshold, np.asarray(direction * radius, dtype=float)
+
+
+def angle_offsets(
+    rng: np.random.Generator, threshold_range: tuple[float, float], n: int
+) -> tuple[float, FloatArray]:
+    """Angle noise of ``n`` control points: offsets within an angle drawn per trajectory.
+
+    The angular threshold ``t_a`` is drawn once, uniform in ``threshold_range``; each of the
+    three offsets (dα, dβ, dγ) of each point is then uniform in ``[−t_a, t_a]``.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    threshold_range : (2,)
+        ``[lo, hi]`` of the threshold, rad.
+    n : int
+        Control points.
+
+    Returns
+    -------
+    threshold : float
+        The drawn ``t_a``, rad.
+    offsets : (n, 3)
+        Offsets of (α, β, γ), rad, each in ``[−t_a, t_a]``.
+    """
+    threshold = _draw_threshold(rng, threshold_range)
+    return threshold, np.asarray(rng.uniform(-threshold, threshold, size=(n, 3)), dtype=float)
 
 
 def control_points(
@@ -128,9 +201,11 @@ def control_points(
         Number of control points, ≥ 2 (paper: 36 or 71).
     kind : TrajectoryKind
         ``IDEAL``: ring centred on the wire, normal along the tangent, handle up. ``NOISY``: the
-        ideal values plus, for every one of the six values of every point, an independent offset
-        of magnitude uniform in ``cfg.position_noise`` (m, for x, y, z) or ``cfg.angle_noise``
-        (rad, for α, β, γ) with a random sign.
+        ideal values plus noise bounded by two thresholds drawn once per trajectory: a position
+        threshold ``t_p`` uniform in ``cfg.position_noise`` (m) and an angular threshold ``t_a``
+        uniform in ``cfg.angle_noise`` (rad). Each point's position moves by an offset uniform in
+        the ball of radius ``t_p``; each of its angles (α, β, γ) by an offset uniform in
+        ``[−t_a, t_a]`` (:func:`position_offsets`, :func:`angle_offsets`).
     cfg : TrajectoryConfig
         Noise ranges and end margin.
     seed : int, optional
@@ -153,8 +228,9 @@ def control_points(
         if seed is None:
             raise ValueError("seed is required for noisy control points")
         rng = np.random.default_rng(seed)
-        positions = positions + _signed_uniform(rng, *cfg.position_noise, (int(n), 3))
-        euler = euler + _signed_uniform(rng, *cfg.angle_noise, (int(n), 3))
+        t_p, dp = position_offsets(rng, cfg.position_noise, int(n))
+        t_a, da = angle_offsets(rng, cfg.angle_noise, int(n))
+        return ControlPoints(positions + dp, euler + da, s, t_p, t_a)
     return ControlPoints(positions=positions, euler_xyz=euler, arc_length=s)
 
 

@@ -1,0 +1,455 @@
+r"""The ``endocam`` tracker: the paper's orientation goal, followed with less lag and fewer jumps.
+
+The goal is the paper's (Sec. III-B): the camera looks at the ring centre ``p_c`` along the ring
+normal ``n`` from the working distance ``d_f`` with a level horizon, under the same safety rules
+(cone freeze, tool-in-view windows, lost tracking). What changes is how it is followed; each
+ingredient has a switch in :class:`~endocam.control.config.TrackerConfig`:
+
+1. **Keep the side** (``keep_side``). The camera looks from side ``s = ±1`` (position
+   ``p_c + s d_f u``). The first side is the paper's, above the feature (``s n·up ≥ 0``). It is
+   then kept while its view is feasible: with ``c = (h_min − p_c·up) / d_f`` the direction
+   ``u`` is ``s n`` when ``s n·up ≥ c``, else the nearest direction on the sphere with
+   ``u·up = c`` (the camera stays ``h_min`` above the board and still looks at ``p_c``), and
+   the camera must be inside the cone. The side changes only when the kept view turns more than
+   ``side_change_angle`` from the normal (or leaves the cone) and the other side is better.
+2. **Orbit transfers** (``side_transfer``). A side change moves the camera along a great
+   circle about ``p_c`` at the look distance (over the top when the ends are opposite),
+   looking at ``p_c`` with a level horizon, so the ring stays centred; the paper's way-points
+   remain available.
+3. **Latency compensation** (``predict``, ``feedforward``). The ring's velocity and
+   acceleration are differenced from the delayed observations and its pose is extrapolated
+   across the sensing delay plus the carrier's lead; the goal's twist (velocity) goes to the
+   carrier as its target velocity so steady motion is followed without lag.
+4. **Left-eye centring** (``ControllerConfig.centre_left_eye``). The image error is measured
+   in the left eye (paper Sec. V), so the left eye's optical axis, ``b/2`` left of the
+   midpoint, is put through ``p_c``: the camera is shifted by ``+b/2`` along its x axis.
+5. **Direct first approach** (``first_approach``): from the overview pose (and after a freeze
+   or lost tracking) the camera goes straight for the goal under its limits.
+
+The step runs on plain floats (no scipy) to stay well under 100 µs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from endocam.control.config import ControllerConfig, SideRule, Transfer
+from endocam.control.goal import goal_pose_unchecked
+from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
+from endocam.control.policies import _UP, FREEZE_RELEASE_MARGIN, _MovingPolicy
+from endocam.control.safety import adjust_working_distance, window_status_rows
+from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
+from endocam.geometry import UP, FloatArray
+from endocam.kernels import Vec, cross, dot, finite_rows, norm, scaled
+from endocam.view import look_at_unchecked
+
+_EPS = 1e-9  # unitless: shorter directions are degenerate
+ORBIT_DONE_ANGLE = math.radians(1.0)  # rad: an orbit this close to its goal direction ends
+
+
+def _unit(a: Vec) -> Vec | None:
+    """``a`` normalised, or ``None`` if (nearly) zero or not finite."""
+    length = norm(a)
+    if not length > _EPS:
+        return None
+    return scaled(a, 1.0 / length)
+
+
+def _angle(a: Vec, b: Vec) -> float:
+    """Angle between two unit vectors, rad (atan2 form: accurate near 0 and π)."""
+    return math.atan2(norm(cross(a, b)), dot(a, b))
+
+
+class RingPredictor:
+    r"""Extrapolates the ring centre and normal from delayed, evenly timed samples.
+
+    Velocity and acceleration are finite differences over samples ``spacing`` steps apart:
+    with the newest sample ``x_k`` at ``t_k``,
+
+    .. math::
+
+        v_b = \frac{x_k - x_{k-m}}{\tau}, \quad a = \frac{x_k - 2x_{k-m} + x_{k-2m}}{\tau^2},
+        \quad x(t_k + h) \approx x_k + (v_b + a\tau/2)\,h + a h^2/2
+
+    (``v_b`` is the velocity at ``t_k − τ/2``). The normal is extrapolated the same way and
+    renormalised. With fewer samples it falls back to lower orders.
+
+    Parameters
+    ----------
+    spacing : int
+        ``m``, samples between the differenced ones (≥ 1).
+    """
+
+    def __init__(self, spacing: int) -> None:
+        if spacing < 1:
+            raise ValueError(f"spacing must be ≥ 1, got {spacing}")
+        self.spacing = spacing
+        self._buf: deque[tuple[float, list[float]]] = deque(maxlen=2 * spacing + 1)
+
+    def reset(self) -> None:
+        """Forget every sample (after lost tracking: no differencing across a gap)."""
+        self._buf.clear()
+
+    def push(self, t: float, p_world: Vec, n_world: Vec) -> None:
+        """Add a sample: time ``t`` (s), ring centre (3,) in world (m), unit normal (3,)."""
+        self._buf.append((t, [*p_world, *n_world]))
+
+    def predict(self, h: float) -> tuple[Vec, Vec]:
+        """Ring centre (m) and unit normal in world, ``h`` seconds after the newest sample."""
+        buf, m = self._buf, self.spacing
+        t_k, x_k = buf[-1]
+        if len(buf) <= m or h == 0.0:
+            x = x_k
+        else:
+            t_m, x_m = buf[-1 - m]
+            tau = t_k - t_m
+            if not tau > 0.0:
+                x = x_k
+            elif len(buf) > 2 * m:
+                _, x_2m = buf[-1 - 2 * m]
+                inv = 1.0 / tau
+                x = []
+                for a0, a1, a2 in zip(x_k, x_m, x_2m, strict=True):
+                    v = (a0 - a1) * inv
+                    acc = (a0 - 2.0 * a1 + a2) * inv * inv
+                    x.append(a0 + (v + 0.5 * acc * tau) * h + 0.5 * acc * h * h)
+            else:
+                k = h / tau
+                x = [a0 + (a0 - a1) * k for a0, a1 in zip(x_k, x_m, strict=True)]
+        n = _unit((x[3], x[4], x[5])) or (x_k[3], x_k[4], x_k[5])
+        return (x[0], x[1], x[2]), n
+
+
+class EndocamPolicy(_MovingPolicy):
+    """The paper's orientation goal with side keeping, orbits, prediction and left-eye centring.
+
+    See the module docstring; the switches live in ``config.tracker``.
+    """
+
+    name = "endocam"
+
+    def __init__(self, config: ControllerConfig | None = None) -> None:
+        super().__init__(config)
+        self.tracker = self.config.tracker
+        self._predictor = RingPredictor(1)
+        self._side = 0.0  # ±1 once chosen
+        self._transfer: Transfer | None = None
+        self._u_orbit: Vec = (0.0, 0.0, 1.0)
+        self._half_b = 0.0
+        self._horizon = 0.0
+        self.transfers = 0  # transfers started this episode (side changes and approaches)
+
+    def reset(self, context: PolicyContext) -> None:
+        """Cone, windows, predictor and side memory for a new episode."""
+        super().reset(context)
+        tc = self.tracker
+        self._predictor = RingPredictor(max(1, round(tc.velocity_window / context.dt)))
+        self._side = 0.0
+        self._transfer = None
+        self._half_b = 0.5 * context.camera.baseline if self.config.centre_left_eye else 0.0
+        self._horizon = context.sensing_latency + tc.carrier_lead if tc.predict else 0.0
+        self.transfers = 0
+
+    # -- the goal -------------------------------------------------------------------------
+
+    def _view(self, p_c: Vec, n: Vec, s: float, d: float) -> tuple[Vec, float, float] | None:
+        """Feasible viewing direction on side ``s``: (unit ``u``, angle to ``s n`` rad, margin m).
+
+        ``u`` points from the ring centre to the camera; ``None`` if no direction keeps the
+        camera ``min_camera_height`` above the board. The margin is the camera's to the cone.
+        """
+        u: Vec = (s * n[0], s * n[1], s * n[2])
+        c = (self.config.min_camera_height - p_c[2]) / d
+        err = 0.0
+        if u[2] < c:
+            if c > 1.0:
+                return None
+            horiz = math.hypot(u[0], u[1])
+            if not horiz > _EPS:
+                return None
+            k = math.sqrt(1.0 - c * c) / horiz
+            u_c = (u[0] * k, u[1] * k, c)
+            err = _angle(u, u_c)
+            u = u_c
+        margin = self.cone.margin([p_c[0] + d * u[0], p_c[1] + d * u[1], p_c[2] + d * u[2]])
+        return u, err, margin
+
+    def _choose(self, p_c: Vec, n: Vec, d: float) -> tuple[float, Vec] | None:
+        """Side and viewing direction (keep the side while feasible); ``None``: no feasible view."""
+        limit = self.tracker.side_change_angle
+        s = self._side or (1.0 if n[2] >= 0.0 else -1.0)  # first side: above the feature
+        view = self._view(p_c, n, s, d)
+        if view is not None and view[2] >= 0.0 and (view[1] <= limit or not self._side):
+            return s, view[0]
+        other = self._view(p_c, n, -s, d)
+        if other is not None and other[2] >= 0.0:
+            if view is None or view[2] < 0.0 or other[1] < view[1]:
+                return -s, other[0]
+        if view is not None and view[2] >= 0.0:
+            return s, view[0]  # over the angle, but the other side is no better
+        return None
+
+    def _paper_view(self, p_c: Vec, n: Vec, d: float, previous: FloatArray) -> tuple[float, Vec]:
+        """Side and direction by the orientation policy's rule (``keep_side`` off)."""
+        cfg = self.config
+        toward = None
+        if cfg.side_rule is SideRule.PORT:
+            assert self._ctx is not None
+            r = self._ctx.p_world_rcm.tolist()
+            toward = _unit((r[0] - p_c[0], r[1] - p_c[1], r[2] - p_c[2]))
+        T = goal_pose_unchecked(
+            p_c,
+            n,
+            d,
+            _UP,
+            previous,
+            cfg.side_hysteresis,
+            cfg.min_camera_height,
+            toward,
+        ).tolist()
+        z = (T[0][2], T[1][2], T[2][2])
+        s = -1.0 if dot(z, n) > 0.0 else 1.0
+        return s, (s * n[0], s * n[1], s * n[2])
+
+    def _pose(self, p_c: Vec, u: Vec, r: float, previous: FloatArray | None) -> FloatArray:
+        """Look at ``p_c`` from ``p_c + r u`` with a level horizon; left eye on the axis if set."""
+        # ``toward = u`` makes the kernel take the side of ``u`` itself: position p_c + r u,
+        # optical axis −u, roll from ``previous`` near the vertical.
+        T = goal_pose_unchecked(p_c, u, r, _UP, previous, 0.0, -math.inf, u)
+        hb = self._half_b
+        if hb:
+            T[0, 3] += hb * T[0, 0]
+            T[1, 3] += hb * T[1, 0]
+            T[2, 3] += hb * T[2, 0]
+        return T
+
+    @staticmethod
+    def _twist(T1: FloatArray, T2: FloatArray, delta: float) -> FloatArray:
+        """(6,) velocity from pose ``T1`` to ``T2`` over ``delta`` s: linear, angular in world."""
+        a, b = T1.tolist(), T2.tolist()
+        inv = 1.0 / delta
+        # R2 R1^T ≈ I + [ω δ]×: its skew part gives ω (small angle over one control period).
+        m = [[sum(b[i][k] * a[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
+        return np.array(
+            [
+                (b[0][3] - a[0][3]) * inv,
+                (b[1][3] - a[1][3]) * inv,
+                (b[2][3] - a[2][3]) * inv,
+                0.5 * (m[2][1] - m[1][2]) * inv,
+                0.5 * (m[0][2] - m[2][0]) * inv,
+                0.5 * (m[1][0] - m[0][1]) * inv,
+            ]
+        )
+
+    # -- the step --------------------------------------------------------------------------
+
+    def _lose(self, reason: str) -> CameraCommand:
+        self._last_goal = None
+        self._path = None
+        self._transfer = None
+        self._predictor.reset()
+        return self._hold(TrackingState.LOST_TRACKING, reason)
+
+    def step(self, obs: Observation) -> CameraCommand:
+        """Checks, working distance, prediction, side, cone freeze, transfers — in that order."""
+        ctx = self._ctx
+        if ctx is None:
+            raise RuntimeError("call reset() before step()")
+        cfg, tc = self.config, self.tracker
+        cam_rows = finite_rows(obs.T_world_cam)
+        if cam_rows is None:
+            return self._hold(TrackingState.LOST_TRACKING, "camera pose not finite; holding")
+        ring_rows = finite_rows(obs.T_world_ring)
+        if ring_rows is None:
+            return self._lose("ring pose missing or not finite")
+        R = ring_rows
+        n_obs = _unit((R[0][2], R[1][2], R[2][2]))
+        if n_obs is None:
+            return self._lose("ring pose degenerate (zero normal)")
+        p_obs = (R[0][3], R[1][3], R[2][3])
+        p_cam = (cam_rows[0][3], cam_rows[1][3], cam_rows[2][3])
+
+        geometry = self._window_geometry
+        assert geometry is not None  # set by reset()
+        tips = obs.p_world_tips
+        tip_rows = tips.tolist() if isinstance(tips, np.ndarray) else list(tips)
+        status = window_status_rows(geometry, cam_rows, tip_rows)
+        d_before = self.d_f
+        self.d_f = adjust_working_distance(self.d_f, status, cfg.d_min, cfg.d_max, cfg.d_f_step)
+        d = self.d_f
+
+        self._predictor.push(obs.t, p_obs, n_obs)
+        p_c, n = self._predictor.predict(self._horizon)
+        previous = self._last_goal if self._last_goal is not None else self._last_cmd
+        assert previous is not None  # set by reset()
+        if tc.keep_side:
+            chosen = self._choose(p_c, n, d)
+        else:
+            chosen = self._paper_view(p_c, n, d, previous)
+        margin = -math.inf
+        goal = None
+        if chosen is not None:
+            s, u = chosen
+            goal = self._pose(p_c, u, d, previous)
+            margin = self.cone.margin(goal[:3, 3])
+        release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0
+        if goal is None or not margin >= release:
+            if self._frozen_T is None:
+                self._frozen_T = np.asarray(obs.T_world_cam, dtype=float)
+            self.d_f = d_before
+            self._last_cmd = self._frozen_T
+            self._path = None
+            self._transfer = None
+            self._last_goal = None
+            return self._hold(
+                TrackingState.FROZEN_OUTSIDE_CONE,
+                "no view of the ring inside the cone workspace; holding",
+            )
+        self._frozen_T = None
+
+        side_changed = bool(self._side) and s != self._side
+        fresh = self._last_goal is None
+        self._side = s
+        self._last_goal = goal
+        p_goal = goal[:3, 3].tolist()
+        if side_changed or (fresh and math.dist(p_goal, p_cam) > cfg.jump_threshold):
+            self._start(tc.side_transfer if side_changed else tc.first_approach, p_cam, p_c)
+
+        state, reason = TrackingState.TRACKING, ""
+        cmd, twist = goal, None
+        if self._transfer is Transfer.ORBIT:
+            z_cam = (cam_rows[0][2], cam_rows[1][2], cam_rows[2][2])
+            orbit = self._orbit(p_c, u, d, p_cam, z_cam)
+            if orbit is not None:
+                cmd = orbit
+                state, reason = TrackingState.PLANNING, "orbiting the ring to the other side"
+        elif self._transfer is Transfer.WAYPOINTS:
+            wp = self._waypoints(p_c, goal, obs)
+            if wp is not None:
+                cmd = wp
+                state, reason = TrackingState.PLANNING, "following intermediate way-points"
+        if state is TrackingState.TRACKING and tc.feedforward and self._horizon > 0.0:
+            p2, n2 = self._predictor.predict(self._horizon + ctx.dt)
+            u2 = self._view(p2, n2, s, d) if tc.keep_side else None
+            if u2 is not None:
+                twist = self._twist(goal, self._pose(p2, u2[0], d, goal), ctx.dt)
+            elif not tc.keep_side:
+                twist = self._twist(goal, self._pose(p2, _flip(n2, u, n), d, goal), ctx.dt)
+        if twist is not None:
+            g_lin, g_ang = tc.feedforward_gain
+            twist[:3] *= g_lin
+            twist[3:] *= g_ang
+        self._last_cmd = cmd
+        return CameraCommand(cmd, state, d, reason, twist)
+
+    def _start(self, kind: Transfer, p_cam: Vec, p_c: Vec) -> None:
+        """Begin a transfer of ``kind`` from the camera at ``p_cam`` (m, world)."""
+        self.transfers += 1
+        self._transfer = None if kind is Transfer.DIRECT else kind
+        if kind is Transfer.ORBIT:
+            u = _unit((p_cam[0] - p_c[0], p_cam[1] - p_c[1], p_cam[2] - p_c[2]))
+            if u is None:
+                self._transfer = None
+            else:
+                self._u_orbit = u
+        elif kind is Transfer.WAYPOINTS:
+            goal = self._last_goal
+            assert goal is not None
+            p_goal = goal[:3, 3]
+            self._path = WaypointPath(
+                intermediate_waypoints(
+                    np.array(p_cam),
+                    p_goal,
+                    UP,
+                    self._lift(list(p_cam)),
+                    self._lift(p_goal.tolist()),
+                )
+            )
+            self._s = 0.0
+
+    def _orbit(self, p_c: Vec, u_goal: Vec, r: float, p_cam: Vec, z_cam: Vec) -> FloatArray | None:
+        """Next orbit pose about ``p_c`` towards the direction ``u_goal``; ``None`` when done.
+
+        The commanded direction turns on the great circle to ``u_goal`` (over the top when the
+        two are opposite) at the fastest rate the orbit's per-axis limits allow, and waits
+        while the camera's position (seen from ``p_c``) or its optical axis ``z_cam`` (world,
+        unit) lags more than ``orbit_lookahead`` behind it. A step that would leave
+        the cone hands over to the paper's way-points.
+        """
+        tc = self.tracker
+        u = self._u_orbit
+        ang = _angle(u, u_goal)
+        if ang < ORBIT_DONE_ANGLE:
+            self._transfer = None
+            return None
+        k = _unit(cross(u, u_goal))
+        if k is None or ang > math.pi - 1e-3:  # opposite ends: go over the top
+            k = _unit(cross(u, (0.0, 0.0, 1.0))) or _unit(cross(u, (1.0, 0.0, 0.0)))
+            assert k is not None
+        tangent = cross(k, u)  # unit: k ⟂ u
+        rate = tc.orbit_max_speed / (r * max(map(abs, tangent)) + _EPS)
+        # The camera turns about k; its per-axis share is largest when k is along one axis.
+        rate = min(rate, tc.orbit_max_rate)
+        to_cam = _unit((p_cam[0] - p_c[0], p_cam[1] - p_c[1], p_cam[2] - p_c[2]))
+        keeping_up = (
+            to_cam is not None
+            and _angle(to_cam, u) <= tc.orbit_lookahead
+            and _angle(z_cam, (-u[0], -u[1], -u[2])) <= tc.orbit_lookahead
+        )
+        if keeping_up:
+            step = min(rate * self._ctx_dt, ang)
+            c, sn = math.cos(step), math.sin(step)
+            u_next = (
+                c * u[0] + sn * tangent[0],
+                c * u[1] + sn * tangent[1],
+                c * u[2] + sn * tangent[2],
+            )
+            p_next = [p_c[0] + r * u_next[0], p_c[1] + r * u_next[1], p_c[2] + r * u_next[2]]
+            if self.cone.margin(p_next) < 0.0 or p_next[2] < self.config.min_camera_height:
+                goal = self._last_goal
+                assert goal is not None
+                self._start(Transfer.WAYPOINTS, p_cam, p_c)
+                self.transfers -= 1  # the same transfer, another way
+                return self._waypoints_pose(p_c, goal)
+            self._u_orbit = u = u_next
+        return self._pose(p_c, u, r, self._last_cmd)
+
+    @property
+    def _ctx_dt(self) -> float:
+        assert self._ctx is not None
+        return self._ctx.dt
+
+    def _waypoints(self, p_c: Vec, goal: FloatArray, obs: Observation) -> FloatArray | None:
+        """Next way-point pose (the paper's up-and-over path); ``None`` when arrived."""
+        if self._path is None:
+            self._transfer = None
+            return None
+        cfg = self.config
+        p_goal = goal[:3, 3]
+        self._path = self._path.with_goal(p_goal, UP, self._lift(p_goal.tolist()))
+        p_progress = np.asarray(obs.T_world_cam, dtype=float)[:3, 3]
+        self._s = advance(
+            self._path, self._s, p_progress, cfg.planner_speed * self._ctx_dt, cfg.planner_lookahead
+        )
+        if self._s >= self._path.length - 1e-9:
+            self._path = None
+            self._transfer = None
+            return None
+        return self._waypoints_pose(p_c, goal)
+
+    def _waypoints_pose(self, p_c: Vec, goal: FloatArray) -> FloatArray:
+        assert self._path is not None
+        p = self._path.point_at(self._s)
+        return look_at_unchecked(p, np.array(p_c), goal, self._last_cmd)
+
+
+def _flip(n2: Vec, u: Vec, n: Vec) -> Vec:
+    """``n2`` signed like ``u`` is relative to ``n`` (the side kept for the twist)."""
+    s = 1.0 if dot(u, n) >= 0.0 else -1.0
+    return (s * n2[0], s * n2[1], s * n2[2])
+
+
+__all__ = ["EndocamPolicy", "RingPredictor"]

@@ -1,0 +1,236 @@
+"""The endocam tracker: prediction, side keeping, orbit transfers, safety; the limiter's twist."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from endocam.camera import StereoCamera
+from endocam.config import CameraConfig
+from endocam.control.config import ControllerConfig, TrackerConfig
+from endocam.control.policies import make_policy
+from endocam.control.tracker import EndocamPolicy, RingPredictor
+from endocam.control.types import Observation, PolicyContext, TrackingState
+from endocam.robot.cartesian import CartesianLimiter, MotionLimits
+from endocam.view import ROLL_LEVEL_ANGLE
+
+DT = 0.01  # s, control period
+LATENCY = 0.05  # s, sensing delay (the episode's default)
+ATOL_M = 1e-9  # m, round-off of a pose built from floats
+PREDICT_TOL_M = 2e-4  # m: steady-state goal error with prediction on (constant-velocity ring)
+LAG_MIN_M = 1e-3  # m: without prediction the goal lags v·latency (3 mm here)
+TWIST_LAG_M = 3e-4  # m: lag behind a 46 mm/s target after 3 s, given the target's velocity
+REST_LAG_M = 2e-3  # m: the same without it (the limiter aims to arrive at rest)
+NO_TIPS = np.zeros((0, 3))  # no instrument known: the working distance holds
+
+
+def ring_pose(p: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(4, 4) ring pose with unit normal ``n`` as its z axis at ``p`` (m)."""
+    z = n / np.linalg.norm(n)
+    x = np.cross([0.0, 1.0, 0.0], z)
+    if np.linalg.norm(x) < 1e-6:
+        x = np.array([1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    T[:3, 3] = p
+    return T
+
+
+def make_tracker(
+    p_ring: np.ndarray, p_rcm: np.ndarray, **tracker: object
+) -> tuple[EndocamPolicy, StereoCamera]:
+    cfg = ControllerConfig(tracker=TrackerConfig.model_validate(tracker))
+    policy = EndocamPolicy(cfg)
+    camera = CameraConfig().stereo()
+    T0 = ring_pose(p_ring, np.array([1.0, 0.0, 0.3]))
+    T_cam = np.eye(4)
+    T_cam[:3, 3] = p_ring + np.array([0.05, 0.0, 0.02])
+    policy.reset(PolicyContext(camera, T_cam, T0, p_rcm, DT, LATENCY))
+    return policy, camera
+
+
+def goal_position(p_c: np.ndarray, n: np.ndarray, d: float, half_b: float) -> np.ndarray:
+    """Camera position that puts the left eye on the +n axis at ``d`` (level horizon)."""
+    z = -n / np.linalg.norm(n)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    return p_c - d * z + half_b * x
+
+
+def steady_goal_error(predict: bool) -> float:
+    """Run a constant-velocity, constant-turn ring; return the last command's goal error, m."""
+    p0 = np.array([0.0, 0.0, 0.06])
+    v = np.array([0.05, 0.01, 0.0])  # m/s
+    yaw_rate = 0.3  # rad/s, normal turning about world z (stays 17° above horizontal)
+
+    def true(t: float) -> tuple[np.ndarray, np.ndarray]:
+        a = yaw_rate * t
+        return p0 + v * t, np.array([math.cos(a), math.sin(a), 0.3])
+
+    policy, camera = make_tracker(p0, p0 + np.array([0.0, 0.0, 0.25]), predict=predict)
+    T_cam = policy._last_cmd
+    assert T_cam is not None
+    cmd = None
+    for k in range(200):
+        t = k * DT
+        p_s, n_s = true(max(t - LATENCY, 0.0))
+        cmd = policy.step(Observation(t, ring_pose(p_s, n_s), T_cam, NO_TIPS))
+        T_cam = cmd.T_world_cam  # a perfect carrier
+    assert cmd is not None and cmd.state is TrackingState.TRACKING
+    # The carrier moves during the next step: the command should match the goal one period on.
+    p_t, n_t = true(199 * DT + policy.tracker.carrier_lead)
+    want = goal_position(p_t, n_t, cmd.d_f, 0.5 * camera.baseline)
+    return float(np.linalg.norm(cmd.T_world_cam[:3, 3] - want))
+
+
+def test_prediction_removes_the_sensing_lag() -> None:
+    assert steady_goal_error(predict=True) < PREDICT_TOL_M
+    assert steady_goal_error(predict=False) > LAG_MIN_M
+
+
+def test_predictor_is_exact_for_a_quadratic_path() -> None:
+    rng = np.random.default_rng(0)
+    a0, a1, a2 = rng.normal(size=(3, 3))
+    pred = RingPredictor(3)
+    for k in range(10):
+        t = k * DT
+        p = a0 + a1 * t + a2 * t * t
+        pred.push(t, tuple(p), (0.0, 0.0, 1.0))
+    h = 0.06
+    t = 9 * DT + h
+    got, _ = pred.predict(h)
+    np.testing.assert_allclose(got, a0 + a1 * t + a2 * t * t, atol=1e-9)
+
+
+def run_normals(
+    policy: EndocamPolicy, p: np.ndarray, normals: list[np.ndarray], steps: int
+) -> list[tuple[np.ndarray, object]]:
+    """Hold each normal for ``steps`` steps with a perfect carrier; return (pose, cmd) per step."""
+    T_cam = policy._last_cmd
+    out = []
+    k = 0
+    for n in normals:
+        for _ in range(steps):
+            cmd = policy.step(Observation(k * DT, ring_pose(p, n), T_cam, NO_TIPS))
+            T_cam = cmd.T_world_cam
+            out.append((T_cam, cmd))
+            k += 1
+    return out
+
+
+def side_of(T_cam: np.ndarray, p: np.ndarray, n: np.ndarray) -> float:
+    return float(np.sign((T_cam[:3, 3] - p) @ n))
+
+
+def test_side_is_kept_while_feasible() -> None:
+    p = np.array([0.0, 0.0, 0.08])  # high: no height limit for these normals
+    policy, _ = make_tracker(p, p + np.array([0.0, 0.0, 0.25]))
+    n_up, n_down = np.array([1.0, 0.0, 0.3]), np.array([1.0, 0.0, -0.6])
+    log = run_normals(policy, p, [n_up, n_down], 150)
+    assert side_of(log[149][0], p, n_up) > 0
+    assert side_of(log[-1][0], p, n_down) > 0  # still the +n side, below the ring centre
+    assert policy.transfers == 0  # the camera starts near its goal: no transfer at all
+
+    # the paper's rule (keep_side off) changes side for the same motion
+    paper, _ = make_tracker(p, p + np.array([0.0, 0.0, 0.25]), keep_side=False)
+    paper_log = run_normals(paper, p, [n_up, n_down], 150)
+    assert side_of(paper_log[-1][0], p, n_down) < 0
+
+
+def test_orbit_keeps_the_ring_centred_and_in_the_cone() -> None:
+    p = np.array([0.0, 0.0, 0.04])
+    p_rcm = p + np.array([0.0, 0.0, 0.2])
+    policy, camera = make_tracker(p, p_rcm, side_change_angle=0.2)
+    n0 = np.array([1.0, 0.0, 0.0])
+    n1 = np.array([-0.2, 0.0, -0.98])  # +n side now under the board limit: change side
+    log = run_normals(policy, p, [n0, n1], 400)
+    orbit = [(T, c) for T, c in log[400:] if c.state is TrackingState.PLANNING]
+    assert len(orbit) > 10
+    for T, _ in orbit:
+        T_left = T @ camera.T_cam_left
+        d = p - T_left[:3, 3]
+        off_axis = np.linalg.norm(d - (d @ T_left[:3, 2]) * T_left[:3, 2])
+        assert off_axis < 1e-6
+        assert policy.cone.margin(T[:3, 3]) >= 0.0
+        assert T[2, 3] >= policy.config.min_camera_height - ATOL_M
+        if abs(T[2, 2]) < math.cos(ROLL_LEVEL_ANGLE):  # level horizon (defined off vertical)
+            assert abs(T[2, 0]) < ATOL_M
+    assert log[-1][1].state is TrackingState.TRACKING
+    assert side_of(log[-1][0], p, n1) < 0  # arrived on the other side
+
+
+def test_lost_tracking_holds_the_last_pose() -> None:
+    p = np.array([0.0, 0.0, 0.08])
+    policy, _ = make_tracker(p, p + np.array([0.0, 0.0, 0.25]))
+    log = run_normals(policy, p, [np.array([1.0, 0.0, 0.3])], 50)
+    last = log[-1][0]
+    for ring in (None, np.full((4, 4), np.nan)):
+        cmd = policy.step(Observation(1.0, ring, last, NO_TIPS))
+        assert cmd.state is TrackingState.LOST_TRACKING
+        np.testing.assert_array_equal(cmd.T_world_cam, last)
+        assert cmd.twist is None
+
+
+CENTRE_TOL_PX = 0.5  # px: a steady camera puts the ring centre on the principal point
+STEADY_STEPS = 400  # count: 4 s at 100 Hz, far longer than the approach from 5 cm away
+
+
+@pytest.mark.parametrize("policy_name", ["endocam", "centering"])
+def test_left_eye_centring_puts_the_ring_on_the_left_principal_point(policy_name: str) -> None:
+    camera = CameraConfig().stereo()
+    k = camera.intrinsics
+    ring = np.eye(4)
+    ring[:3, :3] = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # normal +y
+    ring[:3, 3] = (0.0, 0.0, 0.05)
+    for left, expect_px in ((True, 0.0), (False, k.fx * 0.5 * camera.baseline / 0.05)):
+        cfg = ControllerConfig(centre_left_eye=left)
+        policy = make_policy(policy_name, cfg)
+        start = np.eye(4)
+        start[:3, :3] = ring[:3, :3] @ np.diag([1.0, -1.0, -1.0])  # looking along −normal
+        start[:3, 3] = ring[:3, 3] + 0.05 * ring[:3, 2]
+        port = np.array([0.0, 0.12, 0.15])  # m: the ring well inside the cone from here
+        policy.reset(PolicyContext(camera, start, ring, port, DT, LATENCY))
+        limiter = CartesianLimiter(MotionLimits(), DT)
+        limiter.reset(start)
+        T = start
+        for i in range(STEADY_STEPS):
+            cmd = policy.step(Observation(i * DT, ring, T, NO_TIPS))
+            T = limiter.step(cmd.T_world_cam, cmd.twist)
+        assert cmd.state is TrackingState.TRACKING
+        uv = camera.project(T, ring[:3, 3], "left")
+        off = float(np.hypot(uv[0] - k.cx, uv[1] - k.cy))
+        assert abs(off - expect_px) < CENTRE_TOL_PX, (policy_name, left, off)
+
+
+def test_limiter_without_twist_is_unchanged() -> None:
+    rng = np.random.default_rng(1)
+    a, b = CartesianLimiter(MotionLimits(), DT), CartesianLimiter(MotionLimits(), DT)
+    a.reset(np.eye(4))
+    b.reset(np.eye(4))
+    for _ in range(50):
+        T = ring_pose(rng.normal(scale=0.02, size=3), rng.normal(size=3))
+        np.testing.assert_array_equal(a.step(T), b.step(T, None))
+
+
+@pytest.mark.parametrize("with_twist", [True, False])
+def test_limiter_follows_a_moving_target_with_its_twist(with_twist: bool) -> None:
+    limits = MotionLimits()
+    lim = CartesianLimiter(limits, DT)
+    lim.reset(np.eye(4))
+    v = np.array([0.04, -0.02, 0.01])  # m/s
+    twist = np.concatenate([v, np.zeros(3)])
+    err = 0.0
+    for k in range(300):
+        T = np.eye(4)
+        T[:3, 3] = v * (k + 1) * DT
+        pose = lim.step(T, twist if with_twist else None)
+        speed = np.linalg.norm(lim.velocity[:3])
+        assert speed <= limits.max_linear_speed + 1e-9
+        err = float(np.linalg.norm(pose[:3, 3] - T[:3, 3]))
+    if with_twist:
+        assert err < TWIST_LAG_M  # nearly on the target, moving with it
+    else:
+        assert err > REST_LAG_M  # arrives at rest each step: lags
