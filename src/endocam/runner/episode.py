@@ -250,15 +250,18 @@ def run_episode(
     reach_offset: FloatArray | None = None
     for k in range(n):
         T_cam[k] = T_now
-        joints[k] = q_now
         cmd = policy.step(Observation(float(t[k]), T_sensed[k], T_now, tips[k], reach_offset))
         T_cmd[k] = cmd.T_world_cam
         d_f[k] = cmd.d_f
-        look = _look_distance(cmd.T_world_cam, T_sensed[k], cmd.d_f)
+        if jointed:  # the pivot of a conceded view; a carrier without joints concedes none
+            joints[k] = q_now
+            look = _look_distance(cmd.T_world_cam, T_sensed[k], cmd.d_f)
+        else:
+            look = cmd.d_f
         out = actuator.step(cmd.T_world_cam, look, cmd.twist)
         if jointed:
             reach_offset = out.T_world_target[:3, 3] - cmd.T_world_cam[:3, 3]
-        goal_err[k] = (out.position_error, out.orientation_error)
+            goal_err[k] = (out.position_error, out.orientation_error)
         if not out.reachable and cmd.state not in _SAFETY_STATES:
             state[k] = UNREACHABLE
             reason.append(_unreachable_reason(kind, out))
