@@ -23,7 +23,7 @@ import numpy as np
 
 from endocam.config import ExperimentConfig
 from endocam.runner.episode import run_episode, state_fractions
-from endocam.runner.experiments import paper_specs
+from endocam.runner.experiments import paper_episodes
 
 ROWS = {
     "free": ("orientation", "free"),
@@ -45,7 +45,7 @@ def main() -> None:
     for arm in args.arms:
         policy, episode_arm = ROWS[arm]
         config = ExperimentConfig.model_validate({"episode": {"arm": episode_arm}})
-        results = [run_episode(config, spec) for spec in paper_specs(policy)]
+        results = [run_episode(e.config, e.spec) for e in paper_episodes(config, policy)]
         for kind in ("ideal", "noisy"):
             group = [r for r in results if r.spec.trajectory.value == kind]
             img = np.mean([np.mean(r.image_error_saturated) for r in group])

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import tempfile
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,13 @@ from endocam.runner.outputs import (
     video_writer,
     write_run,
 )
+from endocam.task.study_paths import (
+    DEFAULT_STUDY_SEED,
+    STUDY_TRAJECTORIES,
+    StudyTrajectory,
+    study_task_config,
+    study_trajectory_seeds,
+)
 from endocam.task.touches import TouchReport, touch_events
 from endocam.task.trajectory import TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
@@ -40,10 +48,10 @@ COMPARISON_PNG = "comparison.png"
 # The paper's Sec. V means for the orientation camera: (image px, 3D mm, orientation deg).
 PAPER_MEANS = {"ideal": (35.0, 3.41, 5.45), "noisy": (36.0, 3.33, 4.30)}
 # Our reading of "three ideal and three noisy trajectories": the deterministic ideal path
-# sampled with three control-point counts, and three noisy 71-point trajectories.
+# sampled with three control-point counts (a deterministic simulator repeats identical trials
+# exactly), and the study's three noisy paths (paper Sec. V: "the same trajectories used in the
+# user study"), with the study's default seed.
 PAPER_IDEAL_POINTS = (36, 54, 71)
-PAPER_NOISY_SEEDS = (1, 2, 3)
-PAPER_NOISY_POINTS = 71
 
 
 def _bar(total: int, desc: str) -> tqdm:
@@ -238,11 +246,37 @@ def _summary(metrics: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def paper_specs(policy: str = "orientation") -> list[EpisodeSpec]:
-    """The six episodes of ``endocam experiment paper``."""
-    ideal = [EpisodeSpec(policy, TrajectoryKind.IDEAL, n, 0) for n in PAPER_IDEAL_POINTS]
+@dataclass(frozen=True)
+class NamedEpisode:
+    """An episode of an experiment: its folder name, its config and what to run."""
+
+    name: str
+    config: ExperimentConfig
+    spec: EpisodeSpec
+
+
+def study_path_config(config: ExperimentConfig, path: StudyTrajectory) -> ExperimentConfig:
+    """``config`` with a study path's noise override applied (validated again)."""
+    task = study_task_config(config.task, path)
+    return config if task is config.task else config.model_copy(update={"task": task})
+
+
+def paper_episodes(
+    config: ExperimentConfig, policy: str = "orientation", study_seed: int = DEFAULT_STUDY_SEED
+) -> list[NamedEpisode]:
+    """The six episodes of ``endocam experiment paper``: three ideal, the three study paths."""
+    ideal = [
+        NamedEpisode(f"ideal-{n}", config, EpisodeSpec(policy, TrajectoryKind.IDEAL, n, 0))
+        for n in PAPER_IDEAL_POINTS
+    ]
+    seeds = study_trajectory_seeds(study_seed)
     noisy = [
-        EpisodeSpec(policy, TrajectoryKind.NOISY, PAPER_NOISY_POINTS, s) for s in PAPER_NOISY_SEEDS
+        NamedEpisode(
+            path.name,
+            study_path_config(config, path),
+            EpisodeSpec(policy, TrajectoryKind.NOISY, path.control_points, seed),
+        )
+        for path, seed in zip(STUDY_TRAJECTORIES, seeds, strict=True)
     ]
     return ideal + noisy
 
@@ -251,10 +285,11 @@ def run_paper_experiment(
     config: ExperimentConfig, out_dir: Path, *, policy: str = "orientation"
 ) -> str:
     """Three ideal and three noisy trajectories; returns a Markdown table beside the paper's."""
-    specs = paper_specs(policy)
+    episodes = paper_episodes(config, policy)
     results = []
-    for spec in tqdm(specs, desc="episodes", unit="episode", leave=False):
-        results.append(run_with_progress(config, spec))
+    for ep in tqdm(episodes, desc="episodes", unit="episode", leave=False):
+        results.append(run_with_progress(ep.config, ep.spec))
+    names = {id(r): ep.name for r, ep in zip(results, episodes, strict=True)}
     table_rows: list[dict[str, Any]] = []
     for kind in ("ideal", "noisy"):
         group = [r for r in results if r.spec.trajectory.value == kind]
@@ -288,22 +323,18 @@ def run_paper_experiment(
                 "planning_fraction": planning,
                 "tracking_center_error_mm": trk_mm,
                 "tracking_orientation_error_deg": trk_deg,
-                "runs": [
-                    f"{r.spec.trajectory.value}-{r.spec.control_points}-s{r.spec.seed}"
-                    for r in group
-                ],
+                "runs": [names[id(r)] for r in group],
             }
         )
     table = paper_table(table_rows, policy)
     with atomic_dir(Path(out_dir)) as tmp:
         for r in results:
-            name = f"{r.spec.trajectory.value}-{r.spec.control_points}-s{r.spec.seed}"
-            write_run(r, tmp / name, video=False)
+            write_run(r, tmp / names[id(r)], video=False)
         _json(tmp / "paper.json", _finite({"policy": policy, "rows": table_rows}))
         (tmp / "paper.md").write_text(table + "\n", encoding="utf-8")
         plot_tracking(
             results,
-            [f"{r.spec.trajectory.value} {r.spec.control_points} s{r.spec.seed}" for r in results],
+            [names[id(r)] for r in results],
             tmp / "tracking.png",
         )
     return table

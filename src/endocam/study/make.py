@@ -31,7 +31,6 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -59,12 +58,18 @@ from endocam.study.observability import (
     observe_episode,
     summarize,
 )
+from endocam.task.study_paths import (
+    DEFAULT_STUDY_SEED,
+    STUDY_TRAJECTORIES,
+    StudyTrajectory,
+)
+from endocam.task.study_paths import study_trajectory_seeds as trajectory_seeds
 from endocam.task.trajectory import TrajectoryKind
 
 if TYPE_CHECKING:  # the simulator (MuJoCo) is imported only when a study is made
     from endocam.runner.episode import EpisodeResult
 
-DEFAULT_SEED = 2024
+DEFAULT_SEED = DEFAULT_STUDY_SEED
 ID_STREAM = 1  # second entry of the id generator's seed, keeps ids apart from trajectory seeds
 ID_HEX_DIGITS = 8  # hex digits of a video id (32 random bits)
 DESIGN_JSON = "design.json"
@@ -76,50 +81,11 @@ DEFAULT_ATTENTION = AttentionQuestion(
 STUDY_CONDITIONS = (Condition.FIXED, Condition.CENTERING, Condition.ORIENTATION)
 
 
-@dataclass(frozen=True)
-class StudyTrajectory:
-    """One study trajectory: a noisy ring path of a given difficulty.
-
-    Attributes
-    ----------
-    name : str
-        Name in the manifest.
-    difficulty : int
-        1..3, 3 = most difficult.
-    control_points : int
-        Control points along the wire.
-    angle_noise : (2,) or None
-        Range [lo, hi] of the angular threshold, rad; None keeps the config's.
-    """
-
-    name: str
-    difficulty: int
-    control_points: int
-    angle_noise: tuple[float, float] | None = None
-
-
-STUDY_TRAJECTORIES = (
-    StudyTrajectory("t1-36-low", 1, 36, (math.radians(5.0), math.radians(10.0))),
-    StudyTrajectory("t2-36-high", 2, 36),
-    StudyTrajectory("t3-71-high", 3, 71),
-)
-
-
 def trajectory_config(config: ExperimentConfig, trajectory: StudyTrajectory) -> ExperimentConfig:
-    """``config`` with the trajectory's noise override applied (validated again)."""
-    if trajectory.angle_noise is None:
-        return config
-    data = config.model_dump()
-    data["task"]["trajectory"]["angle_noise"] = trajectory.angle_noise
-    return ExperimentConfig.model_validate(data)
+    """``config`` with the trajectory's noise override (see ``study_path_config``)."""
+    from endocam.runner.experiments import study_path_config
 
-
-def trajectory_seeds(seed: int, n: int = len(STUDY_TRAJECTORIES)) -> tuple[int, ...]:
-    """Noise seeds of the ``n`` trajectories, drawn from ``default_rng(seed)`` (each ≥ 0)."""
-    if seed < 0:
-        raise ValueError(f"seed must be ≥ 0, got {seed}")
-    rng = np.random.default_rng(seed)
-    return tuple(int(s) for s in rng.integers(0, 2**31, size=n))
+    return study_path_config(config, trajectory)
 
 
 def video_ids(seed: int, n: int) -> tuple[str, ...]:
