@@ -121,7 +121,12 @@ class ControllerConfig(BaseModel):
     d_f: float = Field(0.05, gt=0, description="initial working distance, m")
     d_min: float = Field(0.03, gt=0, description="smallest working distance, m")
     d_max: float = Field(0.08, gt=0, description="largest working distance, m")
-    d_f_step: float = Field(D_F_STEP, gt=0, description="working-distance change per step, m")
+    d_f_step: float = Field(
+        D_F_STEP,
+        gt=0,
+        description="working-distance change per control step, m: the paper's ±1 mm (Sec. "
+        "III-C), once per step, i.e. 0.1 m/s at 100 Hz, under the camera's speed limit",
+    )
     jump_threshold: float = Field(
         0.02, gt=0, description="goal jump between control steps that triggers way-points, m"
     )

@@ -24,21 +24,45 @@ from endocam.robot.arm import MotionStatus
 
 
 class MotionLimits(BaseModel):
-    """Limits on the camera's Cartesian motion: it never teleports."""
+    """Limits on the free camera's Cartesian motion (norms): it never teleports.
+
+    The paper's 6-DoF camera is "a stereo camera attached to the end of the surgical tool tip"
+    (Sec. III-D): a camera carried by a dVRK PSM. Its limits are therefore ones that PSM can
+    deliver in every direction, from the dVRK's joint-trajectory defaults (sawIntuitiveResearchKit
+    ``mtsIntuitiveResearchKitPSM.cpp``, the values of ``robot.arm.PSM_MAX_VELOCITY`` /
+    ``PSM_MAX_ACCELERATION``), at a camera ≈ 0.15 m from the RCM: the outer yaw/pitch joints
+    (π rad/s, π rad/s²) move the tip ≈ 0.47 m/s and 0.47 m/s², the insertion stage 0.2 m/s, and
+    the wrist turns at 6π rad/s with 4π rad/s². The jerk limits are ours, for smooth video (the
+    dVRK's defaults limit no jerk).
+    """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    max_linear_speed: float = Field(0.15, gt=0.0, description="Camera speed limit, m/s.")
-    max_linear_acceleration: float = Field(1.0, gt=0.0, description="Acceleration limit, m/s².")
+    max_linear_speed: float = Field(
+        0.15,
+        gt=0.0,
+        description="Camera speed limit, m/s: under the PSM's slowest translational axis "
+        "(insertion, 0.2 m/s).",
+    )
+    max_linear_acceleration: float = Field(
+        0.47,
+        gt=0.0,
+        description="Acceleration limit, m/s²: the PSM's outer joints (π rad/s²) at 0.15 m.",
+    )
     max_angular_speed: float = Field(
-        math.radians(120.0), gt=0.0, description="Angular speed limit, rad/s."
+        math.radians(120.0),
+        gt=0.0,
+        description="Angular speed limit, rad/s: a third of a turn per second, far under the "
+        "PSM wrist's 6π rad/s, so the view never whips.",
     )
     max_angular_acceleration: float = Field(
-        math.radians(1200.0), gt=0.0, description="Angular acceleration limit, rad/s²."
+        4.0 * math.pi,
+        gt=0.0,
+        description="Angular acceleration limit, rad/s²: the PSM wrist's 4π rad/s².",
     )
-    max_linear_jerk: float = Field(20.0, gt=0.0, description="Jerk limit, m/s³.")
+    max_linear_jerk: float = Field(20.0, gt=0.0, description="Jerk limit, m/s³ (smooth video).")
     max_angular_jerk: float = Field(
-        math.radians(24000.0), gt=0.0, description="Angular jerk limit, rad/s³."
+        math.radians(24000.0), gt=0.0, description="Angular jerk limit, rad/s³ (smooth video)."
     )
 
 
