@@ -92,6 +92,11 @@ def test_true_touches_equal_the_simulator_counts(study: Path, config_file: Path)
         for v in manifest.videos:
             if v.trajectory == traj.name:
                 assert v.true_touches == truth.count
+                # the share of time in contact: the events' total length over the trajectory
+                spent = sum(e.t_end - e.t_start for e in truth.events)
+                duration = truth.t[-1] - truth.t[0]
+                assert v.contact_fraction == pytest.approx(spent / duration)
+                assert entry["contact_fraction"] == pytest.approx(spent / duration)
                 assert entry["videos"][v.condition.value] == v.id
                 metrics = json.loads((study / "logs" / v.id / "metrics.json").read_text())
                 assert metrics["episode"]["policy"] == v.condition.value

@@ -196,6 +196,7 @@ def make_study(
                     trajectory=traj.name,
                     difficulty=traj.difficulty,
                     true_touches=results[c_index].touches.count,
+                    contact_fraction=results[c_index].touches.contact_fraction,
                     file=f"{VIDEOS_DIR}/{vid}.mp4",
                 )
             )
@@ -257,6 +258,7 @@ def design_dict(
                 "angle_noise_deg": [math.degrees(v) for v in cfg.angle_noise],
                 "duration_s": cfg.duration,
                 "true_touches": results[0].touches.count,
+                "contact_fraction": results[0].touches.contact_fraction,
                 "videos": {c.value: key[(traj.name, c)] for c in STUDY_CONDITIONS},
             }
         )

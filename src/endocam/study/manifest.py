@@ -60,6 +60,8 @@ class Video(_Frozen):
         1..3, 3 = most difficult.
     true_touches : int
         Ground-truth number of ring-wire touches (from the simulator's touch events).
+    contact_fraction : float or None
+        Share of the video's duration the ring is in contact with the wire (0..1).
     file : str
         Video path relative to the study folder (POSIX separators, no ``..``).
     """
@@ -69,6 +71,7 @@ class Video(_Frozen):
     trajectory: Annotated[str, Field(min_length=1, max_length=128)]
     difficulty: Annotated[int, Field(ge=1, le=3)]
     true_touches: Annotated[int, Field(ge=0)]
+    contact_fraction: Annotated[float | None, Field(ge=0.0, le=1.0)] = None
     file: Annotated[str, Field(min_length=1)]
 
     @field_validator("file")
