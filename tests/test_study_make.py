@@ -7,7 +7,7 @@ import pytest
 
 from endocam.cli import main
 from endocam.config import load_config
-from endocam.runner.experiments import ground_truth
+from endocam.runner.experiments import CONDITION_POLICY, ground_truth
 from endocam.study.counterbalance import presentation_orders
 from endocam.study.make import (
     DESIGN_JSON,
@@ -99,7 +99,7 @@ def test_true_touches_equal_the_simulator_counts(study: Path, config_file: Path)
                 assert entry["contact_fraction"] == pytest.approx(spent / duration)
                 assert entry["videos"][v.condition.value] == v.id
                 metrics = json.loads((study / "logs" / v.id / "metrics.json").read_text())
-                assert metrics["episode"]["policy"] == v.condition.value
+                assert metrics["episode"]["policy"] == CONDITION_POLICY[v.condition.value]
                 assert metrics["touches"] == truth.count
     assert design["trajectories"][0]["angle_noise_deg"] == pytest.approx([5.0, 10.0])
 

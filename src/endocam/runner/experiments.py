@@ -43,6 +43,10 @@ from endocam.task.trajectory import TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
 
 CONDITIONS = ("fixed", "centering", "orientation")
+# The paper's conditions I-III and the policy that plays each: condition III is the method,
+# played by endocam's controller; the paper-faithful reactive one stays available as the
+# policy "orientation" (experiment tracking compares them).
+CONDITION_POLICY = {"fixed": "fixed", "centering": "centering", "orientation": "endocam"}
 GRID_MP4 = "comparison.mp4"
 COMPARISON_PNG = "comparison.png"
 # The paper's Sec. V means for the orientation camera: (image px, 3D mm, orientation deg).
@@ -197,7 +201,9 @@ def run_demo(
     kind = TrajectoryKind.NOISY
     touches = ground_truth(config, kind, control_points, seed)
     results = [
-        run_with_progress(config, EpisodeSpec(name, kind, control_points, seed), touches)
+        run_with_progress(
+            config, EpisodeSpec(CONDITION_POLICY[name], kind, control_points, seed), touches
+        )
         for name in CONDITIONS
     ]
     with atomic_dir(Path(out_dir)) as tmp, tempfile.TemporaryDirectory(dir=tmp) as work:

@@ -159,7 +159,7 @@ def make_study(
         The manifest written (validated).
     """
     from endocam.runner.episode import EpisodeSpec
-    from endocam.runner.experiments import ground_truth, run_with_progress
+    from endocam.runner.experiments import CONDITION_POLICY, ground_truth, run_with_progress
     from endocam.runner.outputs import atomic_dir, check_writable, frame_indices, write_run
     from endocam.sim.render import WireChaserScene
 
@@ -177,7 +177,8 @@ def make_study(
             touches = ground_truth(cfg, kind, traj.control_points, traj_seed)
             results = []
             for condition in STUDY_CONDITIONS:
-                spec = EpisodeSpec(condition.value, kind, traj.control_points, traj_seed)
+                policy = CONDITION_POLICY[condition.value]
+                spec = EpisodeSpec(policy, kind, traj.control_points, traj_seed)
                 results.append(run_with_progress(cfg, spec, touches))
                 bar.update(1)
             runs.append((traj, traj_seed, results))
