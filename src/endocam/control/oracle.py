@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from endocam.control.config import ControllerConfig
+from endocam.control.config import ControllerConfig, Transfer
 from endocam.control.tracker import EndocamPolicy
 from endocam.control.types import CameraCommand, Observation, PolicyContext
 from endocam.geometry import FloatArray
@@ -45,6 +45,7 @@ from endocam.kernels import Vec
 __all__ = ["INFEASIBLE_COST", "OracleConfig", "OraclePolicy", "RingFuture", "plan_sides"]
 
 INFEASIBLE_COST = math.pi  # rad: per-time cost of a side with no feasible view in the plan
+TIE_BREAK = 1e-6  # rad: extra cost of the side below the feature (equal views: the paper's side)
 
 
 @dataclass(frozen=True)
@@ -236,7 +237,9 @@ class OraclePolicy(EndocamPolicy):
             for i, s in enumerate((1.0, -1.0)):
                 view = self._view(p_c, n, s, d)
                 ok = view is not None and view[2] >= 0.0
-                cost[j, i] = (view[1] if ok and view is not None else INFEASIBLE_COST) * dt
+                err = view[1] if ok and view is not None else INFEASIBLE_COST
+                below = s * n[2] < 0.0  # ties go to the paper's side, above the feature
+                cost[j, i] = (err + (TIE_BREAK if below else 0.0)) * dt
         return plan_sides(cost, self.oracle.switch_cost)
 
     def _planned_side(self) -> float | None:
@@ -272,6 +275,19 @@ class OraclePolicy(EndocamPolicy):
                 return EndocamPolicy._twist(T1, T2, delta)
             poses.append(self._pose(p_c, view[0], self.d_f, T1))
         return EndocamPolicy._twist(poses[0], poses[1], w)
+
+    def _orbit(self, p_c: Vec, u_goal: Vec, r: float, p_cam: Vec, z_cam: Vec) -> FloatArray | None:
+        """The tracker's orbit, handed to the way-points when the commanded pose leaves the cone.
+
+        The tracker checks the orbit's centre position; the left-eye shift (``b/2``) can put
+        the commanded pose itself just outside the cone.
+        """
+        T = super()._orbit(p_c, u_goal, r, p_cam, z_cam)
+        if T is None or self.cone.margin(T[:3, 3]) >= 0.0 or self._last_goal is None:
+            return T
+        self._start(Transfer.WAYPOINTS, p_cam, p_c)
+        self.transfers -= 1  # the same transfer, another way
+        return self._waypoints_pose(p_c, self._last_goal)
 
     def step(self, obs: Observation) -> CameraCommand:
         """One step on the true ring pose now (no sensing delay), whatever ``obs`` sensed."""

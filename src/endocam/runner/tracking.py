@@ -487,7 +487,7 @@ def plot_errors(rows: Sequence[dict[str, Any]], key: str, label: str, path: Path
                 colors="k",
                 linestyles="--",
                 lw=1.0,
-                label="paper, Sec. V" if j == 0 else None,
+                label="paper, Sec. V" if j == 0 else "_nolegend_",
             )
     ax.set_xticks(x, [f"{a}\n{s}" for a, s in groups])
     ax.set_ylabel(label)
