@@ -68,6 +68,33 @@ def _experiment(args: argparse.Namespace) -> int:
     return 0
 
 
+def _tracking(args: argparse.Namespace) -> int:
+    from endocam.runner.tracking import check_choices, run_tracking_experiment
+
+    controllers = [c for c in args.controllers.split(",") if c]
+    carriers = [c for c in args.carriers.split(",") if c]
+    try:
+        check_choices(controllers, carriers)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if args.seeds < 0:
+        raise UsageError(f"--seeds must be ≥ 0, got {args.seeds}")
+    if args.workers < 1:
+        raise UsageError(f"--workers must be ≥ 1, got {args.workers}")
+    cfg = _config(args)
+    out = out_dir(args.out)
+    table = run_tracking_experiment(
+        cfg,
+        out,
+        controllers=controllers,
+        carriers=carriers,
+        extra_seeds=args.seeds,
+        workers=args.workers,
+    )
+    print(table)
+    return 0
+
+
 def _show_config(args: argparse.Namespace) -> int:
     cfg = _config(args)
     print(yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False), end="")
@@ -146,6 +173,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     ep.add_argument("--config", help="TOML or YAML config file")
     ep.set_defaults(handler=_experiment)
+    et = esub.add_parser(
+        "tracking",
+        help="the tracking protocol: controllers (paper, endocam, centering, oracle) × carriers "
+        "× 3 ideal + 3 study trajectories; table, plots and errors by phase",
+    )
+    et.add_argument("--out", required=True, help="output folder (replaced atomically)")
+    et.add_argument(
+        "--seeds",
+        type=integer,
+        default=0,
+        help="extra noisy 71-point trajectories, seeds 1..N (default 0)",
+    )
+    et.add_argument(
+        "--controllers",
+        default="paper,endocam,centering,oracle",
+        help="comma-separated controllers (default paper,endocam,centering,oracle)",
+    )
+    et.add_argument(
+        "--carriers", default="free,psm", help="comma-separated carriers (default free,psm)"
+    )
+    et.add_argument("--workers", type=integer, default=2, help="worker processes (default 2)")
+    et.add_argument("--config", help="TOML or YAML config file")
+    et.set_defaults(handler=_tracking)
 
     c = sub.add_parser("config", help="print the full config (defaults, or --config merged)")
     c.add_argument("--config", help="TOML or YAML config file to validate and show")

@@ -352,6 +352,18 @@ POLICIES["endocam"] = PolicyEntry(
 )
 
 
+def _oracle(config: ControllerConfig) -> CameraPolicy:
+    from endocam.control.oracle import OraclePolicy  # builds on the tracker
+
+    return OraclePolicy(config)
+
+
+POLICIES["oracle"] = PolicyEntry(
+    _oracle,
+    "non-causal lower bound: endocam's goal on the true, undelayed future, planned sides",
+)
+
+
 def make_policy(name: str, config: ControllerConfig | None = None) -> CameraPolicy:
     """Build a registered policy by name; unknown names raise ``ValueError`` listing the choices."""
     try:

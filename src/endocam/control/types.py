@@ -7,6 +7,7 @@ policies work on plain floats inside (:mod:`endocam.kernels`).
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -52,6 +53,12 @@ class PolicyContext:
         Control period, s.
     sensing_latency : float
         How old the ring pose in each observation is, s (a tracker may predict across it).
+    future : callable or None
+        The true ring trajectory, for non-causal reference controllers (the ``oracle``):
+        ``future(t)`` maps times (N,), s, to true ring poses ``T_world_ring`` (N, 4, 4), world,
+        m, undelayed, clamped to ``[0, future_duration]``. Causal policies ignore it.
+    future_duration : float
+        The span ``future`` covers (the episode's length), s; 0 without a future.
     """
 
     camera: StereoCamera
@@ -60,6 +67,8 @@ class PolicyContext:
     p_world_rcm: FloatArray
     dt: float
     sensing_latency: float = 0.0
+    future: Callable[[FloatArray], FloatArray] | None = None
+    future_duration: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -234,7 +234,18 @@ def run_episode(
     kind = episode_arm(config, spec.policy)
     actuator = make_actuator(kind, ep.limits, ep.T_tip_cam, config.task.scene.T_world_rcm, dt)
     T_now = actuator.reset(*actuator.start_view(T_overview, task_centre(config.task)))
-    policy.reset(PolicyContext(camera, T_now, T_sensed[0], p_rcm, dt, ep.sensing_latency))
+    policy.reset(
+        PolicyContext(
+            camera,
+            T_now,
+            T_sensed[0],
+            p_rcm,
+            dt,
+            ep.sensing_latency,
+            future=trajectory.poses,  # the true trajectory: only non-causal policies read it
+            future_duration=float(trajectory.duration),
+        )
+    )
 
     T_cam = np.empty((n, 4, 4))
     T_cmd = np.empty((n, 4, 4))

@@ -1,0 +1,158 @@
+"""``endocam experiment tracking``: files, schema, means that add up, phases, CLI errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from endocam.cli import main
+from endocam.config import ExperimentConfig
+from endocam.runner.tracking import (
+    PHASES,
+    TRACKING_HTML,
+    TRACKING_JSON,
+    TRACKING_MD,
+    PathSpec,
+    episode_phases,
+    run_tracking_experiment,
+)
+from endocam.task.trajectory import TrajectoryKind
+
+DURATION_S = 2.0  # s, short episodes
+MEAN_RTOL = 1e-9  # relative: a row mean is the plain mean of its episodes' metrics.json means
+SHORT_TOML = f"""
+[task.trajectory]
+duration = {DURATION_S}
+
+[camera]
+width = 160
+height = 120
+"""
+ROW_KEYS = {
+    "controller",
+    "carrier",
+    "set",
+    "image_error_px",
+    "center_error_mm",
+    "center_error_mid_mm",
+    "orientation_error_deg",
+    "ring_out_of_view_fraction",
+    "episodes",
+    "by_phase",
+}
+
+
+def short_config() -> ExperimentConfig:
+    data = ExperimentConfig().model_dump()
+    data["task"]["trajectory"]["duration"] = DURATION_S
+    return ExperimentConfig.model_validate(data)
+
+
+def test_phases_follow_the_logged_states() -> None:
+    state = np.array(
+        ["planning", "planning", "tracking", "planning", "frozen_outside_cone", "unreachable"]
+    )
+    assert list(episode_phases(state)) == [
+        "approach",
+        "approach",
+        "tracking",
+        "transfer",
+        "frozen",
+        "unreachable",
+    ]
+    assert set(episode_phases(np.array(["planning", "tracking"]))) <= set(PHASES)
+
+
+def test_rows_have_the_schema_and_average_the_episode_metrics(tmp_path: Path) -> None:
+    paths = [
+        PathSpec("ideal-10", "ideal", TrajectoryKind.IDEAL, 10, 0),
+        PathSpec("noisy-10-s1", "noisy", TrajectoryKind.NOISY, 10, 1),
+        PathSpec("noisy-10-s2", "noisy", TrajectoryKind.NOISY, 10, 2),
+    ]
+    out = tmp_path / "trk"
+    run_tracking_experiment(
+        short_config(),
+        out,
+        controllers=["paper", "oracle"],
+        carriers=["free"],
+        workers=1,
+        paths=paths,
+    )
+    data = json.loads((out / TRACKING_JSON).read_text())
+    rows = data["rows"]
+    assert len(rows) == 2 * 2  # controllers × sets
+    for row in rows:
+        assert set(row) == ROW_KEYS
+        assert set(row["by_phase"]) == set(PHASES)
+        metrics = [json.loads((out / e / "metrics.json").read_text()) for e in row["episodes"]]
+        assert len(metrics) == (1 if row["set"] == "ideal" else 2)
+        for key in ("image_error_px", "center_error_mm", "orientation_error_deg"):
+            want = np.mean([m[key]["mean"] for m in metrics])
+            assert row[key] == pytest.approx(want, rel=MEAN_RTOL)
+        want = np.mean([m["ring_out_of_view_fraction"] for m in metrics])
+        assert row["ring_out_of_view_fraction"] == pytest.approx(want, rel=MEAN_RTOL, abs=0.0)
+        fractions = sum(row["by_phase"][p]["fraction"] for p in PHASES)
+        assert fractions == pytest.approx(1.0)
+    for name in ("paper-free-ideal-10", "oracle-free-noisy-10-s2"):
+        assert {"scene.json", "episode.csv", "metrics.json"} <= {
+            p.name for p in (out / name).iterdir()
+        }
+        assert not (out / name / "video.mp4").exists()
+    table = (out / TRACKING_MD).read_text()
+    assert "paper, Sec. V" in table and "(×1.00)" in table  # the oracle's ratio to itself
+
+
+def test_cli_writes_the_files(tmp_path: Path) -> None:
+    cfg = tmp_path / "short.toml"
+    cfg.write_text(SHORT_TOML)
+    out = tmp_path / "trk"
+    code = main(
+        [
+            "experiment",
+            "tracking",
+            "--out",
+            str(out),
+            "--controllers",
+            "oracle",
+            "--carriers",
+            "free",
+            "--workers",
+            "1",
+            "--config",
+            str(cfg),
+        ]
+    )
+    assert code == 0
+    for name in (TRACKING_JSON, TRACKING_MD, TRACKING_HTML, "image_error.png"):
+        assert (out / name).stat().st_size > 0
+    rows = json.loads((out / TRACKING_JSON).read_text())["rows"]
+    assert [len(r["episodes"]) for r in rows] == [3, 3]  # 3 ideal, the 3 study paths
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--controllers", "zoom"], "unknown controller 'zoom'"),
+        (["--carriers", "free,ecm"], "unknown carrier 'ecm'"),
+        (["--seeds", "-1"], "--seeds"),
+        (["--seeds", "x"], "integer"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line(
+    args: list[str], needle: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        raise SystemExit(main(["experiment", "tracking", "--out", str(tmp_path / "o"), *args]))
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and needle in err
+
+
+def test_unwritable_folder_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(["experiment", "tracking", "--out", str(blocker / "sub")]) == 2
+    assert "\n" not in capsys.readouterr().err.strip()
