@@ -42,7 +42,7 @@ from tqdm import tqdm
 from endocam.config import ExperimentConfig
 from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import UNREACHABLE, EpisodeResult, EpisodeSpec, run_episode
-from endocam.runner.experiments import PAPER_IDEAL_POINTS, PAPER_MEANS, PAPER_NOISY_POINTS
+from endocam.runner.experiments import PAPER_IDEAL_POINTS, PAPER_MEANS, study_path_config
 from endocam.runner.outputs import (
     PLOT_DPI,
     _finite,
@@ -52,6 +52,12 @@ from endocam.runner.outputs import (
     metrics_dict,
     render_template,
     write_run,
+)
+from endocam.task.study_paths import (
+    DEFAULT_STUDY_SEED,
+    STUDY_TRAJECTORIES,
+    StudyTrajectory,
+    study_trajectory_seeds,
 )
 from endocam.task.touches import TouchReport, touch_events
 from endocam.task.trajectory import TrajectoryKind, make_trajectory
@@ -84,6 +90,9 @@ TRACKING_HTML = "tracking.html"
 DEFAULT_WORKERS = 2  # processes: the machine this was measured on has two cores
 
 
+EXTRA_NOISY_POINTS = 71  # count: control points of the extra noisy paths (--seeds)
+
+
 @dataclass(frozen=True)
 class PathSpec:
     """One trajectory of the protocol.
@@ -113,23 +122,18 @@ class PathSpec:
         """``config`` with this path's noise override applied (validated again)."""
         if self.angle_noise is None:
             return config
-        data = config.model_dump()
-        data["task"]["trajectory"]["angle_noise"] = self.angle_noise
-        return ExperimentConfig.model_validate(data)
+        path = StudyTrajectory(self.name, 1, self.control_points, self.angle_noise)
+        return study_path_config(config, path)
 
 
 def tracking_paths(extra_seeds: int = 0) -> list[PathSpec]:
     """The protocol's trajectories: 3 ideal, the 3 study paths, ``extra_seeds`` noisy 71-point."""
-    # TODO(lead): import from endocam.task.study_paths (STUDY_TRAJECTORIES,
-    # study_trajectory_seeds) once it lands; runner/ should not reach into study/.
-    from endocam.study.make import DEFAULT_SEED, STUDY_TRAJECTORIES, trajectory_seeds
-
     if extra_seeds < 0:
         raise ValueError(f"extra seeds must be ≥ 0, got {extra_seeds}")
     paths = [
         PathSpec(f"ideal-{n}", "ideal", TrajectoryKind.IDEAL, n, 0) for n in PAPER_IDEAL_POINTS
     ]
-    seeds = trajectory_seeds(DEFAULT_SEED, len(STUDY_TRAJECTORIES))
+    seeds = study_trajectory_seeds(DEFAULT_STUDY_SEED, len(STUDY_TRAJECTORIES))
     for traj, seed in zip(STUDY_TRAJECTORIES, seeds, strict=True):
         paths.append(
             PathSpec(
@@ -144,10 +148,10 @@ def tracking_paths(extra_seeds: int = 0) -> list[PathSpec]:
     for seed in range(1, extra_seeds + 1):
         paths.append(
             PathSpec(
-                f"noisy-{PAPER_NOISY_POINTS}-s{seed}",
+                f"noisy-{EXTRA_NOISY_POINTS}-s{seed}",
                 "noisy",
                 TrajectoryKind.NOISY,
-                PAPER_NOISY_POINTS,
+                EXTRA_NOISY_POINTS,
                 seed,
             )
         )
