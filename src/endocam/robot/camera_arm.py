@@ -97,6 +97,9 @@ VIEW_STEPS = 2**VIEW_BISECTIONS  # count: the turn towards the port view is sear
 MAX_COMMAND_RANGE_M = 10.0  # m: a command farther than this from the port is not a camera pose
 VIEW_POSITION_TOL_M = 1e-6  # m: an ECM port view whose camera is this close counts as reached
 _EPS_AXIS = 1e-12  # unitless: a cross product shorter than this has no direction
+PATH_LEAD_M = 0.02  # m: how far ahead of the camera, along its camera-space path, the joints aim
+PATH_ENGAGE_M = 0.02  # m: a target farther along the path than this is approached on the path
+PATH_ENGAGE_AIM_RAD = math.radians(10.0)  # rad: or a camera aimed this far off its look-at point
 
 
 def view_towards_port(
@@ -196,6 +199,7 @@ class CameraArm:
         self._last_key: bytes | None = None  # the last goal (bytes) and its look distance
         self._last_look = math.nan
         self._last_target: tuple[list[float], FloatArray, ActuatorStatus] | None = None
+        self.camera_path = True  # far targets are approached along a camera-space path
 
     # ------------------------------------------------------------------ frames
     @property
@@ -360,6 +364,54 @@ class CameraArm:
         self._k_prev = hi
         return reach(hi)
 
+    def _path_target(
+        self, T_target: FloatArray, look_distance: float, approach: ActuatorStatus
+    ) -> list[float] | None:
+        """Joint target of the next pose on the camera-space path to a far target; else None.
+
+        The path orbits the target's look-at point ``c`` (``look_distance`` ahead of the target on
+        its optical axis): the direction from ``c`` to the camera turns on the great circle from
+        the current camera's to the target's, the distance changes linearly, and every pose on it
+        looks at ``c`` with a level horizon. The pose ``PATH_LEAD_M`` ahead of the current camera
+        (path length) is solved in closed form, seeded by the measured joints; the joints then
+        move towards it for one step, so a far target is reached along the path instead of the
+        straight joint-space line (whose view swings away from ``c``).
+        """
+        T_cam = self._T_cam
+        z_t = T_target[:3, 2]
+        c = T_target[:3, 3] + look_distance * z_t
+        v = T_cam[:3, 3] - c
+        r_cur = float(np.linalg.norm(v))
+        if not r_cur > _EPS_AXIS:
+            return None
+        u_cur = v / r_cur
+        u_goal = -z_t
+        axis = np.cross(u_cur, u_goal)
+        ang = math.atan2(float(np.linalg.norm(axis)), float(u_cur @ u_goal))
+        aim = math.acos(max(-1.0, min(1.0, float(-u_cur @ T_cam[:3, 2]))))
+        travel = math.hypot(look_distance - r_cur, 0.5 * (r_cur + look_distance) * ang)
+        if travel <= PATH_ENGAGE_M and aim <= PATH_ENGAGE_AIM_RAD:
+            return None
+        alpha = min(1.0, PATH_LEAD_M / travel) if travel > 0.0 else 1.0
+        if alpha >= 1.0 and aim <= PATH_ENGAGE_AIM_RAD:
+            return None
+        sin_a = float(np.linalg.norm(axis))
+        if sin_a > _EPS_AXIS:
+            rotvec = axis * (alpha * ang / sin_a)
+        elif u_cur @ u_goal > 0.0:
+            rotvec = np.zeros(3)
+        else:  # opposite: over the top
+            k = np.cross(u_cur, np.array([0.0, 0.0, 1.0]))
+            k_norm = float(np.linalg.norm(k))
+            if not k_norm > _EPS_AXIS:
+                return None
+            rotvec = k * (alpha * ang / k_norm)
+        R = np.array(so3_exp(rotvec.tolist()))
+        r = r_cur + alpha * (look_distance - r_cur)
+        p = c + r * (R @ u_cur)
+        T_via = look_at_unchecked(p, c, T_target, T_target)
+        return self._exact(T_via)
+
     def reset(self, T_world_cam: object, look_distance: float | None = None) -> FloatArray:
         """Place the arm, at rest, at the configuration nearest to a camera pose.
 
@@ -456,6 +508,10 @@ class CameraArm:
         reachable = approach is ActuatorStatus.EXACT or (
             self.kind is ArmKind.ECM and approach is ActuatorStatus.VIEW
         )
+        if self.camera_path and approach is not ActuatorStatus.NEAREST:
+            q_via = self._path_target(T_target, look_distance, approach)
+            if q_via is not None:
+                q_cmd = q_via
         self._arm.servo_jp(q_cmd)
         self._arm.step()
         self._q = self._arm.measured_jp()
