@@ -13,7 +13,10 @@ Usage (from the repository root)::
     PYTHONPATH=src MUJOCO_GL=egl python examples/psm_tracking.py [--policies ...] [--arm psm]
         [--set controller.tracker.keep_side=false ...]
 
-``--set`` takes dotted config fields with JSON values (an ablation switches one of them off).
+``--set`` takes dotted config fields with JSON values (an ablation switches one of them off);
+``--ablate`` adds rows with one of the PSM carrier's switches off (``CameraArm.camera_path``:
+far targets along a camera-space path; ``CameraArm.via_port``: through the port view after a
+jump of the wrist's target), in the same run.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from endocam.config import ExperimentConfig
+from endocam.robot.camera_arm import CameraArm
 from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode, state_fractions
 from endocam.study.make import (
     DEFAULT_SEED,
@@ -62,7 +66,9 @@ def _merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def episodes(base: ExperimentConfig) -> list[tuple[str, ExperimentConfig, TrajectoryKind, int, int]]:
+def episodes(
+    base: ExperimentConfig,
+) -> list[tuple[str, ExperimentConfig, TrajectoryKind, int, int]]:
     """(label, config, kind, control points, seed) of the six trajectories."""
     runs = [(f"ideal-{n}", base, TrajectoryKind.IDEAL, n, 0) for n in IDEAL_POINTS]
     seeds = trajectory_seeds(DEFAULT_SEED)
@@ -91,6 +97,13 @@ def main() -> None:
     parser.add_argument("--arm", default="psm")
     parser.add_argument("--set", nargs="*", default=[], help="dotted.field=JSON overrides")
     parser.add_argument("--only", nargs="*", default=None, help="trajectory labels to run")
+    parser.add_argument(
+        "--ablate",
+        nargs="*",
+        default=[],
+        choices=["camera_path", "via_port"],
+        help="also run each policy with this CameraArm switch off",
+    )
     args = parser.parse_args()
     data = _merge({"episode": {"arm": args.arm}}, _nested(args.set))
     base = ExperimentConfig.model_validate(data)
@@ -100,16 +113,25 @@ def main() -> None:
     )
     print("|---|---|---|---|---|---|---|")
     means: dict[str, list[dict[str, float]]] = {}
-    for policy in args.policies:
+    variants = [(p, None) for p in args.policies]
+    variants += [(p, off) for off in args.ablate for p in args.policies if p != "centering"]
+    for policy, off in variants:
+        name = policy if off is None else f"{policy} −{off}"
         for label, cfg, kind, n, seed in episodes(base):
             if args.only and label not in args.only:
                 continue
             t0 = time.perf_counter()
-            r = row(run_episode(cfg, EpisodeSpec(policy, kind, n, seed)))
-            means.setdefault(policy, []).append(r)
+            if off is not None:
+                setattr(CameraArm, off, False)
+            try:
+                r = row(run_episode(cfg, EpisodeSpec(policy, kind, n, seed)))
+            finally:
+                CameraArm.camera_path = CameraArm.via_port = True
+            means.setdefault(name, []).append(r)
+            took = time.perf_counter() - t0
             print(
-                f"| {policy} | {label} | {r['img_px']:.1f} | {r['mm']:.2f} | {r['deg']:.1f} "
-                f"| {r['out_pct']:.2f} | {r['unreach_pct']:.1f} |  ({time.perf_counter() - t0:.1f} s)",
+                f"| {name} | {label} | {r['img_px']:.1f} | {r['mm']:.2f} | {r['deg']:.1f} "
+                f"| {r['out_pct']:.2f} | {r['unreach_pct']:.1f} |  ({took:.1f} s)",
                 flush=True,
             )
     for policy, rows in means.items():

@@ -178,6 +178,12 @@ class CameraArm:
         Control period, s.
     """
 
+    camera_path: bool = True
+    via_port: bool = True
+    """After a jump of the wrist's target, pass through the port view (needs ``camera_path``)."""
+    """Approach a far target along a camera-space path about its look-at point (False: the
+    straight joint-space line; an ablation switch)."""
+
     def __init__(self, kind: ArmKind, T_world_rcm: object, T_tip_cam: object, dt: float) -> None:
         self.kind = kind
         self.model = arm_model(kind)
@@ -199,7 +205,7 @@ class CameraArm:
         self._last_key: bytes | None = None  # the last goal (bytes) and its look distance
         self._last_look = math.nan
         self._last_target: tuple[list[float], FloatArray, ActuatorStatus] | None = None
-        self.camera_path = True  # far targets are approached along a camera-space path
+        self._via_port = False  # on the path through the port view after a target jump
 
     # ------------------------------------------------------------------ frames
     @property
@@ -364,9 +370,24 @@ class CameraArm:
         self._k_prev = hi
         return reach(hi)
 
-    def _path_target(
-        self, T_target: FloatArray, look_distance: float, approach: ActuatorStatus
-    ) -> list[float] | None:
+    def _on_path(self, q_target: list[float], T_target: FloatArray, look: float) -> list[float]:
+        """The joint set point of this step: towards ``q_target`` along a camera-space path.
+
+        After a jump of the wrist's target (a side change, or the nearest feasible view crossing
+        a reachability gap: the same view from another wrist configuration), the path leads
+        through the port view of the look-at point, whose wrist is straight and which both
+        configurations reach continuously; it continues to the target once the camera is there.
+        """
+        if self._via_port:
+            T_port = view_towards_port(T_target, look, self._p_world_rcm, 1.0)
+            q_via = self._path_target(T_port, look)
+            if q_via is not None:
+                return q_via
+            self._via_port = False  # at the port view (or no path to it): on to the target
+        q_via = self._path_target(T_target, look)
+        return q_target if q_via is None else q_via
+
+    def _path_target(self, T_target: FloatArray, look_distance: float) -> list[float] | None:
         """Joint target of the next pose on the camera-space path to a far target; else None.
 
         The path orbits the target's look-at point ``c`` (``look_distance`` ahead of the target on
@@ -439,6 +460,7 @@ class CameraArm:
             )
         self._k_prev = None
         self._last_key, self._last_target = None, None
+        self._via_port = False
         if look_distance is None:
             look_distance = self._port_distance(T)
         self._q = natural_pose(self.model)
@@ -499,6 +521,8 @@ class CameraArm:
                 T_goal = self._T_cam
                 q_cmd, T_target, approach = self.target(T_goal, look_distance)
             self._last_key, self._last_look = key, look_distance
+            if last is not None and self.via_port and _wrist_jump(self.kind, last[0], q_cmd):
+                self._via_port = True  # the target jumped across a reachability gap
             self._last_target = (q_cmd, T_target, approach)
         if approach is ActuatorStatus.EXACT:
             pos_err = ang_err = 0.0
@@ -509,9 +533,7 @@ class CameraArm:
             self.kind is ArmKind.ECM and approach is ActuatorStatus.VIEW
         )
         if self.camera_path and approach is not ActuatorStatus.NEAREST:
-            q_via = self._path_target(T_target, look_distance, approach)
-            if q_via is not None:
-                q_cmd = q_via
+            q_cmd = self._on_path(q_cmd, T_target, look_distance)
         self._arm.servo_jp(q_cmd)
         self._arm.step()
         self._q = self._arm.measured_jp()
@@ -527,6 +549,16 @@ class CameraArm:
             ang_err,
             reachable,
         )
+
+
+WRIST_JUMP_RAD = 1.0  # rad: a wrist joint target moving this far in one step has jumped
+
+
+def _wrist_jump(kind: ArmKind, q_before: list[float], q_after: list[float]) -> bool:
+    """Whether a PSM's wrist (roll, pitch, yaw) target moved more than ``WRIST_JUMP_RAD``."""
+    if kind is not ArmKind.PSM:
+        return False
+    return max(abs(a - b) for a, b in zip(q_before[3:], q_after[3:], strict=True)) > WRIST_JUMP_RAD
 
 
 ARM_START_GAP = 0.08  # m: the arm's start view keeps the camera this far ahead of the port
