@@ -398,24 +398,29 @@ class CameraArm:
         move towards it for one step, so a far target is reached along the path instead of the
         straight joint-space line (whose view swings away from ``c``).
         """
-        T_cam = self._T_cam
-        z_t = T_target[:3, 2]
-        c = T_target[:3, 3] + look_distance * z_t
-        v = T_cam[:3, 3] - c
-        r_cur = float(np.linalg.norm(v))
+        a, b = self._T_cam.tolist(), T_target.tolist()  # plain floats: this runs every step
+        z_t = [b[0][2], b[1][2], b[2][2]]
+        c = [b[i][3] + look_distance * z_t[i] for i in range(3)]
+        v = [a[i][3] - c[i] for i in range(3)]
+        r_cur = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
         if not r_cur > _EPS_AXIS:
             return None
-        u_cur = v / r_cur
-        u_goal = -z_t
-        axis = np.cross(u_cur, u_goal)
-        ang = math.atan2(float(np.linalg.norm(axis)), float(u_cur @ u_goal))
-        aim = math.acos(max(-1.0, min(1.0, float(-u_cur @ T_cam[:3, 2]))))
+        u = [x / r_cur for x in v]
+        cos_aim = -(u[0] * a[0][2] + u[1] * a[1][2] + u[2] * a[2][2])
+        aim = math.acos(max(-1.0, min(1.0, cos_aim)))
+        cos_t = -(u[0] * z_t[0] + u[1] * z_t[1] + u[2] * z_t[2])
+        ang = math.acos(max(-1.0, min(1.0, cos_t)))  # coarse: only compared with the thresholds
         travel = math.hypot(look_distance - r_cur, 0.5 * (r_cur + look_distance) * ang)
         if travel <= PATH_ENGAGE_M and aim <= PATH_ENGAGE_AIM_RAD:
             return None
         alpha = min(1.0, PATH_LEAD_M / travel) if travel > 0.0 else 1.0
         if alpha >= 1.0 and aim <= PATH_ENGAGE_AIM_RAD:
             return None
+        c_arr = np.array(c)
+        u_cur = np.array(u)
+        u_goal = -np.array(z_t)
+        axis = np.cross(u_cur, u_goal)
+        ang = math.atan2(float(np.linalg.norm(axis)), float(u_cur @ u_goal))
         sin_a = float(np.linalg.norm(axis))
         if sin_a > _EPS_AXIS:
             rotvec = axis * (alpha * ang / sin_a)
@@ -429,8 +434,8 @@ class CameraArm:
             rotvec = k * (alpha * ang / k_norm)
         R = np.array(so3_exp(rotvec.tolist()))
         r = r_cur + alpha * (look_distance - r_cur)
-        p = c + r * (R @ u_cur)
-        T_via = look_at_unchecked(p, c, T_target, T_target)
+        p = c_arr + r * (R @ u_cur)
+        T_via = look_at_unchecked(p, c_arr, T_target, T_target)
         return self._exact(T_via)
 
     def reset(self, T_world_cam: object, look_distance: float | None = None) -> FloatArray:
