@@ -97,6 +97,9 @@ VIEW_STEPS = 2**VIEW_BISECTIONS  # count: the turn towards the port view is sear
 MAX_COMMAND_RANGE_M = 10.0  # m: a command farther than this from the port is not a camera pose
 VIEW_POSITION_TOL_M = 1e-6  # m: an ECM port view whose camera is this close counts as reached
 _EPS_AXIS = 1e-12  # unitless: a cross product shorter than this has no direction
+PATH_LEAD_M = 0.02  # m: how far ahead of the camera, along its camera-space path, the joints aim
+PATH_ENGAGE_M = 0.02  # m: a target farther along the path than this is approached on the path
+PATH_ENGAGE_AIM_RAD = math.radians(10.0)  # rad: or a camera aimed this far off its look-at point
 
 
 def view_towards_port(
@@ -175,6 +178,12 @@ class CameraArm:
         Control period, s.
     """
 
+    camera_path: bool = True
+    via_port: bool = True
+    """After a jump of the wrist's target, pass through the port view (needs ``camera_path``)."""
+    """Approach a far target along a camera-space path about its look-at point (False: the
+    straight joint-space line; an ablation switch)."""
+
     def __init__(self, kind: ArmKind, T_world_rcm: object, T_tip_cam: object, dt: float) -> None:
         self.kind = kind
         self.model = arm_model(kind)
@@ -196,6 +205,7 @@ class CameraArm:
         self._last_key: bytes | None = None  # the last goal (bytes) and its look distance
         self._last_look = math.nan
         self._last_target: tuple[list[float], FloatArray, ActuatorStatus] | None = None
+        self._via_port = False  # on the path through the port view after a target jump
 
     # ------------------------------------------------------------------ frames
     @property
@@ -360,6 +370,74 @@ class CameraArm:
         self._k_prev = hi
         return reach(hi)
 
+    def _on_path(self, q_target: list[float], T_target: FloatArray, look: float) -> list[float]:
+        """The joint set point of this step: towards ``q_target`` along a camera-space path.
+
+        After a jump of the wrist's target (a side change, or the nearest feasible view crossing
+        a reachability gap: the same view from another wrist configuration), the path leads
+        through the port view of the look-at point, whose wrist is straight and which both
+        configurations reach continuously; it continues to the target once the camera is there.
+        """
+        if self._via_port:
+            T_port = view_towards_port(T_target, look, self._p_world_rcm, 1.0)
+            q_via = self._path_target(T_port, look)
+            if q_via is not None:
+                return q_via
+            self._via_port = False  # at the port view (or no path to it): on to the target
+        q_via = self._path_target(T_target, look)
+        return q_target if q_via is None else q_via
+
+    def _path_target(self, T_target: FloatArray, look_distance: float) -> list[float] | None:
+        """Joint target of the next pose on the camera-space path to a far target; else None.
+
+        The path orbits the target's look-at point ``c`` (``look_distance`` ahead of the target on
+        its optical axis): the direction from ``c`` to the camera turns on the great circle from
+        the current camera's to the target's, the distance changes linearly, and every pose on it
+        looks at ``c`` with a level horizon. The pose ``PATH_LEAD_M`` ahead of the current camera
+        (path length) is solved in closed form, seeded by the measured joints; the joints then
+        move towards it for one step, so a far target is reached along the path instead of the
+        straight joint-space line (whose view swings away from ``c``).
+        """
+        a, b = self._T_cam.tolist(), T_target.tolist()  # plain floats: this runs every step
+        z_t = [b[0][2], b[1][2], b[2][2]]
+        c = [b[i][3] + look_distance * z_t[i] for i in range(3)]
+        v = [a[i][3] - c[i] for i in range(3)]
+        r_cur = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        if not r_cur > _EPS_AXIS:
+            return None
+        u = [x / r_cur for x in v]
+        cos_aim = -(u[0] * a[0][2] + u[1] * a[1][2] + u[2] * a[2][2])
+        aim = math.acos(max(-1.0, min(1.0, cos_aim)))
+        cos_t = -(u[0] * z_t[0] + u[1] * z_t[1] + u[2] * z_t[2])
+        ang = math.acos(max(-1.0, min(1.0, cos_t)))  # coarse: only compared with the thresholds
+        travel = math.hypot(look_distance - r_cur, 0.5 * (r_cur + look_distance) * ang)
+        if travel <= PATH_ENGAGE_M and aim <= PATH_ENGAGE_AIM_RAD:
+            return None
+        alpha = min(1.0, PATH_LEAD_M / travel) if travel > 0.0 else 1.0
+        if alpha >= 1.0 and aim <= PATH_ENGAGE_AIM_RAD:
+            return None
+        c_arr = np.array(c)
+        u_cur = np.array(u)
+        u_goal = -np.array(z_t)
+        axis = np.cross(u_cur, u_goal)
+        ang = math.atan2(float(np.linalg.norm(axis)), float(u_cur @ u_goal))
+        sin_a = float(np.linalg.norm(axis))
+        if sin_a > _EPS_AXIS:
+            rotvec = axis * (alpha * ang / sin_a)
+        elif u_cur @ u_goal > 0.0:
+            rotvec = np.zeros(3)
+        else:  # opposite: over the top
+            k = np.cross(u_cur, np.array([0.0, 0.0, 1.0]))
+            k_norm = float(np.linalg.norm(k))
+            if not k_norm > _EPS_AXIS:
+                return None
+            rotvec = k * (alpha * ang / k_norm)
+        R = np.array(so3_exp(rotvec.tolist()))
+        r = r_cur + alpha * (look_distance - r_cur)
+        p = c_arr + r * (R @ u_cur)
+        T_via = look_at_unchecked(p, c_arr, T_target, T_target)
+        return self._exact(T_via)
+
     def reset(self, T_world_cam: object, look_distance: float | None = None) -> FloatArray:
         """Place the arm, at rest, at the configuration nearest to a camera pose.
 
@@ -387,6 +465,7 @@ class CameraArm:
             )
         self._k_prev = None
         self._last_key, self._last_target = None, None
+        self._via_port = False
         if look_distance is None:
             look_distance = self._port_distance(T)
         self._q = natural_pose(self.model)
@@ -447,6 +526,8 @@ class CameraArm:
                 T_goal = self._T_cam
                 q_cmd, T_target, approach = self.target(T_goal, look_distance)
             self._last_key, self._last_look = key, look_distance
+            if last is not None and self.via_port and _wrist_jump(self.kind, last[0], q_cmd):
+                self._via_port = True  # the target jumped across a reachability gap
             self._last_target = (q_cmd, T_target, approach)
         if approach is ActuatorStatus.EXACT:
             pos_err = ang_err = 0.0
@@ -456,6 +537,8 @@ class CameraArm:
         reachable = approach is ActuatorStatus.EXACT or (
             self.kind is ArmKind.ECM and approach is ActuatorStatus.VIEW
         )
+        if self.camera_path and approach is not ActuatorStatus.NEAREST:
+            q_cmd = self._on_path(q_cmd, T_target, look_distance)
         self._arm.servo_jp(q_cmd)
         self._arm.step()
         self._q = self._arm.measured_jp()
@@ -471,6 +554,16 @@ class CameraArm:
             ang_err,
             reachable,
         )
+
+
+WRIST_JUMP_RAD = 1.0  # rad: a wrist joint target moving this far in one step has jumped
+
+
+def _wrist_jump(kind: ArmKind, q_before: list[float], q_after: list[float]) -> bool:
+    """Whether a PSM's wrist (roll, pitch, yaw) target moved more than ``WRIST_JUMP_RAD``."""
+    if kind is not ArmKind.PSM:
+        return False
+    return max(abs(a - b) for a, b in zip(q_before[3:], q_after[3:], strict=True)) > WRIST_JUMP_RAD
 
 
 ARM_START_GAP = 0.08  # m: the arm's start view keeps the camera this far ahead of the port
