@@ -22,7 +22,7 @@ ARMS = ("free", "psm")  # the free camera (Cartesian limiter) and the default PS
 
 
 @pytest.mark.parametrize("arm", ARMS)
-@pytest.mark.parametrize("policy", ["fixed", "centering", "orientation"])
+@pytest.mark.parametrize("policy", ["fixed", "centering", "orientation", "endocam"])
 def test_episode_loop(benchmark, policy: str, arm: str) -> None:
     cfg = CFG.model_copy(update={"episode": CFG.episode.model_copy(update={"arm": ArmKind(arm)})})
     touches = ground_truth(cfg, TrajectoryKind.NOISY, 71, 1)
