@@ -2,7 +2,7 @@
 
 Runs the three policies with the camera on the PSM over six trajectories: the three ideal ones
 (36/54/71 control points, seed 0) and the three study trajectories (``STUDY_TRAJECTORIES``,
-noisy, seeds ``trajectory_seeds(DEFAULT_SEED)``, each with its ``trajectory_config``
+noisy, seeds ``study_trajectory_seeds(DEFAULT_STUDY_SEED)``, each with its ``trajectory_config``
 override), and prints one Markdown row per policy and trajectory plus the means: image error
 (px, a ring out of view counted as the farthest image corner), the left eye's 3D centring error
 (mm), the orientation error (deg), the share of steps with the ring out of the left image and
@@ -32,11 +32,11 @@ import numpy as np
 from endocam.config import ExperimentConfig
 from endocam.robot.camera_arm import CameraArm
 from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode, state_fractions
-from endocam.study.make import (
-    DEFAULT_SEED,
+from endocam.runner.experiments import study_path_config
+from endocam.task.study_paths import (
+    DEFAULT_STUDY_SEED,
     STUDY_TRAJECTORIES,
-    trajectory_config,
-    trajectory_seeds,
+    study_trajectory_seeds,
 )
 from endocam.task.trajectory import TrajectoryKind
 
@@ -71,9 +71,9 @@ def episodes(
 ) -> list[tuple[str, ExperimentConfig, TrajectoryKind, int, int]]:
     """(label, config, kind, control points, seed) of the six trajectories."""
     runs = [(f"ideal-{n}", base, TrajectoryKind.IDEAL, n, 0) for n in IDEAL_POINTS]
-    seeds = trajectory_seeds(DEFAULT_SEED)
+    seeds = study_trajectory_seeds(DEFAULT_STUDY_SEED)
     for traj, seed in zip(STUDY_TRAJECTORIES, seeds, strict=True):
-        cfg = trajectory_config(base, traj)
+        cfg = study_path_config(base, traj)
         runs.append((traj.name, cfg, TrajectoryKind.NOISY, traj.control_points, seed))
     return runs
 

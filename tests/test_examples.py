@@ -34,3 +34,13 @@ def test_touch_distribution_prints_a_table() -> None:
     out = _run(str(EXAMPLES / "touch_distribution.py"), "--seeds", "1", "--points", "36")
     row = [line for line in out.splitlines() if line.startswith("| 36 ")]
     assert len(row) == 1 and row[0].count("|") == 5
+
+
+def test_free_tracking_prints_a_table_per_group() -> None:
+    out = _run(
+        str(EXAMPLES / "free_tracking.py"),
+        *("--groups", "ideal", "--rows", "endocam", "orientation", "--duration", "3"),
+        *("--jobs", "1"),
+    )
+    rows = [line for line in out.splitlines() if line.startswith("| endocam ")]
+    assert len(rows) == 1 and rows[0].count("|") == 8

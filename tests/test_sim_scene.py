@@ -126,6 +126,24 @@ def test_ring_moves_with_handle_and_psm1(scene: WireChaserScene) -> None:
         scene.set_ring_pose(np.eye(3))
 
 
+def test_psm2_drawn_where_the_log_puts_its_tip(scene: WireChaserScene) -> None:
+    p_tip = np.array([-0.02, -0.03, 0.05])  # m, somewhere beside the wire
+    scene.set_psm2_tip(p_tip)
+    np.testing.assert_allclose(scene.tool_tips()[1], p_tip, atol=1e-7)
+    shaft = np.asarray(CFG.instruments.psm2_direction) / np.linalg.norm(
+        CFG.instruments.psm2_direction
+    )
+    p_shaft = p_tip + 0.03 * shaft  # m, a point on the drawn shaft
+    ray_from = p_shaft + np.array([0.05, 0.0, 0.0])
+    geomid = np.full(1, -1, dtype=np.int32)
+    mujoco.mj_ray(scene.model, scene.data, ray_from, [-1.0, 0.0, 0.0], None, 1, -1, geomid)
+    assert scene.geom_name(int(geomid[0])).startswith("psm2")
+    scene.set_psm2_tip(CFG.instruments.psm2_tip)
+    np.testing.assert_allclose(scene.tool_tips()[1], CFG.instruments.psm2_tip, atol=1e-7)
+    with pytest.raises(ValueError, match="p_world_tip"):
+        scene.set_psm2_tip([0.0, 0.0])
+
+
 def test_ray_visible(scene: WireChaserScene) -> None:
     T_cam = overview_camera_pose(CFG, CAMERA)
     scene.set_camera_pose(T_cam)

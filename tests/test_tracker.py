@@ -8,12 +8,15 @@ import numpy as np
 import pytest
 
 from endocam.camera import StereoCamera
-from endocam.config import CameraConfig
+from endocam.config import CameraConfig, ExperimentConfig
 from endocam.control.config import ControllerConfig, TrackerConfig
 from endocam.control.policies import make_policy
+from endocam.control.safety import WindowStatus, window_status
 from endocam.control.tracker import EndocamPolicy, RingPredictor
 from endocam.control.types import Observation, PolicyContext, TrackingState
 from endocam.robot.cartesian import CartesianLimiter, MotionLimits
+from endocam.runner.episode import EpisodeSpec, run_episode
+from endocam.task.trajectory import TrajectoryKind
 from endocam.view import ROLL_LEVEL_ANGLE
 
 DT = 0.01  # s, control period
@@ -23,6 +26,8 @@ PREDICT_TOL_M = 2e-4  # m: steady-state goal error with prediction on (constant-
 LAG_MIN_M = 1e-3  # m: without prediction the goal lags v·latency (3 mm here)
 TWIST_LAG_M = 3e-4  # m: lag behind a 46 mm/s target after 3 s, given the target's velocity
 REST_LAG_M = 2e-3  # m: the same without it (the limiter aims to arrive at rest)
+FLOOR_TOL_M = 5e-4  # m: the jerk-limited carrier overshoots a goal at the floor (0.19 mm seen)
+SHORTEN_GAIN_DEG = 0.3  # deg: measured gain 0.8° on noisy-71 seed 1 (docs: free_tracking)
 NO_TIPS = np.zeros((0, 3))  # no instrument known: the working distance holds
 
 
@@ -234,3 +239,82 @@ def test_limiter_follows_a_moving_target_with_its_twist(with_twist: bool) -> Non
         assert err < TWIST_LAG_M  # nearly on the target, moving with it
     else:
         assert err > REST_LAG_M  # arrives at rest each step: lags
+
+
+LOW_RING = np.array([0.0, 0.0, 0.035])  # m: 20 mm above the 15 mm camera floor
+N_UP = np.array([1.0, 0.0, 0.3])  # first normal: the camera takes this (+n) side, above
+N_DOWN = np.array([1.0, 0.0, -0.6])  # then the kept +n side looks up from below the ring
+SETTLE_STEPS = 300  # count: 3 s at 100 Hz, enough for d_f to walk 20 mm at 1 mm/step
+D_TOL_M = 1.5e-3  # m: d_f moves in 1 mm steps
+VIEW_TOL = math.radians(1.0)  # rad: a view that reaches the normal
+SIDE_TIP = LOW_RING + np.array([0.0, 0.03, 0.0])  # m: a tool 30 mm beside the ring, level
+
+
+def run_low_ring(tips: np.ndarray, shorten: bool) -> list[tuple[np.ndarray, object]]:
+    """The ring low with its normal turning down on the kept side; a perfect carrier."""
+    policy = EndocamPolicy(
+        ControllerConfig(tracker=TrackerConfig(predict=False, shorten_when_low=shorten))
+    )
+    T_cam = np.eye(4)
+    T_cam[:3, 3] = LOW_RING + 0.05 * N_UP / np.linalg.norm(N_UP)
+    p_rcm = LOW_RING + np.array([0.0, 0.0, 0.25])
+    camera = CameraConfig().stereo()
+    policy.reset(PolicyContext(camera, T_cam, ring_pose(LOW_RING, N_UP), p_rcm, DT, LATENCY))
+    out = []
+    for k in range(2 * SETTLE_STEPS):
+        n = N_UP if k < SETTLE_STEPS else N_DOWN
+        cmd = policy.step(Observation(k * DT, ring_pose(LOW_RING, n), T_cam, tips))
+        T_cam = cmd.T_world_cam
+        out.append((T_cam, cmd))
+    return out
+
+
+def view_error(T_cam: np.ndarray, n: np.ndarray) -> float:
+    """Angle between the camera's optical axis and the ring normal (either sign), rad."""
+    c = abs(T_cam[:3, 2] @ n) / np.linalg.norm(n)
+    return math.acos(min(1.0, c))
+
+
+def test_height_limited_view_shortens_the_look_distance() -> None:
+    cfg = ControllerConfig()
+    n_z = N_DOWN[2] / np.linalg.norm(N_DOWN)
+    d_reach = (LOW_RING[2] - cfg.min_camera_height) / -n_z  # camera exactly at the floor
+    log = run_low_ring(NO_TIPS, shorten=True)
+    T_end, cmd_end = log[-1]
+    assert cmd_end.d_f == pytest.approx(d_reach, abs=D_TOL_M)
+    assert view_error(T_end, N_DOWN) < VIEW_TOL
+    assert side_of(T_end, LOW_RING, N_DOWN) > 0  # still the kept side: no transfer
+    for T, _ in log:
+        assert T[2, 3] >= cfg.min_camera_height - ATOL_M
+    # without the switch the camera stays at d_f, held at the floor and turned off the normal
+    held = run_low_ring(NO_TIPS, shorten=False)
+    assert held[-1][1].d_f == pytest.approx(cfg.d_f)
+    assert view_error(held[-1][0], N_DOWN) > 5 * VIEW_TOL  # 7.4° here
+
+
+def test_shortening_keeps_every_tip_in_the_outer_window() -> None:
+    cfg = ControllerConfig()
+    camera = CameraConfig().stereo()
+    tips = SIDE_TIP[None, :]
+    log = run_low_ring(tips, shorten=True)
+    for T, _ in log:
+        assert window_status(camera, T, tips, cfg.windows) is not WindowStatus.OUTSIDE_OUTER
+    n_z = N_DOWN[2] / np.linalg.norm(N_DOWN)
+    d_reach = (LOW_RING[2] - cfg.min_camera_height) / -n_z
+    d_end = log[-1][1].d_f
+    assert d_reach + D_TOL_M < d_end < cfg.d_f  # shortened, but stopped by the tool
+
+
+def test_shortening_lowers_the_noisy_orientation_error() -> None:
+    """The ablation on one noisy 71-point episode of the free camera (same world both ways)."""
+    errors = {}
+    for shorten in (True, False):
+        cfg = ExperimentConfig.model_validate(
+            {"episode": {"arm": "free"}, "controller": {"tracker": {"shorten_when_low": shorten}}}
+        )
+        r = run_episode(cfg, EpisodeSpec("endocam", TrajectoryKind.NOISY, 71, 1))
+        floor = cfg.controller.min_camera_height
+        assert np.all(r.log.T_world_cmd[:, 2, 3] >= floor - ATOL_M)
+        assert np.all(r.log.T_world_cam[:, 2, 3] >= floor - FLOOR_TOL_M)
+        errors[shorten] = math.degrees(float(np.mean(r.orientation_error)))
+    assert errors[True] < errors[False] - SHORTEN_GAIN_DEG

@@ -25,6 +25,14 @@ ingredient has a switch in :class:`~endocam.control.config.TrackerConfig`:
    midpoint, is put through ``p_c``: the camera is shifted by ``+b/2`` along its x axis.
 5. **Direct first approach** (``first_approach``): from the overview pose (and after a freeze
    or lost tracking) the camera goes straight for the goal under its limits.
+6. **Shorter look when low** (``shorten_when_low``). When the kept side's view is
+   height-limited (``s n·up < c``: a ring low over the board, its normal pointing down on the
+   kept side), the camera is held at ``min_camera_height`` and turned off the normal by up to
+   tens of degrees. Shortening the look distance ``d`` raises ``c``'s bound ``s n·up ≥ (h_min −
+   p_c·up)/d``, so the view turns back to the normal: while every tool tip is between the
+   windows (where the paper's rule would hold ``d_f``), ``d_f`` shrinks by ``d_f_step`` per
+   step, down to ``d_min`` and only while every tip stays inside the outer window of the
+   shortened goal. A tip outside the outer window still lengthens ``d_f`` (safety first).
 
 The step runs on plain floats (no scipy) to stay well under 100 µs.
 """
@@ -40,7 +48,7 @@ from endocam.control.config import ControllerConfig, SideRule, Transfer
 from endocam.control.goal import goal_pose_unchecked
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.policies import _UP, FREEZE_RELEASE_MARGIN, _MovingPolicy
-from endocam.control.safety import adjust_working_distance, window_status_rows
+from endocam.control.safety import WindowStatus, adjust_working_distance, window_status_rows
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
 from endocam.geometry import UP, FloatArray
 from endocam.kernels import Vec, cross, dot, finite_rows, norm, scaled
@@ -177,6 +185,33 @@ class EndocamPolicy(_MovingPolicy):
         margin = self.cone.margin([p_c[0] + d * u[0], p_c[1] + d * u[1], p_c[2] + d * u[2]])
         return u, err, margin
 
+    def _shortened(
+        self, p_c: Vec, n: Vec, d: float, previous: FloatArray, tip_rows: list[list[float]]
+    ) -> float:
+        """Look distance one ``d_f_step`` shorter if the kept view is height-limited, else ``d``.
+
+        Height-limited: the camera on side ``s`` at ``d`` would sit below ``min_camera_height``
+        (``s n·up < (h_min − p_c·up) / d``), so it is turned off the normal. A shorter look
+        distance lowers the camera's drop below ``p_c`` and lets it turn back. The step is
+        taken only if every tip stays inside the outer window of the shortened goal (the
+        window rule keeps priority: the caller shortens only while every tip is between the
+        windows).
+        """
+        cfg = self.config
+        s = self._side or (1.0 if n[2] >= 0.0 else -1.0)
+        if not s * n[2] * d < cfg.min_camera_height - p_c[2]:
+            return d
+        d_next = d - cfg.d_f_step
+        if d_next < cfg.d_min:
+            return d
+        view = self._view(p_c, n, s, d_next)
+        if view is None:
+            return d
+        goal = self._pose(p_c, view[0], d_next, previous).tolist()
+        assert self._window_geometry is not None  # set by reset()
+        status = window_status_rows(self._window_geometry, goal, tip_rows)
+        return d if status is WindowStatus.OUTSIDE_OUTER else d_next
+
     def _choose(self, p_c: Vec, n: Vec, d: float) -> tuple[float, Vec] | None:
         """Side and viewing direction (keep the side while feasible); ``None``: no feasible view."""
         limit = self.tracker.side_change_angle
@@ -279,12 +314,14 @@ class EndocamPolicy(_MovingPolicy):
         status = window_status_rows(geometry, cam_rows, tip_rows)
         d_before = self.d_f
         self.d_f = adjust_working_distance(self.d_f, status, cfg.d_min, cfg.d_max, cfg.d_f_step)
-        d = self.d_f
 
         self._predictor.push(obs.t, p_obs, n_obs)
         p_c, n = self._predictor.predict(self._horizon)
         previous = self._last_goal if self._last_goal is not None else self._last_cmd
         assert previous is not None  # set by reset()
+        if status is WindowStatus.BETWEEN and tc.keep_side and tc.shorten_when_low:
+            self.d_f = self._shortened(p_c, n, self.d_f, previous, tip_rows)
+        d = self.d_f
         if tc.keep_side:
             chosen = self._choose(p_c, n, d)
         else:

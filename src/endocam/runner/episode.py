@@ -31,7 +31,8 @@ from endocam.metrics import (
 )
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
 from endocam.robot.carriers import make_actuator
-from endocam.task.layout import overview_camera_pose, psm1_tip_in_ring, task_centre
+from endocam.task.instruments import instrument_tips
+from endocam.task.layout import overview_camera_pose, task_centre
 from endocam.task.touches import TouchReport, touch_events
 from endocam.task.trajectory import RingTrajectory, TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
@@ -224,10 +225,7 @@ def run_episode(
     t = np.arange(n, dtype=float) * dt
     T_ring = trajectory.poses(t)
     T_sensed = trajectory.poses(np.clip(t - ep.sensing_latency, 0.0, None))
-    tip1 = T_ring[:, :3, :3] @ psm1_tip_in_ring(config.task.ring, config.task.instruments)
-    tip1 = tip1 + T_ring[:, :3, 3]
-    tip2 = np.broadcast_to(np.array(config.task.instruments.psm2_tip), (n, 3))
-    tips = np.stack([tip1, tip2], axis=1)
+    tips = instrument_tips(config.task, t, T_ring)
 
     T_overview = overview_camera_pose(config.task, camera)
     p_rcm = np.array(config.task.scene.rcm_position)

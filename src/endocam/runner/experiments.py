@@ -161,6 +161,7 @@ def render_episodes(
         with WireChaserScene(first.config.task, first.camera, arm=arm) as scene:
             for i in idx:
                 scene.set_ring_pose(first.log.T_world_ring[i])
+                scene.set_psm2_tip(first.log.p_world_tips[i, 1])
                 frames = []
                 for result, writer in zip(results, writers, strict=True):
                     scene.set_camera_pose(result.log.T_world_cam[i])

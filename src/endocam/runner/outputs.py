@@ -355,6 +355,7 @@ def render_video(result: EpisodeResult, path: Path, progress: Progress | None = 
         try:
             for i in idx:
                 scene.set_ring_pose(log.T_world_ring[i])
+                scene.set_psm2_tip(log.p_world_tips[i, 1])
                 scene.set_camera_pose(log.T_world_cam[i])
                 scene.set_arm_from_log(log, i)
                 writer.send(np.ascontiguousarray(scene.render("left")))

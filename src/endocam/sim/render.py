@@ -31,6 +31,7 @@ from endocam.sim.scene import (
     build_spec,
 )
 from endocam.task.config import TaskConfig
+from endocam.task.layout import psm2_pose
 
 
 class ArmLog(Protocol):
@@ -158,6 +159,14 @@ class WireChaserScene:
     def set_ring_pose(self, T_world_ring: ArrayLike) -> None:
         """Move the ring, its handle and PSM1 (which holds it) to ``T_world_ring`` (4, 4), m."""
         self._set_mocap(RING_BODY, as_pose(T_world_ring, "T_world_ring"))
+
+    def set_psm2_tip(self, p_world_tip: ArrayLike) -> None:
+        """Move PSM2 so its tip is at ``p_world_tip`` (3,), m (its shaft keeps its direction).
+
+        Pose it per frame from ``EpisodeLog.p_world_tips[k, 1]``: PSM2 may follow the ring
+        (``InstrumentConfig.psm2_idle``).
+        """
+        self._set_mocap(PSM2_BODY, psm2_pose(self.task_cfg.instruments, p_world_tip))
 
     def set_camera_pose(self, T_world_cam: ArrayLike) -> None:
         """Move the stereo camera: ``T_world_cam`` (4, 4), optical frame of the rig centre, m."""

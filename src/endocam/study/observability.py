@@ -281,6 +281,7 @@ def observe_episode(
     for i, ev in enumerate(result.touches.events):
         T_ring = result.trajectory.pose(ev.t_start)
         _, p_onset = clearances(T_ring[None], result.wire, ring_cfg)
+        scene.set_psm2_tip(result.log.p_world_tips[_step(result, ev.t_start), 1])
         view = observe_contact(
             scene, T_ring, result.log.T_world_cam[_step(result, ev.t_start)], p_onset[0], eye
         )
@@ -290,7 +291,9 @@ def observe_episode(
             T_rings = result.trajectory.poses(inside)
             _, p_frames = clearances(T_rings, result.wire, ring_cfg)
             for t, T_r, p in zip(inside, T_rings, p_frames, strict=True):
-                T_cam = result.log.T_world_cam[_step(result, float(t))]
+                k = _step(result, float(t))
+                T_cam = result.log.T_world_cam[k]
+                scene.set_psm2_tip(result.log.p_world_tips[k, 1])
                 scene.set_ring_pose(T_r)
                 scene.set_camera_pose(T_cam)
                 if in_image(scene.camera, T_cam, p, eye) and scene.ray_visible(p, T_cam, eye):

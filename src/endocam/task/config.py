@@ -7,6 +7,7 @@ done here: a top-level experiment config nests :class:`TaskConfig`.
 
 from __future__ import annotations
 
+import enum
 import math
 
 import numpy as np
@@ -178,8 +179,20 @@ class TrajectoryConfig(BaseModel):
         return _check_range(value, "angle_noise", upper=math.pi)
 
 
+class Psm2Idle(enum.Enum):
+    """What the idle second instrument (PSM2) does while PSM1 moves the ring."""
+
+    FOLLOW = "follow"
+    """Stays near the work site: its tip follows the ring centre, smoothed by a first-order lag
+    of ``psm2_follow_time``, at the fixed world offset ``psm2_offset`` (retracted, clear of the
+    wire), as an assistant keeps a second instrument beside the work (see
+    :mod:`endocam.task.instruments`)."""
+    FIXED = "fixed"
+    """Waits at ``psm2_tip`` for the whole episode (the world before issue 11)."""
+
+
 class InstrumentConfig(BaseModel):
-    """The two patient-side instruments: PSM1 holds the ring's handle, PSM2 waits in the field."""
+    """The two patient-side instruments: PSM1 holds the ring's handle, PSM2 waits near it."""
 
     model_config = _FROZEN
 
@@ -191,7 +204,25 @@ class InstrumentConfig(BaseModel):
         math.radians(20.0), ge=0.0, lt=math.pi / 2, description="PSM2 jaw half-opening, rad."
     )
     psm2_tip: Vec3 = Field(
-        (0.030, -0.050, 0.030), description="PSM2 waiting tip position in world, m."
+        (0.030, -0.050, 0.030),
+        description="PSM2 tip position in world with psm2_idle 'fixed', m; the overview "
+        "camera frames it either way.",
+    )
+    psm2_idle: Psm2Idle = Field(
+        Psm2Idle.FOLLOW,
+        description="PSM2's idle behaviour: 'follow' (beside the ring, lagged) or 'fixed' "
+        "(at psm2_tip).",
+    )
+    psm2_offset: Vec3 = Field(
+        (0.0, -0.020, 0.010),
+        description="With psm2_idle 'follow': PSM2 tip offset from the lagged ring centre, "
+        "world, m (default: 20 mm in front of the wire, 10 mm above the ring).",
+    )
+    psm2_follow_time: float = Field(
+        1.0,
+        gt=0.0,
+        description="With psm2_idle 'follow': time constant of the first-order lag with which "
+        "PSM2's tip follows the ring centre, s.",
     )
     psm2_direction: Vec3 = Field(
         (0.3, -0.6, 0.75),
@@ -200,7 +231,7 @@ class InstrumentConfig(BaseModel):
     rgba: RGBA = Field((0.55, 0.57, 0.6, 1.0), description="Instrument metal colour, RGBA.")
     jaw_rgba: RGBA = Field((0.25, 0.25, 0.28, 1.0), description="Wrist and jaw colour, RGBA.")
 
-    @field_validator("psm2_tip", "psm2_direction")
+    @field_validator("psm2_tip", "psm2_direction", "psm2_offset")
     @classmethod
     def _finite(cls, value: Vec3) -> Vec3:
         _check_finite(value, "instrument vector")

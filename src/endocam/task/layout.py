@@ -9,9 +9,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from endocam.camera import StereoCamera
-from endocam.geometry import UP, FloatArray, make_pose, unit_vector
+from endocam.geometry import UP, FloatArray, as_vector3, make_pose, unit_vector
 from endocam.task.config import InstrumentConfig, RingConfig, TaskConfig
 from endocam.task.wire import Wire
 
@@ -23,13 +24,18 @@ def psm1_tip_in_ring(ring: RingConfig, instruments: InstrumentConfig) -> FloatAr
     return np.array([ring.major_radius + ring.handle_length - instruments.jaw_length, 0.0, 0.0])
 
 
-def psm2_pose(instruments: InstrumentConfig) -> FloatArray:
-    """(4, 4) ``T_world_psm2``: origin at the PSM2 tip, +x up its shaft, y horizontal."""
+def psm2_pose(instruments: InstrumentConfig, p_world_tip: ArrayLike | None = None) -> FloatArray:
+    """(4, 4) ``T_world_psm2``: origin at the PSM2 tip, +x up its shaft, y horizontal.
+
+    ``p_world_tip`` (3,) is the tip in world, m (default ``instruments.psm2_tip``); the shaft
+    keeps ``instruments.psm2_direction`` wherever the tip is (``EpisodeLog.p_world_tips[:, 1]``).
+    """
     x = unit_vector(instruments.psm2_direction, "psm2_direction")
     y = np.cross(UP, x)
     y = np.array([0.0, 1.0, 0.0]) if np.linalg.norm(y) < 1e-9 else y / np.linalg.norm(y)
     z = np.cross(x, y)
-    return make_pose(np.column_stack([x, y, z]), instruments.psm2_tip)
+    tip = instruments.psm2_tip if p_world_tip is None else as_vector3(p_world_tip, "p_world_tip")
+    return make_pose(np.column_stack([x, y, z]), tip)
 
 
 def _task_points(task_cfg: TaskConfig) -> FloatArray:
