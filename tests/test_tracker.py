@@ -318,3 +318,33 @@ def test_shortening_lowers_the_noisy_orientation_error() -> None:
         assert np.all(r.log.T_world_cam[:, 2, 3] >= floor - FLOOR_TOL_M)
         errors[shorten] = math.degrees(float(np.mean(r.orientation_error)))
     assert errors[True] < errors[False] - SHORTEN_GAIN_DEG
+
+
+CONE_TOL_M = 1e-9  # m: round-off of the cone margin; a real excursion is millimetres
+
+
+@pytest.mark.parametrize(("arm", "points", "seed"), [("psm", 36, 3), ("free", 71, 1)])
+def test_endocam_never_commands_outside_the_cone_or_below_the_floor(
+    arm: str, points: int, seed: int
+) -> None:
+    from endocam.config import ExperimentConfig
+    from endocam.control.safety import ConeWorkspace
+    from endocam.runner.episode import EpisodeSpec, run_episode
+    from endocam.task.trajectory import TrajectoryKind
+
+    cfg = ExperimentConfig.model_validate(
+        {"task": {"trajectory": {"duration": 20.0}}, "episode": {"arm": arm}}
+    )
+    r = run_episode(cfg, EpisodeSpec("endocam", TrajectoryKind.NOISY, points, seed))
+    c = cfg.controller
+    cone = ConeWorkspace.from_rcm(
+        np.array(cfg.task.scene.rcm_position),
+        r.log.T_world_ring_sensed[0][:3, 3],
+        c.cone_height,
+        c.cone_base_radius,
+    )
+    moving = ~np.isin(r.log.state, ["frozen_outside_cone", "lost_tracking"])
+    p_cmd = r.log.T_world_cmd[moving, :3, 3]
+    margins = np.array([cone.margin(p) for p in p_cmd])
+    assert margins.min() >= -CONE_TOL_M
+    assert p_cmd[:, 2].min() >= c.min_camera_height - CONE_TOL_M

@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from endocam.control.config import ControllerConfig, Transfer
+from endocam.control.config import ControllerConfig
 from endocam.control.tracker import EndocamPolicy
 from endocam.control.types import CameraCommand, Observation, PolicyContext
 from endocam.geometry import FloatArray
@@ -275,19 +275,6 @@ class OraclePolicy(EndocamPolicy):
                 return EndocamPolicy._twist(T1, T2, delta)
             poses.append(self._pose(p_c, view[0], self.d_f, T1))
         return EndocamPolicy._twist(poses[0], poses[1], w)
-
-    def _orbit(self, p_c: Vec, u_goal: Vec, r: float, p_cam: Vec, z_cam: Vec) -> FloatArray | None:
-        """The tracker's orbit, handed to the way-points when the commanded pose leaves the cone.
-
-        The tracker checks the orbit's centre position; the left-eye shift (``b/2``) can put
-        the commanded pose itself just outside the cone.
-        """
-        T = super()._orbit(p_c, u_goal, r, p_cam, z_cam)
-        if T is None or self.cone.margin(T[:3, 3]) >= 0.0 or self._last_goal is None:
-            return T
-        self._start(Transfer.WAYPOINTS, p_cam, p_c)
-        self.transfers -= 1  # the same transfer, another way
-        return self._waypoints_pose(p_c, self._last_goal)
 
     def step(self, obs: Observation) -> CameraCommand:
         """One step on the true ring pose now (no sensing delay), whatever ``obs`` sensed."""

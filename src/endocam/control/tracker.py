@@ -56,6 +56,7 @@ from endocam.view import look_at_unchecked
 
 _EPS = 1e-9  # unitless: shorter directions are degenerate
 ORBIT_DONE_ANGLE = math.radians(1.0)  # rad: an orbit this close to its goal direction ends
+FLOOR_TOL_M = 1e-9  # m: round-off allowed on the floor height of a built pose
 
 
 def _unit(a: Vec) -> Vec | None:
@@ -379,6 +380,13 @@ class EndocamPolicy(_MovingPolicy):
             g_lin, g_ang = tc.feedforward_gain
             twist[:3] *= g_lin
             twist[3:] *= g_ang
+        if not self._in_workspace(cmd):  # last gate: never command outside the workspace
+            self._path = None
+            self._transfer = None
+            return self._hold(
+                TrackingState.FROZEN_OUTSIDE_CONE,
+                "command would leave the cone workspace or go below the floor; holding",
+            )
         self._last_cmd = cmd
         return CameraCommand(cmd, state, d, reason, twist)
 
@@ -413,8 +421,9 @@ class EndocamPolicy(_MovingPolicy):
         The commanded direction turns on the great circle to ``u_goal`` (over the top when the
         two are opposite) at the fastest rate the orbit's per-axis limits allow, and waits
         while the camera's position (seen from ``p_c``) or its optical axis ``z_cam`` (world,
-        unit) lags more than ``orbit_lookahead`` behind it. A step that would leave
-        the cone hands over to the paper's way-points.
+        unit) lags more than ``orbit_lookahead`` behind it. A step whose commanded pose (with
+        the left-eye shift) would leave the cone or go below the floor hands over to the
+        paper's way-points.
         """
         tc = self.tracker
         u = self._u_orbit
@@ -444,15 +453,23 @@ class EndocamPolicy(_MovingPolicy):
                 c * u[1] + sn * tangent[1],
                 c * u[2] + sn * tangent[2],
             )
-            p_next = [p_c[0] + r * u_next[0], p_c[1] + r * u_next[1], p_c[2] + r * u_next[2]]
-            if self.cone.margin(p_next) < 0.0 or p_next[2] < self.config.min_camera_height:
-                goal = self._last_goal
-                assert goal is not None
-                self._start(Transfer.WAYPOINTS, p_cam, p_c)
-                self.transfers -= 1  # the same transfer, another way
-                return self._waypoints_pose(p_c, goal)
-            self._u_orbit = u = u_next
-        return self._pose(p_c, u, r, self._last_cmd)
+            u = u_next
+        # the commanded pose itself (with the left-eye shift) must stay in the workspace, also
+        # while waiting: the ring moves on
+        T = self._pose(p_c, u, r, self._last_cmd)
+        if not self._in_workspace(T):
+            goal = self._last_goal
+            assert goal is not None
+            self._start(Transfer.WAYPOINTS, p_cam, p_c)
+            self.transfers -= 1  # the same transfer, another way
+            return self._waypoints_pose(p_c, goal)
+        self._u_orbit = u
+        return T
+
+    def _in_workspace(self, T_world_cmd: FloatArray) -> bool:
+        """Whether a commanded pose (4, 4) is inside the cone and above the floor."""
+        p = T_world_cmd[:3, 3].tolist()
+        return self.cone.margin(p) >= 0.0 and p[2] >= self.config.min_camera_height - FLOOR_TOL_M
 
     @property
     def _ctx_dt(self) -> float:
