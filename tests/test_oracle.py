@@ -95,7 +95,7 @@ def goal_error(policy: EndocamPolicy, cmds: list[np.ndarray], lead: float) -> fl
 def test_oracle_has_no_sensing_delay_and_uses_the_future() -> None:
     oracle = OraclePolicy()
     cmds = run(oracle)
-    assert goal_error(oracle, cmds, oracle.oracle.lead) < ORACLE_TOL_M
+    assert goal_error(oracle, cmds, oracle.tracker.carrier_lead) < ORACLE_TOL_M
     causal = EndocamPolicy(ControllerConfig(tracker=TrackerConfig(predict=False)))
     lagging = run(causal)
     assert goal_error(causal, lagging, 0.0) > LAG_MIN_M

@@ -11,6 +11,7 @@ import pytest
 from endocam.cli import main
 from endocam.config import ExperimentConfig
 from endocam.runner.tracking import (
+    ARRIVED_M,
     PHASES,
     TRACKING_HTML,
     TRACKING_JSON,
@@ -64,6 +65,16 @@ def test_phases_follow_the_logged_states() -> None:
         "unreachable",
     ]
     assert set(episode_phases(np.array(["planning", "tracking"]))) <= set(PHASES)
+
+
+def test_approach_lasts_until_the_camera_reaches_its_command() -> None:
+    # a direct move logged as tracking is still the approach until the camera gets there
+    n = 6
+    cmd = np.tile(np.eye(4), (n, 1, 1))
+    cam = np.tile(np.eye(4), (n, 1, 1))
+    cam[:, 0, 3] = [0.10, 0.05, 0.02, ARRIVED_M / 2, 0.0, 0.0]  # m, closing in
+    state = np.array(["tracking"] * n)
+    assert list(episode_phases(state, cam, cmd)) == ["approach"] * 3 + ["tracking"] * 3
 
 
 def test_rows_have_the_schema_and_average_the_episode_metrics(tmp_path: Path) -> None:

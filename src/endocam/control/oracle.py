@@ -54,8 +54,9 @@ class OracleConfig:
 
     Attributes
     ----------
-    lead : float
-        How far ahead of now the goal is taken, s (the carrier's lag; > 0).
+    lead : float or None
+        How far ahead of now the goal is taken, s (the carrier's lag; > 0); ``None``: the
+        tracker's ``carrier_lead``, the same lag the causal tracker predicts across.
     feedforward_gain : (2,)
         Gains on the linear and angular parts of the goal velocity given to the carrier (the
         jerk-limited carrier overshoots the corners of a noisy path with the full velocity:
@@ -75,7 +76,7 @@ class OracleConfig:
         Follow the offline side plan; off: the tracker's causal side keeping on the true future.
     """
 
-    lead: float = 0.01
+    lead: float | None = None
     feedforward_gain: tuple[float, float] = (0.5, 0.5)
     plan_dt: float = 0.05
     switch_cost: float = 5.0
@@ -85,7 +86,7 @@ class OracleConfig:
 
     def __post_init__(self) -> None:
         for name in ("lead", "plan_dt", "velocity_window"):
-            if not getattr(self, name) > 0.0:
+            if getattr(self, name) is not None and not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} must be > 0 s, got {getattr(self, name)}")
         if not self.switch_cost >= 0.0 or not self.switch_lead >= 0.0:
             raise ValueError("switch_cost and switch_lead must be ≥ 0")
@@ -220,9 +221,10 @@ class OraclePolicy(EndocamPolicy):
         """Tracker state, the true-trajectory table and the side plan for a new episode."""
         super().reset(context)
         o = self.oracle
-        self._future = RingFuture.of(context, o.lead + o.switch_lead + context.dt)
+        lead = self.tracker.carrier_lead if o.lead is None else o.lead
+        self._future = RingFuture.of(context, lead + o.switch_lead + context.dt)
         self._predictor = _FuturePredictor(self._future)  # type: ignore[assignment]
-        self._horizon = o.lead
+        self._horizon = lead
         self._plan = self._side_plan(context.future_duration) if o.plan else []
 
     def _side_plan(self, duration: float) -> list[float]:

@@ -16,9 +16,11 @@ Written (atomically)::
     tracking.html   the same, with the plots
     image_error.png, center_error.png, orientation_error.png, out_of_view.png
 
-**Phases** (from the logged ``state`` column, :data:`PHASES`): *approach* runs from t = 0 until
-the first step in plain ``tracking`` (the camera's way from the overview pose to its first goal;
-empty when the first step already tracks); after it, each step's phase is its state: ``tracking``
+**Phases** (from the logged ``state`` column and poses, :data:`PHASES`): *approach* runs from
+t = 0 until the first step in plain ``tracking`` at which the camera has arrived at its command
+(within ``ARRIVED_M`` and ``ARRIVED_RAD``): the camera's way from its start view to its first
+goal, whatever the controller calls that stretch (way-points, or a direct move logged as
+tracking); after it, each step's phase is its state: ``tracking``
 → *tracking*, ``planning`` (way-points, side-change orbits) → *transfer*,
 ``frozen_outside_cone`` → *frozen*, ``lost_tracking`` → *lost*, ``unreachable`` (the arm concedes
 the goal) → *unreachable*, ``holding`` → *holding*.
@@ -40,6 +42,7 @@ import numpy as np
 from tqdm import tqdm
 
 from endocam.config import ExperimentConfig
+from endocam.geometry import FloatArray
 from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import UNREACHABLE, EpisodeResult, EpisodeSpec, run_episode
 from endocam.runner.experiments import PAPER_IDEAL_POINTS, PAPER_MEANS, study_path_config
@@ -158,16 +161,32 @@ def tracking_paths(extra_seeds: int = 0) -> list[PathSpec]:
     return paths
 
 
-def episode_phases(state: np.ndarray) -> np.ndarray:
-    """(N,) phase name of every control step, from the log's ``state`` column (N,).
+ARRIVED_M = 5e-3  # m: a camera this close to its command has arrived (the approach ends)
+ARRIVED_RAD = math.radians(5.0)  # rad: and its optical axis this close to the command's
 
-    See the module docstring: ``approach`` until the first plain ``tracking`` step, then the
-    step's state mapped to its phase.
+
+def episode_phases(
+    state: np.ndarray, T_world_cam: FloatArray | None = None, T_world_cmd: FloatArray | None = None
+) -> np.ndarray:
+    """(N,) phase name of every control step (see the module docstring).
+
+    Parameters
+    ----------
+    state : (N,)
+        The log's ``state`` column.
+    T_world_cam, T_world_cmd : (N, 4, 4), optional
+        Logged camera and commanded poses, world, m; without them the approach ends at the
+        first plain ``tracking`` step.
     """
     state = np.asarray(state).astype(str)
     phase = np.array([_STATE_PHASE.get(s, s) for s in state], dtype=object)
-    tracking = np.flatnonzero(state == "tracking")
-    first = int(tracking[0]) if len(tracking) else len(state)
+    arrived = state == "tracking"
+    if T_world_cam is not None and T_world_cmd is not None:
+        gap = np.linalg.norm(T_world_cam[:, :3, 3] - T_world_cmd[:, :3, 3], axis=1)
+        cos = np.einsum("ni,ni->n", T_world_cam[:, :3, 2], T_world_cmd[:, :3, 2])
+        arrived &= (gap < ARRIVED_M) & (cos > math.cos(ARRIVED_RAD))
+    hits = np.flatnonzero(arrived)
+    first = int(hits[0]) if len(hits) else len(state)
     phase[:first] = "approach"
     return phase.astype(str)
 
@@ -175,7 +194,7 @@ def episode_phases(state: np.ndarray) -> np.ndarray:
 def episode_summary(result: EpisodeResult) -> dict[str, Any]:
     """Means of one episode (the ``metrics.json`` means) and its errors by phase."""
     m = metrics_dict(result)
-    phase = episode_phases(result.log.state)
+    phase = episode_phases(result.log.state, result.log.T_world_cam, result.log.T_world_cmd)
     img = result.image_error_saturated
     by_phase: dict[str, Any] = {}
     for name in PHASES:
