@@ -10,6 +10,7 @@ import pytest
 
 from endocam.cli import main
 from endocam.config import ExperimentConfig
+from endocam.robot.actuator import ArmKind
 from endocam.runner.tracking import (
     ARRIVED_M,
     PHASES,
@@ -33,6 +34,7 @@ width = 160
 height = 120
 """
 ROW_KEYS = {
+    "speed_ratio",
     "controller",
     "carrier",
     "set",
@@ -167,3 +169,33 @@ def test_unwritable_folder_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture
     blocker.write_text("x")
     assert main(["experiment", "tracking", "--out", str(blocker / "sub")]) == 2
     assert "\n" not in capsys.readouterr().err.strip()
+
+
+SPEED_RTOL = 1e-6  # relative round-off of ruckig's profiles on a speed limit
+
+
+@pytest.mark.parametrize("arm", ["free", "psm"])
+def test_speed_ratio_holds_and_catches_a_teleport(arm: str) -> None:
+    from dataclasses import replace
+
+    from endocam.runner.episode import EpisodeSpec, run_episode
+    from endocam.runner.tracking import speed_ratio
+    from endocam.task.trajectory import TrajectoryKind
+
+    cfg = short_config().model_copy(
+        update={"episode": short_config().episode.model_copy(update={"arm": ArmKind(arm)})}
+    )
+    r = run_episode(cfg, EpisodeSpec("endocam", TrajectoryKind.NOISY, 36, 1))
+    assert 0.0 < speed_ratio(r) <= 1.0 + SPEED_RTOL
+    # a camera that jumps 1 cm (1 m/s), or a joint that jumps 0.1 rad (10 rad/s), in one
+    # control step breaks the limits (0.15 m/s; π rad/s)
+    if arm == "free":
+        T = r.log.T_world_cam.copy()
+        T[len(T) // 2 :, 0, 3] += 0.01
+        broken = replace(r, log=replace(r.log, T_world_cam=T))
+    else:
+        assert r.log.joints is not None
+        q = r.log.joints.copy()
+        q[len(q) // 2 :, 0] += 0.1
+        broken = replace(r, log=replace(r.log, joints=q))
+    assert speed_ratio(broken) > 1.0

@@ -42,8 +42,9 @@ import numpy as np
 from tqdm import tqdm
 
 from endocam.config import ExperimentConfig
-from endocam.geometry import FloatArray
+from endocam.geometry import FloatArray, so3_log
 from endocam.robot.actuator import ArmKind
+from endocam.robot.arm import ECM_MAX_VELOCITY, PSM_MAX_VELOCITY
 from endocam.runner.episode import UNREACHABLE, EpisodeResult, EpisodeSpec, run_episode
 from endocam.runner.experiments import PAPER_IDEAL_POINTS, PAPER_MEANS, study_path_config
 from endocam.runner.outputs import (
@@ -213,8 +214,32 @@ def episode_summary(result: EpisodeResult) -> dict[str, Any]:
         "center_error_mid_mm": 1e3 * _mean(result.center_error_mid),
         "orientation_error_deg": m["orientation_error_deg"]["mean"],
         "ring_out_of_view_fraction": m["ring_out_of_view_fraction"],
+        "speed_ratio": speed_ratio(result),
         "by_phase": by_phase,
     }
+
+
+def speed_ratio(result: EpisodeResult) -> float:
+    """Largest speed between logged steps over its limit (≤ 1: the carrier's limits held).
+
+    Free camera: the larger of the linear speed over ``max_linear_speed`` and the rotation
+    rate over ``max_angular_speed`` (``MotionLimits``); a camera on an arm: the largest joint
+    speed over its dVRK velocity limit (``robot.arm``). Unitless.
+    """
+    log = result.log
+    dt = 1.0 / result.config.episode.control_rate
+    if log.joints is not None and len(log.joint_names) > 0:
+        vmax = np.array(PSM_MAX_VELOCITY if log.arm == ArmKind.PSM.value else ECM_MAX_VELOCITY)
+        qd = np.abs(np.diff(log.joints, axis=0)) / dt
+        return float(np.max(qd / vmax)) if len(qd) else 0.0
+    lim = result.config.episode.limits
+    T = log.T_world_cam
+    v = np.linalg.norm(np.diff(T[:, :3, 3], axis=0), axis=1) / dt
+    R_rel = np.einsum("nji,njk->nik", T[:-1, :3, :3], T[1:, :3, :3])  # R_k^T R_k+1
+    w = np.linalg.norm(so3_log(R_rel), axis=1) / dt if len(R_rel) else np.zeros(0)
+    if not len(v):
+        return 0.0
+    return float(max(np.max(v) / lim.max_linear_speed, np.max(w) / lim.max_angular_speed))
 
 
 def _mean(values: np.ndarray) -> float:
@@ -383,6 +408,7 @@ def tracking_rows(
                 for key in _ROW_KEYS:
                     row[key] = _mean(np.array([e[key] for e in eps], dtype=float))
                 row["episodes"] = names
+                row["speed_ratio"] = float(max(e["speed_ratio"] for e in eps))
                 by_phase = {}
                 for phase in PHASES:
                     have = [e["by_phase"][phase] for e in eps if phase in e["by_phase"]]
@@ -449,6 +475,14 @@ def tracking_table(rows: Sequence[dict[str, Any]]) -> str:
     lines += [
         "",
         "(×r): ratio to the oracle on the same carrier and set (the non-causal lower bound).",
+        "",
+        "Largest speed between logged steps over the carrier's limit (free camera: linear and "
+        "angular speed; arm: joint speeds), over every episode: "
+        + ", ".join(
+            f"{c} {max(r['speed_ratio'] for r in rows if r['carrier'] == c):.3f}"
+            for c in dict.fromkeys(r["carrier"] for r in rows)
+        )
+        + " (≤ 1: the limits held).",
         "",
         "| controller | carrier | set | "
         + " | ".join(f"{p}: time %, px / mm / deg" for p in PHASES if _any_phase(rows, p))
