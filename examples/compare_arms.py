@@ -1,8 +1,9 @@
 """Compare the camera carried by the dVRK PSM and by the ECM on the paper's trajectories.
 
-Runs ``orientation`` (free camera and PSM) and ``orientation-ecm`` (ECM) on the six episodes of
-``endocam experiment paper`` (3 ideal trajectories with 36/54/71 control points, 3 noisy
-71-point trajectories, seeds 1-3) and prints a Markdown table of the means: image centring
+Runs ``endocam`` and the paper-faithful ``orientation`` (free camera and PSM) and
+``orientation-ecm`` (the paper-faithful goal on the ECM) on the six episodes of ``endocam
+experiment paper`` (3 ideal trajectories with 36/54/71 control points, the study's 3 noisy
+paths) and prints a Markdown table of the means: image centring
 error (px, a ring out of view counted as the farthest image corner), 3D centring error (mm),
 orientation error (deg), the view the arm conceded (deg: the angle between the goal and the
 nearest feasible view, averaged over all steps), the share of steps with the ring out of view,
@@ -26,6 +27,8 @@ from endocam.runner.episode import run_episode, state_fractions
 from endocam.runner.experiments import paper_episodes
 
 ROWS = {
+    "free-endocam": ("endocam", "free"),
+    "psm-endocam": ("endocam", "psm"),
     "free": ("orientation", "free"),
     "psm": ("orientation", "psm"),
     "ecm": ("orientation-ecm", "free"),
@@ -58,7 +61,7 @@ def main() -> None:
             unreach = 100 * np.mean([f["unreachable"] for f in fr])
             frozen = 100 * np.mean([f["frozen_outside_cone"] for f in fr])
             print(
-                f"| {arm} ({policy}) | {kind} | {img:.0f} | {mm:.1f} | {deg:.1f} | {ceded} | "
+                f"| {episode_arm if arm != 'ecm' else 'ecm'} ({policy}) | {kind} | {img:.0f} | {mm:.1f} | {deg:.1f} | {ceded} | "
                 f"{out:.1f} % | {unreach:.0f} % | {frozen:.0f} % |",
                 flush=True,
             )
