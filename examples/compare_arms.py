@@ -60,8 +60,9 @@ def main() -> None:
             fr = [state_fractions(r.log) for r in group]
             unreach = 100 * np.mean([f["unreachable"] for f in fr])
             frozen = 100 * np.mean([f["frozen_outside_cone"] for f in fr])
+            carrier = "ecm" if arm == "ecm" else episode_arm
             print(
-                f"| {episode_arm if arm != 'ecm' else 'ecm'} ({policy}) | {kind} | {img:.0f} | {mm:.1f} | {deg:.1f} | {ceded} | "
+                f"| {carrier} ({policy}) | {kind} | {img:.0f} | {mm:.1f} | {deg:.1f} | {ceded} | "
                 f"{out:.1f} % | {unreach:.0f} % | {frozen:.0f} % |",
                 flush=True,
             )
