@@ -512,6 +512,9 @@ def _any_phase(rows: Sequence[dict[str, Any]], phase: str) -> bool:
     return any(r["by_phase"][phase]["episodes"] for r in rows)
 
 
+DISPLAY = {"paper": "paper-faithful controller"}  # legend names where the key reads ambiguously
+
+
 def plot_errors(rows: Sequence[dict[str, Any]], key: str, label: str, path: Path) -> None:
     """Bars of one error: groups carrier × set, one bar per controller; the paper as a tick."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -532,7 +535,8 @@ def plot_errors(rows: Sequence[dict[str, Any]], key: str, label: str, path: Path
             )
             v = row[key] if row is not None else None
             values.append(math.nan if v is None else v)
-        ax.bar(x - 0.4 + (i + 0.5) * width, values, width, label=c)
+        bars = ax.bar(x - 0.4 + (i + 0.5) * width, values, width, label=DISPLAY.get(c, c))
+        ax.bar_label(bars, fmt="%.1f", fontsize=7, padding=1)
     paper_index = {"image_error_px": 0, "center_error_mm": 1, "orientation_error_deg": 2}
     if key in paper_index:
         for j, (_, set_) in enumerate(groups):
@@ -544,7 +548,7 @@ def plot_errors(rows: Sequence[dict[str, Any]], key: str, label: str, path: Path
                 colors="k",
                 linestyles="--",
                 lw=1.0,
-                label="paper, Sec. V" if j == 0 else "_nolegend_",
+                label="the paper's figure (Sec. V)" if j == 0 else "_nolegend_",
             )
     ax.set_xticks(x, [f"{a}\n{s}" for a, s in groups])
     ax.set_ylabel(label)
