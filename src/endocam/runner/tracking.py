@@ -356,6 +356,10 @@ def run_tracking_experiment(
             plots=[(label, png) for _, label, png in ERRORS],
             n_paths={s: sum(p.set == s for p in paths) for s in SETS},
             duration=config.task.trajectory.duration,
+            speed_ratios=[
+                (c, max(r["speed_ratio"] for r in rows if r["carrier"] == c))
+                for c in dict.fromkeys(r["carrier"] for r in rows)
+            ],
         )
         (tmp / TRACKING_HTML).write_text(html, encoding="utf-8")
     return table
