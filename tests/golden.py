@@ -32,6 +32,8 @@ GOLDEN_RUNS: tuple[tuple[str, str, str, int, int], ...] = (
     ("centering", "psm", "ideal", 36, 0),
     ("orientation-ecm", "ecm", "ideal", 36, 0),
     ("fixed", "free", "ideal", 36, 0),
+    ("endocam", "free", "noisy", 36, 1),
+    ("endocam", "psm", "noisy", 36, 1),
 )
 
 

@@ -278,7 +278,8 @@ def view_error(T_cam: np.ndarray, n: np.ndarray) -> float:
 def test_height_limited_view_shortens_the_look_distance() -> None:
     cfg = ControllerConfig()
     n_z = N_DOWN[2] / np.linalg.norm(N_DOWN)
-    d_reach = (LOW_RING[2] - cfg.min_camera_height) / -n_z  # camera exactly at the floor
+    aim = cfg.min_camera_height + cfg.tracker.floor_clearance  # m: where goals may sit
+    d_reach = (LOW_RING[2] - aim) / -n_z  # camera exactly at the aimed floor
     log = run_low_ring(NO_TIPS, shorten=True)
     T_end, cmd_end = log[-1]
     assert cmd_end.d_f == pytest.approx(d_reach, abs=D_TOL_M)
@@ -300,7 +301,7 @@ def test_shortening_keeps_every_tip_in_the_outer_window() -> None:
     for T, _ in log:
         assert window_status(camera, T, tips, cfg.windows) is not WindowStatus.OUTSIDE_OUTER
     n_z = N_DOWN[2] / np.linalg.norm(N_DOWN)
-    d_reach = (LOW_RING[2] - cfg.min_camera_height) / -n_z
+    d_reach = (LOW_RING[2] - cfg.min_camera_height - cfg.tracker.floor_clearance) / -n_z
     d_end = log[-1][1].d_f
     assert d_reach + D_TOL_M < d_end < cfg.d_f  # shortened, but stopped by the tool
 
@@ -323,17 +324,33 @@ def test_shortening_lowers_the_noisy_orientation_error() -> None:
 CONE_TOL_M = 1e-9  # m: round-off of the cone margin; a real excursion is millimetres
 
 
-@pytest.mark.parametrize(("arm", "points", "seed"), [("psm", 36, 3), ("free", 71, 1)])
-def test_endocam_never_commands_outside_the_cone_or_below_the_floor(
-    arm: str, points: int, seed: int
+@pytest.mark.parametrize(
+    ("arm", "points", "seed", "duration"),
+    [
+        ("psm", 36, 3, 20.0),  # a ring 3x faster than the study's: commands only
+        ("free", 71, 1, 20.0),
+        ("psm", 71, 198305900, 60.0),  # the study's hardest path (t3-71-high), real speed
+        ("free", 71, 198305900, 60.0),
+    ],
+)
+def test_endocam_never_commands_or_goes_outside_the_cone_or_below_the_floor(
+    arm: str, points: int, seed: int, duration: float
 ) -> None:
+    """Commands and the logged camera (FK of the logged joints on the PSM) stay in the workspace.
+
+    On the study's hardest path (t3-71-high) at its real speed, a goal on the floor once let
+    the PSM's joint-space motion dip 0.8 mm below it; goals now aim ``floor_clearance`` higher.
+    On rings three times faster, the commands stay legal but a carrier chasing them can
+    overshoot (the free camera's jerk-limited limiter by up to 1 mm): the camera itself is
+    checked at the real speed only.
+    """
     from endocam.config import ExperimentConfig
     from endocam.control.safety import ConeWorkspace
     from endocam.runner.episode import EpisodeSpec, run_episode
     from endocam.task.trajectory import TrajectoryKind
 
     cfg = ExperimentConfig.model_validate(
-        {"task": {"trajectory": {"duration": 20.0}}, "episode": {"arm": arm}}
+        {"task": {"trajectory": {"duration": duration}}, "episode": {"arm": arm}}
     )
     r = run_episode(cfg, EpisodeSpec("endocam", TrajectoryKind.NOISY, points, seed))
     c = cfg.controller
@@ -345,6 +362,8 @@ def test_endocam_never_commands_outside_the_cone_or_below_the_floor(
     )
     moving = ~np.isin(r.log.state, ["frozen_outside_cone", "lost_tracking"])
     p_cmd = r.log.T_world_cmd[moving, :3, 3]
-    margins = np.array([cone.margin(p) for p in p_cmd])
-    assert margins.min() >= -CONE_TOL_M
+    assert min(cone.margin(p) for p in p_cmd) >= -CONE_TOL_M
     assert p_cmd[:, 2].min() >= c.min_camera_height - CONE_TOL_M
+    if duration == cfg.task.trajectory.model_fields["duration"].default:
+        p_cam = r.log.T_world_cam[:, :3, 3]  # the camera itself (FK of the logged joints)
+        assert p_cam[:, 2].min() >= c.min_camera_height - CONE_TOL_M

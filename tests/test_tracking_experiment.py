@@ -115,7 +115,12 @@ def test_rows_have_the_schema_and_average_the_episode_metrics(tmp_path: Path) ->
         }
         assert not (out / name / "video.mp4").exists()
     table = (out / TRACKING_MD).read_text()
-    assert "paper, Sec. V" in table and "(×1.00)" in table  # the oracle's ratio to itself
+    assert "paper, Sec. V" in table
+    # the ratio printed beside a controller's figure is its mean over the oracle's (same set)
+    for row in rows:
+        oracle = next(r for r in rows if r["controller"] == "oracle" and r["set"] == row["set"])
+        ratio = row["image_error_px"] / oracle["image_error_px"]
+        assert f"{row['image_error_px']:.1f} (×{ratio:.2f})" in table
 
 
 def test_cli_writes_the_files(tmp_path: Path) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import enum
 import math
+from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -72,11 +73,20 @@ class TrackerConfig(BaseModel):
         True,
         description="give the carrier the goal's velocity (twist) as its target velocity",
     )
-    feedforward_gain: tuple[float, float] = Field(
+    feedforward_gain: tuple[
+        Annotated[float, Field(ge=0.0, le=1.0)], Annotated[float, Field(ge=0.0, le=1.0)]
+    ] = Field(
         (0.5, 0.5),
         description="gains on the linear and the angular part of the goal twist given to the "
         "carrier (1: the full estimated velocity; 0.5 measured best on noisy paths, where the full "
         "velocity makes the jerk-limited carrier overshoot)",
+    )
+    floor_clearance: float = Field(
+        2e-3,
+        ge=0.0,
+        description="endocam's goals keep the camera this far above min_camera_height, m, so a "
+        "carrier's overshoot (the PSM's joint-space motion dips up to 0.8 mm below a goal on "
+        "the floor) stays above the floor itself",
     )
     carrier_lead: float = Field(
         0.04,
@@ -156,8 +166,11 @@ class ControllerConfig(BaseModel):
     )
     min_camera_height: float = Field(
         0.015,
-        description="lowest camera height above the board (world z) the side hysteresis may "
-        "keep, m",
+        ge=0.0,
+        allow_inf_nan=False,
+        description="the floor: lowest camera height above the board (world z), m; the paper "
+        "policies' side hysteresis never keeps a side below it, and endocam never commands a "
+        "pose below it (its goals aim floor_clearance higher)",
     )
     planner_speed: float = Field(0.15, gt=0, description="progress speed along way-points, m/s")
     planner_lookahead: float = Field(

@@ -1,6 +1,7 @@
 r"""The ``oracle``: a non-causal reference camera that knows the ring's whole future.
 
-It is the empirical lower bound of ``endocam experiment tracking``: the same goal as the
+It is the reference of ``endocam experiment tracking`` (a bound only for controllers of
+endocam's design: it shares their first approach from the start view): the same goal as the
 ``endocam`` tracker (the paper's orientation goal, Sec. III-B, kept on one side, left eye on the
 ring centre), the same safety rules (cone freeze, tool-in-view windows, ``min_camera_height``)
 and the same carrier with the same motion limits, but perfect information:
@@ -193,7 +194,10 @@ def plan_sides(cost: FloatArray, switch_cost: float) -> list[float]:
 
 
 class OraclePolicy(EndocamPolicy):
-    """The non-causal lower bound: the ``endocam`` goal with the true, undelayed future.
+    """The non-causal reference: the ``endocam`` goal with the true, undelayed future.
+
+    It ignores the sensed ring pose (so it never enters ``lost_tracking``): it exists to
+    measure, not to run on a robot.
 
     See the module docstring. ``reset`` raises ``ValueError`` without ``PolicyContext.future``.
     """

@@ -360,7 +360,7 @@ def _oracle(config: ControllerConfig) -> CameraPolicy:
 
 POLICIES["oracle"] = PolicyEntry(
     _oracle,
-    "non-causal lower bound: endocam's goal on the true, undelayed future, planned sides",
+    "non-causal reference: endocam's goal on the true, undelayed future, planned sides",
 )
 
 

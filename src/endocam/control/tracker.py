@@ -159,6 +159,7 @@ class EndocamPolicy(_MovingPolicy):
         self._side = 0.0
         self._transfer = None
         self._half_b = 0.5 * context.camera.baseline if self.config.centre_left_eye else 0.0
+        self._aim_floor = self.config.min_camera_height + tc.floor_clearance  # m, goals aim here
         self._horizon = context.sensing_latency + tc.carrier_lead if tc.predict else 0.0
         self.transfers = 0
 
@@ -171,7 +172,7 @@ class EndocamPolicy(_MovingPolicy):
         camera ``min_camera_height`` above the board. The margin is the camera's to the cone.
         """
         u: Vec = (s * n[0], s * n[1], s * n[2])
-        c = (self.config.min_camera_height - p_c[2]) / d
+        c = (self._aim_floor - p_c[2]) / d
         err = 0.0
         if u[2] < c:
             if c > 1.0:
@@ -200,14 +201,15 @@ class EndocamPolicy(_MovingPolicy):
         """
         cfg = self.config
         s = self._side or (1.0 if n[2] >= 0.0 else -1.0)
-        if not s * n[2] * d < cfg.min_camera_height - p_c[2]:
+        if not s * n[2] * d < self._aim_floor - p_c[2]:
             return d
         d_next = d - cfg.d_f_step
         if d_next < cfg.d_min:
             return d
         view = self._view(p_c, n, s, d_next)
-        if view is None:
-            return d
+        now = self._view(p_c, n, s, d)
+        if view is None or (now is not None and not view[1] < now[1]):
+            return d  # shorter only where it turns the view towards the normal
         goal = self._pose(p_c, view[0], d_next, previous).tolist()
         assert self._window_geometry is not None  # set by reset()
         status = window_status_rows(self._window_geometry, goal, tip_rows)
@@ -350,6 +352,7 @@ class EndocamPolicy(_MovingPolicy):
 
         side_changed = bool(self._side) and s != self._side
         fresh = self._last_goal is None
+        side_before = self._side
         self._side = s
         self._last_goal = goal
         p_goal = goal[:3, 3].tolist()
@@ -376,11 +379,18 @@ class EndocamPolicy(_MovingPolicy):
                 twist = self._twist(goal, self._pose(p2, u2[0], d, goal), ctx.dt)
             elif not tc.keep_side:
                 twist = self._twist(goal, self._pose(p2, _flip(n2, u, n), d, goal), ctx.dt)
-        if twist is not None:
+        near_edge = goal[2, 3] <= self._aim_floor + FLOOR_TOL_M or margin < tc.floor_clearance
+        if twist is not None and not near_edge:
             g_lin, g_ang = tc.feedforward_gain
             twist[:3] *= g_lin
             twist[3:] *= g_ang
+        else:
+            twist = None  # a goal at the floor or the cone arrives at rest: nothing carries it out
         if not self._in_workspace(cmd):  # last gate: never command outside the workspace
+            # as a freeze: the same side, distance and transfer are planned afresh next step
+            self._side = side_before
+            self.d_f = d_before
+            self._last_goal = None
             self._path = None
             self._transfer = None
             return self._hold(

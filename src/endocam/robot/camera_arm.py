@@ -179,10 +179,10 @@ class CameraArm:
     """
 
     camera_path: bool = True
-    via_port: bool = True
-    """After a jump of the wrist's target, pass through the port view (needs ``camera_path``)."""
     """Approach a far target along a camera-space path about its look-at point (False: the
     straight joint-space line; an ablation switch)."""
+    via_port: bool = True
+    """After a jump of the wrist's target, pass through the port view (needs ``camera_path``)."""
 
     def __init__(self, kind: ArmKind, T_world_rcm: object, T_tip_cam: object, dt: float) -> None:
         self.kind = kind

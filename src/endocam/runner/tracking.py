@@ -478,7 +478,8 @@ def tracking_table(rows: Sequence[dict[str, Any]]) -> str:
             )
     lines += [
         "",
-        "(×r): ratio to the oracle on the same carrier and set (the non-causal lower bound).",
+        "(×r): ratio to the oracle on the same carrier and set (the non-causal reference with "
+        "perfect information; a bound only for controllers of endocam's design).",
         "",
         "Largest speed between logged steps over the carrier's limit (free camera: linear and "
         "angular speed; arm: joint speeds), over every episode: "
