@@ -74,7 +74,9 @@ class OracleConfig:
         centred on the goal's time, s (the carrier is jerk-limited: the exact velocity of a
         trajectory with corners makes it overshoot; a centred mean needs the future).
     plan : bool
-        Follow the offline side plan; off: the tracker's causal side keeping on the true future.
+        Follow the offline side plan; off (the default): the tracker's side keeping on the true
+        future. The plan weighs only the cone and the floor, not a carrier's reach: on the PSM
+        it chose a side the wrist cannot reach (study path t1-36-low: 43° against 2.6°).
     """
 
     lead: float | None = None
@@ -83,7 +85,7 @@ class OracleConfig:
     switch_cost: float = 5.0
     switch_lead: float = 1.0
     velocity_window: float = 0.03
-    plan: bool = True
+    plan: bool = False
 
     def __post_init__(self) -> None:
         for name in ("lead", "plan_dt", "velocity_window"):
