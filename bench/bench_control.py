@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from endocam import ControllerConfig, StereoCamera, look_at_pose, make_policy
-from endocam.control.policies import Observation, PolicyContext
+from endocam.control.types import Observation, PolicyContext
 from endocam.geometry import make_pose
 
 DT = 0.001  # s, 1 kHz

@@ -11,7 +11,7 @@ import pytest
 from endocam import POLICIES, ControllerConfig, StereoCamera, TrackingState, make_policy
 from endocam.control.goal import goal_pose
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
-from endocam.control.policies import Observation, PolicyContext
+from endocam.control.types import Observation, PolicyContext
 from endocam.geometry import make_pose
 from endocam.view import look_at_pose
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from endocam.config import ExperimentConfig
-from endocam.control.policies import POLICIES
+from endocam.control.registry import POLICIES
 from endocam.geometry import invert_pose, make_pose
 from endocam.robot import PSM_MAX_VELOCITY
 from endocam.robot.actuator import ActuatorStatus, ArmKind

@@ -8,7 +8,7 @@ import yaml
 
 from endocam.cli.common import ARM_CHOICES, UsageError, integer, load_config_arg, out_dir
 from endocam.config import ExperimentConfig
-from endocam.control.policies import POLICIES
+from endocam.control.registry import POLICIES
 from endocam.robot.actuator import ArmKind
 from endocam.task.trajectory import TrajectoryKind
 

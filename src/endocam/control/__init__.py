@@ -4,12 +4,11 @@ from endocam.control.config import ControllerConfig, SideRule
 from endocam.control.goal import goal_pose
 from endocam.control.planner import WaypointPath, intermediate_waypoints
 from endocam.control.policies import (
-    POLICIES,
     CenteringPolicy,
     FixedPolicy,
     OrientationPolicy,
-    make_policy,
 )
+from endocam.control.registry import POLICIES, make_policy
 from endocam.control.safety import (
     ConeWorkspace,
     ImageWindows,

@@ -17,8 +17,6 @@ and a one-line reason.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,14 +31,12 @@ from endocam.control.safety import (
 )
 from endocam.control.types import (
     CameraCommand,
-    CameraPolicy,
     Observation,
     PolicyContext,
     TrackingState,
 )
 from endocam.geometry import UP, FloatArray
 from endocam.kernels import Rows, finite_rows
-from endocam.robot.actuator import ArmKind
 from endocam.view import look_at_unchecked
 
 _UP = (0.0, 0.0, 1.0)  # world up as plain floats
@@ -305,87 +301,9 @@ class OrientationEcmPolicy(OrientationPolicy):
     name = "orientation-ecm"
 
 
-@dataclass(frozen=True)
-class PolicyEntry:
-    """A registry entry: how to build a policy, one line to describe it, the arm it needs.
-
-    Attributes
-    ----------
-    factory : callable
-        Builds the policy from a :class:`ControllerConfig`.
-    summary : str
-        One line for ``endocam policies``.
-    arm : ArmKind or None
-        The carrier the policy needs; ``None`` uses the config's ``episode.arm``.
-    """
-
-    factory: Callable[[ControllerConfig], CameraPolicy]
-    summary: str
-    arm: ArmKind | None = None
-
-
-POLICIES: dict[str, PolicyEntry] = {
-    "fixed": PolicyEntry(FixedPolicy, "condition I: fixed camera showing the whole task"),
-    "centering": PolicyEntry(
-        CenteringPolicy, "condition II: follows the ring centre, keeps its initial orientation"
-    ),
-    "orientation": PolicyEntry(
-        OrientationPolicy, "condition III: on the ring normal, level horizon, way-points, safety"
-    ),
-    "orientation-ecm": PolicyEntry(
-        OrientationEcmPolicy,
-        "condition III's goal carried out by the 4-DoF dVRK ECM (always uses the ECM)",
-        arm=ArmKind.ECM,
-    ),
-}
-
-
-def _endocam_tracker(config: ControllerConfig) -> CameraPolicy:
-    from endocam.control.tracker import EndocamPolicy  # the tracker builds on this module
-
-    return EndocamPolicy(config)
-
-
-POLICIES["endocam"] = PolicyEntry(
-    _endocam_tracker,
-    "orientation goal kept on one side, orbit transfers, latency prediction, left-eye centring",
-)
-
-
-def _oracle(config: ControllerConfig) -> CameraPolicy:
-    from endocam.control.oracle import OraclePolicy  # builds on the tracker
-
-    return OraclePolicy(config)
-
-
-POLICIES["oracle"] = PolicyEntry(
-    _oracle,
-    "non-causal reference: endocam's goal on the true, undelayed future, planned sides",
-)
-
-
-def make_policy(name: str, config: ControllerConfig | None = None) -> CameraPolicy:
-    """Build a registered policy by name; unknown names raise ``ValueError`` listing the choices."""
-    try:
-        entry = POLICIES[name]
-    except KeyError:
-        choices = ", ".join(POLICIES)
-        raise ValueError(f"unknown policy {name!r}; choose one of: {choices}") from None
-    return entry.factory(config or ControllerConfig())
-
-
 __all__ = [
-    "POLICIES",
-    "CameraCommand",
-    "CameraPolicy",
     "CenteringPolicy",
-    "ControllerConfig",
     "FixedPolicy",
-    "Observation",
     "OrientationEcmPolicy",
     "OrientationPolicy",
-    "PolicyContext",
-    "PolicyEntry",
-    "TrackingState",
-    "make_policy",
 ]

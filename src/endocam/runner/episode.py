@@ -19,7 +19,7 @@ import numpy as np
 
 from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
-from endocam.control.policies import POLICIES, make_policy
+from endocam.control.registry import POLICIES, make_policy
 from endocam.control.types import Observation, PolicyContext, TrackingState
 from endocam.geometry import FloatArray
 from endocam.metrics import (
