@@ -238,15 +238,22 @@ class CenteringPolicy(_MovingPolicy):
 
     name = "centering"
 
+    def reset(self, context: PolicyContext) -> None:
+        """Also fix the orientation it keeps and the offset of the eye it centres."""
+        super().reset(context)
+        R0 = np.asarray(context.T_world_cam, dtype=float)[:3, :3]
+        self._T0 = np.eye(4)
+        self._T0[:3, :3] = R0
+        half_b = 0.5 * context.camera.baseline if self.config.centre_left_eye else 0.0
+        # camera = ring − d z0 + (b/2) x0: the left eye, b/2 along −x, on the ring's line
+        self._z0 = R0[:, 2].tolist()
+        self._shift = (half_b * R0[:, 0]).tolist()
+
     def _goal(self, ring_rows: Rows, T_world_cam: FloatArray) -> FloatArray:
-        assert self._ctx is not None
-        R0 = self._ctx.T_world_cam[:3, :3]
-        T = np.eye(4)
-        T[:3, :3] = R0
-        p_c = np.array([ring_rows[0][3], ring_rows[1][3], ring_rows[2][3]])
-        T[:3, 3] = p_c - self.d_f * R0[:, 2]
-        if self.config.centre_left_eye:  # the left eye, b/2 along −x, onto the ring's line
-            T[:3, 3] += 0.5 * self._ctx.camera.baseline * R0[:, 0]
+        T = self._T0.copy()
+        d, z0, sh = self.d_f, self._z0, self._shift
+        for i in range(3):
+            T[i, 3] = ring_rows[i][3] - d * z0[i] + sh[i]
         return T
 
     def _waypoint_pose(self, p: FloatArray, T_ring: FloatArray, goal: FloatArray) -> FloatArray:

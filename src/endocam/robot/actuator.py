@@ -12,8 +12,7 @@ registry take the carrier choices from :class:`ArmKind` without importing any ca
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 from endocam.geometry import FloatArray
 
@@ -40,9 +39,8 @@ class ActuatorStatus(enum.Enum):
     """Even the port view is out of reach: nearest feasible configuration (least squares)."""
 
 
-@dataclass(frozen=True)
-class ActuatorStep:
-    """Outcome of one control step of a carrier.
+class ActuatorStep(NamedTuple):
+    """Outcome of one control step of a carrier (immutable; a named tuple: cheap per step).
 
     Attributes
     ----------

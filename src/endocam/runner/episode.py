@@ -257,9 +257,11 @@ def run_episode(
     q_now = actuator.q
     chunk = max(1, n // 100)
     reach_offset: FloatArray | None = None
+    t_s = t.tolist()  # plain floats, and bound methods: the loop runs n times
+    policy_step, actuator_step, log_reason = policy.step, actuator.step, reason.append
     for k in range(n):
         T_cam[k] = T_now
-        cmd = policy.step(Observation(float(t[k]), T_sensed[k], T_now, tips[k], reach_offset))
+        cmd = policy_step(Observation(t_s[k], T_sensed[k], T_now, tips[k], reach_offset))
         T_cmd[k] = cmd.T_world_cam
         d_f[k] = cmd.d_f
         if jointed:  # the pivot of a conceded view; a carrier without joints concedes none
@@ -267,16 +269,16 @@ def run_episode(
             look = _look_distance(cmd.T_world_cam, T_sensed[k], cmd.d_f)
         else:
             look = cmd.d_f
-        out = actuator.step(cmd.T_world_cam, look, cmd.twist)
+        out = actuator_step(cmd.T_world_cam, look, cmd.twist)
         if jointed:
             reach_offset = out.T_world_target[:3, 3] - cmd.T_world_cam[:3, 3]
             goal_err[k] = (out.position_error, out.orientation_error)
         if not out.reachable and cmd.state not in _SAFETY_STATES:
             state[k] = UNREACHABLE
-            reason.append(_unreachable_reason(kind, out))
+            log_reason(_unreachable_reason(kind, out))
         else:
             state[k] = cmd.state.value
-            reason.append(cmd.reason)
+            log_reason(cmd.reason)
         T_now, q_now = out.T_world_cam, out.q
         if progress is not None and (k + 1) % chunk == 0:
             progress(chunk)
