@@ -50,8 +50,7 @@ def test_fixed_psm2_waits_at_its_tip() -> None:
 
 def test_lag_is_the_exact_first_order_response() -> None:
     tau = 0.7  # s
-    t = np.sort(np.random.default_rng(0).uniform(0.0, 3.0, 50))
-    t[0] = 0.0
+    t = np.linspace(0.0, 3.0, 50)  # s, a control grid
     p = np.zeros((50, 3))
     p[1:] = [0.01, -0.02, 0.005]  # a step right after t = 0
     q = lagged_path(t, p, tau)
@@ -62,6 +61,9 @@ def test_lag_is_the_exact_first_order_response() -> None:
         lagged_path(t, p, 0.0)
     with pytest.raises(ValueError, match="non-decreasing"):
         lagged_path(t[::-1], p, tau)
+    uneven = np.sort(np.random.default_rng(0).uniform(0.0, 3.0, 50))
+    with pytest.raises(ValueError, match="evenly spaced"):
+        lagged_path(uneven, p, tau)
 
 
 @pytest.mark.parametrize(("kind", "points", "seed"), [("ideal", 71, 0), ("noisy", 71, 1)])

@@ -33,7 +33,7 @@ replaced by a table of the true trajectory (sampled once at reset: no scipy per 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -290,4 +290,4 @@ class OraclePolicy(EndocamPolicy):
         if future is None:
             raise RuntimeError("call reset() before step()")
         T_true = future.poses[future.index(obs.t)]
-        return super().step(replace(obs, T_world_ring=T_true))
+        return super().step(obs._replace(T_world_ring=T_true))

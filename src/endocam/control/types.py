@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Protocol
+from dataclasses import dataclass
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -71,9 +71,12 @@ class PolicyContext:
     future_duration: float = 0.0
 
 
-@dataclass(frozen=True)
-class Observation:
-    """What a policy sees each control step.
+_NO_TIPS = np.zeros((0, 3))
+_NO_TIPS.setflags(write=False)
+
+
+class Observation(NamedTuple):
+    """What a policy sees each control step (immutable; a named tuple: cheap per step).
 
     Attributes
     ----------
@@ -95,13 +98,12 @@ class Observation:
     t: float
     T_world_ring: FloatArray | None
     T_world_cam: FloatArray
-    p_world_tips: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    p_world_tips: FloatArray = _NO_TIPS
     p_world_reach_offset: FloatArray | None = None
 
 
-@dataclass(frozen=True)
-class CameraCommand:
-    """A policy's output: the camera pose to move to, and why.
+class CameraCommand(NamedTuple):
+    """A policy's output: the camera pose to move to, and why (immutable named tuple).
 
     Attributes
     ----------

@@ -28,12 +28,15 @@ import math
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.signal import lfilter
 
 from endocam.geometry import FloatArray
 from endocam.task.config import Psm2Idle, TaskConfig
 from endocam.task.layout import psm1_tip_in_ring
 
 __all__ = ["instrument_tips", "lagged_path"]
+
+UNIFORM_RTOL = 1e-9  # relative spread of the time steps still counted as evenly spaced
 
 
 def lagged_path(t: ArrayLike, p_world: ArrayLike, time_constant: float) -> FloatArray:
@@ -42,7 +45,7 @@ def lagged_path(t: ArrayLike, p_world: ArrayLike, time_constant: float) -> Float
     Parameters
     ----------
     t : (N,)
-        Sample times, s, non-decreasing.
+        Sample times, s, evenly spaced (the control grid).
     p_world : (N, 3)
         Path in world, m.
     time_constant : float
@@ -61,16 +64,16 @@ def lagged_path(t: ArrayLike, p_world: ArrayLike, time_constant: float) -> Float
         raise ValueError(f"time_constant must be > 0 s, got {time_constant}")
     if np.any(np.diff(ts) < 0.0) or not np.all(np.isfinite(ts)):
         raise ValueError("t must be finite and non-decreasing")
-    if len(ts) == 0:
+    dts = np.diff(ts)
+    if len(dts) and not np.allclose(dts, dts[0], rtol=UNIFORM_RTOL, atol=0.0):
+        raise ValueError("t must be evenly spaced (a control grid)")
+    if len(ts) < 2:
         return p.copy()
-    alpha = (1.0 - np.exp(-np.diff(ts) / time_constant)).tolist()
-    rows = p.tolist()
-    q = rows[0]
-    out = [q]
-    for a, pk in zip(alpha, rows[1:], strict=True):
-        q = [q[0] + a * (pk[0] - q[0]), q[1] + a * (pk[1] - q[1]), q[2] + a * (pk[2] - q[2])]
-        out.append(q)
-    return np.array(out, dtype=float)
+    a = 1.0 - math.exp(-float(dts[0]) / time_constant)
+    # q_k = (1 − a) q_{k−1} + a p_k with q_0 = p_0: a one-pole IIR filter (scipy, in C)
+    zi = (1.0 - a) * p[0]  # the filter's state so that the first output equals p_0
+    out, _ = lfilter([a], [1.0, a - 1.0], p, axis=0, zi=zi[None, :])
+    return np.asarray(out, dtype=float)
 
 
 def instrument_tips(task: TaskConfig, t: ArrayLike, T_world_ring: ArrayLike) -> FloatArray:
