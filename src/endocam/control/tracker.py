@@ -284,6 +284,14 @@ class EndocamPolicy(_MovingPolicy):
 
     # -- the step --------------------------------------------------------------------------
 
+    def _freeze(self, d_before: float, why: str) -> CameraCommand:
+        """Hold the last safe command; the distance, goal and transfer are planned afresh."""
+        self.d_f = d_before
+        self._path = None
+        self._transfer = None
+        self._last_goal = None
+        return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, f"{why}; holding")
+
     def _lose(self, reason: str) -> CameraCommand:
         self._last_goal = None
         self._path = None
@@ -339,15 +347,8 @@ class EndocamPolicy(_MovingPolicy):
         if goal is None or not margin >= release:
             if self._frozen_T is None:
                 self._frozen_T = np.asarray(obs.T_world_cam, dtype=float)
-            self.d_f = d_before
             self._last_cmd = self._frozen_T
-            self._path = None
-            self._transfer = None
-            self._last_goal = None
-            return self._hold(
-                TrackingState.FROZEN_OUTSIDE_CONE,
-                "no view of the ring inside the cone workspace; holding",
-            )
+            return self._freeze(d_before, "no view of the ring inside the cone workspace")
         self._frozen_T = None
 
         side_changed = bool(self._side) and s != self._side
@@ -387,15 +388,9 @@ class EndocamPolicy(_MovingPolicy):
         else:
             twist = None  # a goal at the floor or the cone arrives at rest: nothing carries it out
         if not self._in_workspace(cmd):  # last gate: never command outside the workspace
-            # as a freeze: the same side, distance and transfer are planned afresh next step
             self._side = side_before
-            self.d_f = d_before
-            self._last_goal = None
-            self._path = None
-            self._transfer = None
-            return self._hold(
-                TrackingState.FROZEN_OUTSIDE_CONE,
-                "command would leave the cone workspace or go below the floor; holding",
+            return self._freeze(
+                d_before, "command would leave the cone workspace or go below the floor"
             )
         self._last_cmd = cmd
         return CameraCommand(cmd, state, d, reason, twist)

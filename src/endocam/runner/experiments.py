@@ -35,8 +35,8 @@ from endocam.task.study_paths import (
     DEFAULT_STUDY_SEED,
     STUDY_TRAJECTORIES,
     StudyTrajectory,
-    study_task_config,
     study_trajectory_seeds,
+    with_angle_noise,
 )
 from endocam.task.touches import TouchReport, touch_events
 from endocam.task.trajectory import TrajectoryKind, make_trajectory
@@ -264,28 +264,84 @@ class NamedEpisode:
 
 def study_path_config(config: ExperimentConfig, path: StudyTrajectory) -> ExperimentConfig:
     """``config`` with a study path's noise override applied (validated again)."""
-    task = study_task_config(config.task, path)
-    return config if task is config.task else config.model_copy(update={"task": task})
+    return PathSpec(
+        path.name, "noisy", TrajectoryKind.NOISY, path.control_points, 0, path.angle_noise
+    ).config(config)
 
 
-def paper_episodes(
-    config: ExperimentConfig, policy: str = "orientation", study_seed: int = DEFAULT_STUDY_SEED
-) -> list[NamedEpisode]:
-    """The six episodes of ``endocam experiment paper``: three ideal, the three study paths."""
-    ideal = [
-        NamedEpisode(f"ideal-{n}", config, EpisodeSpec(policy, TrajectoryKind.IDEAL, n, 0))
-        for n in PAPER_IDEAL_POINTS
+EXTRA_NOISY_POINTS = 71  # count: control points of the extra noisy paths (--seeds)
+
+
+@dataclass(frozen=True)
+class PathSpec:
+    """One trajectory of the protocol.
+
+    Attributes
+    ----------
+    name : str
+        Folder suffix, e.g. ``ideal-71`` or ``t3-71-high``.
+    set : str
+        ``ideal`` or ``noisy``.
+    kind : TrajectoryKind
+    control_points : int
+    seed : int
+        Noise seed (0 for the ideal path).
+    angle_noise : (2,) or None
+        Angular noise range override, rad (``None``: the config's).
+    """
+
+    name: str
+    set: str
+    kind: TrajectoryKind
+    control_points: int
+    seed: int
+    angle_noise: tuple[float, float] | None = None
+
+    def config(self, config: ExperimentConfig) -> ExperimentConfig:
+        """``config`` with this path's noise override applied (validated again)."""
+        task = with_angle_noise(config.task, self.angle_noise)
+        return config if task is config.task else config.model_copy(update={"task": task})
+
+    def spec(self, policy: str) -> EpisodeSpec:
+        """The episode of ``policy`` on this path."""
+        return EpisodeSpec(policy, self.kind, self.control_points, self.seed)
+
+
+def paper_paths(extra_seeds: int = 0) -> list[PathSpec]:
+    """The paper's trajectories: 3 ideal, the 3 study paths, ``extra_seeds`` noisy 71-point."""
+    if extra_seeds < 0:
+        raise ValueError(f"extra seeds must be ≥ 0, got {extra_seeds}")
+    paths = [
+        PathSpec(f"ideal-{n}", "ideal", TrajectoryKind.IDEAL, n, 0) for n in PAPER_IDEAL_POINTS
     ]
-    seeds = study_trajectory_seeds(study_seed)
-    noisy = [
-        NamedEpisode(
-            path.name,
-            study_path_config(config, path),
-            EpisodeSpec(policy, TrajectoryKind.NOISY, path.control_points, seed),
+    seeds = study_trajectory_seeds(DEFAULT_STUDY_SEED, len(STUDY_TRAJECTORIES))
+    for traj, seed in zip(STUDY_TRAJECTORIES, seeds, strict=True):
+        paths.append(
+            PathSpec(
+                traj.name,
+                "noisy",
+                TrajectoryKind.NOISY,
+                traj.control_points,
+                seed,
+                traj.angle_noise,
+            )
         )
-        for path, seed in zip(STUDY_TRAJECTORIES, seeds, strict=True)
-    ]
-    return ideal + noisy
+    for seed in range(1, extra_seeds + 1):
+        paths.append(
+            PathSpec(
+                f"noisy-{EXTRA_NOISY_POINTS}-s{seed}",
+                "noisy",
+                TrajectoryKind.NOISY,
+                EXTRA_NOISY_POINTS,
+                seed,
+            )
+        )
+    return paths
+
+
+def paper_episodes(config: ExperimentConfig, policy: str = "orientation") -> list[NamedEpisode]:
+    """The six episodes of ``endocam experiment paper``: three ideal, the three study paths."""
+    return [NamedEpisode(p.name, p.config(config), p.spec(policy)) for p in paper_paths()]
 
 
 def run_paper_experiment(

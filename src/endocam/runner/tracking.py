@@ -34,7 +34,6 @@ from __future__ import annotations
 import concurrent.futures
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +45,7 @@ from endocam.geometry import FloatArray, so3_log
 from endocam.robot.actuator import ArmKind
 from endocam.robot.arm import ECM_MAX_VELOCITY, PSM_MAX_VELOCITY
 from endocam.runner.episode import UNREACHABLE, EpisodeResult, EpisodeSpec, run_episode
-from endocam.runner.experiments import PAPER_IDEAL_POINTS, PAPER_MEANS, study_path_config
+from endocam.runner.experiments import PAPER_MEANS, PathSpec, paper_paths
 from endocam.runner.outputs import (
     PLOT_DPI,
     _finite,
@@ -57,14 +56,8 @@ from endocam.runner.outputs import (
     render_template,
     write_run,
 )
-from endocam.task.study_paths import (
-    DEFAULT_STUDY_SEED,
-    STUDY_TRAJECTORIES,
-    StudyTrajectory,
-    study_trajectory_seeds,
-)
 from endocam.task.touches import TouchReport, touch_events
-from endocam.task.trajectory import TrajectoryKind, make_trajectory
+from endocam.task.trajectory import make_trajectory
 from endocam.task.wire import Wire
 
 CONTROLLERS = {"paper": "orientation", "endocam": "endocam", "centering": "centering"}
@@ -94,76 +87,11 @@ TRACKING_HTML = "tracking.html"
 DEFAULT_WORKERS = 2  # processes: the machine this was measured on has two cores
 
 
-EXTRA_NOISY_POINTS = 71  # count: control points of the extra noisy paths (--seeds)
-
-
-@dataclass(frozen=True)
-class PathSpec:
-    """One trajectory of the protocol.
-
-    Attributes
-    ----------
-    name : str
-        Folder suffix, e.g. ``ideal-71`` or ``t3-71-high``.
-    set : str
-        ``ideal`` or ``noisy``.
-    kind : TrajectoryKind
-    control_points : int
-    seed : int
-        Noise seed (0 for the ideal path).
-    angle_noise : (2,) or None
-        Angular noise range override, rad (``None``: the config's).
-    """
-
-    name: str
-    set: str
-    kind: TrajectoryKind
-    control_points: int
-    seed: int
-    angle_noise: tuple[float, float] | None = None
-
-    def config(self, config: ExperimentConfig) -> ExperimentConfig:
-        """``config`` with this path's noise override applied (validated again)."""
-        if self.angle_noise is None:
-            return config
-        path = StudyTrajectory(self.name, 1, self.control_points, self.angle_noise)
-        return study_path_config(config, path)
-
-
-def tracking_paths(extra_seeds: int = 0) -> list[PathSpec]:
-    """The protocol's trajectories: 3 ideal, the 3 study paths, ``extra_seeds`` noisy 71-point."""
-    if extra_seeds < 0:
-        raise ValueError(f"extra seeds must be ≥ 0, got {extra_seeds}")
-    paths = [
-        PathSpec(f"ideal-{n}", "ideal", TrajectoryKind.IDEAL, n, 0) for n in PAPER_IDEAL_POINTS
-    ]
-    seeds = study_trajectory_seeds(DEFAULT_STUDY_SEED, len(STUDY_TRAJECTORIES))
-    for traj, seed in zip(STUDY_TRAJECTORIES, seeds, strict=True):
-        paths.append(
-            PathSpec(
-                traj.name,
-                "noisy",
-                TrajectoryKind.NOISY,
-                traj.control_points,
-                seed,
-                traj.angle_noise,
-            )
-        )
-    for seed in range(1, extra_seeds + 1):
-        paths.append(
-            PathSpec(
-                f"noisy-{EXTRA_NOISY_POINTS}-s{seed}",
-                "noisy",
-                TrajectoryKind.NOISY,
-                EXTRA_NOISY_POINTS,
-                seed,
-            )
-        )
-    return paths
-
-
 ARRIVED_M = 5e-3  # m: a camera this close to its command has arrived (the approach ends)
 ARRIVED_RAD = math.radians(5.0)  # rad: and its optical axis this close to the command's
+
+
+tracking_paths = paper_paths  # the protocol's trajectories (runner.experiments)
 
 
 def episode_phases(
@@ -323,7 +251,7 @@ def run_tracking_experiment(
     check_choices(controllers, carriers)
     if workers < 1:
         raise ValueError(f"workers must be ≥ 1, got {workers}")
-    paths = list(paths) if paths is not None else tracking_paths(extra_seeds)
+    paths = list(paths) if paths is not None else paper_paths(extra_seeds)
     jobs = [(c, a, p) for p in paths for a in carriers for c in controllers]
     summaries: dict[str, dict[str, Any]] = {}
     with atomic_dir(Path(out_dir)) as tmp:

@@ -21,6 +21,7 @@ __all__ = [
     "StudyTrajectory",
     "study_task_config",
     "study_trajectory_seeds",
+    "with_angle_noise",
 ]
 
 DEFAULT_STUDY_SEED = 2024  # the study's default seed (``endocam study make --seed``)
@@ -55,13 +56,18 @@ STUDY_TRAJECTORIES = (
 )
 
 
-def study_task_config(task: TaskConfig, trajectory: StudyTrajectory) -> TaskConfig:
-    """``task`` with the trajectory's noise override applied (validated again)."""
-    if trajectory.angle_noise is None:
+def with_angle_noise(task: TaskConfig, angle_noise: tuple[float, float] | None) -> TaskConfig:
+    """``task`` with the angular threshold range (rad) replaced and validated; ``None``: as is."""
+    if angle_noise is None:
         return task
     data = task.model_dump()
-    data["trajectory"]["angle_noise"] = trajectory.angle_noise
+    data["trajectory"]["angle_noise"] = angle_noise
     return TaskConfig.model_validate(data)
+
+
+def study_task_config(task: TaskConfig, trajectory: StudyTrajectory) -> TaskConfig:
+    """``task`` with the trajectory's noise override applied (validated again)."""
+    return with_angle_noise(task, trajectory.angle_noise)
 
 
 def study_trajectory_seeds(seed: int, n: int = len(STUDY_TRAJECTORIES)) -> tuple[int, ...]:
