@@ -191,7 +191,7 @@ def test_csv_round_trip_and_errors() -> None:
         rows_to_csv(rows).splitlines()[0]
         == "participant_id,video_id,reported_touches,attention_passed"
     )
-    with pytest.raises(ValueError, match="header"):
+    with pytest.raises(ValueError, match="columns"):
         rows_from_csv("a,b\n")
     bad = "participant_id,video_id,reported_touches,attention_passed\np,v01,-3,true\n"
     with pytest.raises(ValueError, match="line 2"):
