@@ -44,6 +44,7 @@
   });
   video.addEventListener("seeking", function () { last = null; });
   video.addEventListener("seeked", function () { last = video.currentTime; send("seeked"); });
+  video.addEventListener("play", function () { if (last === null) last = video.currentTime; });
   ["play", "pause", "ratechange"].forEach(function (kind) {
     video.addEventListener(kind, function () { send(kind); });
   });
