@@ -20,6 +20,7 @@ from endocam.study.db import StudyDB
 from endocam.study.export import TABLES
 from endocam.study.flow import video_sequence
 from endocam.study.manifest import load_manifest
+from endocam.study.responses import rows_from_csv
 from study_helpers import ATTENTION_ANSWER, PRACTICE_TOUCHES, make_study
 
 ADMIN = "online-admin"
@@ -225,6 +226,10 @@ def test_exports_match_the_database_and_the_codebook(client: TestClient, db_path
         for r in doc["responses"]
     }
     assert exported == stored and len(stored) == 15
+    # the responses export is what `study analyze --responses` reads: first attempts only
+    analysed = rows_from_csv(client.get("/admin/export/responses.csv", headers=auth).text)
+    assert sorted(analysed, key=str) == sorted(StudyDB(db_path).export_rows(), key=str)
+    assert len(analysed) == 13
     assert len(doc["events"]) == n_events
     manifest = client.app.state.manifest
     for r in doc["responses"]:
