@@ -5,6 +5,7 @@ withdrawal, counterbalancing over abandoned sessions, the message catalogue, and
 import io
 import json
 import re
+import shutil
 import sqlite3
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
@@ -305,10 +306,16 @@ def test_counterbalancing_skips_abandoned_and_withdrawn_sessions(tmp_path: Path)
 
 
 # ---- message catalogue --------------------------------------------------------------------------
-def test_a_replacement_catalogue_changes_every_participant_text(tmp_path: Path) -> None:
+def test_a_replacement_catalogue_changes_every_participant_text(
+    study: Path, tmp_path: Path
+) -> None:
     texts = json.loads(DEFAULT_CATALOGUE.read_text(encoding="utf-8"))
     swapped = {k: ("xx" if k == "lang" else f"XX {v}") for k, v in texts.items()}
-    study = make_study(tmp_path, practice=True, messages_file="messages/xx.json")
+    original = study
+    study = Path(shutil.copytree(original, tmp_path / "study"))  # the videos, not re-encoded
+    manifest = json.loads((study / "manifest.json").read_text(encoding="utf-8"))
+    manifest["messages_file"] = "messages/xx.json"
+    (study / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
     (study / "messages").mkdir()
     (study / "messages" / "xx.json").write_text(json.dumps(swapped), encoding="utf-8")
     with TestClient(create_app(study, tmp_path / "s.db", ADMIN)) as c:
@@ -316,7 +323,7 @@ def test_a_replacement_catalogue_changes_every_participant_text(tmp_path: Path) 
         assert '<html lang="xx">' in start
         assert f">{texts['consent_label']}<" not in start and swapped["consent_label"] in start
         c.post("/start", data={"consent": "yes"})
-        assert swapped["practice_heading"] in c.get("/study").text
+        assert swapped["demographics_heading"] in c.get("/study").text
     catalogue = load_catalogue(study / "messages" / "xx.json")
     assert catalogue("progress", n_answered=1, n_videos=9).startswith("XX Answered 1 of 9")
     del swapped["done_code"]
