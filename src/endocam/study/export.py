@@ -38,7 +38,7 @@ class _Row(BaseModel):
 
 
 class ResponseExport(_Row):
-    """One answer (table ``responses``)."""
+    """One row per answer."""
 
     participant_id: str = Field(
         description="Anonymous participant id (typed, from the URL or generated)."
@@ -97,7 +97,7 @@ class ResponseExport(_Row):
 
 
 class ParticipantExport(_Row):
-    """One session (table ``participants``)."""
+    """One row per session (a participant id's attempt)."""
 
     participant_id: str = Field(description="Anonymous participant id.")
     attempt: int = Field(description="1 for the first session with this id, 2 for the next, ...")
@@ -133,7 +133,7 @@ class ParticipantExport(_Row):
 
 
 class EventExport(_Row):
-    """One player event (table ``events``)."""
+    """One row per player event (the raw interaction log)."""
 
     participant_id: str = Field(description="Anonymous participant id.")
     attempt: int = Field(description="Session attempt of the id (see responses).")
@@ -296,12 +296,18 @@ def to_json(tables: dict[TableName, list[Any]]) -> dict[str, list[dict[str, Any]
     return {name: [r.model_dump(mode="json") for r in rows] for name, rows in tables.items()}
 
 
+def _base_type(annotation: Any) -> tuple[type, bool]:
+    """The column's Python type and whether it may be missing (``X | None``)."""
+    if get_origin(annotation) in (Union, types.UnionType):
+        return next(a for a in get_args(annotation) if a is not type(None)), True
+    return annotation, False
+
+
 def _arrow_type(annotation: Any) -> Any:
     import pyarrow as pa
 
-    if get_origin(annotation) in (Union, types.UnionType):
-        annotation = next(a for a in get_args(annotation) if a is not type(None))
-    return {bool: pa.bool_(), int: pa.int64(), float: pa.float64(), str: pa.string()}[annotation]
+    base, _ = _base_type(annotation)
+    return {bool: pa.bool_(), int: pa.int64(), float: pa.float64(), str: pa.string()}[base]
 
 
 def to_parquet(table: TableName, rows: Sequence[_Row]) -> bytes:
@@ -330,6 +336,8 @@ def codebook_markdown() -> str:
         lines += ["", f"## {table}", "", (model.__doc__ or "").strip(), ""]
         lines += ["| column | type | description |", "|---|---|---|"]
         for name, field in model.model_fields.items():
-            kind = str(field.annotation).replace("<class '", "").replace("'>", "")
-            lines.append(f"| `{name}` | {kind} | {field.description} |")
+            base, optional = _base_type(field.annotation)
+            kind = base.__name__ + (", may be empty" if optional else "")
+            text = (field.description or "").replace("|", "\\|")
+            lines.append(f"| `{name}` | {kind} | {text} |")
     return "\n".join(lines) + "\n"
