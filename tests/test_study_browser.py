@@ -182,6 +182,9 @@ def test_platform_participant_completes_the_study(
         "href", f"https://app.prolific.com/submissions/complete?cc={CODE}"
     )
     _shot(page, "done")
+    page.goto(f"{base}/admin?token={ADMIN}")
+    expect(page.get_by_role("heading", level=1)).to_have_text("Study admin")
+    _shot(page, "admin")
 
     db = StudyDB(db_path)
     (p,) = [p for p in db.participants() if p.participant_id == PID]

@@ -588,15 +588,14 @@ def create_app(
         return templates.TemplateResponse(request, name, context, status_code=status)
 
     def start_context(params: dict[str, str], value: str = "") -> dict[str, Any]:
-        sets = video_sequence(manifest, 0, 0)
         return {
             "consent_text": consent_text,
             "params": params,
             "platform_id": params.get(manifest.recruitment.id_param),
             "value": value,
-            "n_videos": sum(len(s) for s in sets),
-            "n_sets": len(sets),
-            "per_set": len(sets[0]),
+            "n_videos": len(manifest.videos),
+            "n_sets": len(manifest.conditions),
+            "per_set": len(manifest.videos) // len(manifest.conditions),
         }
 
     @app.get("/")
@@ -686,15 +685,13 @@ def create_app(
         participant = session_participant(request)
         if participant is None:
             return RedirectResponse("/", status_code=303)
-        text = training_years.strip()
-        years = None
-        if text:
-            digits_only = text.isascii() and text.isdigit() and len(text) <= 3
-            years = int(text) if digits_only else -1
-            if not 0 <= years <= MAX_TRAINING_YEARS:
-                return step_page(
-                    request, participant, 400, t("error_years", max_years=MAX_TRAINING_YEARS)
-                )
+        try:
+            text = training_years.strip()
+            years = parse_count(text, MAX_TRAINING_YEARS) if text else None
+        except ValueError:
+            return step_page(
+                request, participant, 400, t("error_years", max_years=MAX_TRAINING_YEARS)
+            )
         prior = prior_assessment if prior_assessment in PRIOR_ASSESSMENT else None
         try:
             submit_demographics(participant, years, prior)

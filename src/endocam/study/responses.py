@@ -44,18 +44,20 @@ class ResponseRow(BaseModel):
 MAX_COUNT_CHARS = 8  # longest count text looked at (leading zeros allowed)
 
 
-def parse_count(text: str) -> int:
-    """Parse a typed touch count.
+def parse_count(text: str, maximum: int = MAX_TOUCHES) -> int:
+    """Parse a typed whole number (a touch count, or years of training).
 
     Parameters
     ----------
     text : str
         What was typed; surrounding white space is ignored.
+    maximum : int
+        Largest value accepted (default: ``MAX_TOUCHES`` touches).
 
     Returns
     -------
     int
-        The count, 0..``MAX_TOUCHES`` touches.
+        The number, 0..``maximum``.
 
     Raises
     ------
@@ -64,10 +66,10 @@ def parse_count(text: str) -> int:
     """
     value = text.strip()
     if not (0 < len(value) <= MAX_COUNT_CHARS and value.isascii() and value.isdigit()):
-        raise ValueError(f"must be a whole number from 0 to {MAX_TOUCHES} written with digits only")
+        raise ValueError(f"must be a whole number from 0 to {maximum} written with digits only")
     count = int(value)
-    if count > MAX_TOUCHES:
-        raise ValueError(f"must be a whole number from 0 to {MAX_TOUCHES}, got {count}")
+    if count > maximum:
+        raise ValueError(f"must be a whole number from 0 to {maximum}, got {count}")
     return count
 
 
