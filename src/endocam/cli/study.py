@@ -86,6 +86,7 @@ def _serve(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     if token is None:
         print(f"endocam: no admin token (--admin-token or {ADMIN_TOKEN_ENV}): admin disabled")
+    print(f"endocam: serving the study on http://{args.host}:{args.port}/ (Ctrl+C stops)")
     server = uvicorn.Server(uvicorn.Config(app, log_level="info"))
     server.run(sockets=[sock])
     return 0
