@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import imageio_ffmpeg
 import numpy as np
@@ -65,11 +66,28 @@ def manifest_dict() -> dict:
     }
 
 
-def make_study(root: Path, with_videos: bool = True) -> Path:
-    """Create a study folder under ``root``; returns its path."""
-    study = root / "study"
+PRACTICE_TOUCHES = 3  # true touches of the tiny study's practice video
+
+
+def make_study(
+    root: Path,
+    with_videos: bool = True,
+    *,
+    practice: bool = False,
+    name: str = "study",
+    **fields: Any,
+) -> Path:
+    """Create a study folder ``root/name``; returns its path.
+
+    ``practice`` adds ``videos/practice.mp4`` as the practice video; ``fields`` are further
+    manifest fields (e.g. ``shuffle_within_set=False``, ``demographics=True``).
+    """
+    study = root / name
     (study / "videos").mkdir(parents=True)
-    manifest = manifest_dict()
+    manifest = manifest_dict() | fields
+    if practice:
+        manifest["practice"] = {"file": "videos/practice.mp4", "true_touches": PRACTICE_TOUCHES}
+        write_tiny_mp4(study / "videos" / "practice.mp4", 200)
     (study / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
     if with_videos:
         for i, video in enumerate(manifest["videos"]):

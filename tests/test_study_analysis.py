@@ -111,6 +111,18 @@ def test_paper_analysis_with_exclusions_and_outlier() -> None:
     }
 
 
+def test_a_participant_who_stopped_early_is_not_said_to_have_skipped_the_question() -> None:
+    partial = _rows({"p12": (1, 1, 1)}, passed=None)[:4]  # left after 4 of 9 answers
+    result = analyze(_rows(DESIGN) + partial, MANIFEST)
+    reasons = {e.participant_id: e.reason for e in result.excluded}
+    assert reasons["p12"] == "did not finish: answered 4 of 9 videos"
+
+
+def test_no_rows_is_an_error() -> None:
+    with pytest.raises(ValueError, match="no responses"):
+        analyze([], MANIFEST)
+
+
 def test_no_outlier_rule_keeps_the_gross_value() -> None:
     result = analyze(_study_rows(), MANIFEST, AnalysisConfig(outliers=OutlierRule.NONE))
     orientation = [DESIGN[p][2] for p in DESIGN]
@@ -191,7 +203,7 @@ def test_csv_round_trip_and_errors() -> None:
         rows_to_csv(rows).splitlines()[0]
         == "participant_id,video_id,reported_touches,attention_passed"
     )
-    with pytest.raises(ValueError, match="header"):
+    with pytest.raises(ValueError, match="columns"):
         rows_from_csv("a,b\n")
     bad = "participant_id,video_id,reported_touches,attention_passed\np,v01,-3,true\n"
     with pytest.raises(ValueError, match="line 2"):

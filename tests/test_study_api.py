@@ -15,7 +15,8 @@ ADMIN = "s3cret-admin"
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return make_study(tmp_path_factory.mktemp("api"))
+    # manifest order within the sets, so each step is known here (shuffling: test_study_online)
+    return make_study(tmp_path_factory.mktemp("api"), shuffle_within_set=False)
 
 
 @pytest.fixture
@@ -37,13 +38,13 @@ def snapshot(db_path: Path) -> list[tuple]:
 
 
 def start(client: TestClient, pid: str) -> dict:
-    r = client.post("/api/session", json={"participant_id": pid})
+    r = client.post("/api/session", json={"consent": True, "participant_id": pid})
     assert r.status_code == 201, r.text
     return r.json()
 
 
 def test_session_cookie_is_httponly_and_the_id_alone_grants_nothing(client: TestClient) -> None:
-    r = client.post("/api/session", json={"participant_id": "alice"})
+    r = client.post("/api/session", json={"consent": True, "participant_id": "alice"})
     cookie = r.headers["set-cookie"]
     assert "HttpOnly" in cookie and "samesite=strict" in cookie.lower()
     assert r.cookies[SESSION_COOKIE] != "alice"
@@ -131,22 +132,47 @@ def test_participants_cannot_see_or_change_each_other(client: TestClient, db_pat
     assert snapshot(db_path) == before
 
 
-def test_taken_or_malformed_ids_are_refused(client: TestClient, db_path: Path) -> None:
-    start(client, "gina")
+def test_ids_are_checked_but_a_taken_id_is_not_revealed(client: TestClient, db_path: Path) -> None:
+    first = client.post("/api/session", json={"consent": True, "participant_id": "gina"})
     before = snapshot(db_path)
-    assert client.post("/api/session", json={"participant_id": "gina"}).status_code == 409
-    assert client.post("/api/session", json={"participant_id": "../x"}).status_code == 422
-    assert client.post("/api/session", json={"participant_id": ""}).status_code == 422
+    for bad in ("../x", "", "a" * 65):
+        body = {"consent": True, "participant_id": bad}
+        assert client.post("/api/session", json=body).status_code == 422
+    assert client.post("/api/session", json={"participant_id": "ok"}).status_code == 422  # consent
     assert snapshot(db_path) == before
-    generated = client.post("/api/session").json()["participant_id"]
+    # a taken id is answered exactly like a new one: no existence oracle
+    again = TestClient(client.app).post(
+        "/api/session", json={"consent": True, "participant_id": "gina"}
+    )
+    fresh = TestClient(client.app).post(
+        "/api/session", json={"consent": True, "participant_id": "gina2"}
+    )
+    assert first.status_code == again.status_code == fresh.status_code == 201
+    assert again.json()["participant_id"] == "gina"
+    assert again.json()["next"].keys() == fresh.json()["next"].keys()
+    attempts = [(p.participant_id, p.attempt) for p in StudyDB(db_path).participants()]
+    assert attempts == [("gina", 1), ("gina", 2), ("gina2", 1)]
+    generated = client.post("/api/session", json={"consent": True}).json()["participant_id"]
     assert generated.startswith("p-")
+
+
+def test_only_the_first_attempt_of_an_id_is_analysed(study: Path, db_path: Path) -> None:
+    with TestClient(create_app(study, db_path, ADMIN)) as one, TestClient(one.app) as two:
+        start(one, "hal")
+        start(two, "hal")
+        for c, n in ((one, 1), (two, 5)):
+            vid = c.get("/api/next").json()["video_id"]
+            assert c.post("/api/answer", json={"video_id": vid, "reported_touches": n}).status_code
+        assert [r.reported_touches for r in StudyDB(db_path).export_rows()] == [1]
 
 
 def test_full_run_round_robin_and_restart(study: Path, db_path: Path) -> None:
     expected_orders = {}
     with TestClient(create_app(study, db_path, ADMIN)) as c:
         for k in range(7):
-            TestClient(c.app).post("/api/session", json={"participant_id": f"rr{k}"})
+            TestClient(c.app).post(
+                "/api/session", json={"consent": True, "participant_id": f"rr{k}"}
+            )
             expected_orders[f"rr{k}"] = k % 6
         start(c, "henry")  # 8th participant → order 1 (centering, orientation, fixed)
         seen = []
@@ -191,19 +217,17 @@ def test_admin_export_needs_the_token(client: TestClient, study: Path, db_path: 
     )
     r = client.get("/admin/export.csv", headers={"Authorization": f"Bearer {ADMIN}"})
     assert r.status_code == 200
-    assert r.text.splitlines() == [
-        "participant_id,video_id,reported_touches,attention_passed",
-        "ivy,v01,6,",
-    ]
+    header, row = (line.split(",") for line in r.text.splitlines())
+    cells = dict(zip(header, row, strict=True))
+    assert {k: cells[k] for k in ("participant_id", "video_id", "reported_touches")} == {
+        "participant_id": "ivy",
+        "video_id": "v01",
+        "reported_touches": "6",
+    }
+    assert cells["attention_passed"] == ""
     doc = client.get(f"/admin/export.json?token={ADMIN}").json()
-    assert doc["responses"] == [
-        {
-            "participant_id": "ivy",
-            "video_id": "v01",
-            "reported_touches": 6,
-            "attention_passed": None,
-        }
-    ]
+    assert [(r["participant_id"], r["reported_touches"]) for r in doc["responses"]] == [("ivy", 6)]
+    assert doc["responses"][0]["attention_passed"] is None
     with TestClient(create_app(study, db_path, None)) as no_token:
         assert no_token.get("/admin/export.csv?token=").status_code == 403
         assert (
@@ -224,12 +248,18 @@ def test_videos_only_from_the_manifest(client: TestClient, study: Path) -> None:
 
 def test_html_forms_validate_server_side(client: TestClient, db_path: Path) -> None:
     r = client.post("/start", data={"participant_id": "kim"}, follow_redirects=False)
+    assert r.status_code == 400 and 'role="alert"' in r.text  # no consent, no session
+    assert snapshot(db_path) == []
+    data = {"participant_id": "kim", "consent": "yes"}
+    r = client.post("/start", data=data, follow_redirects=False)
     assert r.status_code == 303 and r.headers["location"] == "/study"
     page = client.get("/study")
     assert 'name="video_id" value="v01"' in page.text
     assert 'min="0" max="99"' in page.text and "required" in page.text
     before = snapshot(db_path)
-    for bad in ["-1", "abc", "100", "", "3.5"]:
+    # the form follows the JSON API's rule: digits only (no '_', sign, decimal point or
+    # non-ASCII digits), 0..99
+    for bad in ["-1", "abc", "100", "", "3.5", "1_0", "3.0", "+5", "٣", "1e1", " "]:
         r = client.post("/study/answer", data={"video_id": "v01", "reported_touches": bad})
         assert r.status_code == 400 and 'role="alert"' in r.text
     assert snapshot(db_path) == before

@@ -1,19 +1,33 @@
-"""End to end in headless Debian Chromium (Playwright sync API) against a real uvicorn server."""
+"""End to end in headless Debian Chromium (Playwright sync API) against a real uvicorn server.
 
+One server, two participants: a desktop one arriving from a recruitment-platform link (consent →
+demographics → practice with feedback → three sets with the attention question → completion code)
+and a phone-width one typing an id. With ``ENDOCAM_STUDY_SCREENSHOTS=DIR`` the pages are saved
+as PNG files in DIR (how docs/img/study-*.png are made).
+"""
+
+import os
 import socket
 import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
-import httpx
 import pytest
 import uvicorn
 from playwright.sync_api import Browser, Page, expect, sync_playwright
 
 from endocam.study.app import create_app
 from endocam.study.db import StudyDB
-from study_helpers import ATTENTION_ANSWER, VIDEO_H_PX, VIDEO_W_PX, make_study
+from study_helpers import (
+    ATTENTION_ANSWER,
+    PRACTICE_TOUCHES,
+    VIDEO_FPS,
+    VIDEO_FRAMES,
+    VIDEO_H_PX,
+    VIDEO_W_PX,
+    make_study,
+)
 
 ADMIN = "browser-admin-token"
 CHROMIUM_ARGS = [
@@ -24,13 +38,18 @@ CHROMIUM_ARGS = [
     "--disable-sync",
     "--no-first-run",
     "--disable-quic",
+    "--autoplay-policy=no-user-gesture-required",
 ]
 SERVER_START_TIMEOUT_S = 10.0  # s
 MAX_TABS = 12  # Tab presses allowed to reach a field
 UI_TIMEOUT_MS = 5000  # ms, Playwright waits
-# expected presentation: participant 0 gets order 0, participant 1 gets order 1
-ORDER_0 = ["v01", "v02", "v03", "v04", "v05", "v06", "attention", "v07", "v08", "v09"]
-ORDER_1 = ["v04", "v05", "v06", "v07", "v08", "v09", "attention", "v01", "v02", "v03"]
+PHONE = {"width": 390, "height": 844}  # px, CSS viewport of a typical phone
+CODE = "BROWSER1"
+PID = "60a1b2c3d4e5f6a7b8c9d0e1"  # Prolific-style participant id
+PLATFORM_URL = f"/?PROLIFIC_PID={PID}&STUDY_ID=study42&SESSION_ID=sess7"
+VIDEO_DURATION_S = VIDEO_FRAMES / VIDEO_FPS
+FRAME_S = 1.0 / VIDEO_FPS  # tolerance of watched seconds: one frame interval
+SHOTS = os.environ.get("ENDOCAM_STUDY_SCREENSHOTS")
 
 
 def _free_port() -> int:
@@ -42,7 +61,16 @@ def _free_port() -> int:
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Path]]:
     root = tmp_path_factory.mktemp("browser")
-    study, db_path = make_study(root), root / "study.db"
+    study = make_study(
+        root,
+        practice=True,
+        demographics=True,
+        recruitment={
+            "completion_code": CODE,
+            "completion_url": "https://app.prolific.com/submissions/complete?cc={code}",
+        },
+    )
+    db_path = root / "study.db"
     port = _free_port()
     config = uvicorn.Config(
         create_app(study, db_path, ADMIN), host="127.0.0.1", port=port, log_level="warning"
@@ -67,6 +95,13 @@ def browser() -> Iterator[Browser]:
         b.close()
 
 
+def _shot(page: Page, name: str) -> None:
+    if SHOTS:
+        if page.locator("#study_video").count():  # the first frame, not the loading spinner
+            page.wait_for_function("() => study_video.readyState >= 2")
+        page.screenshot(path=str(Path(SHOTS) / f"study-{name}.png"), full_page=True)
+
+
 def _tab_to(page: Page, element_id: str) -> None:
     """Press Tab until the element has the keyboard focus (the page's focus order)."""
     for _ in range(MAX_TABS):
@@ -76,76 +111,128 @@ def _tab_to(page: Page, element_id: str) -> None:
     pytest.fail(f"#{element_id} not reachable with Tab")
 
 
-def _answer_current(page: Page, expected: str, value: int) -> None:
-    """Answer the current step with the keyboard only; checks it is the expected one."""
-    if expected == "attention":
-        expect(page.get_by_role("heading", level=1)).to_have_text("A quick question")
-        _tab_to(page, "attention_answer")
-    else:
-        expect(page.locator("input[name=video_id]")).to_have_value(expected)
-        _tab_to(page, "reported_touches")
-    page.keyboard.type(str(value))
+def _type_and_submit(page: Page, element_id: str, value: str) -> None:
+    _tab_to(page, element_id)
+    page.keyboard.type(value)
     with page.expect_navigation():
         page.keyboard.press("Enter")
 
 
-def _start(page: Page, base: str, pid: str) -> None:
-    page.goto(base + "/")
-    expect(page.get_by_role("heading", level=1)).to_have_text("Welcome")
-    _tab_to(page, "participant_id")
-    page.keyboard.type(pid)
+def _consent(page: Page) -> None:
+    _tab_to(page, "consent")
+    page.keyboard.press("Space")
+    page.keyboard.press("Tab")
     with page.expect_navigation():
         page.keyboard.press("Enter")
 
 
-def _value(pid_number: int, video_id: str) -> int:
-    return (int(video_id[1:]) * 3 + pid_number) % 10
+def _value(video_id: str) -> int:
+    return (int(video_id[1:]) * 3) % 10
 
 
-def test_two_participants_complete_the_study(server: tuple[str, Path], browser: Browser) -> None:
+def test_platform_participant_completes_the_study(
+    server: tuple[str, Path], browser: Browser
+) -> None:
     base, db_path = server
-    page = browser.new_context().new_page()
+    page = browser.new_context(viewport={"width": 1000, "height": 900}).new_page()
     page.set_default_timeout(UI_TIMEOUT_MS)
-    _start(page, base, "kb-alice")
-    # the video plays: the tiny mp4 loads and reports its size
-    page.wait_for_function("document.getElementById('study_video').readyState >= 1")
-    size = page.evaluate("[study_video.videoWidth, study_video.videoHeight]")
-    assert size == [VIDEO_W_PX, VIDEO_H_PX]
-    for step in ORDER_0:
-        value = ATTENTION_ANSWER if step == "attention" else _value(0, step)
-        _answer_current(page, step, value)
+    page.goto(base + PLATFORM_URL)
+    expect(page.get_by_role("heading", level=1)).to_have_text("Information about this study")
+    expect(page.locator("#platform_id")).to_contain_text(PID)
+    _shot(page, "consent")
+    _consent(page)
+
+    expect(page.get_by_role("heading", level=1)).to_have_text("About you")
+    page.get_by_label("Yes").check()
+    _shot(page, "demographics")
+    _type_and_submit(page, "training_years", "5")
+
+    expect(page.get_by_role("heading", level=1)).to_have_text("Practice video")
+    page.wait_for_function("() => study_video.readyState >= 1")
+    assert page.evaluate("[study_video.videoWidth, study_video.videoHeight]") == [
+        VIDEO_W_PX,
+        VIDEO_H_PX,
+    ]
+    page.evaluate("study_video.play()")
+    page.wait_for_function("() => study_video.ended")
+    _shot(page, "practice")
+    _type_and_submit(page, "reported_touches", str(PRACTICE_TOUCHES))
+    expect(page.locator("#feedback")).to_contain_text(
+        f"You counted {PRACTICE_TOUCHES}; the video shows {PRACTICE_TOUCHES} touches."
+    )
+    _shot(page, "feedback")
+    with page.expect_navigation():
+        page.locator("#continue").click()
+
+    answered = []
+    while page.locator("input[name=video_id]").count() or page.locator("#attention_answer").count():
+        if page.locator("#attention_answer").count():
+            _shot(page, "attention")
+            _type_and_submit(page, "attention_answer", str(ATTENTION_ANSWER))
+            continue
+        video_id = page.locator("input[name=video_id]").input_value()
+        if not answered:
+            expect(page.get_by_role("heading", level=1)).to_have_text("Set 1 of 3: video 1 of 3")
+            _shot(page, "video")
+        _type_and_submit(page, "reported_touches", str(_value(video_id)))
+        answered.append(video_id)
     expect(page.get_by_role("heading", level=1)).to_have_text("Thank you")
+    expect(page.locator("#completion_code")).to_contain_text(CODE)
+    expect(page.locator("#return_link")).to_have_attribute(
+        "href", f"https://app.prolific.com/submissions/complete?cc={CODE}"
+    )
+    _shot(page, "done")
+    page.goto(f"{base}/admin?token={ADMIN}")
+    expect(page.get_by_role("heading", level=1)).to_have_text("Study admin")
+    _shot(page, "admin")
 
-    # the second participant reloads midway and resumes at the same step
-    page2 = browser.new_context().new_page()
-    page2.set_default_timeout(UI_TIMEOUT_MS)
-    _start(page2, base, "kb-bob")
-    for step in ORDER_1[:4]:
-        _answer_current(page2, step, _value(1, step))
-    page2.reload()
-    expect(page2.locator("input[name=video_id]")).to_have_value(ORDER_1[4])
-    expect(page2.get_by_role("heading", level=1)).to_have_text("Set 2 of 3: video 2 of 3")
-    # a bad value typed past the browser's own check is refused by the server
-    page2.evaluate("document.getElementById('reported_touches').removeAttribute('max')")
-    _tab_to(page2, "reported_touches")
-    page2.keyboard.type("150")
-    with page2.expect_navigation():
-        page2.keyboard.press("Enter")
-    expect(page2.get_by_role("alert")).to_contain_text("0 to 99")
-    for step in ORDER_1[4:]:
-        value = ATTENTION_ANSWER + 1 if step == "attention" else _value(1, step)
-        _answer_current(page2, step, value)
-    expect(page2.get_by_role("heading", level=1)).to_have_text("Thank you")
+    db = StudyDB(db_path)
+    (p,) = [p for p in db.participants() if p.participant_id == PID]
+    assert p.recruitment == {"PROLIFIC_PID": PID, "STUDY_ID": "study42", "SESSION_ID": "sess7"}
+    assert (p.training_years, p.prior_assessment, p.practice_answer) == (5, "yes", 3)
+    assert answered == [v for s in p.video_order for v in s] and p.completed is not None
+    assert db.answers(p) == {v: _value(v) for v in answered}
+    practice = [e for e in db.events() if e["video_id"] == "_practice"]
+    assert practice[0]["kind"] == "shown" and {"play", "pause"} < {e["kind"] for e in practice}
+    (ended,) = [e for e in practice if e["kind"] == "ended"]
+    assert ended["watched_s"] == pytest.approx(VIDEO_DURATION_S, abs=FRAME_S)
+    assert ended["media_time_s"] == pytest.approx(VIDEO_DURATION_S, abs=FRAME_S)
 
-    expected = {("kb-alice", v, _value(0, v), True) for v in ORDER_0 if v != "attention"}
-    expected |= {("kb-bob", v, _value(1, v), False) for v in ORDER_1 if v != "attention"}
-    stored = {
-        (r.participant_id, r.video_id, r.reported_touches, r.attention_passed)
-        for r in StudyDB(db_path).export_rows()
-    }
-    assert stored == expected
-    csv = httpx.get(f"{base}/admin/export.csv", headers={"Authorization": f"Bearer {ADMIN}"})
-    lines = csv.text.splitlines()
-    assert lines[0] == "participant_id,video_id,reported_touches,attention_passed"
-    exported = {tuple(line.split(",")) for line in lines[1:]}
-    assert exported == {(p, v, str(n), str(a).lower()) for p, v, n, a in expected}
+
+def test_phone_width_participant_with_a_typed_id(
+    server: tuple[str, Path], browser: Browser
+) -> None:
+    base, db_path = server
+    context = browser.new_context(viewport=PHONE, is_mobile=True, has_touch=True)
+    page = context.new_page()
+    page.set_default_timeout(UI_TIMEOUT_MS)
+    page.goto(base + "/")
+    _tab_to(page, "participant_id")
+    page.keyboard.type("phone-1")
+    page.keyboard.press("Enter")  # no consent yet: the browser keeps the form
+    assert page.evaluate("document.getElementById('consent').validity.valueMissing")
+    assert StudyDB(db_path).participants()[-1].participant_id != "phone-1"
+    _consent(page)
+    with page.expect_navigation():
+        page.get_by_role("button").click()  # demographics left empty
+    _type_and_submit(page, "reported_touches", "2")  # practice
+    with page.expect_navigation():
+        page.locator("#continue").click()
+    expect(page.get_by_role("heading", level=1)).to_have_text("Set 1 of 3: video 1 of 3")
+    fits = "document.documentElement.scrollWidth <= window.innerWidth"
+    assert page.evaluate(fits), "the page scrolls sideways at phone width"
+    box = page.locator("#study_video").bounding_box()
+    assert box is not None and box["width"] <= PHONE["width"]
+    _shot(page, "phone")
+    first = page.locator("input[name=video_id]").input_value()
+    # a value typed past the browser's own check is refused by the server
+    page.evaluate("document.getElementById('reported_touches').removeAttribute('max')")
+    _type_and_submit(page, "reported_touches", "150")
+    expect(page.get_by_role("alert")).to_contain_text("0 to 99")
+    _type_and_submit(page, "reported_touches", "4")
+    page.reload()  # a reload resumes at the next step
+    expect(page.get_by_role("heading", level=1)).to_have_text("Set 1 of 3: video 2 of 3")
+    sessions = StudyDB(db_path).participants()
+    assert sessions[-1].participant_id == "phone-1"
+    assert StudyDB(db_path).answers(sessions[-1]) == {first: 4}
+    assert sessions[-1].order_index == len(sessions) - 1  # round-robin over the orders

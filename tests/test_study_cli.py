@@ -1,4 +1,5 @@
 import json
+import socket
 from pathlib import Path
 
 import pytest
@@ -7,7 +8,7 @@ from endocam.cli import main
 from endocam.study.db import StudyDB
 from endocam.study.manifest import parse_manifest
 from endocam.study.responses import ResponseRow, rows_to_csv
-from study_helpers import manifest_dict
+from study_helpers import make_study, manifest_dict
 
 MANIFEST = parse_manifest(json.dumps(manifest_dict()))
 
@@ -90,3 +91,70 @@ def test_bad_manifest_and_serve_errors(tmp_path: Path, capsys: pytest.CaptureFix
     bad.write_text(json.dumps(manifest_dict()), encoding="utf-8")
     assert main(["study", "serve", "--study", str(tmp_path), "--db", str(tmp_path / "s.db")]) == 2
     assert "video files missing" in capsys.readouterr().err
+
+
+def _analyze(manifest: Path, out: Path, *source: str) -> int:
+    return main(["study", "analyze", "--manifest", str(manifest), "--out", str(out), *source])
+
+
+def test_analyze_never_writes_into_an_empty_db_and_refuses_empty_sources(
+    files: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    manifest, responses = files
+    empty = tmp_path / "empty.db"
+    empty.touch()
+    assert _analyze(manifest, tmp_path / "o1", "--db", str(empty)) == 2
+    err = capsys.readouterr().err
+    assert "not a study database" in err and err.count("\n") == 1
+    assert empty.read_bytes() == b""  # the schema was not written into the input
+    StudyDB(tmp_path / "fresh.db")  # a study database without answers
+    assert _analyze(manifest, tmp_path / "o2", "--db", str(tmp_path / "fresh.db")) == 2
+    err = capsys.readouterr().err
+    assert "no answers" in err and err.count("\n") == 1
+    header_only = tmp_path / "header.csv"
+    header_only.write_text(responses.read_text().splitlines()[0] + "\n", encoding="utf-8")
+    assert _analyze(manifest, tmp_path / "o3", "--responses", str(header_only)) == 2
+    err = capsys.readouterr().err
+    assert "no data rows" in err and err.count("\n") == 1
+    assert not (tmp_path / "o3").exists()
+
+
+def test_analyze_reads_a_spreadsheet_csv_and_names_a_non_utf8_file(
+    files: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    manifest, responses = files
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + responses.read_bytes().replace(b"\n", b"\r\n"))
+    assert _analyze(manifest, tmp_path / "o1", "--responses", str(bom)) == 0
+    capsys.readouterr()
+    latin = tmp_path / "latin1.csv"
+    latin.write_bytes(responses.read_bytes().replace(b"p1,", "pé,".encode("latin-1")))
+    assert _analyze(manifest, tmp_path / "o2", "--responses", str(latin)) == 2
+    err = capsys.readouterr().err
+    assert str(latin) in err and "UTF-8" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("k", ["nan", "inf", "-1"])
+def test_tukey_k_must_be_finite_and_positive(
+    files: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str], k: str
+) -> None:
+    manifest, responses = files
+    code = _analyze(manifest, tmp_path / "o", "--responses", str(responses), "--tukey-k", k)
+    err = capsys.readouterr().err
+    assert code == 2 and "--tukey-k" in err and err.count("\n") == 1 and "http" not in err
+
+
+def test_serve_on_a_busy_port_exits_2_and_creates_no_database(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    study = make_study(tmp_path)
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        port = busy.getsockname()[1]
+        db = tmp_path / "s.db"
+        args = ["study", "serve", "--study", str(study), "--db", str(db), "--port", str(port)]
+        assert main(args) == 2
+    err = capsys.readouterr().err
+    assert f"127.0.0.1:{port}" in err and err.count("\n") == 1
+    assert not db.exists()

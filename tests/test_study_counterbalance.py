@@ -52,16 +52,29 @@ def test_latin_square_any_size(items: list[int]) -> None:
     assert _is_latin(mirror(square), tuple(items))
 
 
+def _assign_all(n_participants: int, n_orders: int) -> list[int]:
+    counts = [0] * n_orders
+    assigned = []
+    for _ in range(n_participants):
+        k = assign_order(counts)
+        counts[k] += 1
+        assigned.append(k)
+    return assigned
+
+
 @given(st.integers(min_value=0, max_value=500), st.integers(min_value=1, max_value=12))
-def test_round_robin_groups_stay_balanced(n_participants: int, n_orders: int) -> None:
-    counts = Counter(assign_order(k, n_orders) for k in range(n_participants))
-    sizes = [counts.get(i, 0) for i in range(n_orders)]
+def test_groups_stay_balanced_and_fill_in_sequence(n_participants: int, n_orders: int) -> None:
+    assigned = _assign_all(n_participants, n_orders)
+    sizes = [assigned.count(i) for i in range(n_orders)]
     assert sum(sizes) == n_participants
     assert max(sizes) - min(sizes) <= 1
-    # the first participants fill the orders in sequence
-    assert [assign_order(k, n_orders) for k in range(min(n_participants, n_orders))] == list(
-        range(min(n_participants, n_orders))
-    )
+    assert assigned == [k % n_orders for k in range(n_participants)]  # round-robin
+
+
+def test_a_gap_left_by_an_abandoned_session_is_filled_first() -> None:
+    # orders 0..5 have 2 counted sessions each, except order 3 whose second session was abandoned
+    assert assign_order([2, 2, 2, 1, 2, 2]) == 3
+    assert assign_order([1, 0, 0]) == 1
 
 
 @pytest.mark.parametrize("bad", [[], ["a", "a"]])
@@ -71,7 +84,7 @@ def test_latin_square_rejects_bad_items(bad: list[str]) -> None:
 
 
 def test_assign_order_rejects_bad_arguments() -> None:
-    with pytest.raises(ValueError, match="participant_index"):
-        assign_order(-1, 6)
-    with pytest.raises(ValueError, match="n_orders"):
-        assign_order(0, 0)
+    with pytest.raises(ValueError, match="counts"):
+        assign_order([1, -1])
+    with pytest.raises(ValueError, match="counts"):
+        assign_order([])

@@ -9,12 +9,15 @@ imported only when ``serve`` runs; MuJoCo only when ``make`` runs.
 from __future__ import annotations
 
 import argparse
+import math
 import os
+import socket
 from collections.abc import Callable
 from pathlib import Path
 
 from endocam.cli.common import UsageError
 from endocam.study.analysis import AnalysisConfig, OutlierRule
+from endocam.study.db import ABANDON_AFTER_S
 
 ADMIN_TOKEN_ENV = "ENDOCAM_ADMIN_TOKEN"
 _EXTRA_HINT = "install the study extra: pip install 'endocam[study]'"
@@ -40,6 +43,24 @@ def _make(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bind(host: str, port: int) -> socket.socket:
+    """A listening TCP socket on ``host:port`` (bound before anything is created on disk)."""
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as exc:
+        raise UsageError(f"--host: cannot resolve {host!r}: {exc.strerror}") from None
+    family, kind, proto, _, address = infos[0]
+    sock = socket.socket(family, kind, proto)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind(address)
+        sock.listen(128)
+    except OSError as exc:
+        sock.close()
+        raise UsageError(f"--port: cannot listen on {host}:{port}: {exc.strerror or exc}") from None
+    return sock
+
+
 def _serve(args: argparse.Namespace) -> int:
     study = Path(args.study)
     if not (study / "manifest.json").is_file():
@@ -48,6 +69,8 @@ def _serve(args: argparse.Namespace) -> int:
         raise UsageError(f"--db: folder {Path(args.db).parent} does not exist")
     if not 0 < args.port < 65536:
         raise UsageError(f"--port must be in 1..65535, got {args.port}")
+    if not (math.isfinite(args.abandon_after_min) and args.abandon_after_min > 0):
+        raise UsageError(f"--abandon-after-min must be > 0, got {args.abandon_after_min}")
     token = args.admin_token or os.environ.get(ADMIN_TOKEN_ENV) or None
     try:
         import uvicorn
@@ -55,13 +78,17 @@ def _serve(args: argparse.Namespace) -> int:
         from endocam.study.app import create_app
     except ModuleNotFoundError as exc:
         raise UsageError(f"'study serve' needs {exc.name}: {_EXTRA_HINT}") from None
+    sock = _bind(args.host, args.port)  # a busy port fails here, before the database exists
     try:
-        app = create_app(study, args.db, token)
+        app = create_app(study, args.db, token, abandon_after_s=60.0 * args.abandon_after_min)
     except ValueError as exc:
+        sock.close()
         raise UsageError(str(exc)) from None
     if token is None:
-        print(f"endocam: no admin token (--admin-token or {ADMIN_TOKEN_ENV}): export disabled")
-    uvicorn.run(app, host=args.host, port=args.port, log_level="info")
+        print(f"endocam: no admin token (--admin-token or {ADMIN_TOKEN_ENV}): admin disabled")
+    print(f"endocam: serving the study on http://{args.host}:{args.port}/ (Ctrl+C stops)")
+    server = uvicorn.Server(uvicorn.Config(app, log_level="info"))
+    server.run(sockets=[sock])
     return 0
 
 
@@ -73,14 +100,17 @@ def _analyze(args: argparse.Namespace) -> int:
     from endocam.study.report import write_outputs
     from endocam.study.responses import read_responses_csv
 
-    if args.tukey_k <= 0:
-        raise UsageError(f"--tukey-k must be > 0, got {args.tukey_k}")
+    if not (math.isfinite(args.tukey_k) and args.tukey_k > 0):
+        raise UsageError(f"--tukey-k must be a finite number > 0, got {args.tukey_k}")
     try:
         manifest = load_manifest(args.manifest, check_files=False)
         if args.db is not None:
-            if not Path(args.db).is_file():
-                raise UsageError(f"--db: no such file {args.db}")
-            rows = StudyDB(args.db).export_rows()
+            try:  # read-only: the analysis never writes into its input
+                rows = StudyDB(args.db, read_only=True).export_rows()
+            except ValueError as exc:
+                raise UsageError(f"--db: {exc}") from None
+            if not rows:
+                raise UsageError(f"--db: {args.db} has no answers to analyse")
         else:
             rows = read_responses_csv(args.responses)
         config = AnalysisConfig(
@@ -141,7 +171,15 @@ def _add_serve(sub: argparse._SubParsersAction) -> None:
         "--admin-token",
         default=None,
         metavar="TOKEN",
-        help=f"token for /admin/export.csv|json (default: ${ADMIN_TOKEN_ENV}; none disables it)",
+        help=f"token for /admin and its exports (default: ${ADMIN_TOKEN_ENV}; none disables it)",
+    )
+    p.add_argument(
+        "--abandon-after-min",
+        type=float,
+        default=ABANDON_AFTER_S / 60.0,
+        metavar="MIN",
+        help="minutes without activity after which an unfinished session is abandoned and no "
+        "longer counts for counterbalancing (default: %(default)g)",
     )
     p.set_defaults(handler=_serve)
 

@@ -66,8 +66,8 @@ class AnalysisConfig(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
     all_videos: bool = False
     outliers: OutlierRule = OutlierRule.TUKEY
-    tukey_k: Annotated[float, Field(gt=0)] = 1.5
-    z_threshold: Annotated[float, Field(gt=0)] = ZSCORE_THRESHOLD
+    tukey_k: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 1.5
+    z_threshold: Annotated[float, Field(gt=0, allow_inf_nan=False)] = ZSCORE_THRESHOLD
 
 
 class _Frozen(BaseModel):
@@ -177,9 +177,16 @@ def assessment_errors(
     excluded: list[Exclusion] = []
     incomplete: list[Exclusion] = []
     for pid in sorted(answers):
-        if attention[pid] is not True:
-            what = "failed" if attention[pid] is False else "did not answer"
-            excluded.append(Exclusion(participant_id=pid, reason=f"{what} the attention question"))
+        if attention[pid] is False:
+            excluded.append(Exclusion(participant_id=pid, reason="failed the attention question"))
+            continue
+        if attention[pid] is None:
+            n_given = len(answers[pid])
+            if n_given < len(known):  # stopped early: the question was perhaps never shown
+                reason = f"did not finish: answered {n_given} of {len(known)} videos"
+            else:
+                reason = "did not answer the attention question"
+            excluded.append(Exclusion(participant_id=pid, reason=reason))
             continue
         needed = [vid for ids in video_ids.values() for vid in ids]
         missing = [vid for vid in needed if vid not in answers[pid]]
@@ -336,7 +343,14 @@ def analyze(
     -------
     AnalysisResult
         Per-condition statistics, reductions, tests and the exclusion list.
+
+    Raises
+    ------
+    ValueError
+        No rows at all (an empty export), or inconsistent rows (one line).
     """
+    if not rows:
+        raise ValueError("no responses to analyse (the source has no answers)")
     config = config or AnalysisConfig()
     video_ids = {
         c: [v.id for v in manifest.videos_of(c)]

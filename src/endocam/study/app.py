@@ -1,56 +1,129 @@
 """The study web app: FastAPI + Jinja templates + the SQLite store (needs the ``study`` extra).
 
-Participants open ``/``, type an anonymous id (or leave it empty to get one) and receive a random
-session token in an ``HttpOnly``, ``SameSite=Strict`` cookie; the id alone never grants access.
-``/study`` always shows the first unanswered step (see :mod:`endocam.study.flow`), so a reload
-resumes where the participant stopped. Answers are never overwritten: a second answer for the same
-video is refused with 409.
+Participants open ``/`` (from a recruitment platform: ``/?PROLIFIC_PID=...&STUDY_ID=...&
+SESSION_ID=...``, parameter names from the manifest's ``recruitment``), read the information,
+give consent and receive a random session token in an ``HttpOnly``, ``SameSite=Strict`` cookie;
+the id alone never grants access, and the server never tells whether an id is already known (see
+:mod:`endocam.study.db`). ``/study`` always shows the first unanswered step (see
+:mod:`endocam.study.flow`): demographics, practice video with feedback, the sets, the attention
+question, and the last page with the completion code. A reload resumes where the participant
+stopped. Answers are never overwritten: a second answer for the same step is refused with 409.
+Every participant-facing text comes from the message catalogue (:mod:`endocam.study.catalogue`).
+
+The video pages post player events (play, pause, seek, rate change, end, watched seconds) to
+``/api/event`` from :file:`static/study.js`; with the manifest's ``must_watch`` an answer is
+accepted only after the video was played to its end once.
 
 JSON API (the pages post plain forms; the API serves scripts and tests):
 
-- ``POST /api/session`` ``{"participant_id": "..."?}`` → 201, sets the session cookie;
+- ``POST /api/session`` ``{"consent": true, "participant_id": "..."?, "recruitment": {...}?}``
+  → 201, sets the session cookie;
 - ``GET /api/next`` → the next step;
+- ``POST /api/demographics`` ``{"training_years": 3, "prior_assessment": "no"}``,
+  ``POST /api/practice`` ``{"reported_touches": 2}`` → 201 with the next step;
 - ``POST /api/answer`` ``{"video_id": "v01", "reported_touches": 7}`` → 201 with the next step;
 - ``POST /api/attention`` ``{"answer": 4}`` → 201 with the next step;
-- ``GET /api/me`` → the caller's own answers;
-- ``GET /admin/export.csv`` and ``/admin/export.json`` with ``Authorization: Bearer TOKEN`` or
-  ``?token=TOKEN``; disabled (403) when the app has no admin token.
+- ``POST /api/event`` ``{"video_id": "v01", "kind": "play", "media_time_s": 0.0, ...}`` → 204;
+- ``GET /api/me`` → the caller's own answers.
+
+Admin (``Authorization: Bearer TOKEN`` or ``?token=TOKEN``; 403 when the app has no token):
+``GET /admin`` (progress per order, sessions, withdraw form, action log), ``POST /admin/withdraw``,
+``GET /admin/export/{responses|participants|events}.{csv|parquet}``, ``/admin/export.json``,
+``/admin/codebook.md`` and, as before, ``/admin/export.csv`` (= responses).
+
+Limits: request bodies above :data:`MAX_BODY_BYTES` get 413; validation errors (422) name the
+field and the rule but never echo the input; session starts are rate-limited per client address
+and in total (:data:`SESSION_RATE`, 429).
 """
 
+import math
 import secrets
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal, cast
+from urllib.parse import urlencode
 
 from fastapi import Depends, FastAPI, Form, HTTPException, Request, Response
-from fastapi.responses import FileResponse, JSONResponse, RedirectResponse
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse, PlainTextResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, TypeAdapter, ValidationError
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from endocam import __version__
-from endocam.study.db import ConflictError, Participant, StudyDB
-from endocam.study.flow import Step, StepKind, next_step
+from endocam.study.catalogue import Catalogue, load_catalogue
+from endocam.study.db import (
+    ABANDON_AFTER_S,
+    ConflictError,
+    Participant,
+    Status,
+    StudyDB,
+)
+from endocam.study.export import (
+    TABLES,
+    TableName,
+    codebook_markdown,
+    export_tables,
+    to_csv,
+    to_json,
+)
+from endocam.study.export import to_parquet as table_to_parquet
+from endocam.study.flow import Step, StepKind, next_step, video_sequence
 from endocam.study.manifest import ID_PATTERN, MAX_TOUCHES, Manifest, load_manifest
-from endocam.study.responses import rows_to_csv
+from endocam.study.responses import parse_count
 
 SESSION_COOKIE = "endocam_session"
 SESSION_MAX_AGE_S = 7 * 24 * 3600  # s, cookie lifetime
+MAX_BODY_BYTES = 16 * 1024  # largest request body accepted (forms and JSON are far smaller)
+MAX_TRAINING_YEARS = 60  # years, largest years-of-training answer
+MAX_MEDIA_TIME_S = 24 * 3600.0  # s, largest media time / watched seconds an event may report
+MAX_PLAYBACK_RATE = 16.0  # fastest playback rate an event may report (browsers allow ≤ 16)
+PRACTICE_ID = "_practice"  # video id of the practice video (never a manifest id: see ID_PATTERN)
+PRIOR_ASSESSMENT = ("yes", "no", "unsure")
 _HERE = Path(__file__).parent
 TEMPLATES_DIR = _HERE / "templates"
 STATIC_DIR = _HERE / "static"
 
+
+@dataclass(frozen=True)
+class RateLimit:
+    """Limit on session starts within any ``window_s`` seconds.
+
+    Attributes
+    ----------
+    per_client : int
+        Starts allowed per client address.
+    total : int
+        Starts allowed in total.
+    window_s : float
+        Length of the sliding window, s.
+    """
+
+    per_client: int
+    total: int
+    window_s: float
+
+
+SESSION_RATE = RateLimit(per_client=20, total=600, window_s=60.0)
+
 Touches = Annotated[StrictInt, Field(ge=0, le=MAX_TOUCHES)]
 ParticipantId = Annotated[str, Field(pattern=ID_PATTERN)]
-_form_touches: TypeAdapter[int] = TypeAdapter(Annotated[int, Field(ge=0, le=MAX_TOUCHES)])
 _form_id: TypeAdapter[str] = TypeAdapter(ParticipantId)
+Seconds = Annotated[float, Field(ge=0.0, le=MAX_MEDIA_TIME_S, allow_inf_nan=False)]
 
 
 class SessionIn(BaseModel):
     """Body of ``POST /api/session``; without an id the server generates one."""
 
     model_config = ConfigDict(extra="forbid")
+    consent: Literal[True]
     participant_id: ParticipantId | None = None
+    recruitment: dict[str, ParticipantId] | None = None
 
 
 class AnswerIn(BaseModel):
@@ -62,6 +135,13 @@ class AnswerIn(BaseModel):
     participant_id: str | None = None
 
 
+class CountIn(BaseModel):
+    """Body of ``POST /api/practice``."""
+
+    model_config = ConfigDict(extra="forbid")
+    reported_touches: Touches
+
+
 class AttentionIn(BaseModel):
     """Body of ``POST /api/attention``."""
 
@@ -69,13 +149,33 @@ class AttentionIn(BaseModel):
     answer: Touches
 
 
-class _RefusedError(Exception):
-    """A request the study refuses; becomes an HTTP error or an error message on the page."""
+class DemographicsIn(BaseModel):
+    """Body of ``POST /api/demographics``; both answers optional."""
 
-    def __init__(self, status: int, message: str) -> None:
+    model_config = ConfigDict(extra="forbid")
+    training_years: Annotated[StrictInt, Field(ge=0, le=MAX_TRAINING_YEARS)] | None = None
+    prior_assessment: Literal["yes", "no", "unsure"] | None = None
+
+
+class EventIn(BaseModel):
+    """Body of ``POST /api/event``: one player event (times in s of media time)."""
+
+    model_config = ConfigDict(extra="forbid")
+    video_id: Annotated[str, Field(min_length=1, max_length=128)]
+    kind: Literal["play", "pause", "seeked", "ratechange", "ended", "progress"]
+    media_time_s: Seconds | None = None
+    playback_rate: Annotated[float, Field(gt=0.0, le=MAX_PLAYBACK_RATE)] | None = None
+    watched_s: Seconds | None = None
+
+
+class _RefusedError(Exception):
+    """A request the study refuses; ``message`` for the API, ``key`` for the page's text."""
+
+    def __init__(self, status: int, message: str, key: str = "error_step") -> None:
         super().__init__(message)
         self.status = status
         self.message = message
+        self.key = key
 
 
 class _SecurityHeaders:
@@ -106,6 +206,92 @@ class _SecurityHeaders:
         await self.app(scope, receive, send_with_headers)
 
 
+class _BodyLimit:
+    """Pure-ASGI middleware: refuse request bodies above ``max_bytes`` with 413.
+
+    Both a declared ``Content-Length`` and the bytes actually streamed are checked.
+    """
+
+    def __init__(self, app: ASGIApp, max_bytes: int = MAX_BODY_BYTES) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    async def _refuse(self, send: Send) -> None:
+        body = f'{{"detail":"request body larger than {self.max_bytes} bytes"}}'.encode()
+        await send(
+            {
+                "type": "http.response.start",
+                "status": 413,
+                "headers": [
+                    (b"content-type", b"application/json"),
+                    (b"content-length", str(len(body)).encode()),
+                    (b"connection", b"close"),
+                ],
+            }
+        )
+        await send({"type": "http.response.body", "body": body})
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        declared = dict(scope["headers"]).get(b"content-length")
+        if declared is not None and (not declared.isdigit() or int(declared) > self.max_bytes):
+            await self._refuse(send)
+            return
+        # bodies are small: read the whole body (up to the cap) before the app sees it
+        chunks: list[bytes] = []
+        size = 0
+        while True:
+            message = await receive()
+            if message["type"] != "http.request":  # client went away
+                return
+            chunk = message.get("body", b"")
+            size += len(chunk)
+            if size > self.max_bytes:
+                await self._refuse(send)
+                return
+            chunks.append(chunk)
+            if not message.get("more_body", False):
+                break
+        body = b"".join(chunks)
+        sent = False
+
+        async def replay() -> Message:
+            nonlocal sent
+            if not sent:
+                sent = True
+                return {"type": "http.request", "body": body, "more_body": False}
+            return await receive()
+
+        await self.app(scope, replay, send)
+
+
+class _RateLimiter:
+    """Sliding-window counter of session starts (thread-safe, in memory)."""
+
+    def __init__(self, limit: RateLimit) -> None:
+        self.limit = limit
+        self._lock = threading.Lock()
+        self._all: deque[float] = deque()
+        self._by_client: dict[str, deque[float]] = {}
+
+    def allow(self, client: str) -> bool:
+        """Count one start by ``client``; False if it is over a limit (then nothing is counted)."""
+        now = time.monotonic()
+        with self._lock:
+            for stamps in (self._all, *self._by_client.values()):
+                while stamps and now - stamps[0] > self.limit.window_s:
+                    stamps.popleft()
+            self._by_client = {k: v for k, v in self._by_client.items() if v}
+            mine = self._by_client.setdefault(client, deque())
+            if len(mine) >= self.limit.per_client or len(self._all) >= self.limit.total:
+                return False
+            mine.append(now)
+            self._all.append(now)
+            return True
+
+
 def _step_json(step: Step) -> dict[str, Any]:
     return {
         "kind": step.kind.value,
@@ -120,17 +306,39 @@ def _step_json(step: Step) -> dict[str, Any]:
     }
 
 
-def create_app(study_dir: str | Path, db_path: str | Path, admin_token: str | None) -> FastAPI:
+def _validation_error_body(exc: RequestValidationError) -> dict[str, Any]:
+    """422 body naming each failed field and rule, never the submitted input."""
+    return {
+        "detail": [
+            {"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
+            for e in exc.errors()
+        ]
+    }
+
+
+def create_app(
+    study_dir: str | Path,
+    db_path: str | Path,
+    admin_token: str | None,
+    *,
+    session_rate: RateLimit = SESSION_RATE,
+    abandon_after_s: float = ABANDON_AFTER_S,
+) -> FastAPI:
     """Build the study web app.
 
     Parameters
     ----------
     study_dir : str or Path
-        Study folder with ``manifest.json`` and the video files it lists.
+        Study folder with ``manifest.json`` and the files it names.
     db_path : str or Path
         SQLite database file (created if missing; its folder must exist).
     admin_token : str or None
-        Token guarding ``/admin/export.*``; None or empty disables the export (403).
+        Token guarding ``/admin``; None or empty disables the admin pages (403).
+    session_rate : RateLimit
+        Limit on session starts.
+    abandon_after_s : float
+        Idle time (s) after which an unfinished session is abandoned (no longer counted for
+        counterbalancing; shown as such on the admin page).
 
     Returns
     -------
@@ -140,21 +348,43 @@ def create_app(study_dir: str | Path, db_path: str | Path, admin_token: str | No
     Raises
     ------
     ValueError
-        Unusable study folder or database (one-line message).
+        Unusable study folder, message catalogue or database (one-line message).
     """
+    if not (math.isfinite(abandon_after_s) and abandon_after_s > 0):
+        raise ValueError(f"abandon_after_s must be > 0, got {abandon_after_s}")
     study_root = Path(study_dir).resolve()
     manifest: Manifest = load_manifest(study_root, check_files=True)
+    t: Catalogue = load_catalogue(
+        study_root / manifest.messages_file if manifest.messages_file else None
+    )
+    consent_text = (
+        [p.strip() for p in (study_root / manifest.consent_file).read_text("utf-8").split("\n\n")]
+        if manifest.consent_file
+        else t.paragraphs("consent_default")
+    )
     db = StudyDB(db_path)
     video_files = {v.id: study_root / v.file for v in manifest.videos}
+    if manifest.practice:
+        video_files[PRACTICE_ID] = study_root / manifest.practice.file
     templates = Jinja2Templates(directory=str(TEMPLATES_DIR))
+    templates.env.globals.update(
+        t=t, manifest=manifest, max_touches=MAX_TOUCHES, max_years=MAX_TRAINING_YEARS
+    )
+    limiter = _RateLimiter(session_rate)
+    recruitment_params = (manifest.recruitment.id_param, *manifest.recruitment.extra_params)
 
     app = FastAPI(
         title="endocam study", version=__version__, docs_url=None, redoc_url=None, openapi_url=None
     )
     app.add_middleware(_SecurityHeaders)
+    app.add_middleware(_BodyLimit)
     app.mount("/static", StaticFiles(directory=str(STATIC_DIR)), name="static")
     app.state.manifest = manifest
     app.state.db = db
+
+    @app.exception_handler(RequestValidationError)
+    async def no_echo(request: Request, exc: RequestValidationError) -> JSONResponse:
+        return JSONResponse(_validation_error_body(exc), status_code=422)
 
     # ---- shared logic ---------------------------------------------------------------------
     def session_participant(request: Request) -> Participant | None:
@@ -169,80 +399,121 @@ def create_app(study_dir: str | Path, db_path: str | Path, admin_token: str | No
 
     def current_step(participant: Participant) -> Step:
         return next_step(
-            manifest,
-            participant.order_index,
+            participant.video_order,
             db.answers(participant).keys(),
             participant.attention_answer is not None,
+            demographics_due=manifest.demographics and not participant.demographics_done,
+            practice_due=manifest.practice is not None and not participant.practice_done,
         )
 
-    def start_session(response: Response, participant_id: str | None) -> Participant:
-        for _ in range(5):
-            pid = participant_id or f"p-{secrets.token_hex(4)}"
-            try:
-                participant, token = db.create_participant(pid, len(manifest.orders))
-            except ConflictError:
-                if participant_id:
-                    msg = f"the id {pid!r} is already taken; choose another"
-                    raise _RefusedError(409, msg) from None
-                continue
-            response.set_cookie(
-                SESSION_COOKIE,
-                token,
-                max_age=SESSION_MAX_AGE_S,
-                httponly=True,
-                samesite="strict",
-                path="/",
-            )
-            return participant
-        raise _RefusedError(503, "could not generate a free participant id; try again")
+    def start_session(
+        request: Request,
+        response: Response,
+        participant_id: str | None,
+        recruitment: dict[str, str],
+    ) -> Participant:
+        client = request.client.host if request.client else "unknown"
+        if not limiter.allow(client):
+            raise _RefusedError(429, "too many new sessions; wait a minute", "error_rate")
+        unknown = sorted(set(recruitment) - set(recruitment_params))
+        if unknown:
+            raise _RefusedError(422, f"unknown recruitment parameters {unknown}", "error_platform")
+        pid = recruitment.get(manifest.recruitment.id_param) or participant_id
+        participant, token = db.create_participant(
+            pid or f"p-{secrets.token_hex(4)}",
+            len(manifest.orders),
+            lambda order, seed: video_sequence(manifest, order, seed),
+            recruitment=recruitment,
+            abandon_after_s=abandon_after_s,
+        )
+        response.set_cookie(
+            SESSION_COOKIE,
+            token,
+            max_age=SESSION_MAX_AGE_S,
+            httponly=True,
+            samesite="strict",
+            path="/",
+        )
+        return participant
+
+    def finish_if_done(participant: Participant) -> Participant:
+        participant = db.refresh(participant)
+        if current_step(participant).kind == StepKind.DONE:
+            db.mark_completed(participant)
+        return participant
+
+    def expect_step(participant: Participant, kind: StepKind) -> None:
+        step = current_step(participant)
+        if step.kind != kind:
+            raise _RefusedError(409, f"{kind.value} is not the current step ({step.kind.value})")
+
+    def submit_demographics(participant: Participant, years: int | None, prior: str | None) -> None:
+        expect_step(participant, StepKind.DEMOGRAPHICS)
+        try:
+            db.record_demographics(participant, years, prior)
+        except ConflictError as exc:
+            raise _RefusedError(409, str(exc)) from None
+
+    def submit_practice(participant: Participant, touches: int) -> None:
+        expect_step(participant, StepKind.PRACTICE)
+        if manifest.must_watch and not db.watched_to_end(participant, PRACTICE_ID):
+            raise _RefusedError(409, "watch the video to its end first", "error_must_watch")
+        try:
+            db.record_practice(participant, touches)
+        except ConflictError as exc:
+            raise _RefusedError(409, str(exc)) from None
 
     def submit_answer(participant: Participant, video_id: str, touches: int) -> None:
-        if video_id not in video_files:
+        if video_id not in video_files or video_id == PRACTICE_ID:
             raise _RefusedError(404, f"unknown video {video_id!r}")
         answers = db.answers(participant)
         if video_id in answers:
             raise _RefusedError(409, f"video {video_id!r} is already answered; answers are final")
-        step = next_step(
-            manifest,
-            participant.order_index,
-            answers.keys(),
-            participant.attention_answer is not None,
-        )
+        step = current_step(participant)
         if step.kind != StepKind.VIDEO or step.video_id != video_id:
             raise _RefusedError(
                 409, f"video {video_id!r} is not the current step ({step.kind.value})"
             )
+        if manifest.must_watch and not db.watched_to_end(participant, video_id):
+            raise _RefusedError(409, "watch the video to its end first", "error_must_watch")
         try:
             db.record_answer(participant, video_id, touches)
         except ConflictError as exc:
             raise _RefusedError(409, str(exc)) from None
+        finish_if_done(participant)
 
     def submit_attention(participant: Participant, answer: int) -> None:
-        if current_step(participant).kind != StepKind.ATTENTION:
-            raise _RefusedError(409, "the attention question is not the current step")
+        expect_step(participant, StepKind.ATTENTION)
         try:
             db.record_attention(participant, answer, answer == manifest.attention.answer)
         except ConflictError as exc:
             raise _RefusedError(409, str(exc)) from None
+        finish_if_done(participant)
 
-    def check_admin(request: Request) -> None:
+    def check_admin(request: Request) -> str:
         if not admin_token:
-            raise HTTPException(403, "the export is disabled: start the server with an admin token")
+            raise HTTPException(403, "the admin pages are disabled: start with an admin token")
         header = request.headers.get("authorization", "")
         given = header[7:] if header.lower().startswith("bearer ") else ""
         given = given or request.query_params.get("token", "")
         if not secrets.compare_digest(given.encode(), admin_token.encode()):
             raise HTTPException(401, "admin token missing or wrong", {"WWW-Authenticate": "Bearer"})
+        return given
 
     CurrentParticipant = Annotated[Participant, Depends(require_participant)]
 
+    def api_refusal(exc: _RefusedError) -> HTTPException:
+        return HTTPException(exc.status, exc.message)
+
     # ---- JSON API -------------------------------------------------------------------------
     @app.post("/api/session", status_code=201)
-    def api_session(response: Response, body: SessionIn | None = None) -> dict[str, Any]:
+    def api_session(request: Request, response: Response, body: SessionIn) -> dict[str, Any]:
         try:
-            participant = start_session(response, body.participant_id if body else None)
+            participant = start_session(
+                request, response, body.participant_id, body.recruitment or {}
+            )
         except _RefusedError as exc:
-            raise HTTPException(exc.status, exc.message) from None
+            raise api_refusal(exc) from None
         return {
             "participant_id": participant.participant_id,
             "next": _step_json(current_step(participant)),
@@ -260,6 +531,26 @@ def create_app(study_dir: str | Path, db_path: str | Path, admin_token: str | No
             "attention_answered": participant.attention_answer is not None,
         }
 
+    @app.post("/api/demographics", status_code=201)
+    def api_demographics(body: DemographicsIn, participant: CurrentParticipant) -> dict[str, Any]:
+        try:
+            submit_demographics(participant, body.training_years, body.prior_assessment)
+        except _RefusedError as exc:
+            raise api_refusal(exc) from None
+        return {"next": _step_json(current_step(db.refresh(participant)))}
+
+    @app.post("/api/practice", status_code=201)
+    def api_practice(body: CountIn, participant: CurrentParticipant) -> dict[str, Any]:
+        try:
+            submit_practice(participant, body.reported_touches)
+        except _RefusedError as exc:
+            raise api_refusal(exc) from None
+        assert manifest.practice is not None  # submit_practice checked the step
+        return {
+            "true_touches": manifest.practice.true_touches,
+            "next": _step_json(current_step(db.refresh(participant))),
+        }
+
     @app.post("/api/answer", status_code=201)
     def api_answer(body: AnswerIn, participant: CurrentParticipant) -> dict[str, Any]:
         if body.participant_id is not None and body.participant_id != participant.participant_id:
@@ -267,7 +558,7 @@ def create_app(study_dir: str | Path, db_path: str | Path, admin_token: str | No
         try:
             submit_answer(participant, body.video_id, body.reported_touches)
         except _RefusedError as exc:
-            raise HTTPException(exc.status, exc.message) from None
+            raise api_refusal(exc) from None
         return {"next": _step_json(current_step(participant))}
 
     @app.post("/api/attention", status_code=201)
@@ -275,31 +566,72 @@ def create_app(study_dir: str | Path, db_path: str | Path, admin_token: str | No
         try:
             submit_attention(participant, body.answer)
         except _RefusedError as exc:
-            raise HTTPException(exc.status, exc.message) from None
+            raise api_refusal(exc) from None
         return {"next": _step_json(current_step(db.refresh(participant)))}
+
+    @app.post("/api/event", status_code=204)
+    def api_event(body: EventIn, participant: CurrentParticipant) -> Response:
+        if body.video_id not in video_files:
+            raise HTTPException(404, f"unknown video {body.video_id!r}")
+        db.record_event(
+            participant,
+            body.video_id,
+            body.kind,
+            body.media_time_s,
+            body.playback_rate,
+            body.watched_s,
+        )
+        return Response(status_code=204)
 
     # ---- pages ----------------------------------------------------------------------------
     def page(request: Request, name: str, status: int = 200, **context: Any) -> Response:
         return templates.TemplateResponse(request, name, context, status_code=status)
 
+    def start_context(params: dict[str, str], value: str = "") -> dict[str, Any]:
+        return {
+            "consent_text": consent_text,
+            "params": params,
+            "platform_id": params.get(manifest.recruitment.id_param),
+            "value": value,
+            "n_videos": len(manifest.videos),
+            "n_sets": len(manifest.conditions),
+            "per_set": len(manifest.videos) // len(manifest.conditions),
+        }
+
     @app.get("/")
     def start_page(request: Request) -> Response:
         if session_participant(request) is not None:
             return RedirectResponse("/study", status_code=303)
-        return page(request, "start.html", error=None, value="")
+        params = {k: v for k, v in request.query_params.items() if k in recruitment_params}
+        try:
+            for v in params.values():
+                _form_id.validate_python(v)
+        except ValidationError:
+            context = start_context({})
+            return page(request, "start.html", 400, error=t("error_platform"), **context)
+        return page(request, "start.html", error=None, **start_context(params))
 
     @app.post("/start")
-    def start_form(request: Request, participant_id: Annotated[str, Form()] = "") -> Response:
-        value = participant_id.strip()
+    async def start_form(request: Request) -> Response:
+        form = await request.form()
+        fields = {k: v for k, v in form.items() if isinstance(v, str)}
+        params = {k: v for k, v in fields.items() if k in recruitment_params and v}
+        value = fields.get("participant_id", "").strip()
+        context = start_context(params, value)
+        if fields.get("consent") != "yes":
+            return page(request, "start.html", 400, error=t("error_consent"), **context)
         try:
             chosen = _form_id.validate_python(value) if value else None
-            redirect = RedirectResponse("/study", status_code=303)
-            start_session(redirect, chosen)
+            for v in params.values():
+                _form_id.validate_python(v)
         except ValidationError:
-            message = "Use 1–64 letters, digits, '-', '_' or '.', starting with a letter or digit."
-            return page(request, "start.html", 400, error=message, value=value)
+            key = "error_platform" if params else "error_id"
+            return page(request, "start.html", 400, error=t(key), **context)
+        redirect = RedirectResponse("/study", status_code=303)
+        try:
+            start_session(request, redirect, chosen, params)
         except _RefusedError as exc:
-            return page(request, "start.html", exc.status, error=exc.message, value=value)
+            return page(request, "start.html", exc.status, error=t(exc.key), **context)
         return redirect
 
     def step_page(
@@ -307,13 +639,29 @@ def create_app(study_dir: str | Path, db_path: str | Path, admin_token: str | No
     ) -> Response:
         step = current_step(participant)
         context: dict[str, Any] = {"step": step, "participant": participant, "error": error}
+        if step.kind == StepKind.DEMOGRAPHICS:
+            return page(request, "demographics.html", status, **context)
+        if step.kind == StepKind.PRACTICE:
+            db.record_event(participant, PRACTICE_ID, "shown")
+            return page(request, "practice.html", status, video_id=PRACTICE_ID, **context)
         if step.kind == StepKind.VIDEO:
-            return page(request, "video.html", status, **context)
+            assert step.video_id is not None
+            db.record_event(participant, step.video_id, "shown")
+            return page(request, "video.html", status, video_id=step.video_id, **context)
         if step.kind == StepKind.ATTENTION:
             return page(
                 request, "attention.html", status, question=manifest.attention.question, **context
             )
-        return page(request, "done.html", status, **context)
+        code = manifest.recruitment.completion_code
+        url = manifest.recruitment.completion_url
+        return page(
+            request,
+            "done.html",
+            status,
+            code=code,
+            return_url=url.replace("{code}", code or "") if url else None,
+            **context,
+        )
 
     @app.get("/study")
     def study_page(request: Request) -> Response:
@@ -321,6 +669,64 @@ def create_app(study_dir: str | Path, db_path: str | Path, admin_token: str | No
         if participant is None:
             return RedirectResponse("/", status_code=303)
         return step_page(request, participant)
+
+    def form_count(text: str) -> int | None:
+        try:
+            return parse_count(text)
+        except ValueError:
+            return None
+
+    @app.post("/study/demographics")
+    def demographics_form(
+        request: Request,
+        training_years: Annotated[str, Form()] = "",
+        prior_assessment: Annotated[str, Form()] = "",
+    ) -> Response:
+        participant = session_participant(request)
+        if participant is None:
+            return RedirectResponse("/", status_code=303)
+        try:
+            text = training_years.strip()
+            years = parse_count(text, MAX_TRAINING_YEARS) if text else None
+        except ValueError:
+            return step_page(
+                request, participant, 400, t("error_years", max_years=MAX_TRAINING_YEARS)
+            )
+        prior = prior_assessment if prior_assessment in PRIOR_ASSESSMENT else None
+        try:
+            submit_demographics(participant, years, prior)
+        except _RefusedError as exc:
+            return step_page(request, participant, exc.status, t(exc.key))
+        return RedirectResponse("/study", status_code=303)
+
+    @app.post("/study/practice")
+    def practice_form(request: Request, reported_touches: Annotated[str, Form()] = "") -> Response:
+        participant = session_participant(request)
+        if participant is None:
+            return RedirectResponse("/", status_code=303)
+        touches = form_count(reported_touches)
+        if touches is None:
+            return step_page(request, participant, 400, t("error_count", max_touches=MAX_TOUCHES))
+        try:
+            submit_practice(participant, touches)
+        except _RefusedError as exc:
+            return step_page(request, participant, exc.status, t(exc.key))
+        return RedirectResponse("/study/practice/feedback", status_code=303)
+
+    @app.get("/study/practice/feedback")
+    def practice_feedback(request: Request) -> Response:
+        participant = session_participant(request)
+        if participant is None:
+            return RedirectResponse("/", status_code=303)
+        if manifest.practice is None or participant.practice_answer is None:
+            return RedirectResponse("/study", status_code=303)
+        return page(
+            request,
+            "feedback.html",
+            participant=participant,
+            given=participant.practice_answer,
+            true_touches=manifest.practice.true_touches,
+        )
 
     @app.post("/study/answer")
     def answer_form(
@@ -331,16 +737,13 @@ def create_app(study_dir: str | Path, db_path: str | Path, admin_token: str | No
         participant = session_participant(request)
         if participant is None:
             return RedirectResponse("/", status_code=303)
-        try:
-            touches = _form_touches.validate_python(reported_touches.strip())
-        except ValidationError:
-            return step_page(
-                request, participant, 400, f"Enter a whole number from 0 to {MAX_TOUCHES}."
-            )
+        touches = form_count(reported_touches)
+        if touches is None:
+            return step_page(request, participant, 400, t("error_count", max_touches=MAX_TOUCHES))
         try:
             submit_answer(participant, video_id, touches)
         except _RefusedError as exc:
-            return step_page(request, participant, exc.status, exc.message)
+            return step_page(request, participant, exc.status, t(exc.key))
         return RedirectResponse("/study", status_code=303)
 
     @app.post("/study/attention")
@@ -348,16 +751,13 @@ def create_app(study_dir: str | Path, db_path: str | Path, admin_token: str | No
         participant = session_participant(request)
         if participant is None:
             return RedirectResponse("/", status_code=303)
-        try:
-            value = _form_touches.validate_python(answer.strip())
-        except ValidationError:
-            return step_page(
-                request, participant, 400, f"Enter a whole number from 0 to {MAX_TOUCHES}."
-            )
+        value = form_count(answer)
+        if value is None:
+            return step_page(request, participant, 400, t("error_count", max_touches=MAX_TOUCHES))
         try:
             submit_attention(participant, value)
         except _RefusedError as exc:
-            return step_page(request, participant, exc.status, exc.message)
+            return step_page(request, participant, exc.status, t(exc.key))
         return RedirectResponse("/study", status_code=303)
 
     @app.get("/videos/{video_id}")
@@ -368,28 +768,86 @@ def create_app(study_dir: str | Path, db_path: str | Path, admin_token: str | No
         return FileResponse(path, media_type="video/mp4")
 
     # ---- admin ----------------------------------------------------------------------------
-    @app.get("/admin/export.csv", dependencies=[Depends(check_admin)])
-    def export_csv() -> Response:
-        return Response(
-            rows_to_csv(db.export_rows()),
-            media_type="text/csv; charset=utf-8",
-            headers={"Content-Disposition": 'attachment; filename="responses.csv"'},
+    Admin = Annotated[str, Depends(check_admin)]
+
+    def tables() -> dict[TableName, list[Any]]:
+        return export_tables(db, manifest, abandon_after_s)
+
+    @app.get("/admin")
+    def admin_page(request: Request, token: Admin) -> Response:
+        now = datetime.now(UTC)
+        sessions = db.participants()
+        statuses = [p.status(now, abandon_after_s) for p in sessions]
+        progress = [
+            {
+                "index": i,
+                "order": " > ".join(c.value for c in order),
+                **{
+                    s.value: sum(
+                        1
+                        for p, st in zip(sessions, statuses, strict=True)
+                        if p.order_index == i and st == s
+                    )
+                    for s in Status
+                },
+            }
+            for i, order in enumerate(manifest.orders)
+        ]
+        return page(
+            request,
+            "admin.html",
+            token=token,
+            progress=progress,
+            statuses=list(Status),
+            sessions=list(zip(sessions, statuses, strict=True)),
+            log=db.admin_log(),
+            abandon_after_min=abandon_after_s / 60.0,
+            tables=TABLES,
+            message=request.query_params.get("message"),
         )
+
+    @app.post("/admin/withdraw")
+    async def admin_withdraw(request: Request) -> Response:
+        form = await request.form()
+        token = str(form.get("token", ""))
+        if not admin_token or not secrets.compare_digest(token.encode(), admin_token.encode()):
+            raise HTTPException(401, "admin token missing or wrong")
+        pid = str(form.get("participant_id", "")).strip()
+        try:
+            removed = db.withdraw(pid, note=str(form.get("note", "")).strip()[:200])
+        except KeyError:
+            raise HTTPException(404, "no active session has this participant id") from None
+        message = f"withdrew {pid}: {removed} answer(s) removed"
+        target = f"/admin?{urlencode({'token': token, 'message': message})}"
+        return RedirectResponse(target, status_code=303)
+
+    @app.get("/admin/codebook.md", dependencies=[Depends(check_admin)])
+    def codebook() -> PlainTextResponse:
+        return PlainTextResponse(codebook_markdown(), media_type="text/markdown; charset=utf-8")
 
     @app.get("/admin/export.json", dependencies=[Depends(check_admin)])
     def export_json() -> JSONResponse:
-        participants = [
-            {
-                "participant_id": p.participant_id,
-                "order_index": p.order_index,
-                "order": [c.value for c in manifest.orders[p.order_index]],
-                "created": p.created,
-                "attention_answer": p.attention_answer,
-                "attention_passed": p.attention_passed,
-            }
-            for p in db.participants()
-        ]
-        responses = [r.model_dump(mode="json") for r in db.export_rows()]
-        return JSONResponse({"participants": participants, "responses": responses})
+        return JSONResponse(to_json(tables()))
+
+    @app.get("/admin/export.csv", dependencies=[Depends(check_admin)])
+    def export_csv() -> Response:
+        return export_table("responses", "csv")
+
+    @app.get("/admin/export/{table}.{fmt}", dependencies=[Depends(check_admin)])
+    def export_table(table: str, fmt: str) -> Response:
+        if table not in TABLES or fmt not in ("csv", "parquet"):
+            raise HTTPException(404, f"no export {table}.{fmt}: tables {TABLES}, csv or parquet")
+        name = cast(TableName, table)
+        rows = tables()[name]
+        disposition = {"Content-Disposition": f'attachment; filename="{table}.{fmt}"'}
+        if fmt == "csv":
+            return Response(
+                to_csv(name, rows), media_type="text/csv; charset=utf-8", headers=disposition
+            )
+        return Response(
+            table_to_parquet(name, rows),
+            media_type="application/vnd.apache.parquet",
+            headers=disposition,
+        )
 
     return app

@@ -2,9 +2,11 @@
 
 Two 3×3 Latin squares are built: the first is cyclic (row ``i`` starts with condition ``i``), the
 second is its mirror (each row reversed). Each condition appears once in every position of each
-square; for three conditions the six rows are the six permutations. Participants are assigned to
-the orders round-robin: participant ``k`` (0-based, in order of arrival) gets order ``k mod 6``,
-so group sizes never differ by more than one.
+square; for three conditions the six rows are the six permutations. A new participant gets the
+order with the fewest sessions that count (completed or still active; abandoned and withdrawn
+sessions do not, see :mod:`endocam.study.db`), the first such order on ties. With no session
+abandoned this is round-robin: participant ``k`` (0-based) gets order ``k mod 6``, and the counted
+group sizes never differ by more than one.
 """
 
 from __future__ import annotations
@@ -64,10 +66,21 @@ def presentation_orders(
     return square + mirror(square)
 
 
-def assign_order(participant_index: int, n_orders: int) -> int:
-    """Round-robin order index for the ``participant_index``-th participant (0-based)."""
-    if participant_index < 0:
-        raise ValueError(f"participant_index must be >= 0, got {participant_index}")
-    if n_orders < 1:
-        raise ValueError(f"n_orders must be >= 1, got {n_orders}")
-    return participant_index % n_orders
+def assign_order(counts: Sequence[int]) -> int:
+    """Order index for a new participant: the order with the fewest counted sessions.
+
+    Parameters
+    ----------
+    counts : sequence of int, length n_orders ≥ 1
+        Sessions per order that count (completed or active), each ≥ 0.
+
+    Returns
+    -------
+    int
+        Index of the smallest count, the lowest index on ties.
+    """
+    if len(counts) < 1:
+        raise ValueError("counts must list at least one order")
+    if min(counts) < 0:
+        raise ValueError(f"counts must be >= 0, got {list(counts)}")
+    return min(range(len(counts)), key=lambda i: (counts[i], i))

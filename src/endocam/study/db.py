@@ -1,4 +1,4 @@
-"""SQLite storage of the study: participants, their orders, attention answers and responses.
+"""SQLite storage of the study: sessions, their orders, answers, interaction events, admin log.
 
 The database is a real file in WAL mode with ``synchronous=FULL``: every answer is committed in its
 own transaction when it is submitted, so neither a reload nor a server restart loses anything.
@@ -7,35 +7,67 @@ server's worker threads and between processes.
 
 Session tokens are random (``secrets.token_urlsafe``); only their SHA-256 is stored, so a copy of
 the database does not let anyone act as a participant.
+
+A participant id is a label, not a key: the same id may start several sessions (someone reopening
+a recruitment link in another browser), so the server never reveals whether an id is known. Each
+session is numbered per id (``attempt`` 1, 2, ...); only the first non-withdrawn attempt enters
+the analysis (:meth:`StudyDB.export_rows`), the others stay in the exports, marked.
+
+A session's status is *completed* (every step answered), *withdrawn* (by the admin), *active*
+(something happened within the last ``abandon_after_s``) or else *abandoned*. Counterbalancing
+counts completed and active sessions only (:func:`endocam.study.counterbalance.assign_order`).
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import secrets
 import sqlite3
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import closing, contextmanager
 from dataclasses import dataclass
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
+from enum import StrEnum
 from pathlib import Path
+from typing import Any
 
 from endocam.study.counterbalance import assign_order
+from endocam.study.flow import VideoSequence
 from endocam.study.responses import ResponseRow
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 BUSY_TIMEOUT_S = 10.0  # s, how long a writer waits for the lock
+ABANDON_AFTER_S = (
+    2 * 3600.0
+)  # s without any activity after which an unfinished session is abandoned
+MAX_EVENTS_PER_VIDEO = 2000  # interaction events stored per session and video (the rest dropped)
+EVENT_KINDS = ("shown", "play", "pause", "seeked", "ratechange", "ended", "progress")
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS participants (
     pk               INTEGER PRIMARY KEY AUTOINCREMENT,
-    participant_id   TEXT    NOT NULL UNIQUE,
+    participant_id   TEXT    NOT NULL,
+    attempt          INTEGER NOT NULL CHECK (attempt >= 1),
     token_sha256     TEXT    NOT NULL UNIQUE,
     order_index      INTEGER NOT NULL CHECK (order_index >= 0),
+    shuffle_seed     INTEGER NOT NULL,
+    video_order      TEXT    NOT NULL,
+    recruitment      TEXT    NOT NULL,
     created          TEXT    NOT NULL,
+    consented        TEXT    NOT NULL,
+    last_active      TEXT    NOT NULL,
+    training_years   INTEGER,
+    prior_assessment TEXT,
+    demographics_time TEXT,
+    practice_answer  INTEGER,
+    practice_time    TEXT,
     attention_answer INTEGER,
     attention_passed INTEGER CHECK (attention_passed IN (0, 1)),
-    attention_time   TEXT
+    attention_time   TEXT,
+    completed        TEXT,
+    withdrawn        TEXT,
+    UNIQUE (participant_id, attempt)
 );
 CREATE TABLE IF NOT EXISTS responses (
     participant_pk   INTEGER NOT NULL REFERENCES participants(pk),
@@ -44,39 +76,134 @@ CREATE TABLE IF NOT EXISTS responses (
     submitted        TEXT    NOT NULL,
     PRIMARY KEY (participant_pk, video_id)
 );
+CREATE TABLE IF NOT EXISTS events (
+    pk               INTEGER PRIMARY KEY AUTOINCREMENT,
+    participant_pk   INTEGER NOT NULL REFERENCES participants(pk),
+    video_id         TEXT    NOT NULL,
+    kind             TEXT    NOT NULL,
+    media_time_s     REAL,
+    playback_rate    REAL,
+    watched_s        REAL,
+    received         TEXT    NOT NULL
+);
+CREATE INDEX IF NOT EXISTS events_by_video ON events (participant_pk, video_id);
+CREATE TABLE IF NOT EXISTS admin_log (
+    pk               INTEGER PRIMARY KEY AUTOINCREMENT,
+    time             TEXT    NOT NULL,
+    action           TEXT    NOT NULL,
+    participant_id   TEXT,
+    detail           TEXT    NOT NULL
+);
 """
+_TABLES = ("participants", "responses", "events", "admin_log")
 
 
 class ConflictError(Exception):
-    """The request conflicts with what is already stored (duplicate id, answer given twice)."""
+    """The request conflicts with what is already stored (answer given twice, step done)."""
+
+
+class Status(StrEnum):
+    """Where a session stands (see the module docstring)."""
+
+    ACTIVE = "active"
+    COMPLETED = "completed"
+    ABANDONED = "abandoned"
+    WITHDRAWN = "withdrawn"
 
 
 @dataclass(frozen=True)
 class Participant:
-    """A stored participant (never carries the session token).
+    """A stored session (never carries the session token).
 
     Attributes
     ----------
     pk : int
-        Internal row id.
+        Internal row id (the session number).
     participant_id : str
-        The anonymous id the participant typed or was given.
+        The anonymous id the participant typed, brought in the URL, or was given.
+    attempt : int
+        1 for the first session with this id, 2 for the next, ...
     order_index : int
         Index into the manifest's ``orders``.
-    created : str
-        ISO 8601 UTC time the session started.
+    shuffle_seed : int
+        Seed of the within-set video order.
+    video_order : tuple of tuples of str
+        The video ids per set in the order shown (drawn from ``shuffle_seed`` at the start).
+    recruitment : dict str → str
+        URL parameters brought from the recruitment platform.
+    created, last_active : str
+        ISO 8601 UTC times of the start and of the last activity.
+    demographics_done, practice_done : bool
+        Whether those steps are answered.
+    training_years : int or None
+        Years of surgical training, None if not given.
+    prior_assessment : str or None
+        ``yes``, ``no`` or ``unsure`` (prefer not to say), None if not given.
+    practice_answer : int or None
+        The count given for the practice video.
     attention_answer : int or None
         The answer to the attention question, None until given.
     attention_passed : bool or None
         Whether that answer was right, None until given.
+    completed, withdrawn : str or None
+        ISO 8601 UTC times, None if not (yet).
     """
 
     pk: int
     participant_id: str
+    attempt: int
     order_index: int
+    shuffle_seed: int
+    video_order: VideoSequence
+    recruitment: dict[str, str]
     created: str
+    last_active: str
+    demographics_done: bool
+    practice_done: bool
+    training_years: int | None
+    prior_assessment: str | None
+    practice_answer: int | None
     attention_answer: int | None
     attention_passed: bool | None
+    completed: str | None
+    withdrawn: str | None
+
+    def status(self, now: datetime, abandon_after_s: float = ABANDON_AFTER_S) -> Status:
+        """The session's :class:`Status` at time ``now`` (UTC)."""
+        if self.withdrawn:
+            return Status.WITHDRAWN
+        if self.completed:
+            return Status.COMPLETED
+        idle = now - datetime.fromisoformat(self.last_active)
+        return Status.ACTIVE if idle <= timedelta(seconds=abandon_after_s) else Status.ABANDONED
+
+
+@dataclass(frozen=True)
+class VideoInteraction:
+    """What a participant did with one video, summarised from the event log.
+
+    Attributes
+    ----------
+    first_shown : str or None
+        ISO 8601 UTC time the video page was first served.
+    n_play, n_pause, n_seek, n_ratechange : int
+        Number of those player events.
+    max_playback_rate : float or None
+        Fastest playback rate used (1 = normal speed).
+    watched_s : float
+        Seconds of video played, as last reported by the page (s of media time).
+    ended : bool
+        Whether the video was played to its end at least once.
+    """
+
+    first_shown: str | None
+    n_play: int
+    n_pause: int
+    n_seek: int
+    n_ratechange: int
+    max_playback_rate: float | None
+    watched_s: float
+    ended: bool
 
 
 def _now() -> str:
@@ -92,10 +219,22 @@ def _participant(row: sqlite3.Row) -> Participant:
     return Participant(
         pk=row["pk"],
         participant_id=row["participant_id"],
+        attempt=row["attempt"],
         order_index=row["order_index"],
+        shuffle_seed=row["shuffle_seed"],
+        video_order=tuple(tuple(s) for s in json.loads(row["video_order"])),
+        recruitment=json.loads(row["recruitment"]),
         created=row["created"],
+        last_active=row["last_active"],
+        demographics_done=row["demographics_time"] is not None,
+        practice_done=row["practice_time"] is not None,
+        training_years=row["training_years"],
+        prior_assessment=row["prior_assessment"],
+        practice_answer=row["practice_answer"],
         attention_answer=row["attention_answer"],
         attention_passed=None if passed is None else bool(passed),
+        completed=row["completed"],
+        withdrawn=row["withdrawn"],
     )
 
 
@@ -106,10 +245,17 @@ class StudyDB:
     ----------
     path : str or Path
         SQLite file; created with the schema if missing. Its folder must exist.
+    read_only : bool
+        Open an existing study database without changing it (the analysis): a file that is
+        missing, empty or not a study database of this schema is refused.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, read_only: bool = False) -> None:
         self.path = Path(path)
+        self.read_only = read_only
+        if read_only:
+            self._check_existing()
+            return
         if not self.path.parent.is_dir():
             raise ValueError(f"path: folder {self.path.parent} does not exist")
         try:
@@ -119,22 +265,45 @@ class StudyDB:
                 if version not in (0, SCHEMA_VERSION):
                     raise ValueError(
                         f"path: {self.path} has schema {version}, not {SCHEMA_VERSION}"
+                        " (made by an older endocam: export it there, start a new file)"
                     )
                 conn.executescript(_SCHEMA)
                 conn.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
         except sqlite3.DatabaseError as exc:
             raise ValueError(f"path: {self.path} is not a usable study database: {exc}") from None
 
+    def _check_existing(self) -> None:
+        if not self.path.is_file():
+            raise ValueError(f"{self.path}: no such file")
+        try:
+            with self._connect() as conn:
+                version = conn.execute("PRAGMA user_version").fetchone()[0]
+                tables = {
+                    r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type='table'")
+                }
+        except (sqlite3.DatabaseError, ValueError) as exc:
+            raise ValueError(f"{self.path}: not a study database ({exc})") from None
+        if version != SCHEMA_VERSION or not set(_TABLES) <= tables:
+            raise ValueError(
+                f"{self.path}: not a study database of schema {SCHEMA_VERSION}"
+                f" (schema {version}, tables {sorted(tables) or 'none'})"
+            )
+
     @contextmanager
     def _connect(self) -> Iterator[sqlite3.Connection]:
         try:
-            conn = sqlite3.connect(self.path, timeout=BUSY_TIMEOUT_S, isolation_level=None)
+            if self.read_only:
+                uri = f"{self.path.resolve().as_uri()}?mode=ro"
+                conn = sqlite3.connect(uri, uri=True, timeout=BUSY_TIMEOUT_S, isolation_level=None)
+            else:
+                conn = sqlite3.connect(self.path, timeout=BUSY_TIMEOUT_S, isolation_level=None)
         except sqlite3.Error as exc:
             raise ValueError(f"path: cannot open database {self.path}: {exc}") from None
         with closing(conn):
             conn.row_factory = sqlite3.Row
             conn.execute("PRAGMA foreign_keys=ON")
-            conn.execute("PRAGMA synchronous=FULL")
+            if not self.read_only:
+                conn.execute("PRAGMA synchronous=FULL")
             yield conn
 
     @contextmanager
@@ -149,43 +318,77 @@ class StudyDB:
                 raise
             conn.execute("COMMIT")
 
-    def create_participant(self, participant_id: str, n_orders: int) -> tuple[Participant, str]:
-        """Register a participant, assign the next order round-robin and issue a session token.
+    # ---- sessions ------------------------------------------------------------------------------
+    def create_participant(
+        self,
+        participant_id: str,
+        n_orders: int,
+        sequence_for: Callable[[int, int], VideoSequence] | None = None,
+        *,
+        recruitment: Mapping[str, str] | None = None,
+        abandon_after_s: float = ABANDON_AFTER_S,
+    ) -> tuple[Participant, str]:
+        """Start a session: assign an order (fewest counted sessions), draw the video order.
 
-        The count of earlier participants and the insert happen in one ``BEGIN IMMEDIATE``
-        transaction, so concurrent starts get consecutive order indices.
+        Counting and inserting happen in one ``BEGIN IMMEDIATE`` transaction, so concurrent starts
+        get balanced orders. Giving consent precedes this call (no session without consent).
 
         Parameters
         ----------
         participant_id : str
-            Anonymous id, unique in the study.
+            Anonymous id; an id already used starts a further attempt.
         n_orders : int
             Number of presentation orders in the manifest.
+        sequence_for : callable (order_index, seed) → video ids per set, optional
+            Usually :func:`endocam.study.flow.video_sequence` bound to the manifest; without it
+            the sequence is stored empty (database-level tests).
+        recruitment : mapping str → str, optional
+            URL parameters from the recruitment platform.
+        abandon_after_s : float
+            Idle time (s) after which an unfinished session no longer counts.
 
         Returns
         -------
         participant : Participant
-            The new participant.
+            The new session.
         token : str
             The secret session token (only its hash is stored).
-
-        Raises
-        ------
-        ConflictError
-            ``participant_id`` is already taken.
         """
         token = secrets.token_urlsafe(32)
+        seed = secrets.randbits(63)
+        now = datetime.now(UTC)
+        active_since = (now - timedelta(seconds=abandon_after_s)).isoformat(timespec="milliseconds")
+        stamp = now.isoformat(timespec="milliseconds")
         with self._transaction() as conn:
-            taken = conn.execute(
-                "SELECT 1 FROM participants WHERE participant_id = ?", (participant_id,)
-            ).fetchone()
-            if taken:
-                raise ConflictError(f"participant id {participant_id!r} is already taken")
-            count = conn.execute("SELECT COUNT(*) FROM participants").fetchone()[0]
+            attempt = conn.execute(
+                "SELECT COUNT(*) FROM participants WHERE participant_id = ?", (participant_id,)
+            ).fetchone()[0]
+            counts = [0] * n_orders
+            for index, n in conn.execute(
+                "SELECT order_index, COUNT(*) FROM participants WHERE withdrawn IS NULL"
+                " AND (completed IS NOT NULL OR last_active >= ?) GROUP BY order_index",
+                (active_since,),
+            ):
+                if index < n_orders:
+                    counts[index] = n
+            order_index = assign_order(counts)
+            sequence = sequence_for(order_index, seed) if sequence_for else ()
             cur = conn.execute(
-                "INSERT INTO participants (participant_id, token_sha256, order_index, created)"
-                " VALUES (?, ?, ?, ?)",
-                (participant_id, _token_hash(token), assign_order(count, n_orders), _now()),
+                "INSERT INTO participants (participant_id, attempt, token_sha256, order_index,"
+                " shuffle_seed, video_order, recruitment, created, consented, last_active)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (
+                    participant_id,
+                    attempt + 1,
+                    _token_hash(token),
+                    order_index,
+                    seed,
+                    json.dumps([list(s) for s in sequence]),
+                    json.dumps(dict(recruitment or {})),
+                    stamp,
+                    stamp,
+                    stamp,
+                ),
             )
             row = conn.execute(
                 "SELECT * FROM participants WHERE pk = ?", (cur.lastrowid,)
@@ -193,15 +396,16 @@ class StudyDB:
         return _participant(row), token
 
     def participant_by_token(self, token: str) -> Participant | None:
-        """The participant owning session ``token``, or None."""
+        """The (not withdrawn) session owning ``token``, or None."""
         with self._connect() as conn:
             row = conn.execute(
-                "SELECT * FROM participants WHERE token_sha256 = ?", (_token_hash(token),)
+                "SELECT * FROM participants WHERE token_sha256 = ? AND withdrawn IS NULL",
+                (_token_hash(token),),
             ).fetchone()
         return None if row is None else _participant(row)
 
     def refresh(self, participant: Participant) -> Participant:
-        """Re-read ``participant`` (after its attention answer was stored)."""
+        """Re-read ``participant`` (after one of its steps was stored)."""
         with self._connect() as conn:
             row = conn.execute(
                 "SELECT * FROM participants WHERE pk = ?", (participant.pk,)
@@ -211,19 +415,49 @@ class StudyDB:
         return _participant(row)
 
     def participants(self) -> list[Participant]:
-        """Every participant, in order of arrival."""
+        """Every session, in order of arrival."""
         with self._connect() as conn:
             rows = conn.execute("SELECT * FROM participants ORDER BY pk").fetchall()
         return [_participant(r) for r in rows]
 
     def answers(self, participant: Participant) -> dict[str, int]:
-        """The participant's own answers: video id → reported touches."""
+        """The session's own answers: video id → reported touches."""
         with self._connect() as conn:
             rows = conn.execute(
                 "SELECT video_id, reported_touches FROM responses WHERE participant_pk = ?",
                 (participant.pk,),
             ).fetchall()
         return {r["video_id"]: r["reported_touches"] for r in rows}
+
+    # ---- steps ---------------------------------------------------------------------------------
+    def _update_once(self, participant: Participant, sets: str, unset: str, values: tuple) -> None:
+        with self._transaction() as conn:
+            cur = conn.execute(
+                f"UPDATE participants SET {sets}, last_active = ? WHERE pk = ? AND {unset} IS NULL",
+                (*values, _now(), participant.pk),
+            )
+            if cur.rowcount != 1:
+                raise ConflictError("this step is already answered")
+
+    def record_demographics(
+        self, participant: Participant, training_years: int | None, prior_assessment: str | None
+    ) -> None:
+        """Store the demographic answers once (None = not given)."""
+        self._update_once(
+            participant,
+            "training_years = ?, prior_assessment = ?, demographics_time = ?",
+            "demographics_time",
+            (training_years, prior_assessment, _now()),
+        )
+
+    def record_practice(self, participant: Participant, reported_touches: int) -> None:
+        """Store the practice count once."""
+        self._update_once(
+            participant,
+            "practice_answer = ?, practice_time = ?",
+            "practice_time",
+            (reported_touches, _now()),
+        )
 
     def record_answer(self, participant: Participant, video_id: str, reported_touches: int) -> None:
         """Store one answer in its own transaction.
@@ -235,10 +469,14 @@ class StudyDB:
         """
         try:
             with self._transaction() as conn:
+                now = _now()
                 conn.execute(
                     "INSERT INTO responses (participant_pk, video_id, reported_touches, submitted)"
                     " VALUES (?, ?, ?, ?)",
-                    (participant.pk, video_id, reported_touches, _now()),
+                    (participant.pk, video_id, reported_touches, now),
+                )
+                conn.execute(
+                    "UPDATE participants SET last_active = ? WHERE pk = ?", (now, participant.pk)
                 )
         except sqlite3.IntegrityError as exc:
             if "UNIQUE" in str(exc) or "PRIMARY KEY" in str(exc):
@@ -253,21 +491,177 @@ class StudyDB:
         ConflictError
             The participant already answered the attention question.
         """
-        with self._transaction() as conn:
-            cur = conn.execute(
-                "UPDATE participants SET attention_answer = ?, attention_passed = ?,"
-                " attention_time = ? WHERE pk = ? AND attention_answer IS NULL",
-                (answer, int(passed), _now(), participant.pk),
+        try:
+            self._update_once(
+                participant,
+                "attention_answer = ?, attention_passed = ?, attention_time = ?",
+                "attention_answer",
+                (answer, int(passed), _now()),
             )
-            if cur.rowcount != 1:
-                raise ConflictError("the attention question is already answered")
+        except ConflictError:
+            raise ConflictError("the attention question is already answered") from None
+
+    def mark_completed(self, participant: Participant) -> None:
+        """Stamp the session completed (once; later calls change nothing)."""
+        with self._transaction() as conn:
+            conn.execute(
+                "UPDATE participants SET completed = ? WHERE pk = ? AND completed IS NULL",
+                (_now(), participant.pk),
+            )
+
+    # ---- interaction log -----------------------------------------------------------------------
+    def record_event(
+        self,
+        participant: Participant,
+        video_id: str,
+        kind: str,
+        media_time_s: float | None = None,
+        playback_rate: float | None = None,
+        watched_s: float | None = None,
+    ) -> bool:
+        """Append one player event; returns False if the per-video cap was reached (dropped).
+
+        ``kind`` is one of :data:`EVENT_KINDS`; times in s of media time, rate 1 = normal speed.
+        """
+        if kind not in EVENT_KINDS:
+            raise ValueError(f"kind must be one of {EVENT_KINDS}, got {kind!r}")
+        with self._transaction() as conn:
+            n = conn.execute(
+                "SELECT COUNT(*) FROM events WHERE participant_pk = ? AND video_id = ?",
+                (participant.pk, video_id),
+            ).fetchone()[0]
+            if n >= MAX_EVENTS_PER_VIDEO or (
+                kind == "shown"
+                and conn.execute(
+                    "SELECT 1 FROM events WHERE participant_pk = ? AND video_id = ?"
+                    " AND kind = 'shown'",
+                    (participant.pk, video_id),
+                ).fetchone()
+            ):
+                return False
+            now = _now()
+            conn.execute(
+                "INSERT INTO events (participant_pk, video_id, kind, media_time_s, playback_rate,"
+                " watched_s, received) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                (participant.pk, video_id, kind, media_time_s, playback_rate, watched_s, now),
+            )
+            conn.execute(
+                "UPDATE participants SET last_active = ? WHERE pk = ?", (now, participant.pk)
+            )
+        return True
+
+    def interactions(self) -> dict[tuple[int, str], VideoInteraction]:
+        """Per (session pk, video id): the summary of its interaction events."""
+        with self._connect() as conn:
+            rows = conn.execute(
+                "SELECT participant_pk, video_id,"
+                " MIN(CASE WHEN kind = 'shown' THEN received END),"
+                " SUM(kind = 'play'), SUM(kind = 'pause'), SUM(kind = 'seeked'),"
+                " SUM(kind = 'ratechange'), MAX(playback_rate), COALESCE(MAX(watched_s), 0),"
+                " MAX(kind = 'ended')"
+                " FROM events GROUP BY participant_pk, video_id"
+            ).fetchall()
+        return {
+            (r[0], r[1]): VideoInteraction(
+                first_shown=r[2],
+                n_play=r[3],
+                n_pause=r[4],
+                n_seek=r[5],
+                n_ratechange=r[6],
+                max_playback_rate=r[7],
+                watched_s=float(r[8]),
+                ended=bool(r[9]),
+            )
+            for r in rows
+        }
+
+    def watched_to_end(self, participant: Participant, video_id: str) -> bool:
+        """Whether the page reported the video played to its end at least once."""
+        with self._connect() as conn:
+            row = conn.execute(
+                "SELECT 1 FROM events WHERE participant_pk = ? AND video_id = ? AND kind = 'ended'",
+                (participant.pk, video_id),
+            ).fetchone()
+        return row is not None
+
+    def events(self) -> list[dict[str, Any]]:
+        """Every interaction event with its session's participant id, in order of arrival."""
+        with self._connect() as conn:
+            rows = conn.execute(
+                "SELECT p.participant_id, p.attempt, e.video_id, e.kind, e.media_time_s,"
+                " e.playback_rate, e.watched_s, e.received"
+                " FROM events e JOIN participants p ON p.pk = e.participant_pk ORDER BY e.pk"
+            ).fetchall()
+        return [dict(r) for r in rows]
+
+    def responses(self) -> list[sqlite3.Row]:
+        """Every stored answer with its session pk and time, in order of submission."""
+        with self._connect() as conn:
+            return conn.execute(
+                "SELECT participant_pk, video_id, reported_touches, submitted FROM responses"
+                " ORDER BY participant_pk, submitted, video_id"
+            ).fetchall()
+
+    # ---- admin ---------------------------------------------------------------------------------
+    def withdraw(self, participant_id: str, note: str = "") -> int:
+        """Withdraw every session of ``participant_id`` and log the action.
+
+        Their answers, events, demographics and recruitment parameters are deleted; a marked row
+        stays, so the id's attempts stay numbered and the session cannot continue.
+
+        Returns
+        -------
+        int
+            Number of answers removed.
+
+        Raises
+        ------
+        KeyError
+            No session has this id, or all of them are already withdrawn.
+        """
+        with self._transaction() as conn:
+            pks = [
+                r[0]
+                for r in conn.execute(
+                    "SELECT pk FROM participants WHERE participant_id = ? AND withdrawn IS NULL",
+                    (participant_id,),
+                )
+            ]
+            if not pks:
+                raise KeyError(participant_id)
+            marks = ",".join("?" * len(pks))
+            removed = conn.execute(
+                f"DELETE FROM responses WHERE participant_pk IN ({marks})", pks
+            ).rowcount
+            conn.execute(f"DELETE FROM events WHERE participant_pk IN ({marks})", pks)
+            conn.execute(
+                "UPDATE participants SET withdrawn = ?, training_years = NULL,"
+                f" prior_assessment = NULL, recruitment = '{{}}' WHERE pk IN ({marks})",
+                (_now(), *pks),
+            )
+            detail = f"{len(pks)} session(s), {removed} answer(s) removed"
+            conn.execute(
+                "INSERT INTO admin_log (time, action, participant_id, detail) VALUES (?, ?, ?, ?)",
+                (_now(), "withdraw", participant_id, detail + (f"; {note}" if note else "")),
+            )
+        return removed
+
+    def admin_log(self) -> list[dict[str, Any]]:
+        """Every logged admin action, oldest first."""
+        with self._connect() as conn:
+            rows = conn.execute(
+                "SELECT time, action, participant_id, detail FROM admin_log ORDER BY pk"
+            ).fetchall()
+        return [dict(r) for r in rows]
 
     def export_rows(self) -> list[ResponseRow]:
-        """Every stored answer, ordered by participant arrival then submission time."""
+        """The answers that enter the analysis: the first non-withdrawn attempt of each id."""
         with self._connect() as conn:
             rows = conn.execute(
                 "SELECT p.participant_id, r.video_id, r.reported_touches, p.attention_passed"
                 " FROM responses r JOIN participants p ON p.pk = r.participant_pk"
+                " WHERE p.withdrawn IS NULL AND p.pk = (SELECT MIN(q.pk) FROM participants q"
+                "  WHERE q.participant_id = p.participant_id AND q.withdrawn IS NULL)"
                 " ORDER BY p.pk, r.submitted, r.video_id"
             ).fetchall()
         return [

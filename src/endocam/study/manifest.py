@@ -11,7 +11,17 @@
      "attention": {"question": "...", "answer": 4}}
 
 ``difficulty`` runs from 1 to 3 (3 = most difficult, the paper's 71-point trajectory). ``file`` is
-relative to the study folder. Within a set the videos are shown in the order ``videos`` lists them.
+relative to the study folder.
+
+Optional fields configure the online study (all have defaults, so older manifests still load):
+``touch_definition`` (shown on the practice page and with every video), ``consent_file`` (plain
+text, paragraphs separated by blank lines; default: the catalogue's text), ``messages_file`` (a
+message catalogue replacing :file:`study/messages/en.json`, e.g. another language),
+``demographics`` (ask years of surgical training and prior skill assessment), ``practice``
+(``{"file": ..., "true_touches": ...}``: a practice video with feedback before the first set),
+``shuffle_within_set`` (each participant sees a set's videos in a random, stored order; default
+true), ``must_watch`` (a video must be watched once to its end before its answer is accepted) and
+``recruitment`` (URL parameters naming the participant, completion code and redirect URL).
 """
 
 from __future__ import annotations
@@ -35,6 +45,13 @@ class Condition(StrEnum):
     FIXED = "fixed"
     CENTERING = "centering"
     ORIENTATION = "orientation"
+
+
+DEFAULT_TOUCH_DEFINITION = (
+    "A touch is any moment the ring visibly contacts the wire; count each separate contact once, "
+    "from when the ring meets the wire until it is clear again."
+)
+URL_PARAM_PATTERN = r"^[A-Za-z][A-Za-z0-9_]{0,31}$"  # recruitment URL parameter names
 
 
 class ManifestError(ValueError):
@@ -77,12 +94,59 @@ class Video(_Frozen):
     @field_validator("file")
     @classmethod
     def _relative_inside(cls, value: str) -> str:
-        path = PurePosixPath(value)
-        if path.is_absolute() or ".." in path.parts or "\\" in value:
-            raise ValueError(
-                f"must be a relative POSIX path inside the study folder, got {value!r}"
-            )
-        return value
+        return _relative_path(value)
+
+
+def _relative_path(value: str) -> str:
+    """``value`` if it is a relative POSIX path inside the study folder, else ValueError."""
+    path = PurePosixPath(value)
+    if not value or path.is_absolute() or ".." in path.parts or "\\" in value:
+        raise ValueError(f"must be a relative POSIX path inside the study folder, got {value!r}")
+    return value
+
+
+class PracticeVideo(_Frozen):
+    """The practice video shown before the first set, with its true count for the feedback.
+
+    Attributes
+    ----------
+    file : str
+        Video path relative to the study folder (may be one of the study's own videos).
+    true_touches : int
+        Ground-truth number of touches, shown after the participant's answer.
+    """
+
+    file: Annotated[str, Field(min_length=1)]
+    true_touches: Annotated[int, Field(ge=0, le=MAX_TOUCHES)]
+
+    @field_validator("file")
+    @classmethod
+    def _relative_inside(cls, value: str) -> str:
+        return _relative_path(value)
+
+
+class Recruitment(_Frozen):
+    """How a recruitment platform (e.g. Prolific) hands participants over and takes them back.
+
+    Attributes
+    ----------
+    id_param : str
+        URL parameter carrying the participant id (``/?PROLIFIC_PID=...``).
+    extra_params : tuple of str
+        Further URL parameters stored with the session (e.g. the platform's study and session).
+    completion_code : str or None
+        Code shown on the last page, to be entered on the platform.
+    completion_url : str or None
+        Link on the last page back to the platform; ``{code}`` is replaced by the code.
+    """
+
+    id_param: Annotated[str, Field(pattern=URL_PARAM_PATTERN)] = "PROLIFIC_PID"
+    extra_params: tuple[Annotated[str, Field(pattern=URL_PARAM_PATTERN)], ...] = (
+        "STUDY_ID",
+        "SESSION_ID",
+    )
+    completion_code: Annotated[str | None, Field(pattern=ID_PATTERN)] = None
+    completion_url: Annotated[str | None, Field(pattern=r"^https?://\S+$")] = None
 
 
 class AttentionQuestion(_Frozen):
@@ -101,6 +165,19 @@ class Manifest(_Frozen):
     videos: tuple[Video, ...]
     orders: tuple[tuple[Condition, ...], ...]
     attention: AttentionQuestion
+    touch_definition: Annotated[str, Field(min_length=1)] = DEFAULT_TOUCH_DEFINITION
+    consent_file: str | None = None
+    messages_file: str | None = None
+    demographics: bool = False
+    practice: PracticeVideo | None = None
+    shuffle_within_set: bool = True
+    must_watch: bool = False
+    recruitment: Recruitment = Recruitment()
+
+    @field_validator("consent_file", "messages_file")
+    @classmethod
+    def _relative_inside(cls, value: str | None) -> str | None:
+        return None if value is None else _relative_path(value)
 
     @model_validator(mode="after")
     def _consistent(self) -> Self:
@@ -223,7 +300,10 @@ def load_manifest(path: str | Path, *, check_files: bool | None = None) -> Manif
     manifest = parse_manifest(text, source=str(file))
     if check_files if check_files is not None else is_dir:
         root = file.parent
-        missing = [v.file for v in manifest.videos if not (root / v.file).is_file()]
+        needed = [v.file for v in manifest.videos]
+        needed += [manifest.practice.file] if manifest.practice else []
+        needed += [f for f in (manifest.consent_file, manifest.messages_file) if f]
+        missing = [f for f in needed if not (root / f).is_file()]
         if missing:
             raise ManifestError(f"{file}: video files missing in {root}: {missing}")
     return manifest

@@ -1,8 +1,15 @@
 """Response rows: the exchange format between the web app's export and the analysis.
 
-The CSV has exactly the columns ``participant_id,video_id,reported_touches,attention_passed``;
+The analysis needs the columns ``participant_id,video_id,reported_touches,attention_passed``;
 ``attention_passed`` is ``true``, ``false`` or empty (the participant never answered the attention
-question).
+question). Other columns (the web app's full export, see :mod:`endocam.study.export`) are ignored,
+except ``in_analysis``: rows where it is ``false`` (a participant's later attempts) are skipped, so
+the export can be analysed as it is. Files are read as UTF-8 with or without a byte-order mark
+(what spreadsheets write).
+
+:func:`parse_count` is the one rule for a typed touch count: ASCII digits only (no sign, no
+decimal point, no ``_``), 0..``MAX_TOUCHES``; the web forms and the CSV reader both use it, and it
+accepts exactly what the JSON API's strict integer accepts.
 """
 
 from __future__ import annotations
@@ -18,6 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from endocam.study.manifest import MAX_TOUCHES
 
 CSV_COLUMNS = ("participant_id", "video_id", "reported_touches", "attention_passed")
+IN_ANALYSIS = "in_analysis"  # optional column: rows marked false are not analysed
 _TRUE = {"true", "1", "yes"}
 _FALSE = {"false", "0", "no"}
 
@@ -33,7 +41,39 @@ class ResponseRow(BaseModel):
     attention_passed: bool | None
 
 
-def _bool_cell(text: str) -> bool | None:
+MAX_COUNT_CHARS = 8  # longest count text looked at (leading zeros allowed)
+
+
+def parse_count(text: str, maximum: int = MAX_TOUCHES) -> int:
+    """Parse a typed whole number (a touch count, or years of training).
+
+    Parameters
+    ----------
+    text : str
+        What was typed; surrounding white space is ignored.
+    maximum : int
+        Largest value accepted (default: ``MAX_TOUCHES`` touches).
+
+    Returns
+    -------
+    int
+        The number, 0..``maximum``.
+
+    Raises
+    ------
+    ValueError
+        Not a whole number written with ASCII digits only, or out of range.
+    """
+    value = text.strip()
+    if not (0 < len(value) <= MAX_COUNT_CHARS and value.isascii() and value.isdigit()):
+        raise ValueError(f"must be a whole number from 0 to {maximum} written with digits only")
+    count = int(value)
+    if count > maximum:
+        raise ValueError(f"must be a whole number from 0 to {maximum}, got {count}")
+    return count
+
+
+def _bool_cell(text: str, column: str = "attention_passed") -> bool | None:
     value = text.strip().lower()
     if value == "":
         return None
@@ -41,7 +81,7 @@ def _bool_cell(text: str) -> bool | None:
         return True
     if value in _FALSE:
         return False
-    raise ValueError(f"attention_passed must be true, false or empty, got {text!r}")
+    raise ValueError(f"{column} must be true, false or empty, got {text!r}")
 
 
 def rows_to_csv(rows: Iterable[ResponseRow]) -> str:
@@ -56,34 +96,37 @@ def rows_to_csv(rows: Iterable[ResponseRow]) -> str:
 
 
 def rows_from_csv(text: str) -> list[ResponseRow]:
-    """Parse CSV text written by :func:`rows_to_csv` (or by hand in the same format).
+    """Parse CSV text with at least the columns :data:`CSV_COLUMNS` (others are ignored).
 
     Raises
     ------
     ValueError
-        Wrong header or a bad cell; the message names the line.
+        A missing column, a bad cell or no data rows at all; the message names the line.
     """
-    reader = csv.reader(io.StringIO(text))
-    header = next(reader, None)
-    if header is None or tuple(h.strip() for h in header) != CSV_COLUMNS:
-        raise ValueError(f"responses CSV header must be {','.join(CSV_COLUMNS)}, got {header}")
+    reader = csv.reader(io.StringIO(text.removeprefix("\ufeff")))
+    header = [h.strip() for h in next(reader, None) or []]
+    missing = [c for c in CSV_COLUMNS if c not in header]
+    if missing:
+        raise ValueError(
+            f"responses CSV needs the columns {','.join(CSV_COLUMNS)}; missing {','.join(missing)}"
+        )
+    index = [header.index(c) for c in CSV_COLUMNS]
+    use = header.index(IN_ANALYSIS) if IN_ANALYSIS in header else None
     rows = []
     for line, cells in enumerate(reader, start=2):
         if not cells:
             continue
-        if len(cells) != len(CSV_COLUMNS):
-            raise ValueError(f"line {line}: expected {len(CSV_COLUMNS)} cells, got {len(cells)}")
-        pid, vid, count, passed = (c.strip() for c in cells)
-        if not (count.isascii() and count.isdigit()):
-            raise ValueError(
-                f"line {line}: reported_touches must be an integer >= 0, got {count!r}"
-            )
+        if len(cells) != len(header):
+            raise ValueError(f"line {line}: expected {len(header)} cells, got {len(cells)}")
+        if use is not None and _bool_cell(cells[use], IN_ANALYSIS) is False:
+            continue
+        pid, vid, count, passed = (cells[i].strip() for i in index)
         try:
             rows.append(
                 ResponseRow(
                     participant_id=pid,
                     video_id=vid,
-                    reported_touches=int(count),
+                    reported_touches=parse_count(count),
                     attention_passed=_bool_cell(passed),
                 )
             )
@@ -92,15 +135,21 @@ def rows_from_csv(text: str) -> list[ResponseRow]:
             raise ValueError(f"line {line}: {err['loc'][0]}: {err['msg']}") from None
         except ValueError as exc:
             raise ValueError(f"line {line}: {exc}") from None
+    if not rows:
+        raise ValueError("no answers: the CSV has a header but no data rows")
     return rows
 
 
 def read_responses_csv(path: str | Path) -> list[ResponseRow]:
-    """Read a responses CSV file (see :func:`rows_from_csv`)."""
+    """Read a responses CSV file, UTF-8 with or without BOM (see :func:`rows_from_csv`)."""
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = Path(path).read_text(encoding="utf-8-sig")
     except OSError as exc:
         raise ValueError(f"cannot read responses {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(
+            f"{path}: not UTF-8 text (byte {exc.start}); save the CSV as UTF-8"
+        ) from None
     try:
         return rows_from_csv(text)
     except ValueError as exc:
