@@ -118,7 +118,10 @@ def plot_against(
             shift = (j - (len(combos) - 1) / 2) * width / max(len(combos), 1)
             px, py, pe = (np.array(c) for c in zip(*points, strict=True))
             name = ", ".join(f"{s}={_label(c)}" for s, c in zip(series, combo, strict=True))
-            ax.errorbar(px + shift, py, yerr=pe, marker="o", capsize=3, lw=1.2, label=name or None)
+            style = "-" if numeric else "none"  # categories: no line between them
+            ax.errorbar(
+                px + shift, py, yerr=pe, marker="o", capsize=3, lw=1.2, ls=style, label=name or None
+            )
         ax.set_title(label, fontsize=9)
         ax.set_xlabel(x)
         ax.grid(alpha=0.3)
