@@ -209,7 +209,7 @@ def test_resume_after_a_kill_runs_only_the_missing_episodes(tmp_path: Path) -> N
 
 def test_same_metrics_on_ray_locally_and_alone(tmp_path: Path) -> None:
     """One small grid on a local Ray and on the local pool; one episode also by `endocam run`."""
-    ray = pytest.importorskip("ray")
+    import ray
     grid = {"policy": ["orientation", "centering"], "seed": [2], "arm": ["free"]}
     tasks = expand(SHORT, grid)
     ray.init(

@@ -328,7 +328,14 @@ def local_backend(workers: int = DEFAULT_WORKERS) -> Backend:
 
     def run(tasks: Sequence[SweepTask], episodes_dir: Path, progress: Progress) -> None:
         with executor(workers) as pool:
-            futures = [pool.submit(run_task, t, episodes_dir) for t in tasks]
+            futures = []
+            for task in tasks:
+                fut = pool.submit(run_task, task, episodes_dir)
+                if fut.done():  # one worker runs inline: report each episode as it ends
+                    fut.result()
+                    progress(1)
+                else:
+                    futures.append(fut)
             for fut in concurrent.futures.as_completed(futures):
                 fut.result()
                 progress(1)
