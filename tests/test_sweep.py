@@ -20,6 +20,7 @@ from endocam.config import ExperimentConfig
 from endocam.runner.episode import LOG_STATES
 from endocam.runner.summary import mean_ci
 from endocam.runner.sweep import (
+    LOST,
     RAY_MISSING,
     SweepError,
     expand,
@@ -210,6 +211,7 @@ def test_resume_after_a_kill_runs_only_the_missing_episodes(tmp_path: Path) -> N
 def test_same_metrics_on_ray_locally_and_alone(tmp_path: Path) -> None:
     """One small grid on a local Ray and on the local pool; one episode also by `endocam run`."""
     import ray
+
     grid = {"policy": ["orientation", "centering"], "seed": [2], "arm": ["free"]}
     tasks = expand(SHORT, grid)
     ray.init(
@@ -244,3 +246,20 @@ def test_same_metrics_on_ray_locally_and_alone(tmp_path: Path) -> None:
     assert row["touches"] == metrics["touches"]
     ray_csv = (tmp_path / "ray" / "episodes" / row["episode"] / "episode.csv").read_text()
     assert ray_csv == (alone / "episode.csv").read_text()
+
+
+def _die(task: object, episodes_dir: object) -> str:
+    os._exit(3)  # a worker process killed mid-episode (e.g. out of memory)
+
+
+def test_a_dead_worker_loses_its_episode_not_the_sweep(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    tasks = expand(SHORT, {"policy": ["fixed"], "seed": [0, 1], "arm": ["free"]})
+    monkeypatch.setattr("endocam.runner.sweep.run_task", _die)
+    lost = run_sweep(tasks, tmp_path / "s", make_backend("local", workers=2))
+    rows = pq.read_table(lost.results).to_pylist()
+    assert [r["error"] for r in rows] == [LOST] * 2
+    monkeypatch.undo()
+    again = run_sweep(tasks, tmp_path / "s", make_backend("local", workers=1))
+    assert (again.ran, again.failed) == (2, 0)  # a rerun retries exactly the lost ones

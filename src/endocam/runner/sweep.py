@@ -25,6 +25,7 @@ A folder's name holds a hash of its parameters and base config, so changing eith
 from __future__ import annotations
 
 import concurrent.futures
+import functools
 import hashlib
 import itertools
 import json
@@ -332,15 +333,30 @@ def local_backend(workers: int = DEFAULT_WORKERS) -> Backend:
             for task in tasks:
                 fut = pool.submit(run_task, task, episodes_dir)
                 if fut.done():  # one worker runs inline: report each episode as it ends
-                    fut.result()
+                    _settle(fut.result)
                     progress(1)
                 else:
                     futures.append(fut)
             for fut in concurrent.futures.as_completed(futures):
-                fut.result()
+                _settle(fut.result)
                 progress(1)
 
     return run
+
+
+LOST = "no result: its worker died before writing it (run the sweep again to retry it)"
+
+
+def _settle(result: Callable[[], object]) -> None:
+    """Wait for a task; a worker that died is reported and its task left to a rerun.
+
+    Episode failures never get here (:func:`run_task` records them); this is the machinery
+    failing (a killed or crashed worker), after which the task has no folder.
+    """
+    try:
+        result()
+    except Exception as exc:
+        tqdm.write(f"endocam sweep: a worker failed: {type(exc).__name__}: {exc}"[:300])
 
 
 def import_ray() -> Any:
@@ -368,7 +384,7 @@ def ray_backend(address: str | None = None) -> Backend:
             pending = [remote.remote(t, str(episodes_dir)) for t in tasks]
             while pending:
                 finished, pending = ray.wait(pending, num_returns=1)
-                ray.get(finished)
+                _settle(functools.partial(ray.get, finished))
                 progress(len(finished))
         finally:
             if started:
@@ -490,7 +506,10 @@ def gather(tasks: Sequence[SweepTask], episodes_dir: Path) -> list[dict[str, Any
     rows = []
     for task in tasks:
         folder = episodes_dir / task.name
-        record = json.loads((folder / TASK_JSON).read_text(encoding="utf-8"))
+        if not done(task, episodes_dir):
+            record = {"error": LOST, "wall_time_s": None}
+        else:
+            record = json.loads((folder / TASK_JSON).read_text(encoding="utf-8"))
         row: dict[str, Any] = {"episode": task.name, **DEFAULTS}
         row["arm"] = task.base["episode"]["arm"]
         row.update(task.params)
