@@ -7,6 +7,7 @@ from typing import Any
 
 from endocam.cli.common import ARM_CHOICES, UsageError, integer, load_config_arg, out_dir
 from endocam.control.registry import POLICIES
+from endocam.runner.pool import DEFAULT_WORKERS
 from endocam.task.trajectory import TrajectoryKind
 
 
@@ -115,7 +116,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--out", required=True, help="sweep folder (kept between runs: resume)")
     s.add_argument("--backend", choices=["local", "ray"], default="local", help="default local")
     s.add_argument("--address", help="Ray cluster address (default: start Ray on this machine)")
-    s.add_argument("--workers", type=integer, default=2, help="local worker processes (default 2)")
+    s.add_argument(
+        "--workers",
+        type=integer,
+        default=DEFAULT_WORKERS,
+        help=f"local worker processes (default {DEFAULT_WORKERS}; 1: in this process)",
+    )
     s.add_argument("--policy", help="comma-separated policies, e.g. orientation,centering")
     s.add_argument("--trajectory", help="comma-separated: ideal, noisy (default noisy)")
     s.add_argument("--control-points", help="comma-separated counts (default 71)")
