@@ -32,6 +32,7 @@ import json
 import os
 import re
 import shutil
+import socket
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -284,7 +285,7 @@ def run_task(task: SweepTask, episodes_dir: str | Path) -> str:
     goes on. The folder is written under a hidden name and renamed when complete.
     """
     root = Path(episodes_dir)
-    stage = root / f".{task.name}.stage-{os.getpid()}"
+    stage = root / f".{task.name}.stage-{socket.gethostname()}-{os.getpid()}"  # any node
     t0 = time.perf_counter()
     error = None
     try:
