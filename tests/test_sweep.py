@@ -173,7 +173,7 @@ def test_resume_after_a_kill_runs_only_the_missing_episodes(tmp_path: Path) -> N
     base = tmp_path / "base.toml"
     base.write_text(SHORT_TOML)
     out = tmp_path / "sweep"
-    n = 12
+    n = 8
     args = ["sweep", "--policy", "centering", "--arm", "free", "--seeds", f"0-{n - 1}"]
     args += ["--base-config", str(base), "--out", str(out), "--workers", "1"]
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}

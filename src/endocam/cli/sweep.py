@@ -114,7 +114,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="sweep file: config = 'base.toml' or [base], [grid] name = [values], [[list]]",
     )
     s.add_argument("--out", required=True, help="sweep folder (kept between runs: resume)")
-    s.add_argument("--backend", choices=["local", "ray"], default="local", help="default local")
+    s.add_argument(
+        "--backend",
+        choices=["local", "ray"],
+        default="local",
+        help="local: a process pool on this machine (default); ray: Ray tasks "
+        "(pip install endocam[ray])",
+    )
     s.add_argument("--address", help="Ray cluster address (default: start Ray on this machine)")
     s.add_argument(
         "--workers",
