@@ -15,23 +15,19 @@ import numpy as np
 
 import endocam.envs
 from endocam.config import ExperimentConfig
-from endocam.envs.agents import AGENT_POLICIES, AgentReturn, compare_policies, returns_table
+from endocam.envs.agents import AGENT_POLICIES, compare_policies, returns_table, run_agent
 
 
-def still(env: gym.Env, seed: int, trajectory_seed: int) -> AgentReturn:
+class Still:
     """A zero action every step: the camera stays where it starts."""
-    env.reset(seed=seed, options={"trajectory_seed": trajectory_seed})
-    total, unsafe, errors, done = 0.0, 0, [], False
-    while not done:
-        _, reward, terminated, truncated, info = env.step(np.zeros(6))
-        total += reward
-        unsafe += info["unsafe"]
-        errors.append(
-            (info["image_error_px"], info["center_error_mm"], info["orientation_error_deg"])
-        )
-        done = terminated or truncated
-    img, mm, deg = np.mean(errors, axis=0)
-    return AgentReturn("zero action", total, float(img), float(mm), float(deg), unsafe)
+
+    name = "zero action"
+
+    def reset(self) -> None:
+        pass
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        return np.zeros(6)
 
 
 def main() -> None:
@@ -49,7 +45,7 @@ def main() -> None:
     )
     env = gym.make(endocam.envs.ENV_ID, config=config)
     policies = [p for p in args.policies.split(",") if p]
-    rows = [still(env, 0, args.seed), *compare_policies(env, policies, 0, args.seed)]
+    rows = [run_agent(env, Still(), 0, args.seed), *compare_policies(env, policies, 0, args.seed)]
     print(returns_table(rows))
     env.close()
 

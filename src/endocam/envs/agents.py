@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -18,6 +19,18 @@ from endocam.envs.wire_chaser import WireChaserEnv, pose_from7
 
 AGENT_POLICIES = tuple(name for name, entry in POLICIES.items() if entry.arm is None)
 """Policies that run on the environment's carrier (``orientation-ecm`` needs the ECM)."""
+
+
+class Agent(Protocol):
+    """What :func:`run_agent` drives: a name, a reset, an action per observation."""
+
+    name: str
+
+    def reset(self) -> None:
+        """Start an episode (after ``env.reset``)."""
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """(6,) the action for ``obs``."""
 
 
 class PolicyAgent:
@@ -78,9 +91,7 @@ class AgentReturn:
     unsafe_steps: int
 
 
-def run_agent(
-    env: WireChaserEnv, agent: PolicyAgent, seed: int, trajectory_seed: int
-) -> AgentReturn:
+def run_agent(env: WireChaserEnv, agent: Agent, seed: int, trajectory_seed: int) -> AgentReturn:
     """Run one episode of ``agent``: ``reset(seed)`` on the trajectory of ``trajectory_seed``."""
     obs, _ = env.reset(seed=seed, options={"trajectory_seed": trajectory_seed})
     agent.reset()
