@@ -263,3 +263,17 @@ def test_a_dead_worker_loses_its_episode_not_the_sweep(
     monkeypatch.undo()
     again = run_sweep(tasks, tmp_path / "s", make_backend("local", workers=1))
     assert (again.ran, again.failed) == (2, 0)  # a rerun retries exactly the lost ones
+
+
+def test_list_valued_overrides_from_the_command_line(tmp_path: Path) -> None:
+    out = tmp_path / "s"
+    noise = "task.trajectory.angle_noise"
+    args = ["sweep", "--policy", "fixed", "--arm", "free", "--workers", "1", "--out", str(out)]
+    args += ["--set", f"{noise}=[0.1,0.2],[0.2,0.3]", "--set", "task.trajectory.duration=1.0"]
+    assert main(args) == 0
+    table = pq.read_table(out / "results.parquet")
+    assert sorted(table.column(noise).to_pylist()) == [[0.1, 0.2], [0.2, 0.3]]
+    assert table.column("duration_s").to_pylist() == [1.0, 1.0]
+    for name in table.column("episode").to_pylist():
+        scene = json.loads((out / "episodes" / name / "scene.json").read_text())
+        assert scene["config"]["task"]["trajectory"]["angle_noise"] in ([0.1, 0.2], [0.2, 0.3])

@@ -25,6 +25,16 @@ def _value(text: str) -> Any:
         return text
 
 
+def _values(text: str) -> list[Any]:
+    """``--set`` values as TOML array items (``0.05,0.1``, ``[0.1,0.2],[0.2,0.3]``), else words."""
+    import tomllib
+
+    try:
+        return list(tomllib.loads(f"v = [{text}]")["v"])
+    except tomllib.TOMLDecodeError:
+        return [_value(v) for v in _list(text)]
+
+
 def _short_forms(args: argparse.Namespace) -> dict[str, Any]:
     """The grid axes given on the command line."""
     from endocam.runner.sweep import parse_seeds
@@ -58,7 +68,7 @@ def _short_forms(args: argparse.Namespace) -> dict[str, Any]:
         path, sep, values = item.partition("=")
         if not sep or not path.strip():
             raise UsageError(f"--set: expected PATH=VALUE[,VALUE...], got {item!r}")
-        grid[path.strip()] = [_value(v) for v in _list(values)]
+        grid[path.strip()] = _values(values)
     return grid
 
 
