@@ -44,3 +44,15 @@ def test_free_tracking_prints_a_table_per_group() -> None:
     )
     rows = [line for line in out.splitlines() if line.startswith("| endocam ")]
     assert len(rows) == 1 and rows[0].count("|") == 8
+
+
+def test_env_policies_reports_returns_side_by_side() -> None:
+    out = _run(str(EXAMPLES / "env_policies.py"), "--duration", "2", "--policies", "fixed,endocam")
+    rows = {
+        line.split("|")[1].strip(): float(line.split("|")[2])
+        for line in out.splitlines()
+        if line.startswith("| ") and not line.startswith("| policy")
+    }
+    assert set(rows) == {"zero action", "fixed", "endocam"}
+    assert rows["fixed"] == rows["zero action"]  # the fixed camera is the do-nothing agent
+    assert rows["endocam"] != rows["fixed"]

@@ -13,7 +13,7 @@ import sys
 from collections.abc import Callable, Sequence
 
 from endocam import __version__
-from endocam.cli import policies, run, study
+from endocam.cli import policies, run, study, sweep
 from endocam.cli.common import EXIT_USAGE, Parser, UsageError
 
 __all__ = ["EXIT_USAGE", "UsageError", "build_parser", "main"]
@@ -30,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"endocam {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for group in (policies, run, study):
+    for group in (policies, run, study, sweep):
         group.register(sub)
     return parser
 

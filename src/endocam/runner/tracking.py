@@ -56,6 +56,7 @@ from endocam.runner.outputs import (
     render_template,
     write_run,
 )
+from endocam.runner.pool import DEFAULT_WORKERS, executor
 from endocam.task.touches import TouchReport, touch_events
 from endocam.task.trajectory import make_trajectory
 from endocam.task.wire import Wire
@@ -84,7 +85,6 @@ ERRORS = (  # key in rows, label, PNG
 TRACKING_JSON = "tracking.json"
 TRACKING_MD = "tracking.md"
 TRACKING_HTML = "tracking.html"
-DEFAULT_WORKERS = 2  # processes: the machine this was measured on has two cores
 
 
 ARRIVED_M = 5e-3  # m: a camera this close to its command has arrived (the approach ends)
@@ -256,7 +256,7 @@ def run_tracking_experiment(
     summaries: dict[str, dict[str, Any]] = {}
     with atomic_dir(Path(out_dir)) as tmp:
         bar = tqdm(total=len(paths) + len(jobs), desc="episodes", unit="job", leave=False)
-        with bar, _executor(workers) as pool:
+        with bar, executor(workers) as pool:
             touch_futures = {p.name: pool.submit(_touches, config, p) for p in paths}
             futures = {}
             for p in paths:
@@ -291,24 +291,6 @@ def run_tracking_experiment(
         )
         (tmp / TRACKING_HTML).write_text(html, encoding="utf-8")
     return table
-
-
-class _InlineExecutor(concurrent.futures.Executor):
-    """Runs submitted calls at once, in this process (``workers=1``)."""
-
-    def submit(self, fn: Any, /, *args: Any, **kwargs: Any) -> concurrent.futures.Future[Any]:
-        fut: concurrent.futures.Future[Any] = concurrent.futures.Future()
-        try:
-            fut.set_result(fn(*args, **kwargs))
-        except BaseException as exc:  # handed to the caller through the future
-            fut.set_exception(exc)
-        return fut
-
-
-def _executor(workers: int) -> concurrent.futures.Executor:
-    if workers == 1:
-        return _InlineExecutor()
-    return concurrent.futures.ProcessPoolExecutor(max_workers=workers)
 
 
 _ROW_KEYS = (

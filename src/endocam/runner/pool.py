@@ -1,0 +1,39 @@
+"""The one local worker pool of the runner: a process pool, or inline calls for one worker.
+
+``experiment tracking`` and ``endocam sweep --backend local`` both submit their episodes here.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+from typing import Any
+
+DEFAULT_WORKERS = 2  # processes: the machine this was measured on has two cores
+
+
+class InlineExecutor(concurrent.futures.Executor):
+    """Runs submitted calls at once, in this process (``workers=1``)."""
+
+    def submit(self, fn: Any, /, *args: Any, **kwargs: Any) -> concurrent.futures.Future[Any]:
+        """Call ``fn(*args, **kwargs)`` now; its result or exception is in the future."""
+        fut: concurrent.futures.Future[Any] = concurrent.futures.Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # handed to the caller through the future
+            fut.set_exception(exc)
+        return fut
+
+
+def executor(workers: int) -> concurrent.futures.Executor:
+    """A process pool of ``workers`` processes, or an :class:`InlineExecutor` for one.
+
+    Raises
+    ------
+    ValueError
+        For ``workers`` < 1.
+    """
+    if workers < 1:
+        raise ValueError(f"workers must be ≥ 1, got {workers}")
+    if workers == 1:
+        return InlineExecutor()
+    return concurrent.futures.ProcessPoolExecutor(max_workers=workers)
