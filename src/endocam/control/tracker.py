@@ -271,9 +271,7 @@ class EndocamPolicy(_MovingPolicy):
         inv = 1.0 / delta
         # R2 R1^T ≈ I + [ω δ]×: its skew part gives ω (small angle over one control period).
         # ``0.0 +`` first, as ``sum`` starts (an int 0, the same float result, signed zeros too)
-        m = [
-            [0.0 + bi[0] * aj[0] + bi[1] * aj[1] + bi[2] * aj[2] for aj in a[:3]] for bi in b[:3]
-        ]
+        m = [[0.0 + bi[0] * aj[0] + bi[1] * aj[1] + bi[2] * aj[2] for aj in a[:3]] for bi in b[:3]]
         return np.array(
             [
                 (b[0][3] - a[0][3]) * inv,

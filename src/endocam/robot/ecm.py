@@ -33,6 +33,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from endocam.geometry import FloatArray, invert_pose
+from endocam.kernels import cross, dot, norm
 from endocam.robot.dh import (
     DHChain,
     DHLink,
@@ -77,6 +78,7 @@ DH values and joint limits from jhu-dvrk/sawIntuitiveResearchKit ``share/kinemat
 
 _EPS_GEOM = 1e-9  # m: a goal this close to the RCM has no defined shaft direction
 _EXACT_TOL_RAD = 1e-9  # rad: orientation residual counted as zero with unlimited joints
+_AXIS_MISS_RAD = 1e-6  # rad: an optical axis this far off the RCM's ray is not exact (≫ round-off)
 
 
 def clamp_angle_to_limits(angle: float, reference: float, lower: float, upper: float) -> float:
@@ -182,12 +184,29 @@ class ECM(RcmArm):
         out (an optical axis that misses the RCM, a joint limit): the control loop asks this
         several times per step, mostly of goals the 4-DoF scope cannot reach.
         """
+        if self._axis_misses_rcm(goal12):
+            return None
         q, _, theta4, exact_orientation = self._aim(goal12)
         if not (exact_orientation and self._axis_in_limits(q) and self._set_roll(q, theta4, seed)):
             return None
         q, _ = self.clamp_floats(q)
         T12 = pose12_times(compose_links(self._chain, q), self._chain._tip_rows)
         return q if within_tolerance(*pose12_error(goal12, T12)) else None
+
+    def _axis_misses_rcm(self, goal: Pose12) -> bool:
+        """Whether the goal's optical axis is clearly off the ray from the RCM: no exact solve.
+
+        The scope's last DH frame always has its z on the ray from the RCM through its origin
+        (the shaft), so a goal whose z is more than ``_AXIS_MISS_RAD`` off that ray is at least
+        as far from every orientation the ECM reaches, far beyond ``_EXACT_TOL_RAD``: the
+        cheap first test of :meth:`exact12_unchecked` (most goals of a 6-DoF controller).
+        """
+        g = pose12_times(goal, self._tip_inv_rows)  # last DH frame at the goal
+        p = (g[9], g[10], g[11])
+        if not norm(p) > _EPS_GEOM:
+            return False  # at the RCM: no shaft direction to compare with
+        z = (g[2], g[5], g[8])
+        return math.atan2(norm(cross(z, p)), dot(z, p)) > _AXIS_MISS_RAD
 
     def _aim(self, goal: Pose12) -> tuple[list[float], tuple[float, float, float], float, bool]:
         """Joints aiming the optical axis at the goal, unclamped, and the roll that fits best.
