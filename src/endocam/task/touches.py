@@ -50,7 +50,7 @@ T_TOL = 1e-6  # s, time tolerance of event start/end root finding (≪ 1 µm of 
 COARSE_STEP = 0.5e-3  # m, arc-length step of the coarse search before refinement
 WINDOW_FACTOR = 3.0  # unitless, searched arc length each side, in units of R + r + r_w
 _SCALAR_LIMIT = 4  # poses, below this refine with scalar Brent instead of the array method
-_CHUNK = 2048  # poses per vectorised block (bounds memory to ~10 MB)
+_CHUNK = 2048  # poses per block of the coarse search (bounds its memory to ~10 MB)
 _EPS = 1e-15  # m, below this a direction is undefined
 
 
