@@ -11,7 +11,13 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from endocam.robot import ECM, PSM, IKStatus, UnreachableError
-from endocam.robot.dh import DHLink, JointType, chain_forward, link_transform
+from endocam.robot.dh import (
+    DHLink,
+    JointType,
+    chain_forward,
+    link_transform,
+    pose12_from_matrix,
+)
 from endocam.robot.kinematics import ORIENTATION_WEIGHT_M_PER_RAD
 
 EPS = np.finfo(np.float64).eps
@@ -319,6 +325,29 @@ def test_ecm_residual_zero_iff_axis_through_rcm() -> None:
         assert res_off.status is IKStatus.UNREACHABLE
         assert res_off.position_error < ATOL_M  # position first
         assert res_off.orientation_error == pytest.approx(tilt, abs=1e-9)
+
+
+def test_ecm_exact_agrees_with_the_full_solve() -> None:
+    """The control loop's early-exit exact solve says yes exactly when ``solve_unchecked`` is OK.
+
+    Goals: reachable poses (and poses beyond the joint limits) with their orientation turned by
+    0 or by 1e-12 … 1e-2 rad, across the early exit's 1e-6 rad threshold and the 1e-9 rad
+    orientation tolerance.
+    """
+    rng = np.random.default_rng(12)
+    for _ in range(400):
+        q = _random_q(ECM_ARM, rng, margin=-0.2)  # also beyond the limits (clamped)
+        goal = ECM_ARM.forward(q)
+        turn = 0.0 if rng.random() < 0.25 else 10.0 ** rng.uniform(-12.0, -2.0)
+        axis = rng.normal(size=3)
+        goal[:3, :3] = (
+            Rotation.from_rotvec(turn * axis / np.linalg.norm(axis)).as_matrix() @ (goal[:3, :3])
+        )
+        full = ECM_ARM.solve_unchecked(goal, q)
+        fast = ECM_ARM.exact12_unchecked(pose12_from_matrix(goal), q)
+        assert (fast is not None) == full.ok
+        if fast is not None:
+            assert fast == full.q.tolist()
 
 
 def test_ecm_goal_outside_limits_is_clamped() -> None:

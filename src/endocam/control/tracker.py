@@ -270,7 +270,8 @@ class EndocamPolicy(_MovingPolicy):
         a, b = T1.tolist(), T2.tolist()
         inv = 1.0 / delta
         # R2 R1^T ≈ I + [ω δ]×: its skew part gives ω (small angle over one control period).
-        m = [[sum(b[i][k] * a[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
+        # ``0.0 +`` first, as ``sum`` starts (an int 0, the same float result, signed zeros too)
+        m = [[0.0 + bi[0] * aj[0] + bi[1] * aj[1] + bi[2] * aj[2] for aj in a[:3]] for bi in b[:3]]
         return np.array(
             [
                 (b[0][3] - a[0][3]) * inv,

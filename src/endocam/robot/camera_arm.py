@@ -35,7 +35,7 @@ import math
 import numpy as np
 
 from endocam.geometry import FloatArray, as_pose, invert_pose
-from endocam.kernels import rotation_angle, so3_exp
+from endocam.kernels import cross, rotation_angle, so3_exp
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
 from endocam.robot.arm import SimulatedArm
 from endocam.robot.dh import compose_links, pose12_from_matrix, pose12_times, pose12_to_matrix
@@ -140,17 +140,31 @@ def _port_rotvec(T: FloatArray, look_distance: float, p_rcm: FloatArray) -> Floa
     """Rotation vector (3,), rad, taking the optical axis onto the port direction."""
     z = T[:3, 2]
     v = T[:3, 3] + look_distance * z - p_rcm
-    norm_v = float(np.linalg.norm(v))
+    norm_v = _norm(v)
     if norm_v <= _EPS_AXIS:
         return None
     v = v / norm_v
-    axis = np.cross(z, v)
-    sin_t, cos_t = float(np.linalg.norm(axis)), float(z @ v)
+    axis = _cross(z.tolist(), v.tolist())
+    sin_t, cos_t = _norm(axis), float(z @ v)
     if sin_t <= _EPS_AXIS:
         if cos_t > 0.0:
             return np.zeros(3)
         axis, sin_t = T[:3, 1].copy(), 1.0  # looking straight at the port: pan about image y
     return axis * (math.atan2(sin_t, cos_t) / sin_t)
+
+
+def _norm(v: FloatArray) -> float:
+    """``np.linalg.norm`` of a contiguous 3-vector, m, without its argument handling.
+
+    The same arithmetic (``sqrt(v · v)``, numpy's dot): a sum of squares on Python floats
+    can differ in the last bit, and the logs must not.
+    """
+    return math.sqrt(v.dot(v))
+
+
+def _cross(a: list[float], b: list[float]) -> FloatArray:
+    """``np.cross`` of two 3-vectors (the same products and differences) on Python floats."""
+    return np.array(cross((a[0], a[1], a[2]), (b[0], b[1], b[2])), dtype=float)
 
 
 def _turned(T: FloatArray, look_distance: float, rotvec: FloatArray, fraction: float) -> FloatArray:
@@ -419,16 +433,16 @@ class CameraArm:
         c_arr = np.array(c)
         u_cur = np.array(u)
         u_goal = -np.array(z_t)
-        axis = np.cross(u_cur, u_goal)
-        ang = math.atan2(float(np.linalg.norm(axis)), float(u_cur @ u_goal))
-        sin_a = float(np.linalg.norm(axis))
+        axis = _cross(u, [-x for x in z_t])
+        sin_a = _norm(axis)
+        ang = math.atan2(sin_a, float(u_cur @ u_goal))
         if sin_a > _EPS_AXIS:
             rotvec = axis * (alpha * ang / sin_a)
         elif u_cur @ u_goal > 0.0:
             rotvec = np.zeros(3)
         else:  # opposite: over the top
-            k = np.cross(u_cur, np.array([0.0, 0.0, 1.0]))
-            k_norm = float(np.linalg.norm(k))
+            k = _cross(u, [0.0, 0.0, 1.0])
+            k_norm = _norm(k)
             if not k_norm > _EPS_AXIS:
                 return None
             rotvec = k * (alpha * ang / k_norm)

@@ -33,6 +33,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from endocam.geometry import FloatArray, invert_pose
+from endocam.kernels import cross, dot, norm
 from endocam.robot.dh import (
     DHChain,
     DHLink,
@@ -77,6 +78,7 @@ DH values and joint limits from jhu-dvrk/sawIntuitiveResearchKit ``share/kinemat
 
 _EPS_GEOM = 1e-9  # m: a goal this close to the RCM has no defined shaft direction
 _EXACT_TOL_RAD = 1e-9  # rad: orientation residual counted as zero with unlimited joints
+_AXIS_MISS_RAD = 1e-6  # rad: an optical axis this far off the RCM's ray is not exact (≫ round-off)
 
 
 def clamp_angle_to_limits(angle: float, reference: float, lower: float, upper: float) -> float:
@@ -152,29 +154,15 @@ class ECM(RcmArm):
             (residual orientation error > 0); ``CLAMPED_TO_LIMITS`` when only joint limits
             prevent it. ``q`` is always within the limits.
         """
-        links = self._chain.links
         goal = pose12_from_matrix(T_goal)
-        g = pose12_times(goal, self._tip_inv_rows)  # last DH frame at the goal
-        p0, p1, p2 = g[9], g[10], g[11]
-        r = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-        s0, s1, s2 = (p0 / r, p1 / r, p2 / r) if r > _EPS_GEOM else (g[2], g[5], g[8])
-        q = [math.atan2(s0, -s2), -math.asin(max(-1.0, min(1.0, s1))), r - self._shaft_offset, 0.0]
-        # reachable with unlimited joints iff the best roll on the unclamped axis is exact
-        theta4, R_free = self._best_roll(goal, q)
-        exact_orientation = pose12_error(goal, R_free)[1] <= _EXACT_TOL_RAD
+        q, p_goal, theta4, exact_orientation = self._aim(goal)
         clamped = False
-        if not all(
-            lo - LIMIT_SLACK <= v <= hi + LIMIT_SLACK
-            for v, (lo, hi) in zip(q[:3], self._limit_pairs, strict=False)
-        ):
+        if not self._axis_in_limits(q):
             clamped = True
             q_clip = self.clamp(np.array(q))[:3]
-            q[:3] = self._nearest_position(np.array([p0, p1, p2]), q_clip).tolist()
+            q[:3] = self._nearest_position(np.array(p_goal), q_clip).tolist()
             theta4, _ = self._best_roll(goal, q)
-        q[3] = clamp_angle_to_limits(
-            theta4 - links[3].offset, float(seed[3]), links[3].lower, links[3].upper
-        )
-        if abs(math.remainder(q[3] + links[3].offset - theta4, 2.0 * math.pi)) > LIMIT_SLACK:
+        if not self._set_roll(q, theta4, seed):
             clamped = True
         q, _ = self.clamp_floats(q)
         if not exact_orientation:
@@ -188,6 +176,66 @@ class ECM(RcmArm):
         if status is IKStatus.OK and not within_tolerance(*errors):
             status = IKStatus.UNREACHABLE
         return IKResult(np.array(q), status, errors[0], errors[1], pose12_to_matrix(T12))
+
+    def exact12_unchecked(self, goal12: Pose12, seed: FloatArray) -> list[float] | None:
+        """:meth:`solve_unchecked`'s joints when its status is ``OK``, else ``None``.
+
+        The same steps as :meth:`solve_unchecked`, stopping at the first that rules ``OK``
+        out (an optical axis that misses the RCM, a joint limit): the control loop asks this
+        several times per step, mostly of goals the 4-DoF scope cannot reach.
+        """
+        if self._axis_misses_rcm(goal12):
+            return None
+        q, _, theta4, exact_orientation = self._aim(goal12)
+        if not (exact_orientation and self._axis_in_limits(q) and self._set_roll(q, theta4, seed)):
+            return None
+        q, _ = self.clamp_floats(q)
+        T12 = pose12_times(compose_links(self._chain, q), self._chain._tip_rows)
+        return q if within_tolerance(*pose12_error(goal12, T12)) else None
+
+    def _axis_misses_rcm(self, goal: Pose12) -> bool:
+        """Whether the goal's optical axis is clearly off the ray from the RCM: no exact solve.
+
+        The scope's last DH frame always has its z on the ray from the RCM through its origin
+        (the shaft), so a goal whose z is more than ``_AXIS_MISS_RAD`` off that ray is at least
+        as far from every orientation the ECM reaches, far beyond ``_EXACT_TOL_RAD``: the
+        cheap first test of :meth:`exact12_unchecked` (most goals of a 6-DoF controller).
+        """
+        g = pose12_times(goal, self._tip_inv_rows)  # last DH frame at the goal
+        p = (g[9], g[10], g[11])
+        if not norm(p) > _EPS_GEOM:
+            return False  # at the RCM: no shaft direction to compare with
+        z = (g[2], g[5], g[8])
+        return math.atan2(norm(cross(z, p)), dot(z, p)) > _AXIS_MISS_RAD
+
+    def _aim(self, goal: Pose12) -> tuple[list[float], tuple[float, float, float], float, bool]:
+        """Joints aiming the optical axis at the goal, unclamped, and the roll that fits best.
+
+        Returns ``q`` (yaw, pitch, insertion, roll 0; rad / m), the goal position of the last
+        DH frame (m, RCM frame), the best roll θ4 (rad), and whether that roll reaches the
+        goal's orientation exactly (with unlimited joints: the axis passes through the RCM).
+        """
+        g = pose12_times(goal, self._tip_inv_rows)  # last DH frame at the goal
+        p0, p1, p2 = g[9], g[10], g[11]
+        r = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+        s0, s1, s2 = (p0 / r, p1 / r, p2 / r) if r > _EPS_GEOM else (g[2], g[5], g[8])
+        q = [math.atan2(s0, -s2), -math.asin(max(-1.0, min(1.0, s1))), r - self._shaft_offset, 0.0]
+        # reachable with unlimited joints iff the best roll on the unclamped axis is exact
+        theta4, R_free = self._best_roll(goal, q)
+        return q, (p0, p1, p2), theta4, pose12_error(goal, R_free)[1] <= _EXACT_TOL_RAD
+
+    def _axis_in_limits(self, q: list[float]) -> bool:
+        """Whether yaw, pitch and insertion ``q[:3]`` lie within their limits (± round-off)."""
+        return all(
+            lo - LIMIT_SLACK <= v <= hi + LIMIT_SLACK
+            for v, (lo, hi) in zip(q[:3], self._limit_pairs, strict=False)
+        )
+
+    def _set_roll(self, q: list[float], theta4: float, seed: FloatArray) -> bool:
+        """Set ``q[3]`` to the roll θ4 (rad) within its limits; False if it had to be clamped."""
+        link = self._chain.links[3]
+        q[3] = clamp_angle_to_limits(theta4 - link.offset, float(seed[3]), link.lower, link.upper)
+        return abs(math.remainder(q[3] + link.offset - theta4, 2.0 * math.pi)) <= LIMIT_SLACK
 
     def _best_roll(self, goal: Pose12, q: list[float]) -> tuple[float, Pose12]:
         """Roll angle θ4 (rad) maximising trace(R_goal^T R), and the pose's rotation it gives.

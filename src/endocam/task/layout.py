@@ -6,6 +6,7 @@ study all take the task's layout from here.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -13,7 +14,7 @@ from numpy.typing import ArrayLike
 
 from endocam.camera import StereoCamera
 from endocam.geometry import UP, FloatArray, as_vector3, make_pose, unit_vector
-from endocam.task.config import InstrumentConfig, RingConfig, TaskConfig
+from endocam.task.config import InstrumentConfig, RingConfig, TaskConfig, Vec3, WireConfig
 from endocam.task.wire import Wire
 
 __all__ = ["overview_camera_pose", "psm1_tip_in_ring", "psm2_pose", "task_centre"]
@@ -40,8 +41,20 @@ def psm2_pose(instruments: InstrumentConfig, p_world_tip: ArrayLike | None = Non
 
 def _task_points(task_cfg: TaskConfig) -> FloatArray:
     """(N, 3) points the whole-task view must show: wire, post bases, PSM2's tip, m."""
-    wire = Wire(task_cfg.wire)
-    return np.vstack([wire.polyline(), wire.post_bases, np.asarray(task_cfg.instruments.psm2_tip)])
+    return _layout_points(task_cfg.wire, task_cfg.instruments.psm2_tip)
+
+
+@functools.lru_cache(maxsize=16)
+def _layout_points(wire_cfg: WireConfig, psm2_tip: Vec3) -> FloatArray:
+    """:func:`_task_points` of a wire and a tip (read-only, cached).
+
+    Building the wire's splines costs milliseconds, and every episode asks for its layout
+    several times (the centre, the overview) with the same wire.
+    """
+    wire = Wire(wire_cfg)
+    pts = np.vstack([wire.polyline(), wire.post_bases, np.asarray(psm2_tip, dtype=float)])
+    pts.setflags(write=False)
+    return pts
 
 
 def task_centre(task_cfg: TaskConfig) -> FloatArray:

@@ -50,7 +50,7 @@ T_TOL = 1e-6  # s, time tolerance of event start/end root finding (≪ 1 µm of 
 COARSE_STEP = 0.5e-3  # m, arc-length step of the coarse search before refinement
 WINDOW_FACTOR = 3.0  # unitless, searched arc length each side, in units of R + r + r_w
 _SCALAR_LIMIT = 4  # poses, below this refine with scalar Brent instead of the array method
-_CHUNK = 2048  # poses per vectorised block (bounds memory to ~10 MB)
+_CHUNK = 2048  # poses per block of the coarse search (bounds its memory to ~10 MB)
 _EPS = 1e-15  # m, below this a direction is undefined
 
 
@@ -136,6 +136,45 @@ def _core_distance(p: FloatArray, c: FloatArray, n: FloatArray, major: float) ->
     return np.asarray(np.sqrt(h * h + (rho - major) ** 2), dtype=float)
 
 
+def _coarse_minimiser(
+    xyz: tuple[FloatArray, FloatArray, FloatArray],
+    idx: NDArray[np.intp],
+    c: FloatArray,
+    n: FloatArray,
+    major: float,
+) -> NDArray[np.intp]:
+    """The index in ``idx`` (N, k) of each pose's search point nearest to its core circle.
+
+    The same arithmetic as :func:`_core_distance`, operation for operation (so the same
+    values and the same argmin), on the contiguous coordinate columns ``xyz`` ((M,) each, m)
+    of the search polyline, in place: the coarse search is the bulk of the touch detection.
+    Centres and normals ``c``, ``n`` are (N, 3), m.
+    """
+    dx = np.take(xyz[0], idx)
+    dx -= c[:, 0, None]
+    dy = np.take(xyz[1], idx)
+    dy -= c[:, 1, None]
+    dz = np.take(xyz[2], idx)
+    dz -= c[:, 2, None]
+    h = dx * n[:, 0, None]
+    h += dy * n[:, 1, None]
+    h += dz * n[:, 2, None]
+    np.multiply(dx, dx, out=dx)  # dx² + dy² + dz² − h², then ρ, then (ρ − R)²
+    np.multiply(dy, dy, out=dy)
+    dx += dy
+    np.multiply(dz, dz, out=dz)
+    dx += dz
+    np.multiply(h, h, out=h)
+    dx -= h
+    np.maximum(dx, 0.0, out=dx)
+    np.sqrt(dx, out=dx)
+    dx -= major
+    np.multiply(dx, dx, out=dx)
+    h += dx  # h² + (ρ − R)²
+    np.sqrt(h, out=h)
+    return idx[np.arange(idx.shape[0]), np.argmin(h, axis=1)]
+
+
 def _contact_point(
     p_wire: FloatArray, T_world_ring: FloatArray, ring_cfg: RingConfig, wire_radius: float
 ) -> tuple[FloatArray, FloatArray]:
@@ -167,26 +206,32 @@ def _refine(
     step: int,
     c: FloatArray,
     n: FloatArray,
+    scalar: NDArray[np.bool_] | None = None,
 ) -> FloatArray:
-    """Refine coarse minimisers (search indices ``g`` (N,)) for centres/normals (N, 3); s, m."""
+    """Refine coarse minimisers (search indices ``g`` (N,)) for centres/normals (N, 3); s, m.
+
+    ``scalar`` (N,) marks the poses refined one by one with scalar Brent (by default all of
+    them when there are at most ``_SCALAR_LIMIT``, where it is cheaper than the array method);
+    the others are refined together. Each pose's result depends only on its own inputs.
+    """
     s_all = wire.search_arc_length
     m = s_all.size
     s_best = s_all[g].copy()
     lo = np.maximum(g - step, 0)
     hi = np.minimum(g + step, m - 1)
     major = ring_cfg.major_radius
-    if g.size <= _SCALAR_LIMIT:  # a few poses: scalar Brent is cheaper than the array machinery
-        for i in range(g.size):
-            res = minimize_scalar(
-                lambda s, i=i: float(_core_distance(wire.point(s), c[i], n[i], major)),
-                bounds=(s_all[lo[i]], s_all[hi[i]]),
-                method="bounded",
-                options={"xatol": X_TOL},
-            )
-            if res.fun <= _core_distance(wire.search_points[g[i]], c[i], n[i], major):
-                s_best[i] = float(res.x)
-        return s_best
-    inner = np.flatnonzero((g > 0) & (g < m - 1))
+    if scalar is None:
+        scalar = np.full(g.size, g.size <= _SCALAR_LIMIT)
+    for i in np.flatnonzero(scalar).tolist():
+        res = minimize_scalar(
+            lambda s, i=i: float(_core_distance(wire.point(s), c[i], n[i], major)),
+            bounds=(s_all[lo[i]], s_all[hi[i]]),
+            method="bounded",
+            options={"xatol": X_TOL},
+        )
+        if res.fun <= _core_distance(wire.search_points[g[i]], c[i], n[i], major):
+            s_best[i] = float(res.x)
+    inner = np.flatnonzero((g > 0) & (g < m - 1) & ~scalar)
     if inner.size:
 
         def objective(s: FloatArray, k: NDArray[np.intp]) -> FloatArray:
@@ -205,16 +250,10 @@ def _refine(
     return s_best
 
 
-def _clearances_block(
-    T: FloatArray, wire: Wire, ring_cfg: RingConfig, idx: NDArray[np.intp], step: int
-) -> tuple[FloatArray, FloatArray]:
-    """Clearance and contact points of poses ``T`` (N, 4, 4) over search indices ``idx`` (N, k)."""
-    c = T[:, :3, 3]
-    n = T[:, :3, 2]
-    f = _core_distance(wire.search_points[idx], c[:, None], n[:, None], ring_cfg.major_radius)
-    g = idx[np.arange(idx.shape[0]), np.argmin(f, axis=1)]
-    s_best = _refine(wire, ring_cfg, g, step, c, n)
-    return _contact_point(wire.points(s_best), T, ring_cfg, wire.radius)
+def _columns(wire: Wire) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The search polyline's x, y, z columns ((M,) each, contiguous), m."""
+    pts = wire.search_points
+    return pts[:, 0].copy(), pts[:, 1].copy(), pts[:, 2].copy()
 
 
 def clearances(
@@ -249,16 +288,18 @@ def clearances(
     half = math.ceil(WINDOW_FACTOR * reach / wire.search_spacing / step) * step
     m = wire.search_arc_length.size
     offsets = np.arange(-half, half + 1, step)
-    out_c = np.empty(T.shape[0])
-    out_p = np.empty((T.shape[0], 3))
-    for a in range(0, T.shape[0], _CHUNK):
-        block = T[a : a + _CHUNK]
-        k = np.searchsorted(wire.search_arc_length, wire.nearest_s(block[:, :3, 3]))
+    c, n = T[:, :3, 3], T[:, :3, 2]
+    xyz = _columns(wire)
+    g = np.empty(T.shape[0], dtype=np.intp)
+    scalar = np.zeros(T.shape[0], dtype=bool)
+    for a in range(0, T.shape[0], _CHUNK):  # the coarse search in blocks (bounded memory)
+        b = min(a + _CHUNK, T.shape[0])
+        k = np.searchsorted(wire.search_arc_length, wire.nearest_s(c[a:b]))
         idx = np.clip(k[:, None] + offsets, 0, m - 1)
-        out_c[a : a + _CHUNK], out_p[a : a + _CHUNK] = _clearances_block(
-            block, wire, ring_cfg, idx, step
-        )
-    return out_c, out_p
+        g[a:b] = _coarse_minimiser(xyz, idx, c[a:b], n[a:b], ring_cfg.major_radius)
+        scalar[a:b] = b - a <= _SCALAR_LIMIT  # a small block's poses: scalar Brent
+    s_best = _refine(wire, ring_cfg, g, step, c, n, scalar)  # then all together
+    return _contact_point(wire.points(s_best), T, ring_cfg, wire.radius)
 
 
 def clearance(
@@ -286,8 +327,12 @@ def clearance(
     step = max(1, int(COARSE_STEP / wire.search_spacing))
     idx = np.arange(0, wire.search_arc_length.size, step)
     idx = np.unique(np.append(idx, wire.search_arc_length.size - 1))[None, :]
-    c, p = _clearances_block(T[None], wire, ring_cfg, idx, step)
-    return float(c[0]), p[0]
+    T = T[None]
+    c, n = T[:, :3, 3], T[:, :3, 2]
+    g = _coarse_minimiser(_columns(wire), idx, c, n, ring_cfg.major_radius)
+    s_best = _refine(wire, ring_cfg, g, step, c, n)
+    cl, p = _contact_point(wire.points(s_best), T, ring_cfg, wire.radius)
+    return float(cl[0]), p[0]
 
 
 def touch_events(
