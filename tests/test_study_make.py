@@ -59,6 +59,8 @@ def test_manifest_is_valid_with_nine_videos_and_six_orders(study: Path) -> None:
         assert [v.difficulty for v in videos] == [1, 2, 3]
         assert [v.trajectory for v in videos] == [t.name for t in STUDY_TRAJECTORIES]
     assert not list(study.parent.glob(".study.tmp-*"))  # the temporary folder was renamed
+    doc = json.loads((study / "manifest.json").read_text())
+    assert "touch" in doc["touch_definition"]  # what participants are told to count
 
 
 def test_ids_do_not_reveal_the_condition(study: Path) -> None:

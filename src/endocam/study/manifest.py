@@ -8,10 +8,13 @@
      "videos": [{"id": "v01", "condition": "fixed", "trajectory": "t3-71-high",
                  "difficulty": 3, "true_touches": 7, "file": "videos/v01.mp4"}, ...],
      "orders": [["fixed", "centering", "orientation"], ...],
-     "attention": {"question": "...", "answer": 4}}
+     "attention": {"question": "...", "answer": 4},
+     "touch_definition": "A touch is ..."}
 
 ``difficulty`` runs from 1 to 3 (3 = most difficult, the paper's 71-point trajectory). ``file`` is
 relative to the study folder. Within a set the videos are shown in the order ``videos`` lists them.
+``touch_definition`` is the plain-text definition of a touch the participants are given (the one
+``true_touches`` counts: :data:`DEFAULT_TOUCH_DEFINITION` unless a manifest says otherwise).
 """
 
 from __future__ import annotations
@@ -27,6 +30,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 MANIFEST_NAME = "manifest.json"
 MAX_TOUCHES = 99  # largest count a participant may report (touches)
 ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"  # ids appear in URLs and CSV files
+DEFAULT_TOUCH_DEFINITION = (
+    "Count the touches between the ring and the wire. A touch begins when the ring comes into "
+    "contact with the wire after a gap between them, and ends when a gap opens again: count each "
+    "touch once, however long it lasts. Every video starts and ends with the ring clear of the "
+    "wire."
+)  # what the simulator counts (endocam.task.touches: one event per interval of contact)
 
 
 class Condition(StrEnum):
@@ -101,6 +110,7 @@ class Manifest(_Frozen):
     videos: tuple[Video, ...]
     orders: tuple[tuple[Condition, ...], ...]
     attention: AttentionQuestion
+    touch_definition: Annotated[str, Field(min_length=1)] = DEFAULT_TOUCH_DEFINITION
 
     @model_validator(mode="after")
     def _consistent(self) -> Self:
