@@ -47,20 +47,9 @@ def _make(args: argparse.Namespace) -> int:
 def _print_hypothesis(folder: Path) -> None:
     import json
 
-    from endocam.study.make import HYPOTHESIS_JSON
+    from endocam.study.make import HYPOTHESIS_JSON, hypothesis_table
 
-    doc = json.loads((folder / HYPOTHESIS_JSON).read_text("utf-8"))
-    print(f"observer on {doc['trajectory']}: condition, |counted - true|, gap before (px), closes")
-    for c, row in doc["study"].items():
-        gap = row["median_gap_before_px"]
-        print(
-            f"  {c:12s} {row['abs_error']:3d}  {'-' if gap is None else f'{gap:.1f}':>6s}  "
-            f"{row['closes_visibly_share'] or 0.0:.0%}"
-        )
-    for c, row in doc["extra_seeds"]["conditions"].items():
-        print(
-            f"  {c:12s} over {row['videos']} extra seeds: mean |error| {row['mean_abs_error']:.2f}"
-        )
+    print(hypothesis_table(json.loads((folder / HYPOTHESIS_JSON).read_text("utf-8"))), end="")
 
 
 def _observe(args: argparse.Namespace) -> int:

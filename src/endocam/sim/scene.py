@@ -9,7 +9,8 @@ Bodies and geoms (geom group in brackets, see ``GROUP_*``):
 - world: ``board`` plane at z = 0 [0], ``post_left``/``post_right`` cylinders [0], the wire as one
   tube mesh ``wire`` [1], the training box's walls ``wall_back``/``wall_front``/``wall_left``
   (``scene.backdrop_height``) and ``wall_port`` (low, ``scene.backdrop_port_height``, on the
-  camera port's side +x) [0] at the board's edges, lights ``key_light`` and ``fill_light`` (no
+  camera port's side +x) [0] at the board's edges and its lid ``wall_top`` at
+  ``scene.backdrop_height`` [0], lights ``key_light`` and ``fill_light`` (no
   shadows: depth shows by shading, the headlight and the board's checker);
 - ``ring`` (mocap, pose = ``T_world_ring``): ``ring_torus`` mesh and ``ring_handle`` [2], and PSM1
   holding the handle's end: ``psm1_jaw_a/b``, ``psm1_wrist``, ``psm1_shaft`` [3], site
@@ -431,7 +432,7 @@ def _add_board(spec: mujoco.MjSpec, task_cfg: TaskConfig) -> None:
 
 
 def _add_backdrop(spec: mujoco.MjSpec, task_cfg: TaskConfig) -> None:
-    """The training box: four matte walls standing on the board's edges (lit, not black)."""
+    """The training box: four matte walls on the board's edges and a lid (lit, not black)."""
     sc = task_cfg.scene
     hx, hy = 0.5 * sc.board_size[0], 0.5 * sc.board_size[1]
     t = 0.5 * WALL_THICKNESS
@@ -441,6 +442,7 @@ def _add_backdrop(spec: mujoco.MjSpec, task_cfg: TaskConfig) -> None:
         ("wall_port", (hx + t, 0.0, 0.5 * hp), (t, hy + 2 * t, 0.5 * hp)),
         ("wall_back", (0.0, hy + t, 0.5 * h), (hx, t, 0.5 * h)),
         ("wall_front", (0.0, -hy - t, 0.5 * h), (hx, t, 0.5 * h)),
+        ("wall_top", (0.0, 0.0, h + t), (hx + 2 * t, hy + 2 * t, t)),  # the box's lid
     )
     mat = spec.add_material(
         name="backdrop_material", specular=0.0, shininess=0.0, emission=BACKDROP_EMISSION

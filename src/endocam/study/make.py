@@ -71,6 +71,7 @@ from endocam.study.observer import (
     ColourKeys,
     VideoObservation,
     gap_view,
+    match_events,
     observe_video,
     observer_document,
     observer_html,
@@ -270,7 +271,9 @@ def make_study(
         (tmp / OBSERVER_HTML).write_text(observer_html(manifest, observations), "utf-8")
         hardest = max(trajectories, key=lambda t: t.difficulty)
         extra = run_extra_seeds(config, hardest, seed, extra_seeds, keys, tmp)
-        hypothesis = hypothesis_dict(manifest, observer, records, hardest, extra)
+        hypothesis = hypothesis_dict(
+            manifest, observer, records, hardest, extra, 1.0 / config.episode.video_fps
+        )
         (tmp / HYPOTHESIS_JSON).write_text(json.dumps(hypothesis, indent=2) + "\n", "utf-8")
         design = design_dict(config, runs, key, seed)
         (tmp / DESIGN_JSON).write_text(json.dumps(design, indent=2) + "\n", "utf-8")
@@ -306,7 +309,9 @@ def run_extra_seeds(
     """Simulate, render and observe ``n`` more seeds of ``trajectory`` (three conditions each).
 
     Returns one dict per seed and condition: ``seed``, ``condition``, ``true_touches``,
-    ``counted_touches``, ``gap_before_px`` (per touch), ``closes_visibly`` (per touch). The
+    ``counted_touches``, ``matched_touches`` (seen touches overlapping a true one, one to one:
+    :func:`~endocam.study.observer.match_events`), ``gap_before_px`` and ``closes_visibly`` (per
+    true touch). The
     videos are rendered into a temporary folder under ``work_dir`` and deleted.
     """
     from endocam.runner.episode import EpisodeSpec
@@ -334,12 +339,18 @@ def run_extra_seeds(
             for c, path in zip(STUDY_CONDITIONS, paths, strict=True):
                 obs = observe_video(path, keys)
                 views = [gap_view(obs.gaps_px, obs.fps, e.t_start, e.t_end) for e in touches.events]
+                match = match_events(
+                    [(t.t_start, t.t_end) for t in obs.touches],
+                    [(e.t_start, e.t_end) for e in touches.events],
+                    1.0 / obs.fps,
+                )
                 rows.append(
                     {
                         "seed": s,
                         "condition": c.value,
                         "true_touches": touches.count,
                         "counted_touches": len(obs.touches),
+                        "matched_touches": match.true_positives,
                         "gap_before_px": [v.gap_before_px for v in views],
                         "closes_visibly": [v.closes_visibly for v in views],
                     }
@@ -360,21 +371,28 @@ def hypothesis_dict(
     records: Sequence[TouchObservation],
     hardest: StudyTrajectory,
     extra: Sequence[dict[str, Any]],
+    frame_s: float,
 ) -> dict[str, Any]:
     """``hypothesis.json``: the observer's counting error and image-space observability.
 
-    Per condition, on the most difficult study trajectory and over the extra seeds.
+    Per condition, on the most difficult study trajectory and over the extra seeds; precision
+    and recall pair seen with true touches overlapping within ``frame_s`` (one frame, s).
     """
     counted = {v["id"]: v["counted_touches"] for v in observer["videos"]}
+    events = {v["id"]: v["events"] for v in observer["videos"]}
     study: dict[str, Any] = {}
     for c in manifest.conditions:
         video = manifest.most_difficult(c)
         rs = [r for r in records if r.video_id == video.id]
+        seen = [(e["t_start"], e["t_end"]) for e in events[video.id]]
+        match = match_events(seen, [(r.t_start_s, r.t_end_s) for r in rs], frame_s)
         study[c.value] = {
             "video": video.id,
             "true_touches": video.true_touches,
             "counted_touches": counted[video.id],
             "abs_error": abs(counted[video.id] - video.true_touches),
+            "precision": match.precision,
+            "recall": match.recall,
             "median_gap_before_px": _nan_median([r.gap_before_px for r in rs]),
             "closes_visibly_share": float(np.mean([r.closes_visibly for r in rs])) if rs else None,
         }
@@ -384,12 +402,17 @@ def hypothesis_dict(
         if not rows:
             continue
         errors = [abs(r["counted_touches"] - r["true_touches"]) for r in rows]
+        tp = sum(r["matched_touches"] for r in rows)
+        n_seen = sum(r["counted_touches"] for r in rows)
+        n_true = sum(r["true_touches"] for r in rows)
         gaps = [g for r in rows for g in r["gap_before_px"]]
         closes = [f for r in rows for f in r["closes_visibly"]]
         seeds[c.value] = {
             "videos": len(rows),
             "mean_abs_error": float(np.mean(errors)),
             "sd_abs_error": float(np.std(errors, ddof=1)) if len(errors) > 1 else None,
+            "precision": tp / n_seen if n_seen else 1.0,
+            "recall": tp / n_true if n_true else 1.0,
             "median_gap_before_px": _nan_median(gaps),
             "closes_visibly_share": float(np.mean(closes)) if closes else None,
         }
@@ -403,6 +426,38 @@ def hypothesis_dict(
             "videos": list(extra),
         },
     }
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "–" if value is None else format(value, spec)
+
+
+def hypothesis_table(doc: dict[str, Any]) -> str:
+    """``hypothesis.json`` as a Markdown table (one row per condition)."""
+    extra = doc["extra_seeds"]
+    lines = [
+        f"| condition | {doc['trajectory']}: counted / true, abs. error | precision / recall | "
+        f"gap before (px) | closes visibly | {extra['n']} extra seeds: mean abs. error (SD) | "
+        "precision / recall | gap before (px) | closes visibly |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for c, row in doc["study"].items():
+        e = extra["conditions"].get(c)
+        tail = (
+            "– | – | – | –"
+            if e is None
+            else f"{e['mean_abs_error']:.2f} ({_fmt(e['sd_abs_error'], '.2f')}) | "
+            f"{e['precision']:.2f} / {e['recall']:.2f} | "
+            f"{_fmt(e['median_gap_before_px'], '.1f')} | "
+            f"{_fmt(e['closes_visibly_share'], '.0%')}"
+        )
+        lines.append(
+            f"| {c} | {row['counted_touches']} / {row['true_touches']}, {row['abs_error']} | "
+            f"{row['precision']:.2f} / {row['recall']:.2f} | "
+            f"{_fmt(row['median_gap_before_px'], '.1f')} | "
+            f"{_fmt(row['closes_visibly_share'], '.0%')} | {tail} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def design_dict(
