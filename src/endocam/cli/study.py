@@ -163,7 +163,8 @@ def _add_make(sub: argparse._SubParsersAction) -> None:
         description="Simulate three noisy trajectories of increasing difficulty (36 points with "
         "5-10° angle noise, 36 and 71 points with the config's noise) with the fixed, centering "
         "and orientation cameras; write videos/, manifest.json, design.json, "
-        "observability.json/.csv and logs/ into --out (replaced atomically).",
+        "observability.json/.csv, observer.json/.html, hypothesis.json and logs/ into --out "
+        "(replaced atomically).",
     )
     p.add_argument("--out", required=True, metavar="DIR", help="study folder to write")
     p.add_argument("--config", metavar="FILE", help="TOML or YAML config (see `endocam config`)")
