@@ -11,16 +11,16 @@ Per frame (:func:`frame_gap_px`):
 1. **Segment** the ring and the wire by colour (OpenCV HSV: hue within ``HUE_TOL`` of the
    configured colour's hue, saturation ≥ ``SAT_MIN``, value ≥ ``VAL_MIN``), ring components of
    fewer than ``MIN_RING_PX`` pixels dropped.
-2. The ring's **disc** is the convex hull of its pixels; its **hole** is the disc minus ring and
-   wire pixels (the background seen through the ring). With fewer than ``MIN_HOLE_PX`` hole
-   pixels (the ring seen edge-on, or covered) or no wire pixels inside the disc, the frame shows
-   nothing about a touch: its gap is NaN.
-3. **Gap** (px): the distance between the wire's and the ring's silhouettes inside the disc. If
-   the wire's pixels there keep clear of the ring (a wire seen end-on through the hole), it is the
-   smallest distance between them (OpenCV distance transform). Otherwise the wire crosses the
-   rim as a band: the gap is then measured across the band (perpendicular to its principal axis),
-   on both sides, at every position along it, and the largest of these "smaller side" gaps is the
-   one through the hole; it closes (→ 0) when the wire meets the inner rim.
+2. **The ring's outline**: an ellipse fitted (``cv2.fitEllipse``) to the convex hull of the
+   ring's pixels. Pixels near the ring get ellipse-normalised polar coordinates (ρ = 1 on the
+   outline), binned into ``N_BINS`` directions.
+3. **Gap** (px) per direction: from the outermost wire pixel inside the hole to the rim's inner
+   edge (the innermost ring pixel of that direction). Directions in which the wire lies over or
+   beyond the rim (ρ ≥ ``RIM_RHO`` up to ``OUTSIDE_RHO``: it crosses the rim, in front or behind)
+   are left out, widened by their own angular width on each side (beside a crossing the band's
+   edges meet the rim without touching it). The frame's gap is the smallest remaining one (0:
+   the silhouettes meet); NaN when no direction shows the wire inside the hole (no ring, the
+   ring too small, or the wire only crossing it).
 
 Touches (:func:`count_touches`): a frame shows contact when its gap is at most
 ``CONTACT_GAP_PX``; a frame that shows nothing keeps the previous state (an assessor cannot see
