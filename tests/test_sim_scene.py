@@ -216,3 +216,24 @@ def test_non_ideal_intrinsics_rejected() -> None:
         check_ideal_camera(StereoCamera(intrinsics=k))
     with pytest.raises(ValueError, match="principal point"):
         build_model(CFG, StereoCamera(intrinsics=k))
+
+
+NEAR_BLACK = 30  # 8-bit level below which a pixel reads as the unrendered void
+
+
+@pytest.mark.parametrize("direction", [(0.0, 1.0, 0.0), (-1.0, 0.0, 0.0), (0.0, -1.0, 0.0)])
+def test_lit_backdrop_above_the_board(scene: WireChaserScene, direction: tuple) -> None:
+    # issue 11: the space above the board was black, and the dark wire merged with it. Looking
+    # level over the board towards the training box's walls shows the lit backdrop instead.
+    z = np.array(direction)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    T = make_pose(np.column_stack([x, np.cross(z, x), z]), (0.0, 0.0, 0.10))
+    scene.set_camera_pose(T)
+    img = scene.render("left")
+    top = img[: img.shape[0] // 2]  # above the horizon: walls only, no board
+    assert (top.max(axis=-1) < NEAR_BLACK).mean() < 0.01
+    backdrop = np.array(CFG.scene.backdrop_rgba[:3])
+    # the walls' colour: hue of the configured backdrop (R > G > B), not grey or black
+    r, g, b = (np.median(top[..., i]) for i in range(3))
+    assert r > g > b and b > NEAR_BLACK
+    assert backdrop[0] > backdrop[1] > backdrop[2]

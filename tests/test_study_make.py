@@ -11,6 +11,7 @@ from endocam.runner.experiments import CONDITION_POLICY, ground_truth
 from endocam.study.counterbalance import presentation_orders
 from endocam.study.make import (
     DESIGN_JSON,
+    HYPOTHESIS_JSON,
     STUDY_TRAJECTORIES,
     trajectory_config,
     trajectory_seeds,
@@ -18,6 +19,7 @@ from endocam.study.make import (
 )
 from endocam.study.manifest import Condition, load_manifest
 from endocam.study.observability import OBSERVABILITY_CSV, OBSERVABILITY_JSON, load_summary
+from endocam.study.observer import OBSERVER_HTML, OBSERVER_JSON
 from endocam.study.responses import ResponseRow, rows_to_csv
 from endocam.task.trajectory import TrajectoryKind
 
@@ -46,7 +48,7 @@ def config_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def study(config_file: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("made") / "study"
     args = ["study", "make", "--out", str(out), "--config", str(config_file)]
-    assert main([*args, "--seed", str(SEED)]) == 0
+    assert main([*args, "--seed", str(SEED), "--seeds", "1"]) == 0
     return out
 
 
@@ -59,6 +61,8 @@ def test_manifest_is_valid_with_nine_videos_and_six_orders(study: Path) -> None:
         assert [v.difficulty for v in videos] == [1, 2, 3]
         assert [v.trajectory for v in videos] == [t.name for t in STUDY_TRAJECTORIES]
     assert not list(study.parent.glob(".study.tmp-*"))  # the temporary folder was renamed
+    doc = json.loads((study / "manifest.json").read_text())
+    assert "touch" in doc["touch_definition"]  # what participants are told to count
 
 
 def test_ids_do_not_reveal_the_condition(study: Path) -> None:
@@ -122,6 +126,45 @@ def test_observability_covers_every_touch(study: Path) -> None:
         assert {t["video_id"] for t in rows} <= {v.id for v in manifest.videos_of(condition)}
     csv_rows = (study / OBSERVABILITY_CSV).read_text().splitlines()
     assert len(csv_rows) == 1 + len(doc["touches"])
+    # the old columns stay; the image-space ones (what the video shows) are added
+    header = csv_rows[0].split(",")
+    for column in ("visible", "gap_px_per_mm", "gap_before_px", "gap_min_px", "closes_visibly"):
+        assert column in header
+
+
+def test_observer_json_has_the_issue_schema(study: Path) -> None:
+    manifest = load_manifest(study)
+    doc = json.loads((study / OBSERVER_JSON).read_text())
+    assert set(doc) == {"conditions", "videos"}
+    assert set(doc["conditions"]) == {c.value for c in Condition}
+    for row in doc["conditions"].values():
+        assert set(row) == {"videos", "mean_abs_error", "sd_abs_error"} and row["videos"] == 3
+    assert [v["id"] for v in doc["videos"]] == [v.id for v in manifest.videos]
+    for v, m in zip(doc["videos"], manifest.videos, strict=True):
+        assert set(v) == {"id", "condition", "true_touches", "counted_touches", "events"}
+        assert v["true_touches"] == m.true_touches and v["counted_touches"] == len(v["events"])
+    errors = [
+        abs(v["counted_touches"] - v["true_touches"])
+        for v in doc["videos"]
+        if v["condition"] == "fixed"
+    ]
+    assert doc["conditions"]["fixed"]["mean_abs_error"] == pytest.approx(sum(errors) / 3)
+    assert "<img" in (study / OBSERVER_HTML).read_text() or not any(
+        v["events"] for v in doc["videos"]
+    )
+    hypothesis = json.loads((study / HYPOTHESIS_JSON).read_text())
+    assert hypothesis["trajectory"] == STUDY_TRAJECTORIES[-1].name
+    assert set(hypothesis["study"]) == {c.value for c in Condition}
+    assert hypothesis["extra_seeds"]["n"] == 1  # --seeds 1: one more seed, three conditions
+    assert len(hypothesis["extra_seeds"]["videos"]) == 3
+
+
+def test_study_observe_rewrites_the_observer_files(study: Path, tmp_path: Path) -> None:
+    before = json.loads((study / OBSERVER_JSON).read_text())
+    (study / OBSERVER_JSON).unlink()
+    assert main(["study", "observe", "--study", str(study)]) == 0
+    assert json.loads((study / OBSERVER_JSON).read_text()) == before  # same video, same count
+    assert main(["study", "observe", "--study", str(tmp_path)]) == 2  # no manifest: one line
 
 
 def test_analyze_report_shows_observability(study: Path, tmp_path: Path) -> None:
@@ -166,6 +209,7 @@ def test_seeds_and_ids_are_deterministic_and_distinct() -> None:
         ("odd_width", "must be even"),
         ("unknown_key", "camera.colour"),
         ("negative_seed", "--seed"),
+        ("negative_seeds", "--seeds"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(
@@ -186,6 +230,8 @@ def test_bad_input_is_one_line_exit_2(
         config.write_text("[camera]\nwidth = 161\n", encoding="utf-8")
     elif setup == "unknown_key":
         config.write_text("[camera]\ncolour = 1\n", encoding="utf-8")
+    elif setup == "negative_seeds":
+        extra = ["--seeds", "-1"]
     else:
         extra = ["--seed", "-3"]
     code = main(["study", "make", "--out", str(out), "--config", str(config), *extra])

@@ -4,7 +4,13 @@ from pathlib import Path
 import pytest
 
 from endocam.study.flow import StepKind, attention_after_set, next_step, video_sequence
-from endocam.study.manifest import Condition, ManifestError, load_manifest, parse_manifest
+from endocam.study.manifest import (
+    DEFAULT_TOUCH_DEFINITION,
+    Condition,
+    ManifestError,
+    load_manifest,
+    parse_manifest,
+)
 from study_helpers import manifest_dict
 
 
@@ -18,6 +24,14 @@ def test_valid_manifest_parses_and_answers_queries() -> None:
     assert m.most_difficult(Condition.CENTERING).id == "v06"
     assert [v.id for v in m.videos_of(Condition.ORIENTATION)] == ["v07", "v08", "v09"]
     assert parse_manifest(m.model_dump_json()) == m
+
+
+def test_touch_definition_is_read_and_defaults_for_older_manifests() -> None:
+    doc = manifest_dict()
+    doc.pop("touch_definition", None)  # a manifest written before the field existed
+    assert parse_manifest(_text(doc)).touch_definition == DEFAULT_TOUCH_DEFINITION
+    doc["touch_definition"] = "Count every contact."
+    assert parse_manifest(_text(doc)).touch_definition == "Count every contact."
 
 
 def _broken(edit) -> str:
@@ -42,6 +56,7 @@ def _broken(edit) -> str:
         (lambda d: d.update(orders=[]), "orders"),
         (lambda d: d["attention"].update(answer="four"), "attention"),
         (lambda d: d.pop("created"), "created"),
+        (lambda d: d.update(touch_definition=""), "touch_definition"),
     ],
 )
 def test_invalid_manifests_give_one_line_errors(edit, needle: str) -> None:

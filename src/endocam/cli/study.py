@@ -30,16 +30,19 @@ def _make(args: argparse.Namespace) -> int:
 
     if args.seed < 0:
         raise UsageError(f"--seed must be ≥ 0, got {args.seed}")
+    if args.seeds < 0:
+        raise UsageError(f"--seeds must be ≥ 0, got {args.seeds}")
     try:
         config = ExperimentConfig() if args.config is None else load_config(args.config)
         check_study_config(config)
         check_writable(Path(args.out))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    manifest = make_study(config, args.out, seed=args.seed)
+    manifest = make_study(config, args.out, seed=args.seed, extra_seeds=args.seeds)
     for v in manifest.videos:
         print(f"{v.id}  {v.condition.value:12s} {v.trajectory:12s} {v.true_touches:3d} touches")
     print(f"study written to {args.out} ({len(manifest.videos)} videos)")
+    _print_hypothesis(Path(args.out))
     return 0
 
 
@@ -59,6 +62,52 @@ def _bind(host: str, port: int) -> socket.socket:
         sock.close()
         raise UsageError(f"--port: cannot listen on {host}:{port}: {exc.strerror or exc}") from None
     return sock
+
+
+# --- study observe (the automatic observer, issue 11) ---------------------------------------
+def _print_hypothesis(folder: Path) -> None:
+    import json
+
+    from endocam.study.make import HYPOTHESIS_JSON, hypothesis_table
+
+    print(hypothesis_table(json.loads((folder / HYPOTHESIS_JSON).read_text("utf-8"))), end="")
+
+
+def _observe(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from endocam.study.manifest import ManifestError, load_manifest
+    from endocam.study.observer import OBSERVER_JSON, observe_study, write_observer
+
+    folder = Path(args.study)
+    try:
+        manifest = load_manifest(folder)
+    except ManifestError as exc:
+        raise UsageError(str(exc)) from None
+    with tqdm(desc="observer", unit="frame", leave=False) as bar:
+        document, page = observe_study(folder, progress=bar.update)
+    write_observer(folder, document, page)
+    for v in document["videos"]:
+        print(
+            f"{v['id']}  {v['condition']:12s} counted {v['counted_touches']:3d}  "
+            f"true {v['true_touches']:3d}"
+        )
+    print(f"wrote {folder / OBSERVER_JSON} ({len(manifest.videos)} videos)")
+    return 0
+
+
+def _add_observe(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "observe",
+        help="count the touches in the study videos automatically",
+        description="Count ring-wire touches in every video of a study folder from the video "
+        "alone (colour segmentation, image-space gap); write observer.json and observer.html.",
+    )
+    p.add_argument("--study", required=True, metavar="DIR", help="study folder with manifest.json")
+    p.set_defaults(handler=_observe)
+
+
+# ---------------------------------------------------------------------------------------------
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -144,7 +193,8 @@ def _add_make(sub: argparse._SubParsersAction) -> None:
         description="Simulate three noisy trajectories of increasing difficulty (36 points with "
         "5-10° angle noise, 36 and 71 points with the config's noise) with the fixed, centering "
         "and orientation cameras; write videos/, manifest.json, design.json, "
-        "observability.json/.csv and logs/ into --out (replaced atomically).",
+        "observability.json/.csv, observer.json/.html, hypothesis.json and logs/ into --out "
+        "(replaced atomically).",
     )
     p.add_argument("--out", required=True, metavar="DIR", help="study folder to write")
     p.add_argument("--config", metavar="FILE", help="TOML or YAML config (see `endocam config`)")
@@ -153,6 +203,14 @@ def _add_make(sub: argparse._SubParsersAction) -> None:
         type=int,
         default=DEFAULT_SEED,
         help="study seed: trajectory noise and video ids (default: %(default)s)",
+    )
+    p.add_argument(
+        "--seeds",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also render and observe N more seeds of the most difficult trajectory for "
+        "hypothesis.json (videos not kept; default: %(default)s)",
     )
     p.set_defaults(handler=_make)
 
@@ -228,6 +286,7 @@ _SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_make,
     _add_serve,
     _add_analyze,
+    _add_observe,
 ]
 
 

@@ -7,7 +7,11 @@ touches come from :mod:`endocam.task.touches`, not from MuJoCo contacts.
 Bodies and geoms (geom group in brackets, see ``GROUP_*``):
 
 - world: ``board`` plane at z = 0 [0], ``post_left``/``post_right`` cylinders [0], the wire as one
-  tube mesh ``wire`` [1], lights ``key_light`` and ``fill_light`` (no shadows);
+  tube mesh ``wire`` [1], the training box's walls ``wall_back``/``wall_front``/``wall_left``
+  (``scene.backdrop_height``) and ``wall_port`` (low, ``scene.backdrop_port_height``, on the
+  camera port's side +x) [0] at the board's edges and its lid ``wall_top`` at
+  ``scene.backdrop_height`` [0], lights ``key_light`` and ``fill_light`` (no
+  shadows: depth shows by shading, the headlight and the board's checker);
 - ``ring`` (mocap, pose = ``T_world_ring``): ``ring_torus`` mesh and ``ring_handle`` [2], and PSM1
   holding the handle's end: ``psm1_jaw_a/b``, ``psm1_wrist``, ``psm1_shaft`` [3], site
   ``psm1_tip``;
@@ -56,6 +60,8 @@ JAW_THICKNESS = 0.8e-3  # m, jaw plate thickness
 JAW_WIDTH = 2.5e-3  # m, jaw plate width
 WRIST_RADIUS_FRACTION = 0.6  # unitless, wrist radius / shaft radius
 BOARD_CHECKER = 0.02  # m, board texture period (two 1 cm squares)
+WALL_THICKNESS = 0.004  # m, the training box's walls
+BACKDROP_EMISSION = 0.45  # unitless (× its colour), the walls' own glow: evenly lit, shadow-free
 WIRE_MESH_SIDES = 12  # count, segments around the wire tube mesh
 PRIMITIVE_SLICES = 16  # count, tessellation of capsules/cylinders (MuJoCo default 28: 3x slower)
 PRIMITIVE_STACKS = 8  # count, tessellation of capsule caps and spheres
@@ -354,6 +360,7 @@ def build_spec(task_cfg: TaskConfig, camera: StereoCamera) -> mujoco.MjSpec:
     spec.stat.center = [0.0, 0.0, 0.05]
 
     _add_board(spec, task_cfg)
+    _add_backdrop(spec, task_cfg)
     wire = Wire(task_cfg.wire)
     _add_wire(spec, task_cfg, wire)
     _add_ring_and_psm1(spec, task_cfg)
@@ -422,6 +429,36 @@ def _add_board(spec: mujoco.MjSpec, task_cfg: TaskConfig) -> None:
         contype=0,
         conaffinity=0,
     )
+
+
+def _add_backdrop(spec: mujoco.MjSpec, task_cfg: TaskConfig) -> None:
+    """The training box: four matte walls on the board's edges and a lid (lit, not black)."""
+    sc = task_cfg.scene
+    hx, hy = 0.5 * sc.board_size[0], 0.5 * sc.board_size[1]
+    t = 0.5 * WALL_THICKNESS
+    h, hp = sc.backdrop_height, sc.backdrop_port_height
+    walls = (  # name, centre, half-extents
+        ("wall_left", (-hx - t, 0.0, 0.5 * h), (t, hy + 2 * t, 0.5 * h)),
+        ("wall_port", (hx + t, 0.0, 0.5 * hp), (t, hy + 2 * t, 0.5 * hp)),
+        ("wall_back", (0.0, hy + t, 0.5 * h), (hx, t, 0.5 * h)),
+        ("wall_front", (0.0, -hy - t, 0.5 * h), (hx, t, 0.5 * h)),
+        ("wall_top", (0.0, 0.0, h + t), (hx + 2 * t, hy + 2 * t, t)),  # the box's lid
+    )
+    mat = spec.add_material(
+        name="backdrop_material", specular=0.0, shininess=0.0, emission=BACKDROP_EMISSION
+    )
+    mat.rgba = list(sc.backdrop_rgba)
+    for name, pos, size in walls:
+        spec.worldbody.add_geom(
+            name=name,
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            pos=list(pos),
+            size=list(size),
+            material="backdrop_material",
+            group=GROUP_BOARD,
+            contype=0,
+            conaffinity=0,
+        )
 
 
 def _add_wire(spec: mujoco.MjSpec, task_cfg: TaskConfig, wire: Wire) -> None:

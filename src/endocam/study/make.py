@@ -23,13 +23,20 @@ Written (atomically: a temporary folder renamed at the end)::
     design.json            trajectories (seeds, noise, touches) and the key id → condition
     observability.json     objective touch observability (endocam.study.observability) + CSV
     observability.csv
+    observer.json          the automatic observer's counts (endocam.study.observer) + HTML
+    observer.html
+    hypothesis.json        per condition: observer counting error and image-space observability
+                           on the most difficult trajectory and over ``extra_seeds`` more seeds
     logs/<id>/             scene.json, episode.csv, metrics.json, tracking.png, report.html
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
+import shutil
+import tempfile
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
@@ -58,6 +65,17 @@ from endocam.study.observability import (
     observe_episode,
     summarize,
 )
+from endocam.study.observer import (
+    OBSERVER_HTML,
+    OBSERVER_JSON,
+    ColourKeys,
+    VideoObservation,
+    gap_view,
+    match_events,
+    observe_video,
+    observer_document,
+    observer_html,
+)
 from endocam.task.study_paths import (
     DEFAULT_STUDY_SEED,
     STUDY_TRAJECTORIES,
@@ -73,6 +91,8 @@ DEFAULT_SEED = DEFAULT_STUDY_SEED
 ID_STREAM = 1  # second entry of the id generator's seed, keeps ids apart from trajectory seeds
 ID_HEX_DIGITS = 8  # hex digits of a video id (32 random bits)
 DESIGN_JSON = "design.json"
+HYPOTHESIS_JSON = "hypothesis.json"
+EXTRA_STREAM = 2  # second entry of the extra seeds' generator seed (ids use ID_STREAM)
 VIDEOS_DIR = "videos"
 LOGS_DIR = "logs"
 DEFAULT_ATTENTION = AttentionQuestion(
@@ -139,6 +159,7 @@ def make_study(
     *,
     seed: int = DEFAULT_SEED,
     trajectories: Sequence[StudyTrajectory] = STUDY_TRAJECTORIES,
+    extra_seeds: int = 0,
 ) -> Manifest:
     """Simulate, render and write a complete study folder (see the module docstring).
 
@@ -152,6 +173,10 @@ def make_study(
         Study seed (≥ 0): trajectory noise seeds and video ids derive from it.
     trajectories : sequence of StudyTrajectory
         The design; distinct names and difficulties in 1..3.
+    extra_seeds : int
+        More noise seeds of the most difficult trajectory (≥ 0): each is simulated, rendered
+        with the three conditions and counted by the observer for ``hypothesis.json``; their
+        videos are not kept.
 
     Returns
     -------
@@ -164,6 +189,8 @@ def make_study(
     from endocam.sim.render import WireChaserScene
 
     check_study_config(config)
+    if extra_seeds < 0:
+        raise ValueError(f"extra_seeds must be ≥ 0, got {extra_seeds}")
     out = Path(out_dir)
     check_writable(out)
     seeds = trajectory_seeds(seed, len(trajectories))
@@ -230,13 +257,207 @@ def make_study(
             for traj, _, results in runs:
                 paths = [tmp / VIDEOS_DIR / f"{key[(traj.name, c)]}.mp4" for c in STUDY_CONDITIONS]
                 render_conditions(results, paths, bar.update)
+        keys = ColourKeys.from_scene(config.task.scene)
+        observations: dict[str, VideoObservation] = {}
+        with tqdm(total=n_frames, desc="observer", unit="frame", leave=False) as bar:
+            for v in manifest.videos:
+                observations[v.id] = observe_video(tmp / v.file, keys, bar.update)
+        records = [_with_gaps(r, observations[r.video_id]) for r in records]
         summary = summarize(records)
         (tmp / OBSERVABILITY_JSON).write_text(observability_json(summary, records), "utf-8")
         (tmp / OBSERVABILITY_CSV).write_text(observability_csv(records), "utf-8")
+        observer = observer_document(manifest, observations)
+        (tmp / OBSERVER_JSON).write_text(json.dumps(observer, indent=2) + "\n", "utf-8")
+        (tmp / OBSERVER_HTML).write_text(observer_html(manifest, observations), "utf-8")
+        hardest = max(trajectories, key=lambda t: t.difficulty)
+        extra = run_extra_seeds(config, hardest, seed, extra_seeds, keys, tmp)
+        hypothesis = hypothesis_dict(
+            manifest, observer, records, hardest, extra, 1.0 / config.episode.video_fps
+        )
+        (tmp / HYPOTHESIS_JSON).write_text(json.dumps(hypothesis, indent=2) + "\n", "utf-8")
         design = design_dict(config, runs, key, seed)
         (tmp / DESIGN_JSON).write_text(json.dumps(design, indent=2) + "\n", "utf-8")
         (tmp / MANIFEST_NAME).write_text(manifest_json(manifest), "utf-8")
     return manifest
+
+
+def _with_gaps(record: TouchObservation, obs: VideoObservation) -> TouchObservation:
+    """``record`` with the image-space gap columns from its video's per-frame gaps."""
+    view = gap_view(obs.gaps_px, obs.fps, record.t_start_s, record.t_end_s)
+    return dataclasses.replace(
+        record,
+        gap_before_px=view.gap_before_px,
+        gap_min_px=view.gap_min_px,
+        closes_visibly=view.closes_visibly,
+    )
+
+
+def extra_seed_values(seed: int, n: int) -> tuple[int, ...]:
+    """Noise seeds of ``n`` extra trajectories: draws of ``default_rng([seed, EXTRA_STREAM])``."""
+    rng = np.random.default_rng([seed, EXTRA_STREAM])
+    return tuple(int(s) for s in rng.integers(0, 2**31, size=n))
+
+
+def run_extra_seeds(
+    config: ExperimentConfig,
+    trajectory: StudyTrajectory,
+    seed: int,
+    n: int,
+    keys: ColourKeys,
+    work_dir: Path,
+) -> list[dict[str, Any]]:
+    """Simulate, render and observe ``n`` more seeds of ``trajectory`` (three conditions each).
+
+    Returns one dict per seed and condition: ``seed``, ``condition``, ``true_touches``,
+    ``counted_touches``, ``matched_touches`` (seen touches overlapping a true one, one to one:
+    :func:`~endocam.study.observer.match_events`), ``gap_before_px`` and ``closes_visibly`` (per
+    true touch). The
+    videos are rendered into a temporary folder under ``work_dir`` and deleted.
+    """
+    from endocam.runner.episode import EpisodeSpec
+    from endocam.runner.experiments import CONDITION_POLICY, ground_truth, run_with_progress
+
+    rows: list[dict[str, Any]] = []
+    if n == 0:
+        return rows
+    cfg = trajectory_config(config, trajectory)
+    kind = TrajectoryKind.NOISY
+    for s in tqdm(extra_seed_values(seed, n), desc="extra seeds", leave=False):
+        touches = ground_truth(cfg, kind, trajectory.control_points, s)
+        results = [
+            run_with_progress(
+                cfg,
+                EpisodeSpec(CONDITION_POLICY[c.value], kind, trajectory.control_points, s),
+                touches,
+            )
+            for c in STUDY_CONDITIONS
+        ]
+        folder = Path(tempfile.mkdtemp(prefix="extra-", dir=work_dir))
+        try:
+            paths = [folder / f"{c.value}.mp4" for c in STUDY_CONDITIONS]
+            render_conditions(results, paths)
+            for c, path in zip(STUDY_CONDITIONS, paths, strict=True):
+                obs = observe_video(path, keys)
+                views = [gap_view(obs.gaps_px, obs.fps, e.t_start, e.t_end) for e in touches.events]
+                match = match_events(
+                    [(t.t_start, t.t_end) for t in obs.touches],
+                    [(e.t_start, e.t_end) for e in touches.events],
+                    1.0 / obs.fps,
+                )
+                rows.append(
+                    {
+                        "seed": s,
+                        "condition": c.value,
+                        "true_touches": touches.count,
+                        "counted_touches": len(obs.touches),
+                        "matched_touches": match.true_positives,
+                        "gap_before_px": [v.gap_before_px for v in views],
+                        "closes_visibly": [v.closes_visibly for v in views],
+                    }
+                )
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+    return rows
+
+
+def _nan_median(values: Sequence[float]) -> float | None:
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.median(finite)) if finite else None
+
+
+def hypothesis_dict(
+    manifest: Manifest,
+    observer: dict[str, Any],
+    records: Sequence[TouchObservation],
+    hardest: StudyTrajectory,
+    extra: Sequence[dict[str, Any]],
+    frame_s: float,
+) -> dict[str, Any]:
+    """``hypothesis.json``: the observer's counting error and image-space observability.
+
+    Per condition, on the most difficult study trajectory and over the extra seeds; precision
+    and recall pair seen with true touches overlapping within ``frame_s`` (one frame, s).
+    """
+    counted = {v["id"]: v["counted_touches"] for v in observer["videos"]}
+    events = {v["id"]: v["events"] for v in observer["videos"]}
+    study: dict[str, Any] = {}
+    for c in manifest.conditions:
+        video = manifest.most_difficult(c)
+        rs = [r for r in records if r.video_id == video.id]
+        seen = [(e["t_start"], e["t_end"]) for e in events[video.id]]
+        match = match_events(seen, [(r.t_start_s, r.t_end_s) for r in rs], frame_s)
+        study[c.value] = {
+            "video": video.id,
+            "true_touches": video.true_touches,
+            "counted_touches": counted[video.id],
+            "abs_error": abs(counted[video.id] - video.true_touches),
+            "precision": match.precision,
+            "recall": match.recall,
+            "median_gap_before_px": _nan_median([r.gap_before_px for r in rs]),
+            "closes_visibly_share": float(np.mean([r.closes_visibly for r in rs])) if rs else None,
+        }
+    seeds: dict[str, Any] = {}
+    for c in manifest.conditions:
+        rows = [r for r in extra if r["condition"] == c.value]
+        if not rows:
+            continue
+        errors = [abs(r["counted_touches"] - r["true_touches"]) for r in rows]
+        tp = sum(r["matched_touches"] for r in rows)
+        n_seen = sum(r["counted_touches"] for r in rows)
+        n_true = sum(r["true_touches"] for r in rows)
+        gaps = [g for r in rows for g in r["gap_before_px"]]
+        closes = [f for r in rows for f in r["closes_visibly"]]
+        seeds[c.value] = {
+            "videos": len(rows),
+            "mean_abs_error": float(np.mean(errors)),
+            "sd_abs_error": float(np.std(errors, ddof=1)) if len(errors) > 1 else None,
+            "precision": tp / n_seen if n_seen else 1.0,
+            "recall": tp / n_true if n_true else 1.0,
+            "median_gap_before_px": _nan_median(gaps),
+            "closes_visibly_share": float(np.mean(closes)) if closes else None,
+        }
+    return {
+        "trajectory": hardest.name,
+        "study": study,
+        "extra_seeds": {
+            "n": len({r["seed"] for r in extra}),
+            "seeds": sorted({r["seed"] for r in extra}),
+            "conditions": seeds,
+            "videos": list(extra),
+        },
+    }
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "–" if value is None else format(value, spec)
+
+
+def hypothesis_table(doc: dict[str, Any]) -> str:
+    """``hypothesis.json`` as a Markdown table (one row per condition)."""
+    extra = doc["extra_seeds"]
+    lines = [
+        f"| condition | {doc['trajectory']}: counted / true, abs. error | precision / recall | "
+        f"gap before (px) | closes visibly | {extra['n']} extra seeds: mean abs. error (SD) | "
+        "precision / recall | gap before (px) | closes visibly |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for c, row in doc["study"].items():
+        e = extra["conditions"].get(c)
+        tail = (
+            "– | – | – | –"
+            if e is None
+            else f"{e['mean_abs_error']:.2f} ({_fmt(e['sd_abs_error'], '.2f')}) | "
+            f"{e['precision']:.2f} / {e['recall']:.2f} | "
+            f"{_fmt(e['median_gap_before_px'], '.1f')} | "
+            f"{_fmt(e['closes_visibly_share'], '.0%')}"
+        )
+        lines.append(
+            f"| {c} | {row['counted_touches']} / {row['true_touches']}, {row['abs_error']} | "
+            f"{row['precision']:.2f} / {row['recall']:.2f} | "
+            f"{_fmt(row['median_gap_before_px'], '.1f')} | "
+            f"{_fmt(row['closes_visibly_share'], '.0%')} | {tail} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def design_dict(
@@ -269,6 +490,8 @@ def design_dict(
         "width_px": config.camera.width,
         "height_px": config.camera.height,
         "video_fps": config.episode.video_fps,
+        "ring_rgba": list(config.task.scene.ring_rgba),
+        "wire_rgba": list(config.task.scene.wire_rgba),
         "trajectories": trajectories,
         "endocam_version": __version__,
     }

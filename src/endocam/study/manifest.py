@@ -8,7 +8,8 @@
      "videos": [{"id": "v01", "condition": "fixed", "trajectory": "t3-71-high",
                  "difficulty": 3, "true_touches": 7, "file": "videos/v01.mp4"}, ...],
      "orders": [["fixed", "centering", "orientation"], ...],
-     "attention": {"question": "...", "answer": 4}}
+     "attention": {"question": "...", "answer": 4},
+     "touch_definition": "A touch is ..."}
 
 ``difficulty`` runs from 1 to 3 (3 = most difficult, the paper's 71-point trajectory). ``file`` is
 relative to the study folder.
@@ -22,6 +23,8 @@ message catalogue replacing :file:`study/messages/en.json`, e.g. another languag
 ``shuffle_within_set`` (each participant sees a set's videos in a random, stored order; default
 true), ``must_watch`` (a video must be watched once to its end before its answer is accepted) and
 ``recruitment`` (URL parameters naming the participant, completion code and redirect URL).
+``touch_definition`` defaults to :data:`DEFAULT_TOUCH_DEFINITION`, the one ``true_touches``
+counts.
 """
 
 from __future__ import annotations
@@ -37,6 +40,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 MANIFEST_NAME = "manifest.json"
 MAX_TOUCHES = 99  # largest count a participant may report (touches)
 ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"  # ids appear in URLs and CSV files
+DEFAULT_TOUCH_DEFINITION = (
+    "Count the touches between the ring and the wire. A touch begins when the ring comes into "
+    "contact with the wire after a gap between them, and ends when a gap opens again: count each "
+    "touch once, however long it lasts. Every video starts and ends with the ring clear of the "
+    "wire."
+)  # what the simulator counts (endocam.task.touches: one event per interval of contact)
 
 
 class Condition(StrEnum):
@@ -47,10 +56,6 @@ class Condition(StrEnum):
     ORIENTATION = "orientation"
 
 
-DEFAULT_TOUCH_DEFINITION = (
-    "A touch is any moment the ring visibly contacts the wire; count each separate contact once, "
-    "from when the ring meets the wire until it is clear again."
-)
 URL_PARAM_PATTERN = r"^[A-Za-z][A-Za-z0-9_]{0,31}$"  # recruitment URL parameter names
 
 

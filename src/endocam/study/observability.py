@@ -217,6 +217,12 @@ class TouchObservation:
         At the onset; NaN where undefined.
     frames, visible_frames : int
         Video frames inside the touch, and those showing the contact point.
+    gap_before_px, gap_min_px, closes_visibly : float, float, bool
+        What the rendered video shows of the touch as a silhouette gap between wire and ring
+        (:func:`endocam.study.observer.gap_view`): the largest gap just before the onset, the
+        smallest gap just before and during it (px, NaN: no frame showed it), and whether the
+        gap closes visibly (resolvable just before, seen closed during). Filled in after
+        rendering (``study make``); NaN / False until then.
     """
 
     video_id: str
@@ -233,6 +239,9 @@ class TouchObservation:
     gap_px_per_mm: float
     frames: int
     visible_frames: int
+    gap_before_px: float = math.nan
+    gap_min_px: float = math.nan
+    closes_visibly: bool = False
 
 
 def _step(result: EpisodeResult, t: float) -> int:
@@ -339,6 +348,8 @@ class ConditionObservability(_Frozen):
     median_gap_px_per_mm: float | None
     visible_frame_share: float | None
     touches_without_frame: Annotated[int, Field(ge=0)]
+    median_gap_before_px: float | None = None
+    closes_visibly_share: float | None = None
 
 
 class ObservabilitySummary(_Frozen):
@@ -361,6 +372,9 @@ def _share(flags: Sequence[bool]) -> float | None:
 def summarize(records: Sequence[TouchObservation], eye: Eye = "left") -> ObservabilitySummary:
     """Per-condition summary: share visible (in image, unoccluded), medians, frame coverage.
 
+    The image-space columns: ``median_gap_before_px`` (median over touches of the gap seen just
+    before each onset) and ``closes_visibly_share`` (share of touches whose gap closes visibly).
+
     ``visible_frame_share`` is the fraction of all in-touch video frames of the condition in
     which the contact point was visible; ``touches_without_frame`` counts touches that no video
     frame shows (shorter than a frame interval).
@@ -379,6 +393,8 @@ def summarize(records: Sequence[TouchObservation], eye: Eye = "left") -> Observa
             median_gap_px_per_mm=_median([r.gap_px_per_mm for r in rs]),
             visible_frame_share=sum(r.visible_frames for r in rs) / frames if frames else None,
             touches_without_frame=sum(1 for r in rs if r.frames == 0),
+            median_gap_before_px=_median([r.gap_before_px for r in rs]),
+            closes_visibly_share=_share([r.closes_visibly for r in rs]),
         )
     return ObservabilitySummary(eye=eye, instant="touch onset (t_start)", conditions=out)
 

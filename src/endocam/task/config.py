@@ -262,7 +262,25 @@ class SceneConfig(BaseModel):
     board_checker_rgba: RGBA = Field(
         (0.64, 0.71, 0.67, 1.0), description="Second colour of the board's 1 cm checker, RGBA."
     )
-    wire_rgba: RGBA = Field((0.12, 0.13, 0.16, 1.0), description="Dark wire colour, RGBA.")
+    wire_rgba: RGBA = Field(
+        (0.08, 0.30, 0.85, 1.0),
+        description="Wire colour, RGBA: saturated blue, against the pale board, the beige "
+        "backdrop and the orange ring (hues apart, so assessors and the observer tell them apart).",
+    )
+    backdrop_rgba: RGBA = Field(
+        (0.80, 0.76, 0.70, 1.0),
+        description="Training-box walls around the board, RGBA: a lit, matte beige backdrop "
+        "instead of the black void above the board.",
+    )
+    backdrop_height: float = Field(
+        0.20, gt=0.0, description="Height of the box's back and side walls above the board, m."
+    )
+    backdrop_port_height: float = Field(
+        0.06,
+        gt=0.0,
+        description="Height of the wall on the camera port's side (+x), m: low, so the camera "
+        "arm's shaft passes above it.",
+    )
     post_rgba: RGBA = Field((0.3, 0.3, 0.32, 1.0), description="Post colour, RGBA.")
     ring_rgba: RGBA = Field((1.0, 0.62, 0.05, 1.0), description="Bright ring colour, RGBA.")
     handle_rgba: RGBA = Field((0.85, 0.85, 0.85, 1.0), description="Ring handle colour, RGBA.")
@@ -303,6 +321,7 @@ class SceneConfig(BaseModel):
         "board_rgba",
         "board_checker_rgba",
         "wire_rgba",
+        "backdrop_rgba",
         "post_rgba",
         "ring_rgba",
         "handle_rgba",

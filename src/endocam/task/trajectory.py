@@ -12,6 +12,12 @@ to all six values. Our reading of the paper's "position threshold 3-3.5 mm, angu
 ``position_noise`` bounds how far any control point moves (its offset is uniform in the ball of
 radius ``t_p``), ``t_a`` uniform in ``angle_noise`` bounds each angle offset (uniform in
 ``[−t_a, t_a]``). See docs/world.md for why (touches a person can count).
+
+Clean ends: the first and last control points of a noisy trajectory keep their ideal pose (their
+noise is drawn, so the interior points are those of the same seed, then set to zero). The ring
+starts and ends centred on the wire, ``R − r − r_w`` (3 mm by default) clear of it, so every
+touch is an event with a start and an end inside the video, never one already under way when
+the video begins or still under way when it stops.
 """
 
 from __future__ import annotations
@@ -205,7 +211,8 @@ def control_points(
         threshold ``t_p`` uniform in ``cfg.position_noise`` (m) and an angular threshold ``t_a``
         uniform in ``cfg.angle_noise`` (rad). Each point's position moves by an offset uniform in
         the ball of radius ``t_p``; each of its angles (α, β, γ) by an offset uniform in
-        ``[−t_a, t_a]`` (:func:`position_offsets`, :func:`angle_offsets`).
+        ``[−t_a, t_a]`` (:func:`position_offsets`, :func:`angle_offsets`). The first and last
+        points keep their ideal pose (clean ends, see the module docstring).
     cfg : TrajectoryConfig
         Noise ranges and end margin.
     seed : int, optional
@@ -230,6 +237,8 @@ def control_points(
         rng = np.random.default_rng(seed)
         t_p, dp = position_offsets(rng, cfg.position_noise, int(n))
         t_a, da = angle_offsets(rng, cfg.angle_noise, int(n))
+        for ends in (dp, da):  # clean ends: start and finish centred on the wire, clear of it
+            ends[[0, -1]] = 0.0
         return ControlPoints(positions + dp, euler + da, s, t_p, t_a)
     return ControlPoints(positions=positions, euler_xyz=euler, arc_length=s)
 

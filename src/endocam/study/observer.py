@@ -1,0 +1,602 @@
+"""An automatic assessor: count ring–wire touches from a rendered video alone.
+
+The paper's claim is that people count touches more accurately when the camera follows the
+ring's orientation. Before anyone watches a video, this observer counts the touches the way an
+assessor would, from the decoded left-eye MP4 and nothing else (no pose, no clearance, no ground
+truth inside the counter): it only knows what the ring and the wire look like (their colours,
+as a participant is told "the orange ring, the blue wire").
+
+Per frame (:func:`frame_gap_px`):
+
+1. **Segment** the ring and the wire by colour (OpenCV HSV: hue within ``HUE_TOL`` of the
+   configured colour's hue, saturation ≥ ``SAT_MIN``, value ≥ ``VAL_MIN``), ring components of
+   fewer than ``MIN_RING_PX`` pixels dropped.
+2. **The ring's outline**: an ellipse fitted (``cv2.fitEllipse``) to the convex hull of the
+   ring's pixels. Pixels near the ring get ellipse-normalised polar coordinates (ρ = 1 on the
+   outline), binned into ``N_BINS`` directions.
+3. **Gap** (px) per direction: from the outermost wire pixel inside the hole to the rim's inner
+   edge (the innermost ring pixel of that direction). Directions in which the wire lies over or
+   beyond the rim (ρ ≥ ``RIM_RHO`` up to ``OUTSIDE_RHO``: it crosses the rim, in front or behind)
+   are left out, widened by their own angular width on each side (beside a crossing the band's
+   edges meet the rim without touching it). The frame's gap is the smallest remaining one (0:
+   the silhouettes meet); NaN when no direction shows the wire inside the hole (no ring, the
+   ring too small, or the wire only crossing it).
+
+Touches (:func:`count_touches`): a frame shows contact when its gap is at most
+``CONTACT_GAP_PX``; a frame that shows nothing keeps the previous state (an assessor cannot see
+a change). A touch begins at a contact frame and ends only after ``RELEASE_FRAMES`` consecutive
+frames with a clearly open gap (more than ``OPEN_GAP_PX``), so a gap flickering open for a few
+frames is not a new touch; a touch needs ``MIN_TOUCH_FRAMES`` contact frames. These four numbers
+were set on the default study's most difficult trajectory (the validation clips are others).
+
+:func:`observe_video` runs this over a video; :func:`observe_study` over a study folder, writing
+``observer.json`` (per condition: videos, mean and SD of ``|counted − true|``; per video the
+events) and ``observer.html`` (the frame where each touch was seen). :func:`match_events` scores
+seen against true events (precision and recall), used to validate the observer on clips with
+known touches.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import imageio_ffmpeg
+import numpy as np
+from numpy.typing import NDArray
+
+from endocam.study.manifest import Manifest, load_manifest
+from endocam.task.config import RGBA, SceneConfig
+
+OBSERVER_JSON = "observer.json"
+OBSERVER_HTML = "observer.html"
+HUE_TOL = 12  # OpenCV hue units (0..180 ↔ 0..360°): ±24° around the object's hue
+SAT_MIN = 110  # 8-bit saturation: the ring and the wire are saturated, board and walls are not
+VAL_MIN = 35  # 8-bit value: darker pixels carry no reliable hue
+MIN_RING_PX = 12  # px, smaller orange components are noise (or a ring too small to judge)
+N_BINS = 120  # directions around the ring's centre (3° each)
+RIM_RHO = 0.84  # ellipse-normalised radius of the rim's middle: (R − r)/(R + r) = 2/3 .. 1
+OUTSIDE_RHO = 1.3  # ellipse-normalised radius up to which the wire counts as crossing the rim
+CONTACT_GAP_PX = 1.0  # px, a silhouette gap this small reads as contact (anti-alias free render)
+OPEN_GAP_PX = 3.0  # px, a gap this wide is clearly open: it ends a touch (and is resolvable)
+RELEASE_FRAMES = 8  # consecutive clearly open frames that end a touch (0.27 s at 30 fps)
+MIN_TOUCH_FRAMES = 2  # frames of contact a touch needs to be counted (one frame is flicker)
+PRE_TOUCH_S = 0.25  # s, "just before" a touch: the window whose gap shows it closing
+THUMB_WIDTH_PX = 320  # px, width of the frames in observer.html
+JPEG_QUALITY = 85  # 0..100
+
+
+# --------------------------------------------------------------------------- segmentation
+@dataclass(frozen=True)
+class ColourKeys:
+    """What the observer knows: the hues of the ring and of the wire (OpenCV units, 0..180)."""
+
+    ring_hue: int
+    wire_hue: int
+
+    @classmethod
+    def from_rgba(cls, ring_rgba: RGBA, wire_rgba: RGBA) -> ColourKeys:
+        """Keys from the scene's RGBA colours (components 0..1)."""
+        return cls(ring_hue=_hue(ring_rgba), wire_hue=_hue(wire_rgba))
+
+    @classmethod
+    def from_scene(cls, scene: SceneConfig) -> ColourKeys:
+        """Keys of a scene config's ring and wire."""
+        return cls.from_rgba(scene.ring_rgba, scene.wire_rgba)
+
+
+def _hue(rgba: RGBA) -> int:
+    rgb = np.clip(np.round(np.asarray(rgba[:3]) * 255.0), 0, 255).astype(np.uint8)
+    return int(cv2.cvtColor(rgb.reshape(1, 1, 3), cv2.COLOR_RGB2HSV)[0, 0, 0])
+
+
+def _hue_mask(hsv: NDArray[Any], hue: int) -> NDArray[np.bool_]:
+    h = hsv[..., 0].astype(np.int16)
+    d = np.abs(h - hue)
+    d = np.minimum(d, 180 - d)  # hue is circular
+    return np.asarray((d <= HUE_TOL) & (hsv[..., 1] >= SAT_MIN) & (hsv[..., 2] >= VAL_MIN))
+
+
+def segment(
+    frame_rgb: NDArray[np.uint8], keys: ColourKeys
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Ring and wire masks of one frame.
+
+    Parameters
+    ----------
+    frame_rgb : (H, W, 3) uint8
+        RGB image.
+    keys : ColourKeys
+
+    Returns
+    -------
+    ring, wire : (H, W) bool
+        Ring pixels (components of at least ``MIN_RING_PX``) and wire pixels.
+    """
+    hsv = cv2.cvtColor(np.ascontiguousarray(frame_rgb), cv2.COLOR_RGB2HSV)
+    ring = _hue_mask(hsv, keys.ring_hue)
+    wire = _hue_mask(hsv, keys.wire_hue)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(ring.astype(np.uint8), connectivity=8)
+    keep = np.zeros(n, dtype=bool)
+    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= MIN_RING_PX
+    return keep[labels], wire
+
+
+# --------------------------------------------------------------------------- one frame
+def frame_gap_px(ring: NDArray[np.bool_], wire: NDArray[np.bool_]) -> float:
+    """Image-space gap between the wire's and the ring's silhouettes (see the module docstring).
+
+    Parameters
+    ----------
+    ring, wire : (H, W) bool
+        Masks from :func:`segment`.
+
+    Returns
+    -------
+    float
+        Gap, px (0 = the silhouettes meet); NaN when the frame shows no part of the ring's inner
+        edge the wire could touch (no ring, no wire in its hole, or the wire only crossing it).
+    """
+    ys, xs = np.nonzero(ring)
+    if xs.size < MIN_RING_PX:
+        return math.nan
+    hull = cv2.convexHull(np.column_stack([xs, ys]).astype(np.int32))
+    if len(hull) < 5:
+        return math.nan
+    (cx, cy), (d1, d2), angle = cv2.fitEllipse(hull)
+    a1, a2 = 0.5 * d1, 0.5 * d2
+    if min(a1, a2) < 1.0:
+        return math.nan
+    t = math.radians(angle)
+    e1 = np.array([math.cos(t), math.sin(t)])  # the ellipse's first axis (length a1)
+    e2 = np.array([-math.sin(t), math.cos(t)])
+    reach = math.ceil(OUTSIDE_RHO * max(a1, a2)) + 1
+    h, w = ring.shape
+    x0, x1 = max(0, int(cx) - reach), min(w, int(cx) + reach + 1)
+    y0, y1 = max(0, int(cy) - reach), min(h, int(cy) + reach + 1)
+    gy, gx = np.mgrid[y0:y1, x0:x1]
+    dx, dy = gx - cx, gy - cy
+    u = (dx * e1[0] + dy * e1[1]) / a1  # ellipse-normalised: the ring's outline is ρ = 1
+    v = (dx * e2[0] + dy * e2[1]) / a2
+    rho = np.hypot(u, v)
+    theta = ((np.arctan2(v, u) + math.pi) / (2.0 * math.pi) * N_BINS).astype(int) % N_BINS
+    r_box, w_box = ring[y0:y1, x0:x1], wire[y0:y1, x0:x1]
+    near = rho <= OUTSIDE_RHO
+    inner_edge = np.full(N_BINS, np.inf)  # ρ of the rim's inner edge per direction
+    np.minimum.at(inner_edge, theta[r_box & near], rho[r_box & near])
+    wire_t, wire_rho = theta[w_box & near], rho[w_box & near]
+    if wire_t.size == 0:
+        return math.nan
+    reach_in = np.full(N_BINS, -np.inf)  # outermost wire pixel inside the hole per direction
+    inside = wire_rho < inner_edge[wire_t]
+    np.maximum.at(reach_in, wire_t[inside], wire_rho[inside])
+    crossing = np.zeros(N_BINS, dtype=bool)  # the wire over or beyond the rim in that direction
+    crossing[wire_t[wire_rho >= RIM_RHO]] = True
+    excluded = _widen_runs(crossing)
+    ok = np.isfinite(inner_edge) & np.isfinite(reach_in) & ~excluded
+    if not ok.any():
+        return math.nan
+    phi = (np.arange(N_BINS) + 0.5) / N_BINS * 2.0 * math.pi - math.pi
+    px_per_rho = np.hypot(a1 * np.cos(phi), a2 * np.sin(phi))  # ellipse radius per direction
+    gaps = (inner_edge - reach_in) * px_per_rho - 1.0  # adjacent pixels: no background between
+    return float(max(gaps[ok].min(), 0.0))
+
+
+def _widen_runs(flags: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Circular runs of True widened by their own length on each side (at least one bin).
+
+    Where the wire crosses the rim (in front of it, or behind it and out the other side), the
+    band's edges meet the inner edge next to the crossing without touching it: those
+    directions are not read as a gap.
+    """
+    n = flags.size
+    if flags.all() or not flags.any():
+        return flags.copy()
+    out = flags.copy()
+    start = int(np.argmin(flags))  # a False bin: runs do not wrap past it
+    k = 0
+    while k < n:
+        i = (start + k) % n
+        if flags[i]:
+            length = 0
+            while flags[(i + length) % n] and length < n:
+                length += 1
+            pad = max(1, length)
+            for j in range(-pad, length + pad):
+                out[(i + j) % n] = True
+            k += length
+        else:
+            k += 1
+    return out
+
+
+# --------------------------------------------------------------------------- counting
+@dataclass(frozen=True)
+class SeenTouch:
+    """A touch the observer saw.
+
+    Attributes
+    ----------
+    frame_start, frame_end : int
+        First and last frame showing contact (0-based).
+    t_start, t_end : float
+        Their times, s (frame / fps).
+    min_gap_px : float
+        Smallest gap seen during the touch, px.
+    """
+
+    frame_start: int
+    frame_end: int
+    t_start: float
+    t_end: float
+    min_gap_px: float
+
+
+def count_touches(gaps_px: Sequence[float] | NDArray[np.float64], fps: float) -> list[SeenTouch]:
+    """Touches in a series of per-frame gaps (see the module docstring).
+
+    Parameters
+    ----------
+    gaps_px : (F,)
+        Gap per frame, px; NaN where the frame shows nothing.
+    fps : float
+        Frame rate, frames/s.
+
+    Returns
+    -------
+    list of SeenTouch
+        In time order.
+    """
+    if not fps > 0.0:
+        raise ValueError(f"fps must be positive, got {fps}")
+    gaps = np.asarray(gaps_px, dtype=float)
+    touches: list[SeenTouch] = []
+    state = False
+    start = last_contact = contacts = open_run = 0
+    low = math.inf
+
+    def close() -> None:
+        if contacts >= MIN_TOUCH_FRAMES:
+            touches.append(SeenTouch(start, last_contact, start / fps, last_contact / fps, low))
+
+    for k, g in enumerate(gaps):
+        if math.isnan(g):
+            continue  # nothing seen: the assessor keeps what they saw last
+        if g <= CONTACT_GAP_PX:
+            if not state:
+                state, start, low, contacts = True, k, math.inf, 0
+            last_contact, open_run, low = k, 0, min(low, float(g))
+            contacts += 1
+        elif state and g > OPEN_GAP_PX:
+            open_run += 1
+            if open_run >= RELEASE_FRAMES:
+                close()
+                state = False
+    if state:
+        close()
+    return touches
+
+
+@dataclass(frozen=True)
+class Match:
+    """Seen events scored against true ones (one-to-one, by overlapping time).
+
+    Attributes
+    ----------
+    true_positives : int
+        Seen touches matched to a true touch.
+    seen, true : int
+        Numbers of seen and true touches.
+    """
+
+    true_positives: int
+    seen: int
+    true: int
+
+    @property
+    def precision(self) -> float:
+        """Matched seen / seen (1 when nothing was seen)."""
+        return self.true_positives / self.seen if self.seen else 1.0
+
+    @property
+    def recall(self) -> float:
+        """Matched true / true (1 when there was nothing to see)."""
+        return self.true_positives / self.true if self.true else 1.0
+
+
+def match_events(
+    seen: Sequence[tuple[float, float]], true: Sequence[tuple[float, float]], tolerance_s: float
+) -> Match:
+    """Pair seen and true touches whose time intervals overlap (each widened by ``tolerance_s``).
+
+    Parameters
+    ----------
+    seen, true : sequence of (t_start, t_end)
+        Touch intervals, s.
+    tolerance_s : float
+        Allowed slack, s (one frame interval: a seen touch starts at a frame, not at the instant).
+
+    Returns
+    -------
+    Match
+    """
+    used: set[int] = set()
+    tp = 0
+    for s0, s1 in seen:
+        for j, (t0, t1) in enumerate(true):
+            if j not in used and s0 <= t1 + tolerance_s and t0 <= s1 + tolerance_s:
+                used.add(j)
+                tp += 1
+                break
+    return Match(tp, len(seen), len(true))
+
+
+@dataclass(frozen=True)
+class GapView:
+    """What a video shows of one true touch, from its per-frame silhouette gaps.
+
+    Attributes
+    ----------
+    gap_before_px : float
+        Largest gap seen in the ``PRE_TOUCH_S`` before the onset, px (NaN: no frame showed it).
+    gap_min_px : float
+        Smallest gap seen from ``PRE_TOUCH_S`` before the onset to the touch's end, px (NaN: no
+        frame showed it).
+    closes_visibly : bool
+        The gap was resolvable just before (≥ ``OPEN_GAP_PX``) and seen closed (≤
+        ``CONTACT_GAP_PX``) in a frame of the touch: not hidden, not too small to see open.
+    """
+
+    gap_before_px: float
+    gap_min_px: float
+    closes_visibly: bool
+
+
+def gap_view(gaps_px: NDArray[np.float64], fps: float, t_start: float, t_end: float) -> GapView:
+    """The silhouette gap around one true touch ``[t_start, t_end]`` (s) in a video's frames.
+
+    Parameters
+    ----------
+    gaps_px : (F,)
+        Per-frame gaps of the video (frame ``k`` at ``k / fps``), px, NaN where nothing is seen.
+    fps : float
+        Frames/s.
+    t_start, t_end : float
+        The touch, s.
+
+    Returns
+    -------
+    GapView
+    """
+    t = np.arange(gaps_px.size) / fps
+    before = gaps_px[(t >= t_start - PRE_TOUCH_S) & (t < t_start)]
+    during = gaps_px[(t >= t_start) & (t <= t_end)]
+    around = np.concatenate([before, during])
+    b = before[np.isfinite(before)]
+    d = during[np.isfinite(during)]
+    a = around[np.isfinite(around)]
+    gap_before = float(b.max()) if b.size else math.nan
+    closes = bool(b.size and d.size and gap_before >= OPEN_GAP_PX and d.min() <= CONTACT_GAP_PX)
+    return GapView(gap_before, float(a.min()) if a.size else math.nan, closes)
+
+
+# --------------------------------------------------------------------------- videos
+@dataclass(frozen=True)
+class VideoObservation:
+    """The observer's reading of one video.
+
+    Attributes
+    ----------
+    gaps_px : (F,)
+        Gap per frame, px (NaN: nothing seen).
+    touches : list of SeenTouch
+    fps : float
+    thumbnails : dict
+        Frame index → JPEG bytes of the frame where a touch began.
+    """
+
+    gaps_px: NDArray[np.float64]
+    touches: list[SeenTouch]
+    fps: float
+    thumbnails: dict[int, bytes]
+
+
+def observe_frames(
+    frames: Sequence[NDArray[np.uint8]] | Any,
+    fps: float,
+    keys: ColourKeys,
+    progress: Callable[[int], object] | None = None,
+) -> VideoObservation:
+    """Count touches in an iterable of RGB frames (H, W, 3) uint8 at ``fps`` frames/s."""
+    gaps: list[float] = []
+    starts: dict[int, bytes] = {}
+    prev_contact = False
+    for k, frame in enumerate(frames):
+        ring, wire = segment(frame, keys)
+        g = frame_gap_px(ring, wire)
+        gaps.append(g)
+        contact = (g <= CONTACT_GAP_PX) if not math.isnan(g) else prev_contact
+        if contact and not prev_contact:
+            starts[k] = _thumbnail(frame, ring, wire)
+        prev_contact = contact
+        if progress is not None:
+            progress(1)
+    touches = count_touches(gaps, fps)
+    thumbs = {t.frame_start: starts[t.frame_start] for t in touches if t.frame_start in starts}
+    return VideoObservation(np.asarray(gaps, dtype=float), touches, fps, thumbs)
+
+
+def observe_video(
+    path: str | Path, keys: ColourKeys, progress: Callable[[int], object] | None = None
+) -> VideoObservation:
+    """Decode an MP4 (imageio-ffmpeg) and count its touches (:func:`observe_frames`)."""
+    reader = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24")
+    meta = next(reader)
+    width, height = meta["size"]
+    fps = float(meta["fps"])
+
+    def frames() -> Any:
+        for buf in reader:
+            yield np.frombuffer(buf, dtype=np.uint8).reshape(height, width, 3)
+
+    try:
+        return observe_frames(frames(), fps, keys, progress)
+    finally:
+        reader.close()
+
+
+def _thumbnail(frame: NDArray[np.uint8], ring: NDArray[np.bool_], wire: NDArray[np.bool_]) -> bytes:
+    """JPEG of a frame with the ring's (white) and the wire's (magenta) segmented outlines."""
+    bgr = cv2.cvtColor(np.ascontiguousarray(frame), cv2.COLOR_RGB2BGR)
+    for mask, colour in ((ring, (255, 255, 255)), (wire, (255, 0, 255))):
+        contours, _ = cv2.findContours(
+            mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
+        )
+        cv2.drawContours(bgr, contours, -1, colour, 1)
+    scale = min(1.0, THUMB_WIDTH_PX / bgr.shape[1])
+    if scale < 1.0:
+        size = (THUMB_WIDTH_PX, max(1, round(bgr.shape[0] * scale)))
+        bgr = cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)
+    ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:  # pragma: no cover - OpenCV always encodes a valid uint8 image
+        raise RuntimeError("JPEG encoding failed")
+    return bytes(buf)
+
+
+# --------------------------------------------------------------------------- a study
+def observer_summary(
+    manifest: Manifest, counted: dict[str, int]
+) -> dict[str, dict[str, float | int | None]]:
+    """Per condition: videos, mean and sample SD of ``|counted − true|`` touches."""
+    out: dict[str, dict[str, float | int | None]] = {}
+    for c in manifest.conditions:
+        errors = [abs(counted[v.id] - v.true_touches) for v in manifest.videos_of(c)]
+        out[c.value] = {
+            "videos": len(errors),
+            "mean_abs_error": float(np.mean(errors)),
+            "sd_abs_error": float(np.std(errors, ddof=1)) if len(errors) > 1 else None,
+        }
+    return out
+
+
+def observer_document(
+    manifest: Manifest, observations: dict[str, VideoObservation]
+) -> dict[str, Any]:
+    """``observer.json``'s content (the schema in the module docstring)."""
+    counted = {vid: len(obs.touches) for vid, obs in observations.items()}
+    return {
+        "conditions": observer_summary(manifest, counted),
+        "videos": [
+            {
+                "id": v.id,
+                "condition": v.condition.value,
+                "true_touches": v.true_touches,
+                "counted_touches": counted[v.id],
+                "events": [asdict(t) for t in observations[v.id].touches],
+            }
+            for v in manifest.videos
+        ],
+    }
+
+
+def observer_html(manifest: Manifest, observations: dict[str, VideoObservation]) -> str:
+    """A self-contained page: per video, the frame where each touch was seen (outlines drawn)."""
+    doc = observer_document(manifest, observations)
+    parts = [
+        "<!doctype html><html lang='en'><head><meta charset='utf-8'>",
+        "<title>endocam observer</title><style>body{font-family:sans-serif;margin:1em}",
+        "figure{display:inline-block;margin:4px}figcaption{font-size:small}</style></head><body>",
+        "<h1>Touches the automatic observer saw</h1>",
+        "<p>Counted from each video alone (colour segmentation of the ring, white outline, and "
+        "the wire, magenta). A touch is a run of frames whose ring–wire silhouette gap is at "
+        f"most {CONTACT_GAP_PX} px.</p><table><tr><th>condition</th><th>videos</th>"
+        "<th>mean |counted − true|</th><th>SD</th></tr>",
+    ]
+    for c, row in doc["conditions"].items():
+        sd = "–" if row["sd_abs_error"] is None else f"{row['sd_abs_error']:.2f}"
+        parts.append(
+            f"<tr><td>{html.escape(c)}</td><td>{row['videos']}</td>"
+            f"<td>{row['mean_abs_error']:.2f}</td><td>{sd}</td></tr>"
+        )
+    parts.append("</table>")
+    for v in doc["videos"]:
+        obs = observations[v["id"]]
+        parts.append(
+            f"<h2>{html.escape(v['id'])} ({html.escape(v['condition'])}): counted "
+            f"{v['counted_touches']}, true {v['true_touches']}</h2>"
+        )
+        for t in obs.touches:
+            jpeg = obs.thumbnails.get(t.frame_start)
+            img = (
+                f"<img alt='frame {t.frame_start}' src='data:image/jpeg;base64,"
+                f"{base64.b64encode(jpeg).decode()}'>"
+                if jpeg
+                else ""
+            )
+            parts.append(
+                f"<figure>{img}<figcaption>frames {t.frame_start}–{t.frame_end} "
+                f"({t.t_start:.2f}–{t.t_end:.2f} s), min gap {t.min_gap_px:.1f} px"
+                "</figcaption></figure>"
+            )
+    parts.append("</body></html>\n")
+    return "".join(parts)
+
+
+def keys_for_study(folder: Path) -> ColourKeys:
+    """The colours a study was rendered with (``design.json``), else the default scene's."""
+    design = folder / "design.json"
+    scene = SceneConfig()
+    if design.is_file():
+        data = json.loads(design.read_text("utf-8"))
+        if "ring_rgba" in data and "wire_rgba" in data:
+            return ColourKeys.from_rgba(tuple(data["ring_rgba"]), tuple(data["wire_rgba"]))
+    return ColourKeys.from_scene(scene)
+
+
+def observe_study(
+    folder: str | Path,
+    keys: ColourKeys | None = None,
+    progress: Callable[[int], object] | None = None,
+) -> tuple[dict[str, Any], str]:
+    """Observe every video of a study folder.
+
+    Parameters
+    ----------
+    folder : str or Path
+        Study folder (``manifest.json`` and the videos).
+    keys : ColourKeys, optional
+        Default: :func:`keys_for_study`.
+    progress : callable, optional
+        Called with 1 per decoded frame.
+
+    Returns
+    -------
+    document : dict
+        ``observer.json``'s content.
+    page : str
+        ``observer.html``.
+    """
+    root = Path(folder)
+    manifest = load_manifest(root)
+    keys = keys_for_study(root) if keys is None else keys
+    observations = {v.id: observe_video(root / v.file, keys, progress) for v in manifest.videos}
+    return observer_document(manifest, observations), observer_html(manifest, observations)
+
+
+def write_observer(folder: str | Path, document: dict[str, Any], page: str) -> None:
+    """Write ``observer.json`` and ``observer.html`` into ``folder`` (each via a temp + rename)."""
+    root = Path(folder)
+    for name, text in (
+        (OBSERVER_JSON, json.dumps(document, indent=2) + "\n"),
+        (OBSERVER_HTML, page),
+    ):
+        tmp = root / f".{name}.tmp"
+        tmp.write_text(text, "utf-8")
+        tmp.replace(root / name)
