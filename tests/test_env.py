@@ -51,8 +51,15 @@ def test_reset_with_a_seed_is_deterministic() -> None:
     b = _rollout(env, 3, 20)
     assert all(np.array_equal(x, y) for x, y in zip(a[0], b[0], strict=True))
     assert a[1] == b[1]
-    first = env.reset(seed=3)[0]["ring_pose"]
-    assert not np.array_equal(first, env.reset(seed=4)[0]["ring_pose"])  # another trajectory
+    # Another seed is another trajectory. Every noisy path starts at the ideal pose (clean
+    # starts), so compare the ring a second into the episode, where the noise has taken hold.
+    later = []
+    for seed in (3, 4):
+        env.reset(seed=seed)
+        for _ in range(100):
+            obs, *_ = env.step(np.zeros(6))
+        later.append(obs["ring_pose"])
+    assert not np.array_equal(later[0], later[1])
 
 
 def test_reward_is_the_negative_weighted_errors() -> None:
