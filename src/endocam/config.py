@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from endocam.camera import DEFAULT_BASELINE, DEFAULT_FOVY, Intrinsics, StereoCamera
 from endocam.control.config import ControllerConfig
+from endocam.faults import FaultsConfig
 from endocam.geometry import FloatArray, R_from_euler_xyz, make_pose
 from endocam.robot.actuator import ArmKind
 from endocam.robot.cartesian import MotionLimits
@@ -104,6 +105,10 @@ class ExperimentConfig(BaseModel):
         default_factory=ControllerConfig, description="The moving policies' parameters."
     )
     episode: EpisodeConfig = Field(default_factory=EpisodeConfig, description="Time and motion.")
+    faults: FaultsConfig = Field(
+        default_factory=FaultsConfig,
+        description="Injected sensor and actuator faults (all off by default).",
+    )
 
 
 def _one_line(exc: ValidationError) -> str:

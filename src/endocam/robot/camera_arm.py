@@ -36,8 +36,8 @@ import numpy as np
 
 from endocam.geometry import FloatArray, as_pose, invert_pose
 from endocam.kernels import rotation_angle, so3_exp
-from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
-from endocam.robot.arm import SimulatedArm
+from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
+from endocam.robot.arm import ECM_MAX_ACCELERATION, PSM_MAX_ACCELERATION, SimulatedArm
 from endocam.robot.dh import compose_links, pose12_from_matrix, pose12_times, pose12_to_matrix
 from endocam.robot.ecm import ECM
 from endocam.robot.kinematics import RcmArm
@@ -176,6 +176,13 @@ class CameraArm:
         Camera optical frame in the tool-tip frame, m (identity for the ECM's 0° scope).
     dt : float
         Control period, s.
+    workspace : WorkspaceBound, optional
+        Where the camera may be (cone and floor). Once the camera can stop inside it, each
+        step's joint motion is accepted only if the camera stays inside and the joints'
+        stopping point (each joint braked at its acceleration limit) still puts the camera
+        inside; otherwise the arm brakes to the stopping point of the step before, which was
+        checked the same way. A joint-space path between two goals inside the cone therefore
+        no longer swings the camera out of it.
     """
 
     camera_path: bool = True
@@ -184,7 +191,14 @@ class CameraArm:
     via_port: bool = True
     """After a jump of the wrist's target, pass through the port view (needs ``camera_path``)."""
 
-    def __init__(self, kind: ArmKind, T_world_rcm: object, T_tip_cam: object, dt: float) -> None:
+    def __init__(
+        self,
+        kind: ArmKind,
+        T_world_rcm: object,
+        T_tip_cam: object,
+        dt: float,
+        workspace: WorkspaceBound | None = None,
+    ) -> None:
         self.kind = kind
         self.model = arm_model(kind)
         self._T_world_rcm = as_pose(np.asarray(T_world_rcm, dtype=float), "T_world_rcm")
@@ -206,6 +220,13 @@ class CameraArm:
         self._last_look = math.nan
         self._last_target: tuple[list[float], FloatArray, ActuatorStatus] | None = None
         self._via_port = False  # on the path through the port view after a target jump
+        self._stalled: int | None = None  # a stalled joint (fault injection)
+        self.workspace = workspace
+        amax = PSM_MAX_ACCELERATION if kind is ArmKind.PSM else ECM_MAX_ACCELERATION
+        self._half_inv_acc = [0.5 / a for a in amax]  # s²/rad or s²/m
+        self._safe = False  # the camera can stop inside the workspace
+        self._stop: list[float] = self._q.tolist()  # where the joints stop if braked now
+        self.braked = 0  # steps on which the workspace made the arm brake
 
     # ------------------------------------------------------------------ frames
     @property
@@ -473,7 +494,20 @@ class CameraArm:
         self._arm.reset(q0)
         self._q = self._arm.measured_js()[0]
         self._T_cam = self.camera_pose(self._q)
+        if self.workspace is not None:
+            self._stop, self._safe = self._stop_point()
         return self._T_cam.copy()
+
+    def stall(self, joint: int | None) -> None:
+        """Fault injection: joint ``joint`` (index) stalls where it is; ``None``: none stalls.
+
+        A stalled joint's setpoint is frozen at its measured position each step, so its drive
+        brakes it within its acceleration limit and holds it; the other joints keep following
+        their targets, and the camera goes wherever that takes it (FK of the joints).
+        """
+        if joint is not None and not 0 <= joint < len(self.joint_names):
+            raise ValueError(f"joint: index {joint} outside 0..{len(self.joint_names) - 1}")
+        self._stalled = joint
 
     def step(
         self, T_world_cmd: FloatArray, look_distance: float, twist: FloatArray | None = None
@@ -539,8 +573,15 @@ class CameraArm:
         )
         if self.camera_path and approach is not ActuatorStatus.NEAREST:
             q_cmd = self._on_path(q_cmd, T_target, look_distance)
+        if self.workspace is not None:
+            q_before, qd_before = self._arm.measured_js()
+        if self._stalled is not None:
+            q_cmd = list(q_cmd)
+            q_cmd[self._stalled] = float(self._q[self._stalled])
         self._arm.servo_jp(q_cmd)
         self._arm.step()
+        if self.workspace is not None:
+            self._keep_inside(q_before, qd_before)
         self._q = self._arm.measured_jp()
         self._T_cam = self._camera_pose(self._q.tolist())
         self._q.setflags(write=False)  # handed out below without a copy
@@ -554,6 +595,34 @@ class CameraArm:
             ang_err,
             reachable,
         )
+
+    def _stop_point(self) -> tuple[list[float], bool]:
+        """Where the joints come to rest braked at their limits, and whether it is safe there.
+
+        Safe: the camera now and at that stopping point is inside the workspace.
+        """
+        ws = self.workspace
+        assert ws is not None
+        q, qd = self._arm.measured_js()
+        q_l, qd_l = q.tolist(), qd.tolist()
+        stop = [x + v * abs(v) * h for x, v, h in zip(q_l, qd_l, self._half_inv_acc, strict=True)]
+        stop = self.model.clamp_floats(stop)[0]
+        T_now = self._camera_pose(q_l)
+        safe = ws.margin(T_now[:3, 3].tolist()) >= 0.0
+        if safe and any(qd_l):
+            safe = ws.margin(self._camera_pose(stop)[:3, 3].tolist()) >= 0.0
+        return stop, safe
+
+    def _keep_inside(self, q_before: FloatArray, qd_before: FloatArray) -> None:
+        """Undo a joint step that could take the camera out; brake along a checked one."""
+        stop, safe = self._stop_point()
+        if self._safe and not safe:
+            self._arm.reset(q_before, qd_before)
+            self._arm.servo_jp(self._stop)  # the stopping point checked the step before
+            self._arm.step()
+            self.braked += 1
+            return  # on the braking path of a safe state, towards the same stopping point
+        self._safe, self._stop = safe, stop
 
 
 WRIST_JUMP_RAD = 1.0  # rad: a wrist joint target moving this far in one step has jumped

@@ -28,7 +28,7 @@ from matplotlib.figure import Figure
 
 from endocam import __version__
 from endocam.control.types import TrackingState
-from endocam.geometry import quat_wxyz_from_R
+from endocam.geometry import FloatArray, quat_wxyz_from_R
 from endocam.metrics import summarize
 from endocam.runner.episode import UNREACHABLE, EpisodeResult, state_fractions
 
@@ -136,7 +136,7 @@ def episode_columns(result: EpisodeResult) -> dict[str, np.ndarray]:
     """Per-step columns of ``episode.csv`` (ordered), SI unless the name gives a unit."""
     log = result.log
     q_ring = quat_wxyz_from_R(log.T_world_ring[:, :3, :3])
-    q_cam = quat_wxyz_from_R(log.T_world_cam[:, :3, :3])
+    q_cam = _quaternions(log.T_world_cam)
     cols: dict[str, np.ndarray] = {"t": log.t}
     for i, a in enumerate("xyz"):
         cols[f"ring_{a}"] = log.T_world_ring[:, i, 3]
@@ -149,9 +149,13 @@ def episode_columns(result: EpisodeResult) -> dict[str, np.ndarray]:
     cols["contact"] = log.contact.astype(int)
     cols["clearance"] = log.clearance
     cols["state"] = log.state
+    cols["fault"] = log.fault if log.fault is not None else np.full(len(log.t), "", dtype=object)
     cols["d_f"] = log.d_f
+    q_cmd = _quaternions(log.T_world_cmd)
     for i, a in enumerate("xyz"):
         cols[f"cmd_{a}"] = log.T_world_cmd[:, i, 3]
+    for i, a in enumerate("wxyz"):
+        cols[f"cmd_q{a}"] = q_cmd[:, i]
     for j, name in enumerate(("psm1", "psm2")):
         for i, a in enumerate("xyz"):
             cols[f"{name}_tip_{a}"] = log.p_world_tips[:, j, i]
@@ -167,6 +171,15 @@ def episode_columns(result: EpisodeResult) -> dict[str, np.ndarray]:
     cols["orientation_error_deg"] = np.degrees(result.orientation_error)
     cols["reason"] = np.array(log.reason, dtype=object)
     return cols
+
+
+def _quaternions(T: FloatArray) -> FloatArray:
+    """(N, 4) quaternions (w, x, y, z) of poses (N, 4, 4); NaN rows where a pose is not finite."""
+    q = np.full((len(T), 4), np.nan)
+    ok = np.isfinite(T[:, :3, :3]).all(axis=(1, 2))
+    if ok.any():
+        q[ok] = quat_wxyz_from_R(T[ok, :3, :3])
+    return q
 
 
 def write_episode_csv(result: EpisodeResult, path: Path) -> None:
