@@ -33,6 +33,7 @@ from endocam.metrics import (
 )
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
 from endocam.robot.carriers import make_actuator
+from endocam.task.config import MAX_CONTROL_POINTS
 from endocam.task.instruments import instrument_tips
 from endocam.task.layout import overview_camera_pose, task_centre
 from endocam.task.touches import TouchReport, touch_events
@@ -67,8 +68,10 @@ class EpisodeSpec:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.control_points < 2:
-            raise ValueError(f"control_points must be ≥ 2, got {self.control_points}")
+        if not 2 <= self.control_points <= MAX_CONTROL_POINTS:
+            raise ValueError(
+                f"control_points must be in 2..{MAX_CONTROL_POINTS}, got {self.control_points}"
+            )
         if self.seed < 0:
             raise ValueError(f"seed must be ≥ 0, got {self.seed}")
 
