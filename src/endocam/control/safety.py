@@ -147,8 +147,8 @@ class RingGate:
     turned at most ``max_rate · Δt`` from the last accepted one, with ``Δt`` the time since
     then, capped at ``horizon`` (so a wild outlier is rejected however long tracking was
     lost). Rejected observations are answered like missing ones: the camera holds. After
-    ``reacquire`` seconds without an accepted observation, two consecutive observations that
-    agree with each other (same bounds over one step) are accepted: the ring may really have
+    ``reacquire`` seconds without an accepted observation, two consecutive observations (at
+    most ``horizon`` apart) that agree with each other are accepted: the ring may really have
     moved while it was lost. (A tracker locked onto a wrong pose for longer than that is
     indistinguishable from a moved ring.)
 
@@ -192,7 +192,7 @@ class RingGate:
         self._raw = (t, x)
         ok = ref is None or self._agrees(ref, t, x)
         if not ok and ref is not None and t - ref[0] > self.reacquire and raw is not None:
-            ok = raw[0] < t and self._agrees(raw, t, x)
+            ok = 0.0 < t - raw[0] <= self.horizon and self._agrees(raw, t, x)
         if ok:
             self._ref = (t, x)
         else:
