@@ -1,4 +1,4 @@
-"""``endocam check``: clean runs pass, and each invariant, broken once in a clean log, is reported."""
+"""``endocam check``: clean runs pass; each invariant, broken once in a clean log, is reported."""
 
 from __future__ import annotations
 
