@@ -204,6 +204,7 @@ class CameraArm:
         self._T_world_rcm = as_pose(np.asarray(T_world_rcm, dtype=float), "T_world_rcm")
         self._T_rcm_world = invert_pose(self._T_world_rcm)
         self._p_world_rcm = self._T_world_rcm[:3, 3].copy()
+        self._p_rcm_list = self._p_world_rcm.tolist()
         self._T_tip_cam = as_pose(np.asarray(T_tip_cam, dtype=float), "T_tip_cam")
         self._T_cam_tip = invert_pose(self._T_tip_cam)
         # float forms for the control loop: FK starts at the RCM in world and ends at the camera
@@ -495,7 +496,7 @@ class CameraArm:
         self._q = self._arm.measured_js()[0]
         self._T_cam = self.camera_pose(self._q)
         if self.workspace is not None:
-            self._stop, self._safe = self._stop_point()
+            self._stop, self._safe, _ = self._stop_point()
         return self._T_cam.copy()
 
     def stall(self, joint: int | None) -> None:
@@ -580,10 +581,9 @@ class CameraArm:
             q_cmd[self._stalled] = float(self._q[self._stalled])
         self._arm.servo_jp(q_cmd)
         self._arm.step()
-        if self.workspace is not None:
-            self._keep_inside(q_before, qd_before)
+        T_checked = self._keep_inside(q_before, qd_before) if self.workspace is not None else None
         self._q = self._arm.measured_jp()
-        self._T_cam = self._camera_pose(self._q.tolist())
+        self._T_cam = T_checked if T_checked is not None else self._camera_pose(self._q.tolist())
         self._q.setflags(write=False)  # handed out below without a copy
         self._T_cam.setflags(write=False)
         return ActuatorStep(
@@ -596,33 +596,60 @@ class CameraArm:
             reachable,
         )
 
-    def _stop_point(self) -> tuple[list[float], bool]:
-        """Where the joints come to rest braked at their limits, and whether it is safe there.
+    def _stop_point(self) -> tuple[list[float], bool, FloatArray]:
+        """Where the joints come to rest braked at their limits, whether that is safe, and FK.
 
-        Safe: the camera now and at that stopping point is inside the workspace.
+        Safe: the camera now and at that stopping point is inside the workspace. The stopping
+        point's FK is skipped when the camera is farther inside than the braking can carry it
+        (:data:`ARM_LEVER_SLACK_M`).
+
+        Returns
+        -------
+        stop : list of float
+            Joint positions, rad / m.
+        safe : bool
+        T_world_cam : (4, 4) ndarray
+            The camera now, m.
         """
         ws = self.workspace
         assert ws is not None
         q, qd = self._arm.measured_js()
         q_l, qd_l = q.tolist(), qd.tolist()
-        stop = [x + v * abs(v) * h for x, v, h in zip(q_l, qd_l, self._half_inv_acc, strict=True)]
-        stop = self.model.clamp_floats(stop)[0]
+        delta = [v * abs(v) * h for v, h in zip(qd_l, self._half_inv_acc, strict=True)]
+        stop = self.model.clamp_floats([x + d for x, d in zip(q_l, delta, strict=True)])[0]
         T_now = self._camera_pose(q_l)
-        safe = ws.margin(T_now[:3, 3].tolist()) >= 0.0
+        p = T_now[:3, 3].tolist()
+        margin = ws.margin(p)
+        safe = margin >= 0.0
         if safe and any(qd_l):
-            safe = ws.margin(self._camera_pose(stop)[:3, 3].tolist()) >= 0.0
-        return stop, safe
+            slide = sum(abs(d) for d, pri in zip(delta, self.model.prismatic, strict=True) if pri)
+            turn = sum(
+                abs(d) for d, pri in zip(delta, self.model.prismatic, strict=True) if not pri
+            )
+            lever = math.dist(p, self._p_rcm_list) + slide + ARM_LEVER_SLACK_M
+            if not margin > slide + lever * turn:  # the braking could reach the boundary
+                safe = ws.margin(self._camera_pose(stop)[:3, 3].tolist()) >= 0.0
+        return stop, safe, T_now
 
-    def _keep_inside(self, q_before: FloatArray, qd_before: FloatArray) -> None:
-        """Undo a joint step that could take the camera out; brake along a checked one."""
-        stop, safe = self._stop_point()
+    def _keep_inside(self, q_before: FloatArray, qd_before: FloatArray) -> FloatArray | None:
+        """Undo a joint step that could take the camera out; brake along a checked one.
+
+        Returns the camera pose after the step (4, 4), m, or ``None`` when it braked.
+        """
+        stop, safe, T_now = self._stop_point()
         if self._safe and not safe:
             self._arm.reset(q_before, qd_before)
             self._arm.servo_jp(self._stop)  # the stopping point checked the step before
             self._arm.step()
             self.braked += 1
-            return  # on the braking path of a safe state, towards the same stopping point
+            return None  # on the braking path of a safe state, towards the same stopping point
         self._safe, self._stop = safe, stop
+        return T_now
+
+
+# m: added to the camera's distance from the RCM to bound every revolute joint's lever arm on
+# the camera (the wrist, the jaw and the camera mount beyond the shaft are shorter than this)
+ARM_LEVER_SLACK_M = 0.05
 
 
 WRIST_JUMP_RAD = 1.0  # rad: a wrist joint target moving this far in one step has jumped

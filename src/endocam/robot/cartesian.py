@@ -191,8 +191,11 @@ class CartesianLimiter:
         """Whether a camera at ``p`` (m) moving with ``v``, ``a`` (world) can brake inside."""
         ws = self.workspace
         assert ws is not None
+        margin = ws.margin(p)
         if not any(v) and not any(a):
-            return ws.margin(p) >= 0.0
+            return margin >= 0.0
+        if margin > self._stop_bound(v, a):
+            return True  # farther inside than any braking from this state can carry it
         inp = self._stop_inp
         inp.current_position = p
         inp.current_velocity = v
@@ -202,6 +205,21 @@ class CartesianLimiter:
         # (ruckig's position_extrema counts the target position 0 under velocity control)
         xs, ys, zs = (_extrema(pr) for pr in self._stop_traj.profiles[0])
         return all(ws.margin([x, y, z]) >= 0.0 for x in xs for y in ys for z in zs)
+
+    def _stop_bound(self, v: list[float], a: list[float]) -> float:
+        """An upper bound of the braking distance from velocity ``v`` and acceleration ``a``, m.
+
+        Per axis (limits ``V``, ``A``, ``J``): the speed peaks below ``s = |v| + a²/2J`` (≤ V)
+        and braking lasts under ``|a|/J + s/A + A/J``, so the axis travels less than their
+        product.
+        """
+        V, A, J = self._inp.max_velocity[0], self._inp.max_acceleration[0], self._inp.max_jerk[0]
+        total = 0.0
+        for vi, ai in zip(v, a, strict=True):
+            s = min(V, abs(vi) + ai * ai / (2.0 * J))
+            d = s * (abs(ai) / J + s / A + A / J)
+            total += d * d
+        return math.sqrt(total)
 
     def _brake(self) -> FloatArray:
         """One step along the braking path of the current state (checked the step before)."""
