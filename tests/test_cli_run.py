@@ -147,6 +147,7 @@ def test_run_writes_everything(short_config: Path, tmp_path: Path) -> None:
     assert names == {
         "scene.json",
         "episode.csv",
+        "check.json",
         "metrics.json",
         "video.mp4",
         "tracking.png",

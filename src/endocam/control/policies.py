@@ -123,9 +123,15 @@ class _MovingPolicy:
         return CameraCommand(self._last_cmd, state, self.d_f, reason)
 
     def _gated(self, t: float, ring_rows: Rows) -> bool:
-        """Whether the observation gate (``control.safety.RingGate``) accepts a ring pose."""
+        """Whether the observation gate (``control.safety.RingGate``) accepts a ring pose.
+
+        A degenerate normal passes here: the goal reports it (lost tracking, its own reason).
+        """
         R = ring_rows
-        return self._gate.accept(t, (R[0][3], R[1][3], R[2][3]), (R[0][2], R[1][2], R[2][2]))
+        n = (R[0][2], R[1][2], R[2][2])
+        if not math.hypot(*n) > _MIN_NORMAL:
+            return True
+        return self._gate.accept(t, (R[0][3], R[1][3], R[2][3]), n)
 
     def step(self, obs: Observation) -> CameraCommand:
         """Input checks, working distance, goal, cone freeze, way-points — in that order."""

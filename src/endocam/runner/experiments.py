@@ -401,6 +401,8 @@ def run_paper_experiment(
             write_run(r, tmp / names[id(r)], video=False)
         for row in table_rows:
             row["violations"] = sum(written_check(tmp / n)["violations"] for n in row["runs"])
+        violations = sum(row["violations"] for row in table_rows)
+        table += f"\n\nSafety check (`endocam check`, every run): {violations} violations."
         _json(tmp / "paper.json", _finite({"policy": policy, "rows": table_rows}))
         (tmp / "paper.md").write_text(table + "\n", encoding="utf-8")
         plot_tracking(
