@@ -172,7 +172,10 @@ def load_faults(path: str | Path) -> FaultsConfig:
     data = read_mapping(path)
     if data is None:
         data = {}
-    if isinstance(data, dict) and set(data) == {"faults"}:
+    if isinstance(data, dict) and "faults" in data:
+        others = sorted(set(data) - {"faults"})
+        if others:
+            raise ValueError(f"{path}: holds only the faults section, found also {others[0]}")
         data = data["faults"]
     if not isinstance(data, dict):
         raise ValueError(f"{path}: the top level must be the faults section")
