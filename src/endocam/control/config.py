@@ -6,6 +6,7 @@ import enum
 import math
 from typing import Annotated
 
+from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from endocam.control.goal import SIDE_HYSTERESIS
@@ -13,8 +14,10 @@ from endocam.control.safety import (
     CONE_BASE_RADIUS,
     CONE_HEIGHT,
     D_F_STEP,
+    ConeWorkspace,
     ImageWindows,
     RingGate,
+    Workspace,
 )
 
 __all__ = ["ControllerConfig", "SideRule", "TrackerConfig", "Transfer"]
@@ -242,6 +245,17 @@ class ControllerConfig(BaseModel):
         if not self.window_inner_frac < self.window_outer_frac:
             raise ValueError("window_inner_frac must be smaller than window_outer_frac")
         return self
+
+    def workspace(self, p_world_rcm: ArrayLike, p_world_feature: ArrayLike) -> Workspace:
+        """Where the camera may be (the carriers keep it there): cone and floor.
+
+        The cone runs from the RCM ``p_world_rcm`` (3,) towards the feature's initial position
+        ``p_world_feature`` (3,), world, m; the floor is ``min_camera_height``.
+        """
+        cone = ConeWorkspace.from_rcm(
+            p_world_rcm, p_world_feature, self.cone_height, self.cone_base_radius
+        )
+        return Workspace(cone, self.min_camera_height)
 
     def ring_gate(self) -> RingGate:
         """A fresh observation gate with these bounds."""

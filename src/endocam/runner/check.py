@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from endocam.config import ExperimentConfig
-from endocam.control.safety import ConeWorkspace
+from endocam.control.safety import Workspace
 from endocam.control.types import TrackingState
 from endocam.faults import OBSERVATION_INVALID_FAULTS, fault_names
 from endocam.geometry import FloatArray, R_from_quat_wxyz, so3_log
@@ -195,14 +195,14 @@ class RunLog:
     ----------
     config : ExperimentConfig
         From ``scene.json``.
-    cone : ConeWorkspace
-        From ``scene.json``'s cone.
+    workspace : Workspace
+        The cone of ``scene.json`` and the config's floor.
     columns : dict of str to ndarray
         Every ``episode.csv`` column: floats (NaN for an empty cell) or strings.
     """
 
     config: ExperimentConfig
-    cone: ConeWorkspace
+    workspace: Workspace
     columns: dict[str, np.ndarray]
 
     @property
@@ -244,12 +244,8 @@ def read_run(run_dir: Path) -> RunLog:
         raise ValueError(f"{csv_path} has no logged step")
     try:
         config = ExperimentConfig.model_validate(scene["config"])
-        cone_data = scene["cone"]
-        cone = ConeWorkspace.from_rcm(
-            cone_data["apex"],
-            cone_data["axis_towards"],
-            cone_data["height"],
-            cone_data["base_radius"],
+        workspace = config.controller.workspace(
+            scene["cone"]["apex"], scene["cone"]["axis_towards"]
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{scene_path} is not an endocam scene: {exc}") from None
@@ -269,7 +265,7 @@ def read_run(run_dir: Path) -> RunLog:
     missing = [c for c in ("t", "state", "cam_x", "cam_qw", "cmd_x") if c not in columns]
     if missing:
         raise ValueError(f"{csv_path}: missing columns {', '.join(missing)}")
-    return RunLog(config, cone, columns)
+    return RunLog(config, workspace, columns)
 
 
 def check_run(run_dir: Path) -> CheckResult:
@@ -332,7 +328,7 @@ def _violations(
 
 
 def _floor(log: RunLog) -> list[Violation]:
-    floor = log.config.controller.min_camera_height
+    floor = log.workspace.floor
     z = log.columns["cam_z"]
     bad = z < floor - POSITION_TOL_M
     return _violations(log, bad, "floor", z, floor, "m", "camera height")
@@ -344,7 +340,7 @@ def _cone(log: RunLog) -> list[Violation]:
     out: list[Violation] = []
     for prefix, what in (("cam", "camera"), ("cmd", "command")):
         p = log.xyz(prefix)
-        margin = np.array([log.cone.margin(row) for row in p.tolist()])
+        margin = np.array([log.workspace.cone.margin(row) for row in p.tolist()])
         inside = margin >= -POSITION_TOL_M
         entered = np.maximum.accumulate(inside) if prefix == "cam" else np.ones_like(inside)
         bad = auto & entered & ~inside & np.isfinite(margin)

@@ -20,7 +20,6 @@ import numpy as np
 from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
 from endocam.control.registry import POLICIES, make_policy
-from endocam.control.safety import ConeWorkspace, Workspace
 from endocam.control.types import Observation, PolicyContext, TrackingState
 from endocam.faults import StepFaults, apply_observation_faults, fault_schedule
 from endocam.geometry import FloatArray
@@ -239,15 +238,7 @@ def run_episode(
     T_overview = overview_camera_pose(config.task, camera)
     p_rcm = np.array(config.task.scene.rcm_position)
     kind = episode_arm(config, spec.policy)
-    workspace = Workspace(
-        ConeWorkspace.from_rcm(
-            p_rcm,
-            T_sensed[0][:3, 3],
-            config.controller.cone_height,
-            config.controller.cone_base_radius,
-        ),
-        config.controller.min_camera_height,
-    )
+    workspace = config.controller.workspace(p_rcm, T_sensed[0][:3, 3])  # the policy's cone
     actuator = make_actuator(
         kind, ep.limits, ep.T_tip_cam, config.task.scene.T_world_rcm, dt, workspace
     )
