@@ -169,3 +169,16 @@ def test_random_fault_schedules_leave_no_violation(
     write_run(result, out, video=False)
     check = check_run(out)
     assert check.ok, check.summary() + "".join(f"\n{v.line()}" for v in check.violations[:5])
+
+
+def test_gate_reacquires_only_inside_the_workspace() -> None:
+    cfg = ControllerConfig()
+    gate = cfg.ring_gate()
+    gate.reset(lambda p: abs(p[0]) < 0.3)  # a workspace 0.3 m wide along x
+    n = (0.0, 0.0, 1.0)
+    assert gate.accept(0.0, (0.0, 0.0, 0.05), n)
+    t = 2 * cfg.ring_reacquire  # lost for long; then a self-consistent pose 1 m away
+    assert not gate.accept(t, (1.0, 0.0, 0.05), n)
+    assert not gate.accept(t + DT, (1.0, 0.0, 0.05), n)  # agrees, but outside: not the ring
+    assert not gate.accept(t + 2 * DT, (0.2, 0.0, 0.05), n)
+    assert gate.accept(t + 3 * DT, (0.2, 0.0, 0.05), n)  # inside and agreeing: re-acquired

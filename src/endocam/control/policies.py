@@ -102,7 +102,7 @@ class _MovingPolicy:
         self._frozen_T = None
         self._path = None
         self._s = 0.0
-        self._gate.reset()
+        self._gate.reset(self._cone.contains)
 
     @property
     def cone(self) -> ConeWorkspace:

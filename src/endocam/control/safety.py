@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -148,8 +148,9 @@ class RingGate:
     then, capped at ``horizon`` (so a wild outlier is rejected however long tracking was
     lost). Rejected observations are answered like missing ones: the camera holds. After
     ``reacquire`` seconds without an accepted observation, two consecutive observations (at
-    most ``horizon`` apart) that agree with each other are accepted: the ring may really have
-    moved while it was lost. (A tracker locked onto a wrong pose for longer than that is
+    most ``horizon`` apart) that agree with each other are accepted if the ring centre lies in
+    the workspace (the cone, given at :meth:`reset`): the ring may really have moved while it
+    was lost. (A tracker locked onto a wrong pose inside the cone for longer than that is
     indistinguishable from a moved ring.)
 
     Parameters
@@ -169,12 +170,18 @@ class RingGate:
         self.horizon, self.reacquire = horizon, reacquire
         self._ref: tuple[float, list[float]] | None = None  # last accepted (t, [p, n])
         self._raw: tuple[float, list[float]] | None = None  # last finite observation
+        self._inside: Callable[[Sequence[float]], bool] | None = None
         self.rejected = 0  # observations rejected this episode
 
-    def reset(self) -> None:
-        """Forget every observation (a new episode)."""
+    def reset(self, inside: Callable[[Sequence[float]], bool] | None = None) -> None:
+        """Forget every observation (a new episode).
+
+        ``inside(p_world)``: whether a ring centre (3,), world, m, may be re-acquired (the
+        cone's ``contains``); ``None``: anywhere.
+        """
         self._ref = None
         self._raw = None
+        self._inside = inside
         self.rejected = 0
 
     def _agrees(self, ref: tuple[float, list[float]], t: float, x: list[float]) -> bool:
@@ -193,6 +200,7 @@ class RingGate:
         ok = ref is None or self._agrees(ref, t, x)
         if not ok and ref is not None and t - ref[0] > self.reacquire and raw is not None:
             ok = 0.0 < t - raw[0] <= self.horizon and self._agrees(raw, t, x)
+            ok = ok and (self._inside is None or self._inside(x[:3]))
         if ok:
             self._ref = (t, x)
         else:

@@ -33,11 +33,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import ruckig
 
 from endocam.geometry import FloatArray, as_pose, invert_pose
 from endocam.kernels import rotation_angle, so3_exp
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
-from endocam.robot.arm import ECM_MAX_ACCELERATION, PSM_MAX_ACCELERATION, SimulatedArm
+from endocam.robot.arm import (
+    ECM_MAX_ACCELERATION,
+    ECM_MAX_VELOCITY,
+    PSM_MAX_ACCELERATION,
+    PSM_MAX_VELOCITY,
+    SimulatedArm,
+)
 from endocam.robot.dh import compose_links, pose12_from_matrix, pose12_times, pose12_to_matrix
 from endocam.robot.ecm import ECM
 from endocam.robot.kinematics import RcmArm
@@ -224,7 +231,19 @@ class CameraArm:
         self._stalled: int | None = None  # a stalled joint (fault injection)
         self.workspace = workspace
         amax = PSM_MAX_ACCELERATION if kind is ArmKind.PSM else ECM_MAX_ACCELERATION
-        self._half_inv_acc = [0.5 / a for a in amax]  # s²/rad or s²/m
+        vmax = PSM_MAX_VELOCITY if kind is ArmKind.PSM else ECM_MAX_VELOCITY
+        # braking distance v²/2a, planned at BRAKE_ACC_SHARE of the limit: ruckig can then
+        # always reach the stopping point (at the full limit round-off can make it infeasible)
+        self._half_inv_acc = [0.5 / (BRAKE_ACC_SHARE * a) for a in amax]  # s²/rad or s²/m
+        self._dt = dt
+        n = len(amax)
+        # the braking path as the arm's own ruckig (same limits, synchronised) will drive it
+        self._brake_otg = ruckig.Ruckig(n)
+        self._brake_inp = ruckig.InputParameter(n)
+        self._brake_inp.max_velocity = list(vmax)
+        self._brake_inp.max_acceleration = list(amax)
+        self._brake_inp.max_jerk = [math.inf] * n
+        self._brake_traj = ruckig.Trajectory(n)
         self._safe = False  # the camera can stop inside the workspace
         self._stop: list[float] = self._q.tolist()  # where the joints stop if braked now
         self.braked = 0  # steps on which the workspace made the arm brake
@@ -599,9 +618,9 @@ class CameraArm:
     def _stop_point(self) -> tuple[list[float], bool, FloatArray]:
         """Where the joints come to rest braked at their limits, whether that is safe, and FK.
 
-        Safe: the camera now and at that stopping point is inside the workspace. The stopping
-        point's FK is skipped when the camera is farther inside than the braking can carry it
-        (:data:`ARM_LEVER_SLACK_M`).
+        Safe: the camera now, and at every step of braking to that point, is inside the
+        workspace (:meth:`_brakes_inside`). The braking path is not checked while the camera is
+        farther inside than the braking can carry it (:data:`ARM_LEVER_SLACK_M`).
 
         Returns
         -------
@@ -628,8 +647,34 @@ class CameraArm:
             )
             lever = math.dist(p, self._p_rcm_list) + slide + ARM_LEVER_SLACK_M
             if not margin > slide + lever * turn:  # the braking could reach the boundary
-                safe = ws.margin(self._camera_pose(stop)[:3, 3].tolist()) >= 0.0
+                safe = self._brakes_inside(q_l, qd_l, stop)
         return stop, safe, T_now
+
+    def _brakes_inside(self, q: list[float], qd: list[float], stop: list[float]) -> bool:
+        """Whether the camera stays inside at every control step of the braking path.
+
+        The path is the arm's joint motion from ``q`` (rad / m) moving at ``qd`` to rest at
+        ``stop``, as its ruckig (synchronised joints) drives it: it can leave the straight line
+        between the two, so each step's FK is checked, not only the stopping point's.
+        """
+        ws = self.workspace
+        assert ws is not None
+        inp = self._brake_inp
+        inp.current_position = q
+        inp.current_velocity = qd
+        inp.current_acceleration = [0.0] * len(q)
+        inp.target_position = stop
+        if self._brake_otg.calculate(inp, self._brake_traj) not in (
+            ruckig.Result.Working,
+            ruckig.Result.Finished,
+        ):
+            return False
+        steps = math.ceil(self._brake_traj.duration / self._dt - 1e-9)
+        for i in range(1, steps + 1):
+            q_i = self._brake_traj.at_time(min(i * self._dt, self._brake_traj.duration))[0]
+            if not ws.margin(self._camera_pose(q_i)[:3, 3].tolist()) >= 0.0:
+                return False
+        return ws.margin(self._camera_pose(stop)[:3, 3].tolist()) >= 0.0
 
     def _keep_inside(self, q_before: FloatArray, qd_before: FloatArray) -> FloatArray | None:
         """Undo a joint step that could take the camera out; brake along a checked one.
@@ -646,6 +691,8 @@ class CameraArm:
         self._safe, self._stop = safe, stop
         return T_now
 
+
+BRAKE_ACC_SHARE = 0.99  # unitless: share of a joint's acceleration limit its braking plans for
 
 # m: added to the camera's distance from the RCM to bound every revolute joint's lever arm on
 # the camera (the wrist, the jaw and the camera mount beyond the shaft are shorter than this)
