@@ -44,7 +44,7 @@ def _err_line(capsys: pytest.CaptureFixture[str]) -> str:
     [
         (["--policy", "zoom", "--trajectory", "noisy"], "invalid choice: 'zoom'"),
         (["--policy", "fixed", "--trajectory", "wavy"], "invalid choice: 'wavy'"),
-        (["--policy", "fixed", "--trajectory", "noisy", "--control-points", "1"], "≥ 2"),
+        (["--policy", "fixed", "--trajectory", "noisy", "--control-points", "1"], "in 2.."),
         (["--policy", "fixed", "--trajectory", "noisy", "--control-points", "x"], "integer"),
         (["--policy", "fixed", "--trajectory", "noisy", "--seed", "-3"], "--seed"),
     ],
@@ -147,6 +147,7 @@ def test_run_writes_everything(short_config: Path, tmp_path: Path) -> None:
     assert names == {
         "scene.json",
         "episode.csv",
+        "check.json",
         "metrics.json",
         "video.mp4",
         "tracking.png",

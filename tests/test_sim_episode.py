@@ -142,7 +142,14 @@ def test_outputs_are_complete_and_consistent(noisy_orientation, tmp_path: Path) 
     r = noisy_orientation
     out = outputs.write_run(r, tmp_path / "run", video=False)
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["episode.csv", "metrics.json", "report.html", "scene.json", "tracking.png"]
+    assert names == [
+        "check.json",
+        "episode.csv",
+        "metrics.json",
+        "report.html",
+        "scene.json",
+        "tracking.png",
+    ]
     with open(out / "episode.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == len(r.log.t)

@@ -47,7 +47,11 @@ def ring_pose(p: np.ndarray, n: np.ndarray) -> np.ndarray:
 def make_tracker(
     p_ring: np.ndarray, p_rcm: np.ndarray, **tracker: object
 ) -> tuple[EndocamPolicy, StereoCamera]:
-    cfg = ControllerConfig(tracker=TrackerConfig.model_validate(tracker))
+    # the scenarios jump the ring's normal between steps: the observation gate (tested in
+    # test_faults.py) would reject those jumps, so it is opened wide
+    cfg = ControllerConfig(
+        tracker=TrackerConfig.model_validate(tracker), ring_max_speed=10.0, ring_max_rate=1000.0
+    )
     policy = EndocamPolicy(cfg)
     camera = CameraConfig().stereo()
     T0 = ring_pose(p_ring, np.array([1.0, 0.0, 0.3]))

@@ -45,6 +45,7 @@ ROW_KEYS = {
     "ring_out_of_view_fraction",
     "episodes",
     "by_phase",
+    "violations",
 }
 
 

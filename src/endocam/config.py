@@ -17,12 +17,14 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from endocam.camera import DEFAULT_BASELINE, DEFAULT_FOVY, Intrinsics, StereoCamera
 from endocam.control.config import ControllerConfig
+from endocam.faults import FaultsConfig
 from endocam.geometry import FloatArray, R_from_euler_xyz, make_pose
 from endocam.robot.actuator import ArmKind
 from endocam.robot.cartesian import MotionLimits
 from endocam.task.config import TaskConfig
 
 _FROZEN = ConfigDict(frozen=True, extra="forbid")
+MAX_CONTROL_STEPS = 400_000  # count: duration × control rate (≈ 0.4 GB of logged poses)
 
 # The pickup camera's optical centre on the PSM tool-tip z axis (the approach direction), m:
 # the dVRK's PROGRASP tip frame sits at the jaw pivot (wrist-yaw axis); ≈ 10 mm of jaw plus
@@ -104,6 +106,20 @@ class ExperimentConfig(BaseModel):
         default_factory=ControllerConfig, description="The moving policies' parameters."
     )
     episode: EpisodeConfig = Field(default_factory=EpisodeConfig, description="Time and motion.")
+    faults: FaultsConfig = Field(
+        default_factory=FaultsConfig,
+        description="Injected sensor and actuator faults (all off by default).",
+    )
+
+    @model_validator(mode="after")
+    def _bounded(self) -> ExperimentConfig:
+        steps = self.task.trajectory.duration * self.episode.control_rate
+        if steps > MAX_CONTROL_STEPS:
+            raise ValueError(
+                f"task.trajectory.duration × episode.control_rate = {steps:.3g} control steps, "
+                f"more than {MAX_CONTROL_STEPS}"
+            )
+        return self
 
 
 def _one_line(exc: ValidationError) -> str:
@@ -140,6 +156,43 @@ def load_config(path: str | Path) -> ExperimentConfig:
     ValueError
         One line if the file is missing, unreadable, malformed or invalid.
     """
+    return config_from_mapping(read_mapping(path), str(path))
+
+
+def load_faults(path: str | Path) -> FaultsConfig:
+    """Load a :class:`FaultsConfig` from a TOML or YAML file (``--faults``).
+
+    The file holds the ``faults`` section itself, or a config with only a ``faults`` section.
+
+    Raises
+    ------
+    ValueError
+        One line if the file is missing, unreadable, malformed or invalid.
+    """
+    data = read_mapping(path)
+    if data is None:
+        data = {}
+    if isinstance(data, dict) and "faults" in data:
+        others = sorted(set(data) - {"faults"})
+        if others:
+            raise ValueError(f"{path}: holds only the faults section, found also {others[0]}")
+        data = data["faults"]
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: the top level must be the faults section")
+    try:
+        return FaultsConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ValueError(f"{path}: faults.{_one_line(exc)}") from None
+
+
+def read_mapping(path: str | Path) -> Any:
+    """The parsed content of a ``.toml``, ``.yaml`` or ``.yml`` file (not yet validated).
+
+    Raises
+    ------
+    ValueError
+        One line if the file is missing, unreadable or malformed.
+    """
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8")
@@ -156,4 +209,4 @@ def load_config(path: str | Path) -> ExperimentConfig:
     except (tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ValueError(f"config {p} is malformed: {first}") from None
-    return config_from_mapping(data, str(p))
+    return data

@@ -1,7 +1,9 @@
 """The ``endocam`` command line: parses, validates and calls the library.
 
 Every user mistake (unknown policy, bad number, unwritable folder, malformed config) ends as one
-line on stderr and exit code 2, never a traceback. One module per command group (``policies``,
+line on stderr and exit code 2, never a traceback; an ``OSError`` (a file system refusing) too.
+Any other exception is an internal error: one line and exit code 1, its traceback only with
+``--debug``. One module per command group (``policies``,
 ``run`` for run/demo/experiment/config, ``study``), each with ``register(subparsers)``; they
 import heavy parts (MuJoCo, FastAPI) only inside their handlers.
 """
@@ -10,13 +12,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+import traceback
 from collections.abc import Callable, Sequence
 
 from endocam import __version__
-from endocam.cli import policies, run, study, sweep
-from endocam.cli.common import EXIT_USAGE, Parser, UsageError
+from endocam.cli import check, policies, run, study, sweep
+from endocam.cli.common import EXIT_INTERNAL, EXIT_USAGE, Parser, UsageError
 
-__all__ = ["EXIT_USAGE", "UsageError", "build_parser", "main"]
+__all__ = ["EXIT_INTERNAL", "EXIT_USAGE", "UsageError", "build_parser", "main"]
 
 Handler = Callable[[argparse.Namespace], int | None]
 
@@ -28,9 +31,12 @@ def build_parser() -> argparse.ArgumentParser:
         description="Autonomous 6-DoF endoscopic camera control for MIS.",
     )
     parser.add_argument("--version", action="version", version=f"endocam {__version__}")
+    parser.add_argument(
+        "--debug", action="store_true", help="print the traceback of an internal error"
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for group in (policies, run, study, sweep):
+    for group in (policies, run, study, sweep, check):
         group.register(sub)
     return parser
 
@@ -48,6 +54,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("endocam: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:  # the file system refused: where and why, in one line
+        if args.debug:
+            traceback.print_exc()
+        where = f" {exc.filename}" if exc.filename else ""
+        print(f"endocam: error:{where}: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except Exception as exc:
+        if args.debug:
+            traceback.print_exc()
+        hint = "" if args.debug else " (--debug for the traceback)"
+        print(f"endocam: internal error: {type(exc).__name__}: {exc}{hint}", file=sys.stderr)
+        return EXIT_INTERNAL
     return int(code or 0)
 
 

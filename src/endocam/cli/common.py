@@ -9,10 +9,11 @@ import argparse
 from pathlib import Path
 from typing import NoReturn
 
-from endocam.config import ExperimentConfig, load_config
+from endocam.config import ExperimentConfig, load_config, load_faults
 from endocam.robot.carriers import ArmKind
 
 EXIT_USAGE = 2
+EXIT_INTERNAL = 1
 ARM_CHOICES = tuple(k.value for k in ArmKind)  # the carrier choices, from their one source
 
 
@@ -44,6 +45,17 @@ def load_config_arg(path: str | None) -> ExperimentConfig:
         return load_config(path)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+
+
+def with_faults(config: ExperimentConfig, path: str | None) -> ExperimentConfig:
+    """``config`` with its ``faults`` section replaced by the ``--faults`` file, if given."""
+    if path is None:
+        return config
+    try:
+        faults = load_faults(path)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    return config.model_copy(update={"faults": faults})
 
 
 def out_dir(path: str) -> Path:

@@ -6,15 +6,32 @@ import argparse
 
 import yaml
 
-from endocam.cli.common import ARM_CHOICES, UsageError, integer, load_config_arg, out_dir
+from endocam.cli.common import (
+    ARM_CHOICES,
+    UsageError,
+    integer,
+    load_config_arg,
+    out_dir,
+    with_faults,
+)
 from endocam.config import ExperimentConfig
 from endocam.control.registry import POLICIES
 from endocam.robot.actuator import ArmKind
+from endocam.task.config import MAX_CONTROL_POINTS
 from endocam.task.trajectory import TrajectoryKind
+
+MAX_EXTRA_SEEDS = 1000  # count: --seeds of experiment tracking
+MAX_WORKERS = 64  # count: --workers
 
 
 def _config(args: argparse.Namespace) -> ExperimentConfig:
-    return load_config_arg(getattr(args, "config", None))
+    cfg = load_config_arg(getattr(args, "config", None))
+    return with_faults(cfg, getattr(args, "faults", None))
+
+
+def _control_points(n: int) -> None:
+    if not 2 <= n <= MAX_CONTROL_POINTS:
+        raise UsageError(f"--control-points must be in 2..{MAX_CONTROL_POINTS}, got {n}")
 
 
 def _with_arm(cfg: ExperimentConfig, arm: str | None) -> ExperimentConfig:
@@ -29,19 +46,20 @@ def _run(args: argparse.Namespace) -> int:
     from endocam.runner.episode import EpisodeSpec
     from endocam.runner.experiments import run_and_write
 
-    if args.control_points < 2:
-        raise UsageError(f"--control-points must be ≥ 2, got {args.control_points}")
+    _control_points(args.control_points)
     if args.seed < 0:
         raise UsageError(f"--seed must be ≥ 0, got {args.seed}")
     cfg = _with_arm(_config(args), args.arm)
     out = out_dir(args.out)
     spec = EpisodeSpec(args.policy, TrajectoryKind(args.trajectory), args.control_points, args.seed)
     metrics = run_and_write(cfg, spec, out, video=not args.no_video)
+    check = metrics["check"]
+    safety = "safety check OK" if check["ok"] else f"{check['violations']} safety violations"
     print(
         f"{spec.policy}: image {metrics['image_error_px']['mean']:.1f} px, "
         f"3D {metrics['center_error_mm']['mean']:.2f} mm, "
         f"orientation {metrics['orientation_error_deg']['mean']:.2f} deg, "
-        f"{metrics['touches']} touches -> {out / 'report.html'}"
+        f"{metrics['touches']} touches, {safety} -> {out / 'report.html'}"
     )
     return 0
 
@@ -49,6 +67,9 @@ def _run(args: argparse.Namespace) -> int:
 def _demo(args: argparse.Namespace) -> int:
     from endocam.runner.experiments import run_demo
 
+    _control_points(args.control_points)
+    if args.seed < 0:
+        raise UsageError(f"--seed must be ≥ 0, got {args.seed}")
     cfg = _config(args)
     out = out_dir(args.out)
     report = run_demo(
@@ -77,10 +98,9 @@ def _tracking(args: argparse.Namespace) -> int:
         check_choices(controllers, carriers)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    if args.seeds < 0:
-        raise UsageError(f"--seeds must be ≥ 0, got {args.seeds}")
-    if args.workers < 1:
-        raise UsageError(f"--workers must be ≥ 1, got {args.workers}")
+    if not 0 <= args.seeds <= MAX_EXTRA_SEEDS:
+        raise UsageError(f"--seeds must be in 0..{MAX_EXTRA_SEEDS}, got {args.seeds}")
+    _workers(args.workers)
     cfg = _config(args)
     out = out_dir(args.out)
     table = run_tracking_experiment(
@@ -93,6 +113,31 @@ def _tracking(args: argparse.Namespace) -> int:
     )
     print(table)
     return 0
+
+
+def _workers(n: int) -> None:
+    if not 1 <= n <= MAX_WORKERS:
+        raise UsageError(f"--workers must be in 1..{MAX_WORKERS}, got {n}")
+
+
+def _faults(args: argparse.Namespace) -> int:
+    from endocam.runner.fault_matrix import run_fault_matrix
+
+    _workers(args.workers)
+    cfg = _config(args)
+    out = out_dir(args.out)
+    table = run_fault_matrix(cfg, out, workers=args.workers)
+    print(table)
+    return 0
+
+
+def _faults_arg(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--faults",
+        metavar="FILE",
+        help="TOML or YAML file with a faults section (see `endocam config`): inject seeded "
+        "tracker and arm faults, logged per step in episode.csv's fault column",
+    )
 
 
 def _show_config(args: argparse.Namespace) -> int:
@@ -135,6 +180,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "orientation-ecm always uses the ECM",
     )
     p.add_argument("--config", help="TOML or YAML config file (see `endocam config`)")
+    _faults_arg(p)
     p.set_defaults(handler=_run)
 
     d = sub.add_parser(
@@ -172,6 +218,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "file's episode.arm",
     )
     ep.add_argument("--config", help="TOML or YAML config file")
+    _faults_arg(ep)
     ep.set_defaults(handler=_experiment)
     et = esub.add_parser(
         "tracking",
@@ -195,7 +242,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     et.add_argument("--workers", type=integer, default=2, help="worker processes (default 2)")
     et.add_argument("--config", help="TOML or YAML config file")
+    _faults_arg(et)
     et.set_defaults(handler=_tracking)
+    ef = esub.add_parser(
+        "faults",
+        help="the fault matrix: each fault alone at two severities, then all at once, on the "
+        "orientation camera (endocam) with the free camera and the PSM; safety check, "
+        "recovery times and tracking errors against the same run without faults",
+    )
+    ef.add_argument("--out", required=True, help="output folder (replaced atomically)")
+    ef.add_argument("--workers", type=integer, default=2, help="worker processes (default 2)")
+    ef.add_argument("--config", help="TOML or YAML config file (its faults section is ignored)")
+    ef.set_defaults(handler=_faults)
 
     c = sub.add_parser("config", help="print the full config (defaults, or --config merged)")
     c.add_argument("--config", help="TOML or YAML config file to validate and show")

@@ -6,6 +6,7 @@ import enum
 import math
 from typing import Annotated
 
+from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from endocam.control.goal import SIDE_HYSTERESIS
@@ -13,7 +14,10 @@ from endocam.control.safety import (
     CONE_BASE_RADIUS,
     CONE_HEIGHT,
     D_F_STEP,
+    ConeWorkspace,
     ImageWindows,
+    RingGate,
+    Workspace,
 )
 
 __all__ = ["ControllerConfig", "SideRule", "TrackerConfig", "Transfer"]
@@ -191,6 +195,34 @@ class ControllerConfig(BaseModel):
         "this port is within the PSM's reach of the wire, hence closer and wider-angled: "
         "see docs/world.md)",
     )
+    ring_max_speed: float = Field(
+        0.5,
+        gt=0,
+        le=10.0,
+        description="observation gate: fastest plausible ring centre, m/s; a ring pose farther "
+        "from the last accepted one is rejected like a missing one (the camera holds). The "
+        "default task's ring moves ≤ 0.013 m/s, a 3 s episode's ≤ 0.26 m/s",
+    )
+    ring_max_rate: float = Field(
+        25.0,
+        gt=0,
+        le=1000.0,
+        description="observation gate: fastest plausible turn of the ring normal, rad/s (a 3 s "
+        "episode's ≤ 20 rad/s); with ring_gate_horizon it rejects a pose turned 180°",
+    )
+    ring_gate_horizon: float = Field(
+        0.1,
+        gt=0,
+        le=1.0,
+        description="longest time the gate's bounds grow over after the last accepted pose, s",
+    )
+    ring_reacquire: float = Field(
+        1.0,
+        gt=0,
+        le=60.0,
+        description="after this long without an accepted ring pose, s, two consecutive poses "
+        "that agree are accepted (the ring moved while lost)",
+    )
     window_inner_frac: float = Field(0.5, gt=0, le=1, description="inner window, image fraction")
     window_outer_frac: float = Field(0.9, gt=0, le=1, description="outer window, image fraction")
     centre_left_eye: bool = Field(
@@ -213,6 +245,23 @@ class ControllerConfig(BaseModel):
         if not self.window_inner_frac < self.window_outer_frac:
             raise ValueError("window_inner_frac must be smaller than window_outer_frac")
         return self
+
+    def workspace(self, p_world_rcm: ArrayLike, p_world_feature: ArrayLike) -> Workspace:
+        """Where the camera may be (the carriers keep it there): cone and floor.
+
+        The cone runs from the RCM ``p_world_rcm`` (3,) towards the feature's initial position
+        ``p_world_feature`` (3,), world, m; the floor is ``min_camera_height``.
+        """
+        cone = ConeWorkspace.from_rcm(
+            p_world_rcm, p_world_feature, self.cone_height, self.cone_base_radius
+        )
+        return Workspace(cone, self.min_camera_height)
+
+    def ring_gate(self) -> RingGate:
+        """A fresh observation gate with these bounds."""
+        return RingGate(
+            self.ring_max_speed, self.ring_max_rate, self.ring_gate_horizon, self.ring_reacquire
+        )
 
     @property
     def windows(self) -> ImageWindows:

@@ -43,6 +43,7 @@ _UP = (0.0, 0.0, 1.0)  # world up as plain floats
 FREEZE_RELEASE_MARGIN = 1e-3  # m, how far back inside the cone the goal must be to unfreeze
 LIFT_TOL = 1e-4  # m, resolution of the cone-limited way-point height
 _MIN_NORMAL = 1e-9  # unitless, a ring normal shorter than this is degenerate
+GATE_REASON = "ring pose rejected by the observation gate (moved too fast); holding"
 
 
 class FixedPolicy:
@@ -83,6 +84,7 @@ class _MovingPolicy:
         self._frozen_T: FloatArray | None = None
         self._path: WaypointPath | None = None
         self._s = 0.0
+        self._gate = self.config.ring_gate()
 
     def reset(self, context: PolicyContext) -> None:
         """Fix the cone axis from the RCM to the ring's initial position; clear all memory."""
@@ -100,6 +102,7 @@ class _MovingPolicy:
         self._frozen_T = None
         self._path = None
         self._s = 0.0
+        self._gate.reset(self._cone.contains)
 
     @property
     def cone(self) -> ConeWorkspace:
@@ -119,6 +122,17 @@ class _MovingPolicy:
         assert self._last_cmd is not None
         return CameraCommand(self._last_cmd, state, self.d_f, reason)
 
+    def _gated(self, t: float, ring_rows: Rows) -> bool:
+        """Whether the observation gate (``control.safety.RingGate``) accepts a ring pose.
+
+        A degenerate normal passes here: the goal reports it (lost tracking, its own reason).
+        """
+        R = ring_rows
+        n = (R[0][2], R[1][2], R[2][2])
+        if not math.hypot(*n) > _MIN_NORMAL:
+            return True
+        return self._gate.accept(t, (R[0][3], R[1][3], R[2][3]), n)
+
     def step(self, obs: Observation) -> CameraCommand:
         """Input checks, working distance, goal, cone freeze, way-points — in that order."""
         ctx = self._ctx
@@ -134,6 +148,10 @@ class _MovingPolicy:
             self._last_goal = None
             self._path = None
             return self._hold(TrackingState.LOST_TRACKING, "ring pose missing or not finite")
+        if not self._gated(obs.t, ring_rows):
+            self._last_goal = None
+            self._path = None
+            return self._hold(TrackingState.LOST_TRACKING, GATE_REASON)
         T_ring = np.asarray(obs.T_world_ring, dtype=float)
 
         tips = obs.p_world_tips

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -114,6 +114,98 @@ class ConeWorkspace:
         """Whether a point (3,) in world, m, is inside the cone or on its surface."""
         margin = self.margin(p_world)
         return math.isfinite(margin) and margin >= 0.0
+
+
+@dataclass(frozen=True)
+class Workspace:
+    """Where the camera may be: inside the cone workspace and at or above the floor.
+
+    The carriers keep the camera here (``robot.actuator.WorkspaceBound``), whatever they are
+    commanded; the controllers' goals stay inside it too.
+
+    Attributes
+    ----------
+    cone : ConeWorkspace
+    floor : float
+        Lowest camera height (world z), m: the tissue plane plus the minimum height
+        (``ControllerConfig.min_camera_height``).
+    """
+
+    cone: ConeWorkspace
+    floor: float
+
+    def margin(self, p_world: FloatArray | Sequence[float]) -> float:
+        """Signed clearance of a point (3,) in world, m: > 0 inside, < 0 outside (NaN: unknown)."""
+        p = p_world.tolist() if isinstance(p_world, np.ndarray) else p_world
+        return min(self.cone.margin(p), p[2] - self.floor)
+
+
+class RingGate:
+    """Gates ring observations by a speed bound before they reach the goal.
+
+    An observation is accepted when its centre moved at most ``max_speed · Δt`` and its normal
+    turned at most ``max_rate · Δt`` from the last accepted one, with ``Δt`` the time since
+    then, capped at ``horizon`` (so a wild outlier is rejected however long tracking was
+    lost). Rejected observations are answered like missing ones: the camera holds. After
+    ``reacquire`` seconds without an accepted observation, two consecutive observations (at
+    most ``horizon`` apart) that agree with each other are accepted if the ring centre lies in
+    the workspace (the cone, given at :meth:`reset`): the ring may really have moved while it
+    was lost. (A tracker locked onto a wrong pose inside the cone for longer than that is
+    indistinguishable from a moved ring.)
+
+    Parameters
+    ----------
+    max_speed : float
+        Fastest plausible ring centre, m/s.
+    max_rate : float
+        Fastest plausible turn of the ring normal, rad/s.
+    horizon : float
+        Longest time the bounds grow over, s.
+    reacquire : float
+        Time without an accepted observation after which consecutive agreeing ones are, s.
+    """
+
+    def __init__(self, max_speed: float, max_rate: float, horizon: float, reacquire: float) -> None:
+        self.max_speed, self.max_rate = max_speed, max_rate
+        self.horizon, self.reacquire = horizon, reacquire
+        self._ref: tuple[float, list[float]] | None = None  # last accepted (t, [p, n])
+        self._raw: tuple[float, list[float]] | None = None  # last finite observation
+        self._inside: Callable[[Sequence[float]], bool] | None = None
+        self.rejected = 0  # observations rejected this episode
+
+    def reset(self, inside: Callable[[Sequence[float]], bool] | None = None) -> None:
+        """Forget every observation (a new episode).
+
+        ``inside(p_world)``: whether a ring centre (3,), world, m, may be re-acquired (the
+        cone's ``contains``); ``None``: anywhere.
+        """
+        self._ref = None
+        self._raw = None
+        self._inside = inside
+        self.rejected = 0
+
+    def _agrees(self, ref: tuple[float, list[float]], t: float, x: list[float]) -> bool:
+        t0, x0 = ref
+        dt = min(max(t - t0, 0.0), self.horizon)
+        dp = math.dist(x[:3], x0[:3])
+        cos = x[3] * x0[3] + x[4] * x0[4] + x[5] * x0[5]
+        turn = math.acos(max(-1.0, min(1.0, cos)))
+        return dp <= self.max_speed * dt and turn <= self.max_rate * dt
+
+    def accept(self, t: float, p_world: Sequence[float], n_world: Sequence[float]) -> bool:
+        """Whether to use the ring centre ``p_world`` (3,), m, and unit normal (3,) seen at t."""
+        x = [*p_world, *n_world]
+        ref, raw = self._ref, self._raw
+        self._raw = (t, x)
+        ok = ref is None or self._agrees(ref, t, x)
+        if not ok and ref is not None and t - ref[0] > self.reacquire and raw is not None:
+            ok = 0.0 < t - raw[0] <= self.horizon and self._agrees(raw, t, x)
+            ok = ok and (self._inside is None or self._inside(x[:3]))
+        if ok:
+            self._ref = (t, x)
+        else:
+            self.rejected += 1
+        return ok
 
 
 class WindowStatus(enum.Enum):

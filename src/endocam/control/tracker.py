@@ -47,7 +47,7 @@ import numpy as np
 from endocam.control.config import ControllerConfig, SideRule, Transfer
 from endocam.control.goal import goal_pose_unchecked
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
-from endocam.control.policies import _UP, FREEZE_RELEASE_MARGIN, _MovingPolicy
+from endocam.control.policies import _UP, FREEZE_RELEASE_MARGIN, GATE_REASON, _MovingPolicy
 from endocam.control.safety import WindowStatus, adjust_working_distance, window_status_rows
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
 from endocam.geometry import UP, FloatArray
@@ -317,6 +317,8 @@ class EndocamPolicy(_MovingPolicy):
         if n_obs is None:
             return self._lose("ring pose degenerate (zero normal)")
         p_obs = (R[0][3], R[1][3], R[2][3])
+        if not self._gate.accept(obs.t, p_obs, n_obs):
+            return self._lose(GATE_REASON)
         p_cam = (cam_rows[0][3], cam_rows[1][3], cam_rows[2][3])
 
         geometry = self._window_geometry

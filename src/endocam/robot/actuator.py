@@ -12,6 +12,7 @@ registry take the carrier choices from :class:`ArmKind` without importing any ca
 from __future__ import annotations
 
 import enum
+from collections.abc import Sequence
 from typing import NamedTuple, Protocol
 
 from endocam.geometry import FloatArray
@@ -73,6 +74,14 @@ class ActuatorStep(NamedTuple):
     reachable: bool
 
 
+class WorkspaceBound(Protocol):
+    """Where a carrier may put the camera (``control.safety.Workspace``: cone and floor)."""
+
+    def margin(self, p_world: Sequence[float]) -> float:
+        """Signed clearance of a camera position (3,), world, m: ≥ 0 inside."""
+        ...
+
+
 class Actuator(Protocol):
     """The interface of every camera carrier (free camera, PSM, ECM)."""
 
@@ -103,6 +112,13 @@ class Actuator(Protocol):
 
         ``look_distance`` (m) is the distance to the point the view looks at, the pivot of a
         conceded view.
+        """
+        ...
+
+    def stall(self, joint: int | None) -> None:
+        """Fault injection: joint ``joint`` (index) stops following its target; ``None``: none.
+
+        A carrier without joints accepts only ``None``.
         """
         ...
 

@@ -33,11 +33,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import ruckig
 
 from endocam.geometry import FloatArray, as_pose, invert_pose
 from endocam.kernels import cross, rotation_angle, so3_exp
-from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
-from endocam.robot.arm import SimulatedArm
+from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
+from endocam.robot.arm import (
+    ECM_MAX_ACCELERATION,
+    ECM_MAX_VELOCITY,
+    PSM_MAX_ACCELERATION,
+    PSM_MAX_VELOCITY,
+    SimulatedArm,
+)
 from endocam.robot.dh import compose_links, pose12_from_matrix, pose12_times, pose12_to_matrix
 from endocam.robot.ecm import ECM
 from endocam.robot.kinematics import RcmArm
@@ -190,6 +197,13 @@ class CameraArm:
         Camera optical frame in the tool-tip frame, m (identity for the ECM's 0° scope).
     dt : float
         Control period, s.
+    workspace : WorkspaceBound, optional
+        Where the camera may be (cone and floor). Once the camera can stop inside it, each
+        step's joint motion is accepted only if the camera stays inside and the joints'
+        stopping point (each joint braked at its acceleration limit) still puts the camera
+        inside; otherwise the arm brakes to the stopping point of the step before, which was
+        checked the same way. A joint-space path between two goals inside the cone therefore
+        no longer swings the camera out of it.
     """
 
     camera_path: bool = True
@@ -198,12 +212,20 @@ class CameraArm:
     via_port: bool = True
     """After a jump of the wrist's target, pass through the port view (needs ``camera_path``)."""
 
-    def __init__(self, kind: ArmKind, T_world_rcm: object, T_tip_cam: object, dt: float) -> None:
+    def __init__(
+        self,
+        kind: ArmKind,
+        T_world_rcm: object,
+        T_tip_cam: object,
+        dt: float,
+        workspace: WorkspaceBound | None = None,
+    ) -> None:
         self.kind = kind
         self.model = arm_model(kind)
         self._T_world_rcm = as_pose(np.asarray(T_world_rcm, dtype=float), "T_world_rcm")
         self._T_rcm_world = invert_pose(self._T_world_rcm)
         self._p_world_rcm = self._T_world_rcm[:3, 3].copy()
+        self._p_rcm_list = self._p_world_rcm.tolist()
         self._T_tip_cam = as_pose(np.asarray(T_tip_cam, dtype=float), "T_tip_cam")
         self._T_cam_tip = invert_pose(self._T_tip_cam)
         # float forms for the control loop: FK starts at the RCM in world and ends at the camera
@@ -220,6 +242,25 @@ class CameraArm:
         self._last_look = math.nan
         self._last_target: tuple[list[float], FloatArray, ActuatorStatus] | None = None
         self._via_port = False  # on the path through the port view after a target jump
+        self._stalled: int | None = None  # a stalled joint (fault injection)
+        self.workspace = workspace
+        amax = PSM_MAX_ACCELERATION if kind is ArmKind.PSM else ECM_MAX_ACCELERATION
+        vmax = PSM_MAX_VELOCITY if kind is ArmKind.PSM else ECM_MAX_VELOCITY
+        # braking distance v²/2a, planned at BRAKE_ACC_SHARE of the limit: ruckig can then
+        # always reach the stopping point (at the full limit round-off can make it infeasible)
+        self._half_inv_acc = [0.5 / (BRAKE_ACC_SHARE * a) for a in amax]  # s²/rad or s²/m
+        self._dt = dt
+        n = len(amax)
+        # the braking path as the arm's own ruckig (same limits, synchronised) will drive it
+        self._brake_otg = ruckig.Ruckig(n)
+        self._brake_inp = ruckig.InputParameter(n)
+        self._brake_inp.max_velocity = list(vmax)
+        self._brake_inp.max_acceleration = list(amax)
+        self._brake_inp.max_jerk = [math.inf] * n
+        self._brake_traj = ruckig.Trajectory(n)
+        self._safe = False  # the camera can stop inside the workspace
+        self._stop: list[float] = self._q.tolist()  # where the joints stop if braked now
+        self.braked = 0  # steps on which the workspace made the arm brake
 
     # ------------------------------------------------------------------ frames
     @property
@@ -487,7 +528,20 @@ class CameraArm:
         self._arm.reset(q0)
         self._q = self._arm.measured_js()[0]
         self._T_cam = self.camera_pose(self._q)
+        if self.workspace is not None:
+            self._stop, self._safe, _ = self._stop_point()
         return self._T_cam.copy()
+
+    def stall(self, joint: int | None) -> None:
+        """Fault injection: joint ``joint`` (index) stalls where it is; ``None``: none stalls.
+
+        A stalled joint's setpoint is frozen at its measured position each step, so its drive
+        brakes it within its acceleration limit and holds it; the other joints keep following
+        their targets, and the camera goes wherever that takes it (FK of the joints).
+        """
+        if joint is not None and not 0 <= joint < len(self.joint_names):
+            raise ValueError(f"joint: index {joint} outside 0..{len(self.joint_names) - 1}")
+        self._stalled = joint
 
     def step(
         self, T_world_cmd: FloatArray, look_distance: float, twist: FloatArray | None = None
@@ -553,10 +607,16 @@ class CameraArm:
         )
         if self.camera_path and approach is not ActuatorStatus.NEAREST:
             q_cmd = self._on_path(q_cmd, T_target, look_distance)
+        if self.workspace is not None:
+            q_before, qd_before = self._arm.measured_js()
+        if self._stalled is not None:
+            q_cmd = list(q_cmd)
+            q_cmd[self._stalled] = float(self._q[self._stalled])
         self._arm.servo_jp(q_cmd)
         self._arm.step()
+        T_checked = self._keep_inside(q_before, qd_before) if self.workspace is not None else None
         self._q = self._arm.measured_jp()
-        self._T_cam = self._camera_pose(self._q.tolist())
+        self._T_cam = T_checked if T_checked is not None else self._camera_pose(self._q.tolist())
         self._q.setflags(write=False)  # handed out below without a copy
         self._T_cam.setflags(write=False)
         return ActuatorStep(
@@ -568,6 +628,89 @@ class CameraArm:
             ang_err,
             reachable,
         )
+
+    def _stop_point(self) -> tuple[list[float], bool, FloatArray]:
+        """Where the joints come to rest braked at their limits, whether that is safe, and FK.
+
+        Safe: the camera now, and at every step of braking to that point, is inside the
+        workspace (:meth:`_brakes_inside`). The braking path is not checked while the camera is
+        farther inside than the braking can carry it (:data:`ARM_LEVER_SLACK_M`).
+
+        Returns
+        -------
+        stop : list of float
+            Joint positions, rad / m.
+        safe : bool
+        T_world_cam : (4, 4) ndarray
+            The camera now, m.
+        """
+        ws = self.workspace
+        assert ws is not None
+        q, qd = self._arm.measured_js()
+        q_l, qd_l = q.tolist(), qd.tolist()
+        delta = [v * abs(v) * h for v, h in zip(qd_l, self._half_inv_acc, strict=True)]
+        stop = self.model.clamp_floats([x + d for x, d in zip(q_l, delta, strict=True)])[0]
+        T_now = self._camera_pose(q_l)
+        p = T_now[:3, 3].tolist()
+        margin = ws.margin(p)
+        safe = margin >= 0.0
+        if safe and any(qd_l):
+            slide = sum(abs(d) for d, pri in zip(delta, self.model.prismatic, strict=True) if pri)
+            turn = sum(
+                abs(d) for d, pri in zip(delta, self.model.prismatic, strict=True) if not pri
+            )
+            lever = math.dist(p, self._p_rcm_list) + slide + ARM_LEVER_SLACK_M
+            if not margin > slide + lever * turn:  # the braking could reach the boundary
+                safe = self._brakes_inside(q_l, qd_l, stop)
+        return stop, safe, T_now
+
+    def _brakes_inside(self, q: list[float], qd: list[float], stop: list[float]) -> bool:
+        """Whether the camera stays inside at every control step of the braking path.
+
+        The path is the arm's joint motion from ``q`` (rad / m) moving at ``qd`` to rest at
+        ``stop``, as its ruckig (synchronised joints) drives it: it can leave the straight line
+        between the two, so each step's FK is checked, not only the stopping point's.
+        """
+        ws = self.workspace
+        assert ws is not None
+        inp = self._brake_inp
+        inp.current_position = q
+        inp.current_velocity = qd
+        inp.current_acceleration = [0.0] * len(q)
+        inp.target_position = stop
+        if self._brake_otg.calculate(inp, self._brake_traj) not in (
+            ruckig.Result.Working,
+            ruckig.Result.Finished,
+        ):
+            return False
+        steps = math.ceil(self._brake_traj.duration / self._dt - 1e-9)
+        for i in range(1, steps + 1):
+            q_i = self._brake_traj.at_time(min(i * self._dt, self._brake_traj.duration))[0]
+            if not ws.margin(self._camera_pose(q_i)[:3, 3].tolist()) >= 0.0:
+                return False
+        return ws.margin(self._camera_pose(stop)[:3, 3].tolist()) >= 0.0
+
+    def _keep_inside(self, q_before: FloatArray, qd_before: FloatArray) -> FloatArray | None:
+        """Undo a joint step that could take the camera out; brake along a checked one.
+
+        Returns the camera pose after the step (4, 4), m, or ``None`` when it braked.
+        """
+        stop, safe, T_now = self._stop_point()
+        if self._safe and not safe:
+            self._arm.reset(q_before, qd_before)
+            self._arm.servo_jp(self._stop)  # the stopping point checked the step before
+            self._arm.step()
+            self.braked += 1
+            return None  # on the braking path of a safe state, towards the same stopping point
+        self._safe, self._stop = safe, stop
+        return T_now
+
+
+BRAKE_ACC_SHARE = 0.99  # unitless: share of a joint's acceleration limit its braking plans for
+
+# m: added to the camera's distance from the RCM to bound every revolute joint's lever arm on
+# the camera (the wrist, the jaw and the camera mount beyond the shaft are shorter than this)
+ARM_LEVER_SLACK_M = 0.05
 
 
 WRIST_JUMP_RAD = 1.0  # rad: a wrist joint target moving this far in one step has jumped

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from endocam.robot.actuator import Actuator, ArmKind
+from endocam.robot.actuator import Actuator, ArmKind, WorkspaceBound
 from endocam.robot.camera_arm import CameraArm
 from endocam.robot.cartesian import FreeCamera, MotionLimits
 
@@ -12,7 +12,12 @@ __all__ = ["make_actuator"]
 
 
 def make_actuator(
-    kind: ArmKind, limits: MotionLimits, T_tip_cam: object, T_world_rcm: object, dt: float
+    kind: ArmKind,
+    limits: MotionLimits,
+    T_tip_cam: object,
+    T_world_rcm: object,
+    dt: float,
+    workspace: WorkspaceBound | None = None,
 ) -> Actuator:
     """The carrier of ``kind``: a free camera, or the camera on a PSM or an ECM.
 
@@ -28,7 +33,10 @@ def make_actuator(
         The camera arm's RCM frame in world, m.
     dt : float
         Control period, s.
+    workspace : WorkspaceBound, optional
+        Where the camera may be (cone and floor): once inside, the carrier keeps it there.
     """
     if kind is ArmKind.FREE:
-        return FreeCamera(limits, dt)
-    return CameraArm(kind, T_world_rcm, T_tip_cam if kind is ArmKind.PSM else np.eye(4), dt)
+        return FreeCamera(limits, dt, workspace)
+    T_cam = T_tip_cam if kind is ArmKind.PSM else np.eye(4)
+    return CameraArm(kind, T_world_rcm, T_cam, dt, workspace)

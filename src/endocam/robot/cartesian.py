@@ -12,14 +12,24 @@ the limiter steps once per control period (100 Hz by default, ``EpisodeConfig.co
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
-from ruckig import InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
+from ruckig import (
+    ControlInterface,
+    InputParameter,
+    OutputParameter,
+    Result,
+    Ruckig,
+    RuckigError,
+    Synchronization,
+    Trajectory,
+)
 
 from endocam.geometry import FloatArray, as_pose
 from endocam.kernels import Rows, matmul, so3_exp, so3_log, tmatmul
-from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
+from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import MotionStatus
 
 
@@ -77,8 +87,46 @@ def _snap(values: list[float], tol: float) -> list[float]:
     return [0.0 if abs(v) < tol else v for v in values]
 
 
+def _extrema(profile: object) -> tuple[float, float]:
+    """Lowest and highest position of a ruckig jerk-limited profile (its brake part is empty).
+
+    Each section is a cubic in time; its extremes lie at its ends or where its velocity, a
+    quadratic, crosses zero inside it.
+    """
+    pr: Any = profile
+    p, v, a, j, t = pr.p, pr.v, pr.a, pr.j, pr.t
+    lo = hi = p[0]
+    for i, T in enumerate(t):
+        lo, hi = min(lo, p[i + 1]), max(hi, p[i + 1])
+        if not T > 0.0:
+            continue
+        for s in _roots(0.5 * j[i], a[i], v[i]):
+            if 0.0 < s < T:
+                x = p[i] + s * (v[i] + s * (0.5 * a[i] + s * j[i] / 6.0))
+                lo, hi = min(lo, x), max(hi, x)
+    return lo, hi
+
+
+def _roots(c2: float, c1: float, c0: float) -> list[float]:
+    """Real roots of ``c2 s² + c1 s + c0`` (a line when ``c2`` is 0)."""
+    if c2 == 0.0:
+        return [-c0 / c1] if c1 != 0.0 else []
+    disc = c1 * c1 - 4.0 * c2 * c0
+    if disc < 0.0:
+        return []
+    r = math.sqrt(disc)
+    return [(-c1 - r) / (2.0 * c2), (-c1 + r) / (2.0 * c2)]
+
+
 class CartesianLimiter:
     """Moves a pose towards a (moving) target under speed, acceleration and jerk limits.
+
+    With a ``workspace`` (cone and floor), a camera that can stop inside it never leaves it:
+    each step's next state is accepted only if the camera could still brake to rest inside
+    (the box spanned by its braking path, per axis, with its eight corners inside the convex
+    cone and above the floor); otherwise the camera brakes along the braking path of the
+    state before, which was checked the same way. A jerk-limited camera arriving at a goal on
+    the floor therefore no longer overshoots below it.
 
     Parameters
     ----------
@@ -86,9 +134,13 @@ class CartesianLimiter:
         Speed and acceleration norms (m/s, m/s², rad/s, rad/s²).
     dt : float
         Control period, s.
+    workspace : WorkspaceBound, optional
+        Where the camera may be (``control.safety.Workspace``).
     """
 
-    def __init__(self, limits: MotionLimits, dt: float) -> None:
+    def __init__(
+        self, limits: MotionLimits, dt: float, workspace: WorkspaceBound | None = None
+    ) -> None:
         if not (math.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be > 0 s, got {dt}")
         self.limits = limits
@@ -114,6 +166,77 @@ class CartesianLimiter:
         self._moving_target = False  # the last step had a target velocity
         self._pose_array = np.eye(4)
         self.status = MotionStatus.FINISHED
+        self.workspace = workspace
+        self._safe = False  # the camera can brake to rest inside the workspace
+        self.braked = 0  # steps on which the workspace made the camera brake
+        if workspace is not None:
+            self._stop_otg = Ruckig(3)  # the braking path of the position DoFs (extrema)
+            self._stop_inp = InputParameter(3)
+            self._stop_inp.control_interface = ControlInterface.Velocity
+            self._stop_inp.synchronization = Synchronization.No
+            self._stop_inp.max_velocity = self._inp.max_velocity[:3]
+            self._stop_inp.max_acceleration = self._inp.max_acceleration[:3]
+            self._stop_inp.max_jerk = self._inp.max_jerk[:3]
+            self._stop_traj = Trajectory(3)
+            self._brake_otg = Ruckig(6, dt)  # one braking step of all six DoFs
+            self._brake_inp = InputParameter(6)
+            self._brake_inp.control_interface = ControlInterface.Velocity
+            self._brake_inp.synchronization = Synchronization.No
+            self._brake_inp.max_velocity = self._inp.max_velocity
+            self._brake_inp.max_acceleration = self._inp.max_acceleration
+            self._brake_inp.max_jerk = self._inp.max_jerk
+            self._brake_out = OutputParameter(6)
+
+    def _can_stop_inside(self, p: list[float], v: list[float], a: list[float]) -> bool:
+        """Whether a camera at ``p`` (m) moving with ``v``, ``a`` (world) can brake inside."""
+        ws = self.workspace
+        assert ws is not None
+        margin = ws.margin(p)
+        if not any(v) and not any(a):
+            return margin >= 0.0
+        if margin > self._stop_bound(v, a):
+            return True  # farther inside than any braking from this state can carry it
+        inp = self._stop_inp
+        inp.current_position = p
+        inp.current_velocity = v
+        inp.current_acceleration = a
+        if self._stop_otg.calculate(inp, self._stop_traj) not in (Result.Working, Result.Finished):
+            return False
+        # (ruckig's position_extrema counts the target position 0 under velocity control)
+        xs, ys, zs = (_extrema(pr) for pr in self._stop_traj.profiles[0])
+        return all(ws.margin([x, y, z]) >= 0.0 for x in xs for y in ys for z in zs)
+
+    def _stop_bound(self, v: list[float], a: list[float]) -> float:
+        """An upper bound of the braking distance from velocity ``v`` and acceleration ``a``, m.
+
+        Per axis (limits ``V``, ``A``, ``J``): the speed peaks below ``s = |v| + a²/2J`` (≤ V)
+        and braking lasts under ``|a|/J + s/A + A/J``, so the axis travels less than their
+        product.
+        """
+        V, A, J = self._inp.max_velocity[0], self._inp.max_acceleration[0], self._inp.max_jerk[0]
+        total = 0.0
+        for vi, ai in zip(v, a, strict=True):
+            s = min(V, abs(vi) + ai * ai / (2.0 * J))
+            d = s * (abs(ai) / J + s / A + A / J)
+            total += d * d
+        return math.sqrt(total)
+
+    def _brake(self) -> FloatArray:
+        """One step along the braking path of the current state (checked the step before)."""
+        inp = self._brake_inp
+        inp.current_position = [*self._p, 0.0, 0.0, 0.0]
+        inp.current_velocity = self._v
+        inp.current_acceleration = self._acc
+        if self._brake_otg.update(inp, self._brake_out) not in (Result.Working, Result.Finished):
+            raise RuntimeError("ruckig failed to brake")
+        new = self._brake_out.new_position
+        self._p = new[:3]
+        self._R = matmul(self._R, so3_exp(new[3:]))
+        self._v = self._brake_out.new_velocity
+        self._acc = self._brake_out.new_acceleration
+        self.braked += 1
+        self.status = MotionStatus.MOVING
+        return self.pose
 
     def reset(self, T_world_cam: FloatArray) -> None:
         """Start at rest at ``T_world_cam`` (4, 4)."""
@@ -126,6 +249,7 @@ class CartesianLimiter:
         self._arrived_at = self._target.ravel().tolist()
         self._pose_array = self.pose
         self.status = MotionStatus.FINISHED
+        self._safe = self.workspace is not None and self.workspace.margin(self._p) >= 0.0
         if self._moving_target:
             self._inp.target_velocity = [0.0] * 6
             self._moving_target = False
@@ -222,7 +346,19 @@ class CartesianLimiter:
             result = self._retry(inp)
         if result not in (Result.Working, Result.Finished):
             raise RuntimeError(f"ruckig failed with {result} for a finite target")
-        if result == Result.Finished and v_target is None:
+        arriving = result == Result.Finished and v_target is None
+        if self.workspace is not None:
+            if arriving:
+                p_next, v_next, a_next = [flat[3], flat[7], flat[11]], [0.0] * 3, [0.0] * 3
+            else:
+                out = self._out
+                p_next = out.new_position[:3]
+                v_next, a_next = out.new_velocity[:3], out.new_acceleration[:3]
+            stoppable = self._can_stop_inside(p_next, v_next, a_next)
+            if self._safe and not stoppable:
+                return self._brake()  # the braking path of a safe state stays safe
+            self._safe = stoppable
+        if arriving:
             # at rest on the target: take it exactly (no round-off)
             self._p = [flat[3], flat[7], flat[11]]
             self._R = R_tgt
@@ -257,12 +393,17 @@ class FreeCamera:
         Speed, acceleration and jerk norms.
     dt : float
         Control period, s.
+    workspace : WorkspaceBound, optional
+        Where the camera may be: once it can stop inside, it never leaves
+        (:class:`CartesianLimiter`).
     """
 
     kind = ArmKind.FREE
 
-    def __init__(self, limits: MotionLimits, dt: float) -> None:
-        self.limiter = CartesianLimiter(limits, dt)
+    def __init__(
+        self, limits: MotionLimits, dt: float, workspace: WorkspaceBound | None = None
+    ) -> None:
+        self.limiter = CartesianLimiter(limits, dt, workspace)
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -286,6 +427,11 @@ class FreeCamera:
         T = as_pose(T_world_cam, "T_world_cam")
         self.limiter.reset(T)
         return T
+
+    def stall(self, joint: int | None) -> None:
+        """No joint to stall: only ``None`` is accepted."""
+        if joint is not None:
+            raise ValueError(f"joint: the free camera has no joint {joint}")
 
     def step(
         self, T_world_cmd: FloatArray, look_distance: float, twist: FloatArray | None = None

@@ -21,6 +21,7 @@ from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
 from endocam.control.registry import POLICIES, make_policy
 from endocam.control.types import Observation, PolicyContext, TrackingState
+from endocam.faults import StepFaults, apply_observation_faults, fault_schedule
 from endocam.geometry import FloatArray
 from endocam.metrics import (
     center_error_3d,
@@ -31,6 +32,7 @@ from endocam.metrics import (
 )
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
 from endocam.robot.carriers import make_actuator
+from endocam.task.config import MAX_CONTROL_POINTS
 from endocam.task.instruments import instrument_tips
 from endocam.task.layout import overview_camera_pose, task_centre
 from endocam.task.touches import TouchReport, touch_events
@@ -65,8 +67,10 @@ class EpisodeSpec:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.control_points < 2:
-            raise ValueError(f"control_points must be ≥ 2, got {self.control_points}")
+        if not 2 <= self.control_points <= MAX_CONTROL_POINTS:
+            raise ValueError(
+                f"control_points must be in 2..{MAX_CONTROL_POINTS}, got {self.control_points}"
+            )
         if self.seed < 0:
             raise ValueError(f"seed must be ≥ 0, got {self.seed}")
 
@@ -112,6 +116,9 @@ class EpisodeLog:
     goal_orientation_error : (N,) or None
         With an arm: angle between the commanded orientation and that target's, rad: the
         view the arm concedes (for the ECM, what its missing DoF cannot deliver).
+    fault : (N,) or None
+        Injected faults active at each step (:mod:`endocam.faults`), ``+``-joined; ``None``
+        (logged as empty) without faults.
     """
 
     t: FloatArray
@@ -130,6 +137,7 @@ class EpisodeLog:
     arm: str = ArmKind.FREE.value
     goal_position_error: FloatArray | None = None
     goal_orientation_error: FloatArray | None = None
+    fault: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -230,8 +238,21 @@ def run_episode(
     T_overview = overview_camera_pose(config.task, camera)
     p_rcm = np.array(config.task.scene.rcm_position)
     kind = episode_arm(config, spec.policy)
-    actuator = make_actuator(kind, ep.limits, ep.T_tip_cam, config.task.scene.T_world_rcm, dt)
+    workspace = config.controller.workspace(p_rcm, T_sensed[0][:3, 3])  # the policy's cone
+    actuator = make_actuator(
+        kind, ep.limits, ep.T_tip_cam, config.task.scene.T_world_rcm, dt, workspace
+    )
     T_now = actuator.reset(*actuator.start_view(T_overview, task_centre(config.task)))
+    schedule = None
+    step_faults: StepFaults | None = None
+    if config.faults.any:  # faults: the observations rewritten here, a hook in the loop
+        schedule = fault_schedule(
+            config.faults, n, dt, arm=kind is not ArmKind.FREE, joints=len(actuator.joint_names)
+        )
+        T_sensed, tips = apply_observation_faults(
+            schedule, t, T_sensed, tips, trajectory.poses, ep.sensing_latency
+        )
+        step_faults = StepFaults(schedule, actuator.stall) if schedule.steps_faulty else None
     policy.reset(
         PolicyContext(
             camera,
@@ -269,7 +290,10 @@ def run_episode(
             look = _look_distance(cmd.T_world_cam, T_sensed[k], cmd.d_f)
         else:
             look = cmd.d_f
-        out = actuator_step(cmd.T_world_cam, look, cmd.twist)
+        if step_faults is None:
+            out = actuator_step(cmd.T_world_cam, look, cmd.twist)
+        else:
+            out = actuator_step(*step_faults.command(k, cmd.T_world_cam, cmd.twist, look))
         if jointed:
             reach_offset = out.T_world_target[:3, 3] - cmd.T_world_cam[:3, 3]
             goal_err[k] = (out.position_error, out.orientation_error)
@@ -303,6 +327,7 @@ def run_episode(
         arm=kind.value,
         goal_position_error=goal_err[:, 0] if jointed else None,
         goal_orientation_error=goal_err[:, 1] if jointed else None,
+        fault=schedule.labels() if schedule is not None else None,
     )
     return EpisodeResult(
         config=config,

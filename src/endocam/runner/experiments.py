@@ -30,6 +30,7 @@ from endocam.runner.outputs import (
     render_template,
     video_writer,
     write_run,
+    written_check,
 )
 from endocam.task.study_paths import (
     DEFAULT_STUDY_SEED,
@@ -89,7 +90,9 @@ def run_and_write(
             write_run(result, out_dir, video=True, progress=bar.update)
     else:
         write_run(result, out_dir, video=False)
-    return dict(_finite(metrics_dict(result)))
+    metrics = dict(_finite(metrics_dict(result)))
+    metrics["check"] = written_check(out_dir)
+    return metrics
 
 
 LABEL_HEIGHT_PX = 32  # px, height of the caption strip above the side-by-side video (even)
@@ -214,7 +217,9 @@ def run_demo(
         rows = []
         for name, result, mp4 in zip(CONDITIONS, results, rendered, strict=True):
             write_run(result, tmp / name, video=video, prerendered=mp4 if video else None)
-            rows.append((name, _finite(metrics_dict(result))))
+            metrics = _finite(metrics_dict(result))
+            metrics["check"] = written_check(tmp / name)
+            rows.append((name, metrics))
         plot_tracking(results, list(CONDITIONS), tmp / COMPARISON_PNG)
         summary = {name: _summary(m) for name, m in rows}
         _json(
@@ -249,6 +254,7 @@ def _summary(metrics: dict[str, Any]) -> dict[str, Any]:
             "ring_out_of_view_fraction",
             "state_fractions",
             "arm",
+            "check",
         )
     }
 
@@ -393,6 +399,10 @@ def run_paper_experiment(
     with atomic_dir(Path(out_dir)) as tmp:
         for r in results:
             write_run(r, tmp / names[id(r)], video=False)
+        for row in table_rows:
+            row["violations"] = sum(written_check(tmp / n)["violations"] for n in row["runs"])
+        violations = sum(row["violations"] for row in table_rows)
+        table += f"\n\nSafety check (`endocam check`, every run): {violations} violations."
         _json(tmp / "paper.json", _finite({"policy": policy, "rows": table_rows}))
         (tmp / "paper.md").write_text(table + "\n", encoding="utf-8")
         plot_tracking(

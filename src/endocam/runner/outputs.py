@@ -1,7 +1,8 @@
 """What an episode leaves behind: scene, log, metrics, video, plot and report files.
 
-The files are ``scene.json``, ``episode.csv``, ``metrics.json``, ``video.mp4``, ``tracking.png``
-and ``report.html``.
+The files are ``scene.json``, ``episode.csv``, ``check.json`` (the safety check of the two
+before, :mod:`endocam.runner.check`), ``metrics.json`` (with the check's summary),
+``video.mp4``, ``tracking.png`` and ``report.html``.
 Raw files are SI unless a column or key says its unit (``image_error_px``, ``center_error_mm``).
 Everything is written into a temporary folder next to the destination and moved into place when
 complete, so an interrupted run never leaves output that looks finished.
@@ -28,12 +29,18 @@ from matplotlib.figure import Figure
 
 from endocam import __version__
 from endocam.control.types import TrackingState
-from endocam.geometry import quat_wxyz_from_R
+from endocam.geometry import FloatArray, quat_wxyz_from_R
 from endocam.metrics import summarize
+from endocam.runner.check import (
+    CHECK_JSON,
+    EPISODE_CSV,
+    SCENE_JSON,
+    CheckResult,
+    check_run,
+    write_check,
+)
 from endocam.runner.episode import UNREACHABLE, EpisodeResult, state_fractions
 
-SCENE_JSON = "scene.json"
-EPISODE_CSV = "episode.csv"
 METRICS_JSON = "metrics.json"
 VIDEO_MP4 = "video.mp4"
 TRACKING_PNG = "tracking.png"
@@ -85,6 +92,10 @@ def check_writable(out_dir: Path) -> None:
         raise ValueError(f"cannot create output folder {parent}: {exc.strerror}") from None
     if not os.access(parent, os.W_OK | os.X_OK):
         raise ValueError(f"output folder {parent} is not writable")
+    try:  # os.access says yes to root everywhere (even /proc): create a folder there to know
+        tempfile.TemporaryDirectory(prefix=f".{out_dir.name}.probe-", dir=parent).cleanup()
+    except OSError as exc:
+        raise ValueError(f"cannot create output folder {out_dir}: {exc.strerror}") from None
 
 
 # ------------------------------------------------------------------------------- raw files
@@ -136,7 +147,7 @@ def episode_columns(result: EpisodeResult) -> dict[str, np.ndarray]:
     """Per-step columns of ``episode.csv`` (ordered), SI unless the name gives a unit."""
     log = result.log
     q_ring = quat_wxyz_from_R(log.T_world_ring[:, :3, :3])
-    q_cam = quat_wxyz_from_R(log.T_world_cam[:, :3, :3])
+    q_cam = _quaternions(log.T_world_cam)
     cols: dict[str, np.ndarray] = {"t": log.t}
     for i, a in enumerate("xyz"):
         cols[f"ring_{a}"] = log.T_world_ring[:, i, 3]
@@ -149,9 +160,13 @@ def episode_columns(result: EpisodeResult) -> dict[str, np.ndarray]:
     cols["contact"] = log.contact.astype(int)
     cols["clearance"] = log.clearance
     cols["state"] = log.state
+    cols["fault"] = log.fault if log.fault is not None else np.full(len(log.t), "", dtype=object)
     cols["d_f"] = log.d_f
+    q_cmd = _quaternions(log.T_world_cmd)
     for i, a in enumerate("xyz"):
         cols[f"cmd_{a}"] = log.T_world_cmd[:, i, 3]
+    for i, a in enumerate("wxyz"):
+        cols[f"cmd_q{a}"] = q_cmd[:, i]
     for j, name in enumerate(("psm1", "psm2")):
         for i, a in enumerate("xyz"):
             cols[f"{name}_tip_{a}"] = log.p_world_tips[:, j, i]
@@ -167,6 +182,15 @@ def episode_columns(result: EpisodeResult) -> dict[str, np.ndarray]:
     cols["orientation_error_deg"] = np.degrees(result.orientation_error)
     cols["reason"] = np.array(log.reason, dtype=object)
     return cols
+
+
+def _quaternions(T: FloatArray) -> FloatArray:
+    """(N, 4) quaternions (w, x, y, z) of poses (N, 4, 4); NaN rows where a pose is not finite."""
+    q = np.full((len(T), 4), np.nan)
+    ok = np.isfinite(T[:, :3, :3]).all(axis=(1, 2))
+    if ok.any():
+        q[ok] = quat_wxyz_from_R(T[ok, :3, :3])
+    return q
 
 
 def write_episode_csv(result: EpisodeResult, path: Path) -> None:
@@ -412,6 +436,9 @@ def write_run(
     with atomic_dir(Path(out_dir)) as tmp:
         _json(tmp / SCENE_JSON, _finite(scene_dict(result)))
         write_episode_csv(result, tmp / EPISODE_CSV)
+        check = check_run(tmp)
+        write_check(check, tmp / CHECK_JSON)
+        metrics["check"] = check_summary(check)
         _json(tmp / METRICS_JSON, metrics)
         plot_tracking([result], [result.spec.policy], tmp / TRACKING_PNG)
         if video and prerendered is not None:
@@ -425,7 +452,23 @@ def write_run(
             carrier=CARRIERS[result.log.arm],
             video=VIDEO_MP4 if video else None,
             plot=TRACKING_PNG,
-            files=[SCENE_JSON, EPISODE_CSV, METRICS_JSON],
+            files=[SCENE_JSON, EPISODE_CSV, CHECK_JSON, METRICS_JSON],
+            check=check,
         )
         (tmp / REPORT_HTML).write_text(html, encoding="utf-8")
     return Path(out_dir)
+
+
+def written_check(out_dir: Path) -> dict[str, Any]:
+    """The safety check's summary of a run :func:`write_run` wrote (from its ``metrics.json``)."""
+    metrics = json.loads((Path(out_dir) / METRICS_JSON).read_text(encoding="utf-8"))
+    return dict(metrics["check"])
+
+
+def check_summary(check: CheckResult) -> dict[str, Any]:
+    """The safety check's summary as ``metrics.json`` holds it (``check.json`` has the steps)."""
+    return {
+        "ok": check.ok,
+        "violations": check.total,
+        "counts": {k: v for k, v in check.counts.items() if v},
+    }

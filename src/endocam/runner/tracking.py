@@ -55,6 +55,7 @@ from endocam.runner.outputs import (
     metrics_dict,
     render_template,
     write_run,
+    written_check,
 )
 from endocam.runner.pool import DEFAULT_WORKERS, executor
 from endocam.task.touches import TouchReport, touch_events
@@ -198,7 +199,9 @@ def _episode(
     spec = EpisodeSpec(CONTROLLERS[controller], path.kind, path.control_points, path.seed)
     result = run_episode(cfg, spec, touches=touches)
     write_run(result, out_dir, video=False)
-    return episode_summary(result)
+    summary = episode_summary(result)
+    summary["violations"] = written_check(out_dir)["violations"]
+    return summary
 
 
 def folder_name(controller: str, carrier: str, path: PathSpec) -> str:
@@ -284,6 +287,7 @@ def run_tracking_experiment(
             plots=[(label, png) for _, label, png in ERRORS],
             n_paths={s: sum(p.set == s for p in paths) for s in SETS},
             duration=config.task.trajectory.duration,
+            violations=sum(r["violations"] for r in rows),
             speed_ratios=[
                 (c, max(r["speed_ratio"] for r in rows if r["carrier"] == c))
                 for c in dict.fromkeys(r["carrier"] for r in rows)
@@ -323,6 +327,7 @@ def tracking_rows(
                     row[key] = _mean(np.array([e[key] for e in eps], dtype=float))
                 row["episodes"] = names
                 row["speed_ratio"] = float(max(e["speed_ratio"] for e in eps))
+                row["violations"] = int(sum(e.get("violations", 0) for e in eps))
                 by_phase = {}
                 for phase in PHASES:
                     have = [e["by_phase"][phase] for e in eps if phase in e["by_phase"]]

@@ -33,6 +33,12 @@ DEFAULT_KNOTS: tuple[Vec3, ...] = (
     (0.100, 0.022, 0.040),
 )
 _FROZEN = ConfigDict(frozen=True, extra="forbid")
+# Size bounds: every size a config or the command line can set is bounded, so a typo fails with
+# a message instead of an allocation of gigabytes.
+MAX_CONTROL_POINTS = 10_000  # count: control points of a trajectory (the paper uses 36 and 71)
+MAX_DURATION_S = 3600.0  # s: one episode
+MAX_TOUCH_SAMPLES = 5_000_000  # count: duration / touch_sample_dt, the clearance's base samples
+MAX_MESH_SEGMENTS = 10_000  # count: segments of a rendered mesh
 
 
 def _check_finite(values: tuple[float, ...], name: str) -> None:
@@ -71,6 +77,7 @@ class WireConfig(BaseModel):
     samples: int = Field(
         2001,
         ge=100,
+        le=1_000_000,
         description="Points of the dense centre-line polyline (scene.json, plots, nearest-point "
         "search), count.",
     )
@@ -133,7 +140,10 @@ class TrajectoryConfig(BaseModel):
     model_config = _FROZEN
 
     control_points: int = Field(
-        36, ge=2, description="Control points spaced evenly by arc length (paper: 36 or 71), count."
+        36,
+        ge=2,
+        le=MAX_CONTROL_POINTS,
+        description="Control points spaced evenly by arc length (paper: 36 or 71), count.",
     )
     position_noise: Range = Field(
         (3.0e-3, 3.5e-3),
@@ -150,6 +160,7 @@ class TrajectoryConfig(BaseModel):
     duration: float = Field(
         60.0,
         gt=0.0,
+        le=MAX_DURATION_S,
         description="Time for the ring to travel from the first to the last control point, s "
         "(default: 60 s over ≈ 0.25 m ≈ 4.2 mm/s).",
     )
@@ -177,6 +188,16 @@ class TrajectoryConfig(BaseModel):
     @classmethod
     def _ang_noise(cls, value: Range) -> Range:
         return _check_range(value, "angle_noise", upper=math.pi)
+
+    @model_validator(mode="after")
+    def _bounded(self) -> TrajectoryConfig:
+        samples = self.duration / self.touch_sample_dt
+        if samples > MAX_TOUCH_SAMPLES:
+            raise ValueError(
+                f"duration / touch_sample_dt = {samples:.3g} clearance samples, more than "
+                f"{MAX_TOUCH_SAMPLES}: raise touch_sample_dt or shorten the duration"
+            )
+        return self
 
 
 class Psm2Idle(enum.Enum):
@@ -297,7 +318,10 @@ class SceneConfig(BaseModel):
     )
     ambient: float = Field(0.25, ge=0.0, le=1.0, description="Headlight ambient term, 0-1.")
     wire_segments: int = Field(
-        240, ge=8, description="Segments of the rendered wire tube mesh along its length, count."
+        240,
+        ge=8,
+        le=MAX_MESH_SEGMENTS,
+        description="Segments of the rendered wire tube mesh along its length, count.",
     )
     ring_mesh_segments: tuple[int, int] = Field(
         (64, 16), description="Torus mesh resolution (around the core, around the tube), count."
@@ -341,8 +365,10 @@ class SceneConfig(BaseModel):
     @field_validator("ring_mesh_segments")
     @classmethod
     def _mesh(cls, value: tuple[int, int]) -> tuple[int, int]:
-        if min(value) < 3:
-            raise ValueError(f"ring_mesh_segments must be ≥ 3 each, got {value}")
+        if min(value) < 3 or max(value) > MAX_MESH_SEGMENTS:
+            raise ValueError(
+                f"ring_mesh_segments must be in 3..{MAX_MESH_SEGMENTS} each, got {value}"
+            )
         return value
 
     @field_validator("key_light_direction", "fill_light_direction", "rcm_position", "rcm_euler_xyz")

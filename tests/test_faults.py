@@ -1,0 +1,184 @@
+"""Fault injection: seeded schedules, the observation gate, the carriers' workspace guard, and a
+property test: random fault schedules on every carrier leave ``endocam check`` nothing to report."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from endocam.config import ExperimentConfig
+from endocam.control.config import ControllerConfig
+from endocam.control.safety import ConeWorkspace, Workspace
+from endocam.faults import (
+    FAULT_NAMES,
+    FaultsConfig,
+    apply_observation_faults,
+    fault_names,
+    fault_schedule,
+)
+from endocam.robot.actuator import ArmKind
+from endocam.robot.carriers import make_actuator
+from endocam.runner.check import check_run
+from endocam.runner.episode import EpisodeSpec, run_episode
+from endocam.runner.outputs import write_run
+from endocam.task.trajectory import TrajectoryKind
+
+DT = 0.01  # s: the default control period
+N = 1000  # control steps of a 10 s schedule
+PROPERTY_DURATION_S = 3.0  # s: the property test's short episodes
+MM = 1e-3  # m
+
+
+def _faults(**on: dict[str, float]) -> FaultsConfig:
+    return FaultsConfig.model_validate({"seed": 5, **on})
+
+
+def test_schedule_is_seeded_and_starts_after_start_after() -> None:
+    cfg = _faults(ring_dropout={"rate": 2.0, "burst": 0.1}, tip_dropout={"rate": 1.0})
+    a = fault_schedule(cfg, N, DT, arm=False).labels()
+    b = fault_schedule(cfg, N, DT, arm=False).labels()
+    assert (a == b).all()
+    other = fault_schedule(cfg.model_copy(update={"seed": 6}), N, DT, arm=False).labels()
+    assert (a != other).any()
+    first = min(k for k, label in enumerate(a) if label)
+    assert first * DT >= cfg.start_after
+    assert {name for label in a for name in fault_names(label)} == {"ring_dropout", "tip_dropout"}
+
+
+def test_arm_faults_only_on_an_arm() -> None:
+    cfg = _faults(joint_stall={"rate": 2.0}, goal_beyond_reach={"rate": 2.0})
+    assert fault_schedule(cfg, N, DT, arm=False).empty
+    labels = fault_schedule(cfg, N, DT, arm=True, joints=6).labels()
+    stalled = {label.split("joint_stall:")[1][0] for label in labels if "joint_stall" in label}
+    assert stalled and stalled <= set("012345")
+
+
+def test_observation_faults_rewrite_the_sensed_poses() -> None:
+    t = np.arange(N) * DT
+    T = np.tile(np.eye(4), (N, 1, 1))
+    T[:, 0, 3] = 0.01 * t  # a ring moving 10 mm/s along x
+    tips = np.zeros((N, 2, 3))
+    cfg = _faults(
+        ring_dropout={"rate": 1.0, "burst": 0.1},
+        ring_outlier={"rate": 1.0, "burst": 0.1, "distance": 2.0, "angle": math.pi},
+        tracker_frozen={"rate": 1.0, "burst": 0.3},
+        tip_dropout={"rate": 1.0, "burst": 0.2},
+    )
+    schedule = fault_schedule(cfg, N, DT, arm=False)
+    T_f, tips_f = apply_observation_faults(schedule, t, T, tips, lambda ts: T[:1], 0.05)
+    drop, out = schedule.mask("ring_dropout"), schedule.mask("ring_outlier")
+    frozen = schedule.mask("tracker_frozen") & ~drop & ~out
+    assert np.isnan(T_f[drop]).all() and np.isfinite(T_f[~drop]).all()
+    wild = out & ~drop & ~schedule.mask("tracker_frozen")  # an outlier of the true pose
+    assert wild.any()
+    gap = np.linalg.norm(T_f[wild, :3, 3] - T[wild, :3, 3], axis=1)
+    assert np.allclose(gap, 2.0)
+    trace = np.einsum("nij,nij->n", T_f[wild, :3, :3], T[wild, :3, :3])  # tr(R_f^T R)
+    assert np.allclose(trace, -1.0)  # turned half a turn: 1 + 2 cos π
+    assert frozen.any()
+    for b in schedule.bursts["tracker_frozen"]:  # one pose repeated through each burst
+        x = T_f[b.start : b.stop, 0, 3][frozen[b.start : b.stop]]
+        assert np.all(x == T[b.start, 0, 3])
+    assert np.isnan(tips_f[schedule.mask("tip_dropout")]).all()
+    untouched = ~(drop | out | schedule.mask("tracker_frozen"))
+    assert np.array_equal(T_f[untouched], T[untouched])
+
+
+def test_gate_rejects_a_wild_pose_and_reacquires_a_moved_ring() -> None:
+    cfg = ControllerConfig()
+    gate = cfg.ring_gate()
+    n = (0.0, 0.0, 1.0)
+    assert gate.accept(0.0, (0.0, 0.0, 0.05), n)
+    assert gate.accept(DT, (0.001, 0.0, 0.05), n)  # 0.1 m/s: plausible
+    assert not gate.accept(2 * DT, (1.0, 0.0, 0.05), n)  # a metre away
+    assert not gate.accept(3 * DT, (0.001, 0.0, 0.05), (0.0, 0.0, -1.0))  # turned 180°
+    assert gate.accept(4 * DT, (0.002, 0.0, 0.05), n)
+    # lost for longer than the horizon allows: a ring that moved 0.2 m is only re-acquired
+    # after ring_reacquire, from two observations that agree
+    far = (0.2, 0.0, 0.05)
+    t = 4 * DT + cfg.ring_gate_horizon
+    assert not gate.accept(t, far, n)
+    t_re = 4 * DT + cfg.ring_reacquire + DT
+    assert not gate.accept(t_re, (0.2005, 0.0, 0.05), n)  # the last one (far) is too old
+    assert gate.accept(t_re + DT, (0.201, 0.0, 0.05), n)  # agrees with the one before
+
+
+@pytest.mark.parametrize("kind", [ArmKind.FREE, ArmKind.PSM])
+def test_carrier_never_takes_the_camera_below_the_floor(kind: ArmKind) -> None:
+    cfg = ExperimentConfig()
+    floor = cfg.controller.min_camera_height
+    scene = cfg.task.scene
+    p_rcm = np.array(scene.rcm_position)
+    cone = ConeWorkspace.from_rcm(p_rcm, [0.0, 0.0, 0.04], 0.3, 0.25)
+    actuator = make_actuator(
+        kind,
+        cfg.episode.limits,
+        cfg.episode.T_tip_cam,
+        scene.T_world_rcm,
+        DT,
+        Workspace(cone, floor),
+    )
+    T = actuator.reset(*actuator.start_view(_overview(cfg), np.array([0.0, 0.0, 0.04])))
+    assert T[2, 3] > floor
+    goal = np.array(T)
+    goal[2, 3] = floor - 20 * MM  # commanded 2 cm under the floor, straight down
+    z = [actuator.step(goal, 0.05).T_world_cam[2, 3] for _ in range(300)]
+    assert min(z) >= floor
+    assert min(z) < floor + 20 * MM  # it did go down, as far as the floor allowed
+
+
+def _overview(cfg: ExperimentConfig) -> Any:
+    from endocam.task.layout import overview_camera_pose
+
+    return overview_camera_pose(cfg.task, cfg.camera.stereo())
+
+
+_rates = st.sampled_from([0.0, 0.0, 0.5, 2.0])
+_bursts = st.floats(min_value=0.01, max_value=0.5)
+
+
+@st.composite
+def fault_sections(draw: st.DrawFn) -> FaultsConfig:
+    data: dict[str, Any] = {"seed": draw(st.integers(0, 2**16)), "start_after": 0.5}
+    for name in FAULT_NAMES:
+        data[name] = {"rate": draw(_rates), "burst": draw(_bursts)}
+    return FaultsConfig.model_validate(data)
+
+
+@pytest.mark.parametrize("arm", [k.value for k in ArmKind])
+@settings(
+    max_examples=3, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(faults=fault_sections())
+def test_random_fault_schedules_leave_no_violation(
+    arm: str, faults: FaultsConfig, tmp_path: Path
+) -> None:
+    data = ExperimentConfig().model_dump(mode="json")
+    data["task"]["trajectory"]["duration"] = PROPERTY_DURATION_S
+    data["episode"]["arm"] = arm
+    data["faults"] = faults.model_dump(mode="json")
+    cfg = ExperimentConfig.model_validate(data)
+    result = run_episode(cfg, EpisodeSpec("endocam", TrajectoryKind.NOISY, 36, 1))
+    out = tmp_path / f"run-{faults.seed}"
+    write_run(result, out, video=False)
+    check = check_run(out)
+    assert check.ok, check.summary() + "".join(f"\n{v.line()}" for v in check.violations[:5])
+
+
+def test_gate_reacquires_only_inside_the_workspace() -> None:
+    cfg = ControllerConfig()
+    gate = cfg.ring_gate()
+    gate.reset(lambda p: abs(p[0]) < 0.3)  # a workspace 0.3 m wide along x
+    n = (0.0, 0.0, 1.0)
+    assert gate.accept(0.0, (0.0, 0.0, 0.05), n)
+    t = 2 * cfg.ring_reacquire  # lost for long; then a self-consistent pose 1 m away
+    assert not gate.accept(t, (1.0, 0.0, 0.05), n)
+    assert not gate.accept(t + DT, (1.0, 0.0, 0.05), n)  # agrees, but outside: not the ring
+    assert not gate.accept(t + 2 * DT, (0.2, 0.0, 0.05), n)
+    assert gate.accept(t + 3 * DT, (0.2, 0.0, 0.05), n)  # inside and agreeing: re-acquired
