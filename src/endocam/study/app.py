@@ -41,6 +41,7 @@ import secrets
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -699,19 +700,25 @@ def create_app(
             return step_page(request, participant, exc.status, t(exc.key))
         return RedirectResponse("/study", status_code=303)
 
-    @app.post("/study/practice")
-    def practice_form(request: Request, reported_touches: Annotated[str, Form()] = "") -> Response:
+    def count_form(
+        request: Request, text: str, submit: Callable[[Participant, int], None], then: str
+    ) -> Response:
+        """A form that posts one count: parsed by the JSON API's rule, submitted, redirected."""
         participant = session_participant(request)
         if participant is None:
             return RedirectResponse("/", status_code=303)
-        touches = form_count(reported_touches)
-        if touches is None:
+        value = form_count(text)
+        if value is None:
             return step_page(request, participant, 400, t("error_count", max_touches=MAX_TOUCHES))
         try:
-            submit_practice(participant, touches)
+            submit(participant, value)
         except _RefusedError as exc:
             return step_page(request, participant, exc.status, t(exc.key))
-        return RedirectResponse("/study/practice/feedback", status_code=303)
+        return RedirectResponse(then, status_code=303)
+
+    @app.post("/study/practice")
+    def practice_form(request: Request, reported_touches: Annotated[str, Form()] = "") -> Response:
+        return count_form(request, reported_touches, submit_practice, "/study/practice/feedback")
 
     @app.get("/study/practice/feedback")
     def practice_feedback(request: Request) -> Response:
@@ -734,31 +741,14 @@ def create_app(
         video_id: Annotated[str, Form()] = "",
         reported_touches: Annotated[str, Form()] = "",
     ) -> Response:
-        participant = session_participant(request)
-        if participant is None:
-            return RedirectResponse("/", status_code=303)
-        touches = form_count(reported_touches)
-        if touches is None:
-            return step_page(request, participant, 400, t("error_count", max_touches=MAX_TOUCHES))
-        try:
+        def submit(participant: Participant, touches: int) -> None:
             submit_answer(participant, video_id, touches)
-        except _RefusedError as exc:
-            return step_page(request, participant, exc.status, t(exc.key))
-        return RedirectResponse("/study", status_code=303)
+
+        return count_form(request, reported_touches, submit, "/study")
 
     @app.post("/study/attention")
     def attention_form(request: Request, answer: Annotated[str, Form()] = "") -> Response:
-        participant = session_participant(request)
-        if participant is None:
-            return RedirectResponse("/", status_code=303)
-        value = form_count(answer)
-        if value is None:
-            return step_page(request, participant, 400, t("error_count", max_touches=MAX_TOUCHES))
-        try:
-            submit_attention(participant, value)
-        except _RefusedError as exc:
-            return step_page(request, participant, exc.status, t(exc.key))
-        return RedirectResponse("/study", status_code=303)
+        return count_form(request, answer, submit_attention, "/study")
 
     @app.get("/videos/{video_id}")
     def video_file(video_id: str, participant: CurrentParticipant) -> FileResponse:
