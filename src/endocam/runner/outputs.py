@@ -304,9 +304,9 @@ def plot_tracking(results: Sequence[EpisodeResult], labels: Sequence[str], path:
     FigureCanvasAgg(fig)
     axes = fig.subplots(3, 1, sharex=True)
     series = [
-        ("image_error_saturated", 1.0, "Image centring error (px; out of view = corner)"),
-        ("center_error", 1e3, "3D centring error (mm)"),
-        ("orientation_error", math.degrees(1.0), "Orientation error (deg)"),
+        ("image_error_saturated", 1.0, "Image centring\nerror (px)"),
+        ("center_error", 1e3, "3D centring\nerror (mm)"),
+        ("orientation_error", math.degrees(1.0), "Orientation\nerror (deg)"),
     ]
     for ax, (attr, scale, ylabel) in zip(axes, series, strict=True):
         for result, label in zip(results, labels, strict=True):
@@ -323,7 +323,7 @@ def plot_tracking(results: Sequence[EpisodeResult], labels: Sequence[str], path:
             axes[0].legend(handles=handles, loc="upper right", fontsize=8)
     else:
         axes[0].legend(loc="upper right", fontsize=8)
-    axes[-1].set_xlabel("Time (s)")
+    axes[-1].set_xlabel("Time (s)   (a ring out of view counts as the farthest image corner)")
     r0 = results[0]
     fig.suptitle(
         f"Tracking errors, {r0.spec.trajectory.value} trajectory, "
