@@ -260,8 +260,8 @@ class ECM(RcmArm):
         """Roll angle θ4 (rad) maximising trace(R_goal^T R), and the pose's rotation it gives.
 
         ``goal`` is the goal tip pose (12 floats); the rotation is returned in the same form
-        (translation 0), then the product of the first three links at ``q`` (12 floats, m). With ``M = R_tool · R_goalᵀ · R_rcm_3``,
-        ``θ4 = atan2(M01 − M10, M00 + M11)``.
+        (translation 0), then the product of the first three links at ``q`` (12 floats, m).
+        With ``M = R_tool · R_goalᵀ · R_rcm_3``, ``θ4 = atan2(M01 − M10, M00 + M11)``.
         """
         a = compose_links(self._chain, q, 0, 3)
         R3 = (*a[:9], 0.0, 0.0, 0.0)
