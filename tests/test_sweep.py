@@ -10,6 +10,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -17,6 +18,7 @@ import pytest
 
 from endocam.cli import main
 from endocam.config import ExperimentConfig
+from endocam.runner import experiments, sweep
 from endocam.runner.episode import LOG_STATES
 from endocam.runner.summary import mean_ci
 from endocam.runner.sweep import (
@@ -28,6 +30,7 @@ from endocam.runner.sweep import (
     make_backend,
     parse_seeds,
     run_sweep,
+    trajectory_order,
 )
 
 SHORT_S = 2.0  # s: episode length of these tests (the sweep machinery does not depend on it)
@@ -167,6 +170,27 @@ def test_sweep_file_table_summary_and_a_recorded_failure(tmp_path: Path) -> None
         png = out / "plots" / f"{swept}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert f"plots/{swept}.png" in html
+
+
+def test_episodes_sharing_a_trajectory_detect_its_touches_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two policies on two trajectories in one worker: touch detection runs once per trajectory."""
+    detected: list[object] = []
+    touch_events = experiments.touch_events
+
+    def counted(*args: Any) -> Any:
+        detected.append(args[0])
+        return touch_events(*args)
+
+    monkeypatch.setattr(experiments, "touch_events", counted)
+    monkeypatch.setattr(sweep, "_TOUCHES", {})  # nothing from other tests
+    tasks = expand(SHORT, {"policy": ["fixed", "centering"], "seed": [5, 6], "arm": ["free"]})
+    order = [(t.params["seed"], t.params["policy"]) for t in trajectory_order(tasks)]
+    assert [seed for seed, _ in order] == [5, 5, 6, 6]  # the grid's order was policy first
+    outcome = run_sweep(tasks, tmp_path / "sweep", make_backend("local", workers=1))
+    assert outcome.failed == 0
+    assert len(detected) == 2  # four episodes, two trajectories
 
 
 def test_resume_after_a_kill_runs_only_the_missing_episodes(tmp_path: Path) -> None:

@@ -376,7 +376,8 @@ class EndocamPolicy(_MovingPolicy):
             if wp is not None:
                 cmd = wp
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
-        if state is TrackingState.TRACKING and tc.feedforward and self._horizon > 0.0:
+        feedforward = tc.feedforward and self._horizon > 0.0 and ctx.follows_twist
+        if state is TrackingState.TRACKING and feedforward:
             p2, n2 = self._predictor.predict(self._horizon + ctx.dt)
             u2 = self._view(p2, n2, s, d) if tc.keep_side else None
             if u2 is not None:

@@ -59,6 +59,9 @@ class PolicyContext:
         m, undelayed, clamped to ``[0, future_duration]``. Causal policies ignore it.
     future_duration : float
         The span ``future`` covers (the episode's length), s; 0 without a future.
+    follows_twist : bool
+        Whether the carrier uses a command's velocity (``CameraCommand.twist``); when it does
+        not (a dVRK arm), a policy may leave ``twist`` ``None`` rather than compute it.
     """
 
     camera: StereoCamera
@@ -69,6 +72,7 @@ class PolicyContext:
     sensing_latency: float = 0.0
     future: Callable[[FloatArray], FloatArray] | None = None
     future_duration: float = 0.0
+    follows_twist: bool = True
 
 
 _NO_TIPS = np.zeros((0, 3))

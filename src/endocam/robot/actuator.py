@@ -86,6 +86,9 @@ class Actuator(Protocol):
     """The interface of every camera carrier (free camera, PSM, ECM)."""
 
     kind: ArmKind
+    follows_twist: bool
+    """Whether :meth:`step` uses the command's velocity (``twist``); a policy need not compute
+    one for a carrier that ignores it (``PolicyContext.follows_twist``)."""
 
     @property
     def joint_names(self) -> tuple[str, ...]:

@@ -211,6 +211,7 @@ class CameraArm:
     straight joint-space line; an ablation switch)."""
     via_port: bool = True
     """After a jump of the wrist's target, pass through the port view (needs ``camera_path``)."""
+    follows_twist = False  # the joint motion does not use the command's velocity (yet)
 
     def __init__(
         self,

@@ -399,6 +399,7 @@ class FreeCamera:
     """
 
     kind = ArmKind.FREE
+    follows_twist = True  # the limiter tracks the command's velocity
 
     def __init__(
         self, limits: MotionLimits, dt: float, workspace: WorkspaceBound | None = None

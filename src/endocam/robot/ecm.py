@@ -155,13 +155,14 @@ class ECM(RcmArm):
             prevent it. ``q`` is always within the limits.
         """
         goal = pose12_from_matrix(T_goal)
-        q, p_goal, theta4, exact_orientation = self._aim(goal)
+        q, p_goal, theta4, exact_orientation, T_rcm_3 = self._aim(goal)
+        q_axis = q[:3]
         clamped = False
         if not self._axis_in_limits(q):
             clamped = True
             q_clip = self.clamp(np.array(q))[:3]
             q[:3] = self._nearest_position(np.array(p_goal), q_clip).tolist()
-            theta4, _ = self._best_roll(goal, q)
+            theta4, _, _ = self._best_roll(goal, q)
         if not self._set_roll(q, theta4, seed):
             clamped = True
         q, _ = self.clamp_floats(q)
@@ -171,7 +172,7 @@ class ECM(RcmArm):
             status = IKStatus.CLAMPED_TO_LIMITS
         else:
             status = IKStatus.OK
-        T12 = pose12_times(compose_links(self._chain, q), self._chain._tip_rows)
+        T12 = self._forward12(q, q_axis, T_rcm_3)
         errors = pose12_error(goal, T12)
         if status is IKStatus.OK and not within_tolerance(*errors):
             status = IKStatus.UNREACHABLE
@@ -186,12 +187,26 @@ class ECM(RcmArm):
         """
         if self._axis_misses_rcm(goal12):
             return None
-        q, _, theta4, exact_orientation = self._aim(goal12)
+        q, _, theta4, exact_orientation, T_rcm_3 = self._aim(goal12)
         if not (exact_orientation and self._axis_in_limits(q) and self._set_roll(q, theta4, seed)):
             return None
+        q_axis = q[:3]
         q, _ = self.clamp_floats(q)
-        T12 = pose12_times(compose_links(self._chain, q), self._chain._tip_rows)
+        T12 = self._forward12(q, q_axis, T_rcm_3)
         return q if within_tolerance(*pose12_error(goal12, T12)) else None
+
+    def _forward12(self, q: list[float], q_axis: list[float], T_rcm_3: Pose12) -> Pose12:
+        """``forward(q)`` (12 floats), reusing ``T_rcm_3``, the first three links at ``q_axis``.
+
+        The same products in the same order as composing all four links (the roll is the
+        last), so the same floats; ``q_axis`` is the yaw, pitch and insertion ``T_rcm_3`` was
+        composed for (recomposed if ``q`` no longer has them, e.g. after clamping).
+        """
+        if q[:3] == q_axis:
+            T = compose_links(self._chain, q, 3, 4, T_rcm_3)
+        else:
+            T = compose_links(self._chain, q)
+        return pose12_times(T, self._chain._tip_rows)
 
     def _axis_misses_rcm(self, goal: Pose12) -> bool:
         """Whether the goal's optical axis is clearly off the ray from the RCM: no exact solve.
@@ -208,12 +223,15 @@ class ECM(RcmArm):
         z = (g[2], g[5], g[8])
         return math.atan2(norm(cross(z, p)), dot(z, p)) > _AXIS_MISS_RAD
 
-    def _aim(self, goal: Pose12) -> tuple[list[float], tuple[float, float, float], float, bool]:
+    def _aim(
+        self, goal: Pose12
+    ) -> tuple[list[float], tuple[float, float, float], float, bool, Pose12]:
         """Joints aiming the optical axis at the goal, unclamped, and the roll that fits best.
 
         Returns ``q`` (yaw, pitch, insertion, roll 0; rad / m), the goal position of the last
-        DH frame (m, RCM frame), the best roll θ4 (rad), and whether that roll reaches the
-        goal's orientation exactly (with unlimited joints: the axis passes through the RCM).
+        DH frame (m, RCM frame), the best roll θ4 (rad), whether that roll reaches the
+        goal's orientation exactly (with unlimited joints: the axis passes through the RCM),
+        and the product of the first three links at ``q`` (12 floats, m).
         """
         g = pose12_times(goal, self._tip_inv_rows)  # last DH frame at the goal
         p0, p1, p2 = g[9], g[10], g[11]
@@ -221,8 +239,9 @@ class ECM(RcmArm):
         s0, s1, s2 = (p0 / r, p1 / r, p2 / r) if r > _EPS_GEOM else (g[2], g[5], g[8])
         q = [math.atan2(s0, -s2), -math.asin(max(-1.0, min(1.0, s1))), r - self._shaft_offset, 0.0]
         # reachable with unlimited joints iff the best roll on the unclamped axis is exact
-        theta4, R_free = self._best_roll(goal, q)
-        return q, (p0, p1, p2), theta4, pose12_error(goal, R_free)[1] <= _EXACT_TOL_RAD
+        theta4, R_free, T_rcm_3 = self._best_roll(goal, q)
+        exact = pose12_error(goal, R_free)[1] <= _EXACT_TOL_RAD
+        return q, (p0, p1, p2), theta4, exact, T_rcm_3
 
     def _axis_in_limits(self, q: list[float]) -> bool:
         """Whether yaw, pitch and insertion ``q[:3]`` lie within their limits (± round-off)."""
@@ -237,12 +256,12 @@ class ECM(RcmArm):
         q[3] = clamp_angle_to_limits(theta4 - link.offset, float(seed[3]), link.lower, link.upper)
         return abs(math.remainder(q[3] + link.offset - theta4, 2.0 * math.pi)) <= LIMIT_SLACK
 
-    def _best_roll(self, goal: Pose12, q: list[float]) -> tuple[float, Pose12]:
+    def _best_roll(self, goal: Pose12, q: list[float]) -> tuple[float, Pose12, Pose12]:
         """Roll angle θ4 (rad) maximising trace(R_goal^T R), and the pose's rotation it gives.
 
         ``goal`` is the goal tip pose (12 floats); the rotation is returned in the same form
-        (translation 0). With ``M = R_tool · R_goalᵀ · R_rcm_3``,
-        ``θ4 = atan2(M01 − M10, M00 + M11)``.
+        (translation 0), then the product of the first three links at ``q`` (12 floats, m).
+        With ``M = R_tool · R_goalᵀ · R_rcm_3``, ``θ4 = atan2(M01 − M10, M00 + M11)``.
         """
         a = compose_links(self._chain, q, 0, 3)
         R3 = (*a[:9], 0.0, 0.0, 0.0)
@@ -262,7 +281,7 @@ class ECM(RcmArm):
         theta4 = math.atan2(m[0][1] - m[1][0], m[0][0] + m[1][1])
         c, s = math.cos(theta4), math.sin(theta4)
         rz = ((c, -s, 0.0, 0.0), (s, c, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0))
-        return theta4, pose12_times(pose12_times(R3, rz), self._tool_rows4)
+        return theta4, pose12_times(pose12_times(R3, rz), self._tool_rows4), a
 
     def _nearest_position(self, p_goal: FloatArray, q0: FloatArray) -> FloatArray:
         """Yaw, pitch, insertion within limits whose tip is closest to ``p_goal`` (m)."""

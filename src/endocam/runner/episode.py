@@ -263,6 +263,7 @@ def run_episode(
             ep.sensing_latency,
             future=trajectory.poses,  # the true trajectory: only non-causal policies read it
             future_duration=float(trajectory.duration),
+            follows_twist=actuator.follows_twist,  # a dVRK arm ignores the feed-forward twist
         )
     )
 

@@ -46,8 +46,10 @@ from tqdm import tqdm
 
 from endocam.config import ExperimentConfig, config_from_mapping
 from endocam.runner.episode import LOG_STATES, EpisodeSpec, run_episode
+from endocam.runner.experiments import ground_truth
 from endocam.runner.outputs import METRICS_JSON, _finite, _json, write_run
 from endocam.runner.pool import DEFAULT_WORKERS, executor
+from endocam.task.touches import TouchReport
 from endocam.task.trajectory import TrajectoryKind
 
 EPISODE_PARAMS = ("policy", "trajectory", "control_points", "seed", "arm")
@@ -278,6 +280,43 @@ def load_sweep(path: str | Path) -> tuple[ExperimentConfig, dict[str, Any], list
 
 
 # --------------------------------------------------------------------------- one episode
+TOUCH_CACHE_SIZE = 8  # trajectories whose ground truth a worker keeps (~0.5 MB each for 60 s)
+_TOUCHES: dict[tuple[str, TrajectoryKind, int, int], TouchReport] = {}
+
+
+def shared_ground_truth(config: ExperimentConfig, spec: EpisodeSpec) -> TouchReport:
+    """The ground-truth touches of an episode's trajectory, kept in this worker process.
+
+    They depend on the task config and the trajectory (kind, control points, seed) alone, not
+    on the policy, the carrier or the controller, so the episodes of a sweep that share a
+    trajectory compute them once per worker (:func:`trajectory_order` runs them in turn). The
+    :data:`TOUCH_CACHE_SIZE` most recently used trajectories are kept.
+    """
+    key = (config.task.model_dump_json(), spec.trajectory, spec.control_points, spec.seed)
+    touches = _TOUCHES.pop(key, None)
+    if touches is None:
+        touches = ground_truth(config, spec.trajectory, spec.control_points, spec.seed)
+    _TOUCHES[key] = touches  # the most recently used last
+    while len(_TOUCHES) > TOUCH_CACHE_SIZE:
+        del _TOUCHES[next(iter(_TOUCHES))]
+    return touches
+
+
+def trajectory_order(tasks: Sequence[SweepTask]) -> list[SweepTask]:
+    """The tasks with those that share a trajectory next to each other (otherwise in order).
+
+    A trajectory is named by its parameters (kind, control points, seed) and the ``task.*``
+    overrides, so a worker's cache (:func:`shared_ground_truth`) serves the next episodes.
+    """
+
+    def key(task: SweepTask) -> str:
+        p = {**DEFAULTS, **task.params}
+        world = sorted((k, v) for k, v in p.items() if k.startswith("task."))
+        return json.dumps([p["trajectory"], p["control_points"], p["seed"], world], default=str)
+
+    return sorted(tasks, key=key)
+
+
 def run_task(task: SweepTask, episodes_dir: str | Path) -> str:
     """Run one task and write its folder (in a worker); returns the task's name.
 
@@ -290,7 +329,7 @@ def run_task(task: SweepTask, episodes_dir: str | Path) -> str:
     error = None
     try:
         config, spec = task.episode()
-        result = run_episode(config, spec)
+        result = run_episode(config, spec, touches=shared_ground_truth(config, spec))
         write_run(result, stage, video=False)
     except Exception as exc:  # recorded: one episode must not stop the sweep
         error = f"{type(exc).__name__}: {exc}"[:ERROR_MAX_CHARS]
@@ -459,7 +498,7 @@ def run_sweep(
         total=len(tasks), initial=len(tasks) - len(todo), desc="episodes", unit="episode"
     ) as bar:
         if todo:
-            backend(todo, episodes_dir, bar.update)
+            backend(trajectory_order(todo), episodes_dir, bar.update)
     rows = gather(tasks, episodes_dir)
     table = results_table(rows, swept_names(tasks))
     results = out_dir / RESULTS_PARQUET
