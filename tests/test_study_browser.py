@@ -3,10 +3,13 @@
 One server, two participants: a desktop one arriving from a recruitment-platform link (consent →
 demographics → practice with feedback → three sets with the attention question → completion code)
 and a phone-width one typing an id. With ``ENDOCAM_STUDY_SCREENSHOTS=DIR`` the pages are saved
-as PNG files in DIR (how docs/img/study-*.png are made).
+as PNG files in DIR (how docs/img/study-*.png are made); with
+``ENDOCAM_STUDY_SCREENSHOT_VIDEOS=STUDY_DIR`` as well, the set videos are that rendered study's
+(``endocam study make``), shown 20 s in, so the pictures show what participants really see.
 """
 
 import os
+import shutil
 import socket
 import threading
 import time
@@ -50,6 +53,8 @@ PLATFORM_URL = f"/?PROLIFIC_PID={PID}&STUDY_ID=study42&SESSION_ID=sess7"
 VIDEO_DURATION_S = VIDEO_FRAMES / VIDEO_FPS
 FRAME_S = 1.0 / VIDEO_FPS  # tolerance of watched seconds: one frame interval
 SHOTS = os.environ.get("ENDOCAM_STUDY_SCREENSHOTS")
+SHOT_VIDEOS = os.environ.get("ENDOCAM_STUDY_SCREENSHOT_VIDEOS")  # a rendered study folder
+SHOT_VIDEO_TIME_S = 20.0  # s into a rendered study video for its screenshot
 
 
 def _free_port() -> int:
@@ -70,6 +75,12 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Path
             "completion_url": "https://app.prolific.com/submissions/complete?cc={code}",
         },
     )
+    if SHOTS and SHOT_VIDEOS:  # real frames for the documentation's pictures
+        rendered = sorted(Path(SHOT_VIDEOS).glob("videos/*.mp4"))
+        assert rendered, f"no videos in {SHOT_VIDEOS}"
+        fixtures = sorted(p for p in (study / "videos").glob("*.mp4") if p.stem != "practice")
+        for i, path in enumerate(fixtures):
+            shutil.copyfile(rendered[i % len(rendered)], path)
     db_path = root / "study.db"
     port = _free_port()
     config = uvicorn.Config(
@@ -99,6 +110,9 @@ def _shot(page: Page, name: str) -> None:
     if SHOTS:
         if page.locator("#study_video").count():  # the first frame, not the loading spinner
             page.wait_for_function("() => study_video.readyState >= 2")
+            if SHOT_VIDEOS and page.evaluate("study_video.duration") > SHOT_VIDEO_TIME_S:
+                page.evaluate(f"study_video.currentTime = {SHOT_VIDEO_TIME_S}")
+                page.wait_for_function("() => !study_video.seeking && study_video.readyState >= 2")
         page.screenshot(path=str(Path(SHOTS) / f"study-{name}.png"), full_page=True)
 
 
