@@ -21,7 +21,15 @@ from endocam.study.observer import (
     observer_summary,
     segment,
 )
-from endocam.study.observer_clips import observe_clip, render_clip
+from endocam.study.observer_clips import (
+    LEAD_IN_S,
+    PUSH_PERIOD_S,
+    TEST_ARC_FRACTIONS,
+    TUNING_ARC_FRACTIONS,
+    observe_clip,
+    render_clip,
+    true_touches,
+)
 from endocam.task.config import TaskConfig
 from study_helpers import manifest_dict
 
@@ -148,3 +156,14 @@ def test_observer_sees_no_touch_when_the_gap_stays_open(keys: ColourKeys, tmp_pa
     assert clip.true_events == []
     m = observe_clip(clip, keys, tmp_path)
     assert m.seen == 0
+
+
+def test_validation_clips_hold_out_other_bends_of_the_wire() -> None:
+    # the held-out clips sit elsewhere on the wire than the one looked at while setting the
+    # observer up; in every clip the ring starts clear (the view settles) and each push is one
+    # true touch, by the exact clearance
+    assert not set(TUNING_ARC_FRACTIONS) & set(TEST_ARC_FRACTIONS)
+    for arc in (*TUNING_ARC_FRACTIONS, *TEST_ARC_FRACTIONS):
+        events = true_touches(TASK, LEAD_IN_S + 2 * PUSH_PERIOD_S, arc_fraction=arc)
+        assert len(events) == 2
+        assert events[0][0] > LEAD_IN_S
