@@ -17,9 +17,11 @@ from endocam.cli.common import (
 from endocam.config import ExperimentConfig
 from endocam.control.registry import POLICIES
 from endocam.robot.actuator import ArmKind
+from endocam.runner.episode import DEFAULT_SEED
 from endocam.task.config import MAX_CONTROL_POINTS
 from endocam.task.trajectory import TrajectoryKind
 
+SEED_HELP = f"noise seed (default {DEFAULT_SEED})"
 MAX_EXTRA_SEEDS = 1000  # count: --seeds of experiment tracking
 MAX_WORKERS = 64  # count: --workers
 
@@ -168,7 +170,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=71,
         help="control points along the wire, ≥ 2 (paper: 36 or 71; default 71)",
     )
-    p.add_argument("--seed", type=integer, default=1, help="noise seed (default 1)")
+    p.add_argument("--seed", type=integer, default=DEFAULT_SEED, help=SEED_HELP)
     p.add_argument("--out", required=True, help="output folder (replaced atomically)")
     p.add_argument("--no-video", action="store_true", help="skip rendering video.mp4")
     p.add_argument(
@@ -189,7 +191,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     d.add_argument("--control-points", type=integer, default=71, help="control points (default 71)")
-    d.add_argument("--seed", type=integer, default=1, help="noise seed (default 1)")
+    d.add_argument("--seed", type=integer, default=DEFAULT_SEED, help=SEED_HELP)
     d.add_argument("--no-video", action="store_true", help="skip the videos")
     d.add_argument("--config", help="TOML or YAML config file")
     d.set_defaults(handler=_demo)

@@ -45,6 +45,9 @@ LOG_STATES = (*(s.value for s in TrackingState), UNREACHABLE)
 """Every value of the log's ``state`` column: the controller's states, then the carrier's."""
 
 
+DEFAULT_SEED = 1  # noise seed of `endocam run`, `demo` and a sweep that names none
+
+
 @dataclass(frozen=True)
 class EpisodeSpec:
     """Which episode to run.

@@ -21,14 +21,14 @@ from endocam.runner.outputs import (
     CARRIERS,
     METRICS_JSON,
     REPORT_HTML,
-    _finite,
-    _json,
     atomic_dir,
     frame_indices,
+    json_safe,
     metrics_dict,
     plot_tracking,
     render_template,
     video_writer,
+    write_json,
     write_run,
     written_check,
 )
@@ -90,7 +90,7 @@ def run_and_write(
             write_run(result, out_dir, video=True, progress=bar.update)
     else:
         write_run(result, out_dir, video=False)
-    metrics = dict(_finite(metrics_dict(result)))
+    metrics = dict(json_safe(metrics_dict(result)))
     metrics["check"] = written_check(out_dir)
     return metrics
 
@@ -217,12 +217,12 @@ def run_demo(
         rows = []
         for name, result, mp4 in zip(CONDITIONS, results, rendered, strict=True):
             write_run(result, tmp / name, video=video, prerendered=mp4 if video else None)
-            metrics = _finite(metrics_dict(result))
+            metrics = json_safe(metrics_dict(result))
             metrics["check"] = written_check(tmp / name)
             rows.append((name, metrics))
         plot_tracking(results, list(CONDITIONS), tmp / COMPARISON_PNG)
         summary = {name: _summary(m) for name, m in rows}
-        _json(
+        write_json(
             tmp / METRICS_JSON,
             {
                 "conditions": summary,
@@ -403,7 +403,7 @@ def run_paper_experiment(
             row["violations"] = sum(written_check(tmp / n)["violations"] for n in row["runs"])
         violations = sum(row["violations"] for row in table_rows)
         table += f"\n\nSafety check (`endocam check`, every run): {violations} violations."
-        _json(tmp / "paper.json", _finite({"policy": policy, "rows": table_rows}))
+        write_json(tmp / "paper.json", json_safe({"policy": policy, "rows": table_rows}))
         (tmp / "paper.md").write_text(table + "\n", encoding="utf-8")
         plot_tracking(
             results,

@@ -37,11 +37,11 @@ from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode
 from endocam.runner.experiments import CONDITION_POLICY
 from endocam.runner.outputs import (
-    _finite,
-    _json,
     atomic_dir,
     fmt,
+    json_safe,
     render_template,
+    write_json,
     write_run,
     written_check,
 )
@@ -240,7 +240,7 @@ def run_fault_matrix(
                 row[key] = ep[key]
                 row[f"reference_{key}"] = ref[key]
             rows.append(row)
-        _json(tmp / FAULTS_JSON, _finite({"policy": POLICY, "rows": rows}))
+        write_json(tmp / FAULTS_JSON, json_safe({"policy": POLICY, "rows": rows}))
         table = fault_table(rows)
         (tmp / FAULTS_MD).write_text(table + "\n", encoding="utf-8")
         html = render_template(

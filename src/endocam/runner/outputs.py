@@ -257,7 +257,8 @@ def metrics_dict(result: EpisodeResult) -> dict[str, Any]:
     }
 
 
-def _json(path: Path, data: Any) -> None:
+def write_json(path: Path, data: Any) -> None:
+    """Write ``data`` as indented JSON (strict: NaN and inf refused; pass it through json_safe)."""
     text = json.dumps(data, indent=2, allow_nan=False, default=_nan_to_none)
     path.write_text(text + "\n", encoding="utf-8")
 
@@ -266,12 +267,12 @@ def _nan_to_none(obj: Any) -> Any:  # pragma: no cover - json only calls it for 
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
-def _finite(data: Any) -> Any:
+def json_safe(data: Any) -> Any:
     """Replace NaN/inf by None recursively (JSON has no NaN)."""
     if isinstance(data, dict):
-        return {k: _finite(v) for k, v in data.items()}
+        return {k: json_safe(v) for k, v in data.items()}
     if isinstance(data, list | tuple):
-        return [_finite(v) for v in data]
+        return [json_safe(v) for v in data]
     if isinstance(data, float) and not math.isfinite(data):
         return None
     return data
@@ -432,14 +433,14 @@ def write_run(
 
     ``prerendered`` is an MP4 of this episode already rendered elsewhere (moved in, not redone).
     """
-    metrics = _finite(metrics_dict(result))
+    metrics = json_safe(metrics_dict(result))
     with atomic_dir(Path(out_dir)) as tmp:
-        _json(tmp / SCENE_JSON, _finite(scene_dict(result)))
+        write_json(tmp / SCENE_JSON, json_safe(scene_dict(result)))
         write_episode_csv(result, tmp / EPISODE_CSV)
         check = check_run(tmp)
         write_check(check, tmp / CHECK_JSON)
         metrics["check"] = check_summary(check)
-        _json(tmp / METRICS_JSON, metrics)
+        write_json(tmp / METRICS_JSON, metrics)
         plot_tracking([result], [result.spec.policy], tmp / TRACKING_PNG)
         if video and prerendered is not None:
             shutil.move(prerendered, tmp / VIDEO_MP4)

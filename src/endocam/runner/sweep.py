@@ -45,9 +45,9 @@ from pydantic import BaseModel
 from tqdm import tqdm
 
 from endocam.config import ExperimentConfig, config_from_mapping
-from endocam.runner.episode import LOG_STATES, EpisodeSpec, run_episode
+from endocam.runner.episode import DEFAULT_SEED, LOG_STATES, EpisodeSpec, run_episode
 from endocam.runner.experiments import ground_truth
-from endocam.runner.outputs import METRICS_JSON, _finite, _json, write_run
+from endocam.runner.outputs import METRICS_JSON, json_safe, write_json, write_run
 from endocam.runner.pool import DEFAULT_WORKERS, executor
 from endocam.task.touches import TouchReport
 from endocam.task.trajectory import TrajectoryKind
@@ -55,7 +55,7 @@ from endocam.task.trajectory import TrajectoryKind
 EPISODE_PARAMS = ("policy", "trajectory", "control_points", "seed", "arm")
 """The episode's own parameters, always columns of the table, in this order."""
 DEFAULTS: dict[str, Any] = {"trajectory": TrajectoryKind.NOISY.value, "control_points": 71}
-DEFAULTS["seed"] = 1  # as `endocam run`
+DEFAULTS["seed"] = DEFAULT_SEED  # as `endocam run`
 """Values of the episode parameters a sweep does not set (``arm``: the config's)."""
 BACKENDS = ("local", "ray")
 RAY_MISSING = "the ray backend needs Ray: pip install endocam[ray]"
@@ -341,7 +341,7 @@ def run_task(task: SweepTask, episodes_dir: str | Path) -> str:
         "wall_time_s": time.perf_counter() - t0,
         "error": error,
     }
-    _json(stage / TASK_JSON, _finite(record))
+    write_json(stage / TASK_JSON, json_safe(record))
     os.replace(stage, root / task.name)
     return task.name
 
@@ -492,7 +492,7 @@ def run_sweep(
     episodes_dir = out_dir / EPISODES
     episodes_dir.mkdir(parents=True, exist_ok=True)
     clean_partial(episodes_dir)
-    _write_atomic(out_dir / SWEEP_JSON, lambda p: _json(p, _finite(dict(description or {}))))
+    _write_atomic(out_dir / SWEEP_JSON, lambda p: write_json(p, json_safe(dict(description or {}))))
     todo = [t for t in tasks if not done(t, episodes_dir)]
     with tqdm(
         total=len(tasks), initial=len(tasks) - len(todo), desc="episodes", unit="episode"

@@ -48,12 +48,12 @@ from endocam.runner.episode import UNREACHABLE, EpisodeResult, EpisodeSpec, run_
 from endocam.runner.experiments import PAPER_MEANS, PathSpec, paper_paths
 from endocam.runner.outputs import (
     PLOT_DPI,
-    _finite,
-    _json,
     atomic_dir,
     fmt,
+    json_safe,
     metrics_dict,
     render_template,
+    write_json,
     write_run,
     written_check,
 )
@@ -273,7 +273,7 @@ def run_tracking_experiment(
                 summaries[futures[fut]] = fut.result()
                 bar.update(1)
         rows = tracking_rows(summaries, controllers, carriers, paths)
-        _json(tmp / TRACKING_JSON, _finite({"phases": list(PHASES), "rows": rows}))
+        write_json(tmp / TRACKING_JSON, json_safe({"phases": list(PHASES), "rows": rows}))
         table = tracking_table(rows)
         (tmp / TRACKING_MD).write_text(table + "\n", encoding="utf-8")
         for key, label, png in ERRORS:
