@@ -13,6 +13,7 @@ from endocam.study.make import (
     DESIGN_JSON,
     HYPOTHESIS_JSON,
     STUDY_TRAJECTORIES,
+    practice_seed,
     trajectory_config,
     trajectory_seeds,
     video_ids,
@@ -35,6 +36,16 @@ height = {HEIGHT_PX}
 [episode]
 video_fps = {FPS}
 """
+
+SHORTEST = f"""
+[task.trajectory]
+duration = {DURATION_S / 3}
+[camera]
+width = {WIDTH_PX // 2}
+height = {HEIGHT_PX // 2}
+[episode]
+video_fps = {FPS}
+"""  # the cheapest study that still makes: for checks of what is (not) written
 
 
 @pytest.fixture(scope="module")
@@ -106,6 +117,44 @@ def test_true_touches_equal_the_simulator_counts(study: Path, config_file: Path)
                 assert metrics["episode"]["policy"] == CONDITION_POLICY[v.condition.value]
                 assert metrics["touches"] == truth.count
     assert design["trajectories"][0]["angle_noise_deg"] == pytest.approx([5.0, 10.0])
+
+
+def test_practice_video_is_the_easiest_path_with_its_own_seed_and_fixed_camera(
+    study: Path, config_file: Path
+) -> None:
+    manifest = load_manifest(study)  # checks that the practice file exists
+    assert manifest.practice is not None
+    assert manifest.practice.file not in {v.file for v in manifest.videos}
+    design = json.loads((study / DESIGN_JSON).read_text())
+    easiest = min(STUDY_TRAJECTORIES, key=lambda t: t.difficulty)
+    seed = design["practice"]["noise_seed"]
+    assert seed == practice_seed(SEED)
+    assert seed not in trajectory_seeds(SEED)  # never one of the nine videos
+    truth = ground_truth(
+        trajectory_config(load_config(config_file), easiest),
+        TrajectoryKind.NOISY,
+        easiest.control_points,
+        seed,
+    )
+    assert manifest.practice.true_touches == truth.count
+    reader = imageio_ffmpeg.read_frames(str(study / manifest.practice.file))
+    assert next(reader)["size"] == (WIDTH_PX, HEIGHT_PX)
+    assert sum(1 for _ in reader) == N_FRAMES
+    metrics = json.loads((study / "logs" / "practice" / "metrics.json").read_text())
+    assert metrics["episode"]["policy"] == CONDITION_POLICY[Condition.FIXED.value]
+    assert metrics["touches"] == truth.count
+
+
+def test_no_practice_flag_writes_no_practice_video(tmp_path: Path) -> None:
+    config = tmp_path / "short.toml"
+    config.write_text(SHORTEST, encoding="utf-8")
+    out = tmp_path / "study"
+    args = ["study", "make", "--out", str(out), "--config", str(config), "--no-practice"]
+    assert main(args) == 0
+    assert load_manifest(out).practice is None
+    assert not (out / "videos" / "practice.mp4").exists()
+    assert not (out / "logs" / "practice").exists()
+    assert json.loads((out / DESIGN_JSON).read_text())["practice"] is None
 
 
 def test_difficulty_design_uses_more_points_and_more_noise() -> None:

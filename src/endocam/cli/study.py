@@ -38,7 +38,9 @@ def _make(args: argparse.Namespace) -> int:
         check_writable(Path(args.out))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    manifest = make_study(config, args.out, seed=args.seed, extra_seeds=args.seeds)
+    manifest = make_study(
+        config, args.out, seed=args.seed, extra_seeds=args.seeds, practice=args.practice
+    )
     for v in manifest.videos:
         print(f"{v.id}  {v.condition.value:12s} {v.trajectory:12s} {v.true_touches:3d} touches")
     print(f"study written to {args.out} ({len(manifest.videos)} videos)")
@@ -211,6 +213,13 @@ def _add_make(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="also render and observe N more seeds of the most difficult trajectory for "
         "hypothesis.json (videos not kept; default: %(default)s)",
+    )
+    p.add_argument(
+        "--no-practice",
+        dest="practice",
+        action="store_false",
+        help="write no practice video (default: videos/practice.mp4, the easiest trajectory "
+        "with its own seed and the fixed camera, shown with feedback before the first set)",
     )
     p.set_defaults(handler=_make)
 

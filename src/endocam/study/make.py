@@ -16,11 +16,20 @@ of trajectory ``k`` is the ``k``-th draw of ``numpy.random.default_rng(seed).int
 video ids are eight hex digits drawn from ``default_rng([seed, ID_STREAM])``, so nothing in a URL
 reveals the condition and the same ``--seed`` gives the same study.
 
+Unless ``practice=False`` (``--no-practice``), one more video is the practice shown with feedback
+before the first set: the easiest trajectory's kind and control points with its own noise seed
+(:func:`practice_seed`, stream ``PRACTICE_STREAM``; never one of the nine trajectories' seeds),
+filmed by the **fixed** camera only, so the practice trains participants on none of the moving
+conditions more than on another. Its ``true_touches`` comes from the same ground truth as the
+nine videos'; it is not counted in the observability, observer or hypothesis files.
+
 Written (atomically: a temporary folder renamed at the end)::
 
     manifest.json          the contract with `study serve` / `study analyze`
     videos/<id>.mp4        the nine videos (H.264)
-    design.json            trajectories (seeds, noise, touches) and the key id → condition
+    videos/practice.mp4    the practice video (fixed camera), unless ``practice=False``
+    design.json            trajectories (seeds, noise, touches), the key id → condition and the
+                           practice video's trajectory, seed and touches
     observability.json     objective touch observability (endocam.study.observability) + CSV
     observability.csv
     observer.json          the automatic observer's counts (endocam.study.observer) + HTML
@@ -28,6 +37,7 @@ Written (atomically: a temporary folder renamed at the end)::
     hypothesis.json        per condition: observer counting error and image-space observability
                            on the most difficult trajectory and over ``extra_seeds`` more seeds
     logs/<id>/             scene.json, episode.csv, metrics.json, tracking.png, report.html
+    logs/practice/         the same for the practice video
 """
 
 from __future__ import annotations
@@ -53,6 +63,7 @@ from endocam.study.manifest import (
     AttentionQuestion,
     Condition,
     Manifest,
+    PracticeVideo,
     Video,
     manifest_json,
 )
@@ -93,8 +104,12 @@ ID_HEX_DIGITS = 8  # hex digits of a video id (32 random bits)
 DESIGN_JSON = "design.json"
 HYPOTHESIS_JSON = "hypothesis.json"
 EXTRA_STREAM = 2  # second entry of the extra seeds' generator seed (ids use ID_STREAM)
+PRACTICE_STREAM = 3  # second entry of the practice seed's generator seed
+PRACTICE_NAME = "practice"  # stem of the practice video and name of its log folder
+PRACTICE_CONDITION = Condition.FIXED  # no moving condition is trained more than another
 VIDEOS_DIR = "videos"
 LOGS_DIR = "logs"
+PRACTICE_FILE = f"{VIDEOS_DIR}/{PRACTICE_NAME}.mp4"  # the manifest's practice.file
 DEFAULT_ATTENTION = AttentionQuestion(
     question="To show you are paying attention, enter the number four as a digit.", answer=4
 )
@@ -119,6 +134,19 @@ def video_ids(seed: int, n: int) -> tuple[str, ...]:
         if candidate not in ids:
             ids.append(candidate)
     return tuple(ids)
+
+
+def practice_seed(seed: int, n: int = len(STUDY_TRAJECTORIES)) -> int:
+    """Noise seed of the practice video: a draw of ``default_rng([seed, PRACTICE_STREAM])``.
+
+    Draws again while the value is one of the ``n`` trajectory seeds (:func:`trajectory_seeds`),
+    so the practice video is never one of the study's videos.
+    """
+    taken = set(trajectory_seeds(seed, n))
+    rng = np.random.default_rng([seed, PRACTICE_STREAM])
+    while (value := int(rng.integers(0, 2**31))) in taken:
+        pass
+    return value
 
 
 def check_study_config(config: ExperimentConfig) -> None:
@@ -160,6 +188,7 @@ def make_study(
     seed: int = DEFAULT_SEED,
     trajectories: Sequence[StudyTrajectory] = STUDY_TRAJECTORIES,
     extra_seeds: int = 0,
+    practice: bool = True,
 ) -> Manifest:
     """Simulate, render and write a complete study folder (see the module docstring).
 
@@ -177,6 +206,9 @@ def make_study(
         More noise seeds of the most difficult trajectory (≥ 0): each is simulated, rendered
         with the three conditions and counted by the observer for ``hypothesis.json``; their
         videos are not kept.
+    practice : bool
+        Also render the practice video (easiest trajectory, fixed camera, :func:`practice_seed`)
+        and name it in the manifest.
 
     Returns
     -------
@@ -210,6 +242,16 @@ def make_study(
                 bar.update(1)
             runs.append((traj, traj_seed, results))
 
+    practice_run: tuple[StudyTrajectory, int, EpisodeResult] | None = None
+    if practice:
+        easiest = min(trajectories, key=lambda t: t.difficulty)
+        p_seed = practice_seed(seed, len(trajectories))
+        cfg = trajectory_config(config, easiest)
+        touches = ground_truth(cfg, kind, easiest.control_points, p_seed)
+        policy = CONDITION_POLICY[PRACTICE_CONDITION.value]
+        spec = EpisodeSpec(policy, kind, easiest.control_points, p_seed)
+        practice_run = (easiest, p_seed, run_with_progress(cfg, spec, touches))
+
     key: dict[tuple[str, Condition], str] = {
         (traj.name, c): next(ids) for traj, _, _ in runs for c in STUDY_CONDITIONS
     }
@@ -235,15 +277,21 @@ def make_study(
         videos=tuple(videos),
         orders=presentation_orders(STUDY_CONDITIONS),
         attention=DEFAULT_ATTENTION,
+        practice=None
+        if practice_run is None
+        else PracticeVideo(file=PRACTICE_FILE, true_touches=practice_run[2].touches.count),
     )
 
     n_frames = sum(len(frame_indices(rs[0])) * len(rs) for _, _, rs in runs)
+    n_practice = 0 if practice_run is None else len(frame_indices(practice_run[2]))
     records: list[TouchObservation] = []
     with atomic_dir(out) as tmp:
         # cheap outputs first: a failure there must not waste the long render
         for traj, _, results in tqdm(runs, desc="logs", leave=False):
             for c, result in zip(STUDY_CONDITIONS, results, strict=True):
                 write_run(result, tmp / LOGS_DIR / key[(traj.name, c)], video=False)
+        if practice_run is not None:
+            write_run(practice_run[2], tmp / LOGS_DIR / PRACTICE_NAME, video=False)
         first = runs[0][2][0]
         with WireChaserScene(first.config.task, first.camera) as scene:
             for traj, _, results in tqdm(runs, desc="observability", leave=False):
@@ -253,10 +301,12 @@ def make_study(
                         result, scene, video_id=vid, condition=c.value, trajectory=traj.name
                     )
         (tmp / VIDEOS_DIR).mkdir()
-        with tqdm(total=n_frames, desc="render", unit="frame", leave=False) as bar:
+        with tqdm(total=n_frames + n_practice, desc="render", unit="frame", leave=False) as bar:
             for traj, _, results in runs:
                 paths = [tmp / VIDEOS_DIR / f"{key[(traj.name, c)]}.mp4" for c in STUDY_CONDITIONS]
                 render_conditions(results, paths, bar.update)
+            if practice_run is not None:
+                render_conditions([practice_run[2]], [tmp / PRACTICE_FILE], bar.update)
         keys = ColourKeys.from_scene(config.task.scene)
         observations: dict[str, VideoObservation] = {}
         with tqdm(total=n_frames, desc="observer", unit="frame", leave=False) as bar:
@@ -275,7 +325,7 @@ def make_study(
             manifest, observer, records, hardest, extra, 1.0 / config.episode.video_fps
         )
         (tmp / HYPOTHESIS_JSON).write_text(json.dumps(hypothesis, indent=2) + "\n", "utf-8")
-        design = design_dict(config, runs, key, seed)
+        design = design_dict(config, runs, key, seed, practice_run)
         (tmp / DESIGN_JSON).write_text(json.dumps(design, indent=2) + "\n", "utf-8")
         (tmp / MANIFEST_NAME).write_text(manifest_json(manifest), "utf-8")
     return manifest
@@ -465,8 +515,12 @@ def design_dict(
     runs: Sequence[tuple[StudyTrajectory, int, list[EpisodeResult]]],
     key: dict[tuple[str, Condition], str],
     seed: int,
+    practice: tuple[StudyTrajectory, int, EpisodeResult] | None = None,
 ) -> dict[str, Any]:
-    """``design.json``: the study seed, each trajectory's parameters and the video key."""
+    """``design.json``: the study seed, each trajectory's parameters and the video key.
+
+    ``practice`` (trajectory, noise seed, episode) adds a ``practice`` entry (else ``null``).
+    """
     trajectories = []
     for traj, traj_seed, results in runs:
         cfg = results[0].config.task.trajectory
@@ -493,5 +547,14 @@ def design_dict(
         "ring_rgba": list(config.task.scene.ring_rgba),
         "wire_rgba": list(config.task.scene.wire_rgba),
         "trajectories": trajectories,
+        "practice": None
+        if practice is None
+        else {
+            "trajectory": practice[0].name,
+            "noise_seed": practice[1],
+            "condition": PRACTICE_CONDITION.value,
+            "true_touches": practice[2].touches.count,
+            "file": PRACTICE_FILE,
+        },
         "endocam_version": __version__,
     }
