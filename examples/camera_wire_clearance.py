@@ -4,6 +4,7 @@ Reads finished runs (what ``endocam run`` writes: ``scene.json`` with the wire's
 line and radius, ``episode.csv`` with the camera's optical centre) and prints, per run, the
 distance from the camera's optical centre to the wire's surface: minimum, 5th percentile and
 the share of steps closer than 10 mm. A negative distance is a camera centre inside the wire.
+It recomputes from the logged files what ``metrics.json["camera_wire_clearance_mm"]`` reports.
 
     .venv/bin/endocam run --no-video --policy endocam --arm free --trajectory noisy \\
         --control-points 71 --seed 1 --out /tmp/run
@@ -20,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-NEAR_M = 0.010  # m: "close" for the share column (a pickup camera is about this wide)
+from endocam.runner.outputs import NEAR_WIRE_M
 
 
 def clearance_m(run: Path) -> np.ndarray:
@@ -42,7 +43,7 @@ def main() -> None:
     print("|---|---|---|---|")
     for run in args.runs:
         d = clearance_m(run)
-        near = 100.0 * float(np.mean(d < NEAR_M))
+        near = 100.0 * float(np.mean(d < NEAR_WIRE_M))
         print(f"| {run} | {1e3 * d.min():.1f} | {1e3 * np.percentile(d, 5):.1f} | {near:.1f} % |")
 
 

@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+# Both distances are to the nearest vertex of a polyline: scene.json's 1000 points over the
+# 273 mm wire (≤ 0.14 mm off) and the wire's 0.25 mm search polyline (≤ 0.125 mm off); 0.05 mm
+# is the printed rounding.
+POLYLINE_ATOL_MM = 0.14 + 0.125 + 0.05
 
 
 def _run(*args: str) -> str:
@@ -81,3 +86,8 @@ def test_camera_wire_clearance_reads_runs(tmp_path: Path) -> None:
     # The fixed camera holds the overview, far from the wire; the orientation camera looks
     # along the wire from its side, so it comes far closer (the limit the README names).
     assert rows["fixed"] > 2 * rows["endocam"]
+    # metrics.json reports the same minimum, computed in the run from the wire's own spline.
+    for policy, from_files_mm in rows.items():
+        metrics = json.loads((tmp_path / policy / "metrics.json").read_text(encoding="utf-8"))
+        reported_mm = metrics["camera_wire_clearance_mm"]["min"]
+        assert abs(reported_mm - from_files_mm) <= POLYLINE_ATOL_MM

@@ -92,3 +92,21 @@ def test_config_validation() -> None:
     with pytest.raises(ValidationError):
         cfg.wire.radius = 2.0  # type: ignore[misc]
     assert TaskConfig.model_validate(cfg.model_dump()) == cfg
+
+
+def test_surface_distance_matches_the_exact_closest_point() -> None:
+    from endocam.task.config import WireConfig
+    from endocam.task.wire import Wire
+
+    wire = Wire(WireConfig())
+    rng = np.random.default_rng(11)
+    s = rng.uniform(0.0, wire.length, 50)
+    offsets = rng.normal(size=(50, 3)) * 0.01  # m: points up to a few cm from the wire
+    points = wire.points(s) + offsets
+    fast = wire.surface_distance(points)
+    exact = np.array([wire.closest(p)[1] for p in points]) - wire.radius
+    # the nearest search vertex is at most half a spacing further than the exact closest point
+    closest_atol_m = 1e-8  # m: Wire.closest's bounded search is exact to ~1e-9 m
+    assert np.all(fast >= exact - closest_atol_m)
+    assert np.all(fast - exact <= wire.search_spacing / 2 + closest_atol_m)
+    assert wire.surface_distance(wire.points(s[:3]))[0] < 0  # on the centre line: inside

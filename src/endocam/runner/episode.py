@@ -179,6 +179,15 @@ class EpisodeResult:
         return ring_out_of_view(self.camera, self.log.T_world_cam, self.log.T_world_ring[:, :3, 3])
 
     @cached_property
+    def camera_wire_clearance(self) -> FloatArray:
+        """(N,) distance from the camera's optical centre to the wire's surface, m (< 0: inside).
+
+        Not bounded by any controller or check yet: looking along the ring normal puts the
+        camera on the wire's continuation (README, "Safety under faults").
+        """
+        return self.wire.surface_distance(self.log.T_world_cam[:, :3, 3])
+
+    @cached_property
     def image_error_saturated(self) -> FloatArray:
         """(N,) image errors, px, a ring out of view counted as the largest in-image error."""
         return saturate_image_error(self.camera, self.image_error, self.ring_out_of_view)

@@ -46,6 +46,7 @@ VIDEO_MP4 = "video.mp4"
 TRACKING_PNG = "tracking.png"
 REPORT_HTML = "report.html"
 WIRE_POLYLINE_POINTS = 1000  # count, samples of the wire centre line in scene.json
+NEAR_WIRE_M = 0.010  # m: "near the wire" in metrics.json (a pickup camera is about this wide)
 PLOT_DPI = 120  # dots per inch of the PNG plots
 VIDEO_CRF = 20  # x264 constant rate factor (lower = better quality; 20 keeps the wire crisp)
 _TEMPLATES = Path(__file__).parent / "templates"
@@ -231,6 +232,11 @@ def metrics_dict(result: EpisodeResult) -> dict[str, Any]:
             }
             for ev in result.touches.events
         ],
+        "camera_wire_clearance_mm": {
+            "min": 1e3 * float(np.min(result.camera_wire_clearance)),
+            "p5": 1e3 * float(np.percentile(result.camera_wire_clearance, 5.0)),
+            "share_below_10mm": float(np.mean(result.camera_wire_clearance < NEAR_WIRE_M)),
+        },
         "arm": result.log.arm,
         "state_fractions": state_fractions(result.log),
         "by_state": {
