@@ -81,6 +81,19 @@ def atomic_dir(out_dir: Path) -> Iterator[Path]:
         shutil.rmtree(old, ignore_errors=True)
 
 
+def write_atomic(path: Path, write: Callable[[Path], object]) -> None:
+    """Call ``write`` on a hidden temporary file beside ``path``, then rename it to ``path``.
+
+    A reader never sees a half-written file; an exception leaves no temporary file behind.
+    """
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def check_writable(out_dir: Path) -> None:
     """Raise ``ValueError`` (one line) unless ``out_dir`` can be created and written."""
     out_dir = Path(out_dir)

@@ -19,7 +19,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from scipy import stats
 
-from endocam.runner.outputs import PLOT_DPI, render_template
+from endocam.runner.outputs import PLOT_DPI, render_template, write_atomic
 
 SUMMARY_HTML = "summary.html"
 PLOTS = "plots"
@@ -140,8 +140,6 @@ def write_summary(rows: Sequence[Mapping[str, Any]], swept: Sequence[str], out_d
 
     Every file is written under a temporary name and renamed.
     """
-    from endocam.runner.sweep import _write_atomic
-
     out_dir = Path(out_dir)
     plots_dir = out_dir / PLOTS
     plots_dir.mkdir(parents=True, exist_ok=True)
@@ -151,7 +149,7 @@ def write_summary(rows: Sequence[Mapping[str, Any]], swept: Sequence[str], out_d
     for x in varying:
         png = plots_dir / f"{x}.png"
         series = [s for s in by if s != x]
-        _write_atomic(png, functools.partial(plot_against, rows, x, series))
+        write_atomic(png, functools.partial(plot_against, rows, x, series))
         plots.append((x, f"{PLOTS}/{png.name}"))
     html = render_template(
         "sweep.html",
@@ -165,5 +163,5 @@ def write_summary(rows: Sequence[Mapping[str, Any]], swept: Sequence[str], out_d
         confidence=CONFIDENCE,
     )
     path = out_dir / SUMMARY_HTML
-    _write_atomic(path, lambda p: p.write_text(html, encoding="utf-8"))
+    write_atomic(path, lambda p: p.write_text(html, encoding="utf-8"))
     return path

@@ -47,7 +47,7 @@ from tqdm import tqdm
 from endocam.config import ExperimentConfig, config_from_mapping
 from endocam.runner.episode import DEFAULT_SEED, LOG_STATES, EpisodeSpec, run_episode
 from endocam.runner.experiments import ground_truth
-from endocam.runner.outputs import METRICS_JSON, json_safe, write_json, write_run
+from endocam.runner.outputs import METRICS_JSON, json_safe, write_atomic, write_json, write_run
 from endocam.runner.pool import DEFAULT_WORKERS, executor
 from endocam.task.touches import TouchReport
 from endocam.task.trajectory import TrajectoryKind
@@ -492,7 +492,7 @@ def run_sweep(
     episodes_dir = out_dir / EPISODES
     episodes_dir.mkdir(parents=True, exist_ok=True)
     clean_partial(episodes_dir)
-    _write_atomic(out_dir / SWEEP_JSON, lambda p: write_json(p, json_safe(dict(description or {}))))
+    write_atomic(out_dir / SWEEP_JSON, lambda p: write_json(p, json_safe(dict(description or {}))))
     todo = [t for t in tasks if not done(t, episodes_dir)]
     with tqdm(
         total=len(tasks), initial=len(tasks) - len(todo), desc="episodes", unit="episode"
@@ -502,19 +502,10 @@ def run_sweep(
     rows = gather(tasks, episodes_dir)
     table = results_table(rows, swept_names(tasks))
     results = out_dir / RESULTS_PARQUET
-    _write_atomic(results, lambda p: pq.write_table(table, p))
+    write_atomic(results, lambda p: pq.write_table(table, p))
     summary = write_summary(rows, swept_names(tasks), out_dir)
     failed = sum(r["error"] is not None for r in rows)
     return SweepOutcome(len(todo), len(tasks) - len(todo), failed, results, summary)
-
-
-def _write_atomic(path: Path, write: Callable[[Path], object]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def swept_names(tasks: Sequence[SweepTask]) -> list[str]:
