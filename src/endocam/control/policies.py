@@ -90,12 +90,7 @@ class _MovingPolicy:
         """Fix the cone axis from the RCM to the ring's initial position; clear all memory."""
         self._ctx = context
         self._window_geometry = WindowGeometry.of(context.camera, self._windows)
-        self._cone = ConeWorkspace.from_rcm(
-            context.p_world_rcm,
-            context.T_world_ring[:3, 3],
-            self.config.cone_height,
-            self.config.cone_base_radius,
-        )
+        self._cone = self.config.workspace(context.p_world_rcm, context.T_world_ring[:3, 3]).cone
         self.d_f = self.config.d_f
         self._last_goal = None
         self._last_cmd = np.array(context.T_world_cam, dtype=float)

@@ -49,7 +49,6 @@ from gymnasium import spaces
 from pydantic import BaseModel, ConfigDict, Field
 
 from endocam.config import ExperimentConfig
-from endocam.control.safety import ConeWorkspace
 from endocam.control.types import PolicyContext
 from endocam.geometry import FloatArray, R_from_quat_wxyz, make_pose, quat_wxyz_from_R, so3_exp
 from endocam.geometry import so3_log as so3_log_array
@@ -197,19 +196,23 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._T_sensed = self.trajectory.poses(np.clip(t - exp.episode.sensing_latency, 0, None))
         self._tips = instrument_tips(exp.task, t, self._T_ring)
         self._T_overview = overview_camera_pose(exp.task, self.camera)
+        self._p_rcm = np.array(exp.task.scene.rcm_position)
+        # the episode loop's workspace: the carriers keep the camera in its cone and above its floor
+        workspace = exp.controller.workspace(self._p_rcm, self._T_sensed[0][:3, 3])
+        self.cone = workspace.cone
         self.actuator: Actuator = make_actuator(
-            self.arm, exp.episode.limits, exp.episode.T_tip_cam, exp.task.scene.T_world_rcm, self.dt
+            self.arm,
+            exp.episode.limits,
+            exp.episode.T_tip_cam,
+            exp.task.scene.T_world_rcm,
+            self.dt,
+            workspace,
         )
         start, look = self.actuator.start_view(self._T_overview, task_centre(exp.task))
         self._T_cam = self.actuator.reset(start, look)
         self._q = self.actuator.q
         self._setpoint = self._T_cam.copy()  # the free camera's set point
         self._q_setpoint = np.array(self._q)  # the PSM's joint set point
-        self._p_rcm = np.array(exp.task.scene.rcm_position)
-        ctrl = exp.controller
-        self.cone = ConeWorkspace.from_rcm(
-            self._p_rcm, self._T_sensed[0][:3, 3], ctrl.cone_height, ctrl.cone_base_radius
-        )
         self._k = 0
         return self._observation(), {"t": 0.0, "trajectory_seed": self.trajectory_seed}
 
