@@ -318,6 +318,7 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             self.config.experiment.episode.sensing_latency,
             future=self.trajectory.poses,
             future_duration=float(self.trajectory.duration),
+            follows_twist=False,  # action_towards maps the pose alone; a twist would be ignored
         )
 
     def action_towards(self, T_world_cmd: FloatArray, look_distance: float) -> np.ndarray:
