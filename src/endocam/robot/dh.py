@@ -37,6 +37,7 @@ __all__ = [
     "geometric_jacobian",
     "link_transform",
     "pose12_from_matrix",
+    "pose12_point",
     "pose12_times",
     "pose12_to_matrix",
 ]
@@ -305,6 +306,21 @@ def pose12_times(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> Pose12:
         r10 * a3 + r11 * b3 + r12 * c3 + py,
         r20 * a3 + r21 * b3 + r22 * c3 + pz,
     )
+
+
+def pose12_point(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> list[float]:
+    """Translation of ``T · B`` alone (3 floats, m): :func:`pose12_times`'s last three values.
+
+    The same products in the same order, without the rotation (for checks that only need
+    where a point is, e.g. the camera on a braking path).
+    """
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = T
+    (_, _, _, a3), (_, _, _, b3), (_, _, _, c3) = rows
+    return [
+        r00 * a3 + r01 * b3 + r02 * c3 + px,
+        r10 * a3 + r11 * b3 + r12 * c3 + py,
+        r20 * a3 + r21 * b3 + r22 * c3 + pz,
+    ]
 
 
 def pose12_to_matrix(T: Pose12, tip: tuple[tuple[float, ...], ...] | None = None) -> FloatArray:
