@@ -260,21 +260,16 @@ def compose_links(
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _compose_kernel(
     params: FloatArray, q: tuple[float, ...], start: int, stop: int, T0: Pose12
-) -> Pose12:  # pragma: no cover - compiled; its Python form is tested against it
+) -> Pose12:
     """:func:`compose_links` on the chain's (n, 7) parameter array (``DHChain._param_array``)."""
     r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = T0
     for i in range(start, stop):
-        ca, sa, a_len, d, theta = (
-            params[i, 0],
-            params[i, 1],
-            params[i, 2],
-            params[i, 3],
-            params[i, 4],
-        )
+        ca, sa, a_len = params[i, 0], params[i, 1], params[i, 2]
+        d, theta, offset = params[i, 3], params[i, 4], params[i, 5]
         if params[i, _REVOLUTE_COLUMN] != 0.0:
-            theta = q[i] + params[i, 5]
+            theta = q[i] + offset
         else:
-            d = q[i] + params[i, 5]
+            d = q[i] + offset
         c, s = math.cos(theta), math.sin(theta)
         e1, e2 = -sa * d, ca * d
         # translation: A · x + (-sa d) · y + (ca d) · z of the current frame
