@@ -14,7 +14,9 @@ from endocam.robot import ECM, PSM, IKStatus, UnreachableError
 from endocam.robot.dh import (
     DHLink,
     JointType,
+    _compose_kernel,
     chain_forward,
+    compose_links,
     link_transform,
     pose12_from_matrix,
 )
@@ -85,6 +87,28 @@ def test_fast_fk_equals_link_product(arm: PSM | ECM) -> None:
         T = T @ arm.chain.T_last_tip
         np.testing.assert_allclose(chain_forward(arm.chain, q), T, atol=ATOL_M)
         np.testing.assert_allclose(arm.frames(q)[-1], T, atol=ATOL_M)
+
+
+N_COMPILED = 2000  # count: random products compared bit for bit, compiled vs interpreted
+
+
+@pytest.mark.parametrize("arm", [PSM_ARM, ECM_ARM], ids=["psm", "ecm"])
+def test_compiled_compose_gives_the_interpreters_floats(arm: PSM | ECM) -> None:
+    """The compiled link product is the same IEEE arithmetic as its Python form, bit for bit.
+
+    (No fast-math, the same operations in the same order, libm's sin and cos: the episode
+    logs, written with repr(float), depend on it.)
+    """
+    rng = np.random.default_rng(7)
+    chain, n = arm.chain, arm.n_joints
+    for _ in range(N_COMPILED):
+        q = rng.uniform(-4.0, 4.0, n).tolist()
+        T0 = tuple(rng.normal(size=12).tolist())
+        start = int(rng.integers(0, n))
+        stop = int(rng.integers(start, n + 1))
+        expected = _compose_kernel.py_func(chain._param_array, tuple(q), start, stop, T0)
+        assert compose_links(chain, q, start, stop, T0) == expected
+    assert compose_links(chain, [0] * n) == compose_links(chain, [0.0] * n)  # ints: floats
 
 
 def test_psm_zero_pose() -> None:

@@ -11,7 +11,7 @@ from endocam.geometry import make_pose
 from endocam.robot.actuator import ActuatorStatus, ArmKind
 from endocam.robot.arm import MotionStatus
 from endocam.robot.camera_arm import CameraArm, natural_pose
-from endocam.robot.dh import pose12_from_matrix, pose12_times, pose12_to_matrix
+from endocam.robot.dh import pose12_from_matrix, pose12_point, pose12_times, pose12_to_matrix
 from endocam.robot.ik import pose12_error, pose_error
 
 ATOL_M = 1e-12  # m: float kernels vs numpy products, round-off only
@@ -41,6 +41,8 @@ def test_pose12_kernels_match_numpy():
         np.testing.assert_array_equal(pose12_to_matrix(a12), A)
         rows = tuple(tuple(r) for r in B[:3].tolist())
         np.testing.assert_allclose(pose12_to_matrix(pose12_times(a12, rows)), A @ B, atol=ATOL_M)
+        np.testing.assert_allclose(pose12_point(a12, rows), (A @ B)[:3, 3], atol=ATOL_M)
+        assert pose12_point(a12, rows) == list(pose12_times(a12, rows)[9:])  # the same floats
         pos, ang = pose12_error(a12, pose12_from_matrix(B))
         pos_ref, ang_ref = pose_error(A, B)
         assert pos == pytest.approx(pos_ref, abs=ATOL_M)
@@ -55,6 +57,8 @@ def test_camera_pose_fast_path_is_fk(kind: ArmKind):
         q = arm.model.clamp(natural_pose(arm.model) + rng.uniform(-0.3, 0.3, arm.model.n_joints))
         expected = arm.T_world_rcm @ arm.model.forward(q) @ arm.T_tip_cam
         np.testing.assert_allclose(arm.camera_pose(q), expected, atol=ATOL_M)
+        # the workspace guard's braking check sees exactly the logged camera position
+        assert arm._camera_position(q.tolist()) == arm.camera_pose(q)[:3, 3].tolist()
 
 
 @pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])

@@ -13,6 +13,7 @@ Types: ``Vec`` is a 3-tuple of floats; ``Rows`` is a 3×3 (or 4×4) matrix as a 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -128,20 +129,26 @@ def tmatmul(A: Rows, B: Rows) -> Rows:
     return matmul([[a00, a10, a20], [a01, a11, a21], [a02, a12, a22]], B)
 
 
-def rotation_angle(A: Rows, B: Rows) -> float:
+def rotation_angle(A: Sequence[Sequence[float]], B: Sequence[Sequence[float]]) -> float:
     """Angle of the relative rotation ``A^T B`` of two rotations (rows), rad, in [0, π].
 
     ``atan2(|sin|, cos)`` from the skew and trace parts of ``M = A^T B``: accurate near 0 and π
-    (``arccos`` of the trace is not).
+    (``arccos`` of the trace is not). ``A`` and ``B`` may hold more columns or rows (a
+    (4, 4) pose's rows); only the top-left 3×3 is read.
     """
-
-    def m(i: int, j: int) -> float:  # M_ij = sum_k A_ki B_kj
-        return A[0][i] * B[0][j] + A[1][i] * B[1][j] + A[2][i] * B[2][j]
-
-    s = 0.5 * math.sqrt(
-        (m(2, 1) - m(1, 2)) ** 2 + (m(0, 2) - m(2, 0)) ** 2 + (m(1, 0) - m(0, 1)) ** 2
-    )
-    c = 0.5 * (m(0, 0) + m(1, 1) + m(2, 2) - 1.0)
+    a0, a1, a2, b0, b1, b2 = A[0], A[1], A[2], B[0], B[1], B[2]
+    # M_ij = sum_k A_ki B_kj, written out (no call per entry: this runs several times a step)
+    m00 = a0[0] * b0[0] + a1[0] * b1[0] + a2[0] * b2[0]
+    m01 = a0[0] * b0[1] + a1[0] * b1[1] + a2[0] * b2[1]
+    m02 = a0[0] * b0[2] + a1[0] * b1[2] + a2[0] * b2[2]
+    m10 = a0[1] * b0[0] + a1[1] * b1[0] + a2[1] * b2[0]
+    m11 = a0[1] * b0[1] + a1[1] * b1[1] + a2[1] * b2[1]
+    m12 = a0[1] * b0[2] + a1[1] * b1[2] + a2[1] * b2[2]
+    m20 = a0[2] * b0[0] + a1[2] * b1[0] + a2[2] * b2[0]
+    m21 = a0[2] * b0[1] + a1[2] * b1[1] + a2[2] * b2[1]
+    m22 = a0[2] * b0[2] + a1[2] * b1[2] + a2[2] * b2[2]
+    s = 0.5 * math.sqrt((m21 - m12) ** 2 + (m02 - m20) ** 2 + (m10 - m01) ** 2)
+    c = 0.5 * (m00 + m11 + m22 - 1.0)
     return math.atan2(s, c)
 
 

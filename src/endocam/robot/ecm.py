@@ -39,9 +39,9 @@ from endocam.robot.dh import (
     DHLink,
     JointType,
     Pose12,
-    chain_forward,
     compose_links,
     pose12_from_matrix,
+    pose12_point,
     pose12_times,
     pose12_to_matrix,
 )
@@ -289,9 +289,9 @@ class ECM(RcmArm):
         span = hi - lo
         x0 = np.clip(q0, lo + 1e-9 * span, hi - 1e-9 * span)
 
-        def residual(x: FloatArray) -> FloatArray:
-            q = np.append(x, 0.0)
-            return chain_forward(self._chain, q)[:3, 3] - p_goal
+        def residual(x: FloatArray) -> FloatArray:  # the tip position of chain_forward
+            T = compose_links(self._chain, [*x.tolist(), 0.0])
+            return np.array(pose12_point(T, self._chain._tip_rows)) - p_goal
 
         sol = least_squares(residual, x0, bounds=(lo, hi), method="trf", xtol=1e-12, ftol=1e-12)
         return np.clip(np.asarray(sol.x, dtype=np.float64), lo, hi)
