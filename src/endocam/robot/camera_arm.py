@@ -51,7 +51,7 @@ from endocam.robot.ecm import ECM
 from endocam.robot.kinematics import RcmArm
 from endocam.robot.psm import PSM
 from endocam.task.config import TaskConfig
-from endocam.task.layout import port_view
+from endocam.task.layout import FramingError, port_view
 from endocam.view import look_at_unchecked, rotation_looking_along, vec
 
 __all__ = [
@@ -775,7 +775,7 @@ def arm_start_view(
 
     Raises
     ------
-    ValueError
+    FramingError
         When no view from the port frames the task, or the arm cannot take the view, or the
         view lies outside the arm's workspace (one line naming the problem).
     """
@@ -787,7 +787,7 @@ def arm_start_view(
         _, T_reached, status = arm.target(T, look)
         reached_roll = _roll_from_level(T_reached)
         if status is ActuatorStatus.NEAREST:
-            raise ValueError(
+            raise FramingError(
                 f"start view: the {arm.kind.value} cannot take the view of the whole task "
                 f"from its port {_norm(T[:3, 3] - port):.3f} m ahead"
             )
@@ -795,9 +795,9 @@ def arm_start_view(
             break
         roll = reached_roll
     else:
-        raise ValueError(f"start view: the {arm.kind.value}'s roll did not settle")
+        raise FramingError(f"start view: the {arm.kind.value}'s roll did not settle")
     if arm.workspace is not None and arm.workspace.margin(T[:3, 3].tolist()) < 0.0:
-        raise ValueError("start view: the view of the whole task is outside the workspace")
+        raise FramingError("start view: the view of the whole task is outside the workspace")
     return T, look
 
 

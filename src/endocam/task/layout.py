@@ -22,6 +22,7 @@ from endocam.view import rotation_looking_along
 
 __all__ = [
     "VIEW_MARGIN",
+    "FramingError",
     "image_fraction",
     "overview_camera_pose",
     "port_view",
@@ -31,6 +32,12 @@ __all__ = [
 ]
 
 VIEW_MARGIN = 0.1  # unitless: spare fraction of each image half-size around the whole task
+
+
+class FramingError(ValueError):
+    """The configured port cannot give a start view of the whole task (a config problem)."""
+
+
 _FRAMING_TOL_M = 1e-4  # m: the port view's distance from the port is resolved to 0.1 mm
 _NO_IMAGE = 1e3  # unitless: the optimiser's finite stand-in for a point without an image
 _FRAMING_TOL_RAD = 1e-4  # rad: and its look direction to 0.1 mrad (0.05 px at 415 px/rad)
@@ -215,8 +222,10 @@ def port_view(
     Raises
     ------
     ValueError
-        For a bad ``gap`` or ``margin``, or when no view from the port frames the task (the
-        message says how much of the image it would need).
+        For a bad ``gap`` or ``margin``.
+    FramingError
+        When no view from the port frames the task (the message says how much of the image it
+        would need).
     """
     T, look = _port_view(task_cfg, camera, tuple(p_world_port), gap, margin, roll)
     return T.copy(), look
@@ -242,7 +251,7 @@ def _port_view(
     to_centre = task_centre(task_cfg) - port
     d_centre = float(np.linalg.norm(to_centre))
     if d_centre <= gap:
-        raise ValueError(
+        raise FramingError(
             f"port: the task centre is {d_centre:.3f} m from the port, not beyond the "
             f"camera's {gap:.3f} m gap"
         )
@@ -261,8 +270,13 @@ def _port_view(
         return float(res.fun), np.asarray(res.x)
 
     need, a_lo = best(gap, np.array([yaw0, pitch0]))
+    if need >= _NO_IMAGE:
+        raise FramingError(
+            f"port: from {gap:.3f} m beyond the port, part of the task is behind the camera "
+            "whichever way it looks (the port is among the task)"
+        )
     if need > 1.0 - margin:
-        raise ValueError(
+        raise FramingError(
             f"port: no view from {gap:.3f} m beyond the port frames the task: it needs "
             f"{need:.0%} of the image half-size, {1.0 - margin:.0%} allowed"
         )
