@@ -82,7 +82,11 @@ def _layout_points(wire_cfg: WireConfig, psm2_tip: Vec3) -> FloatArray:
 
 def task_centre(task_cfg: TaskConfig) -> FloatArray:
     """(3,) centre of the bounding box of the wire, its posts and PSM2's tip, world, m."""
-    pts = _task_points(task_cfg)
+    return _box_centre(_task_points(task_cfg))
+
+
+def _box_centre(pts: FloatArray) -> FloatArray:
+    """(3,) centre of the bounding box of points (N, 3), m."""
     return np.asarray(0.5 * (pts.min(axis=0) + pts.max(axis=0)), dtype=float)
 
 
@@ -227,28 +231,36 @@ def port_view(
         When no view from the port frames the task (the message says how much of the image it
         would need).
     """
-    T, look = _port_view(task_cfg, camera, tuple(p_world_port), gap, margin, roll)
+    instruments = task_cfg.instruments
+    T, look = _port_view(
+        task_cfg.wire, instruments.psm2_tip, camera, tuple(p_world_port), gap, margin, roll
+    )
     return T.copy(), look
 
 
 @functools.lru_cache(maxsize=16)
 def _port_view(
-    task_cfg: TaskConfig,
+    wire_cfg: WireConfig,
+    psm2_tip: Vec3,
     camera: StereoCamera,
     p_world_port: tuple[float, ...],
     gap: float,
     margin: float,
     roll: float,
 ) -> tuple[FloatArray, float]:
-    """:func:`port_view`, cached (one optimisation per task, camera and port)."""
+    """:func:`port_view`, cached by what it depends on.
+
+    One optimisation per wire, PSM2 tip, camera and port, whatever the trajectory settings.
+    """
     if not (math.isfinite(gap) and gap > 0.0):
         raise ValueError(f"gap: must be a positive number of metres, got {gap}")
     if not 0.0 <= margin < 1.0:
         raise ValueError(f"margin must be in [0, 1), got {margin}")
     port = as_vector3(p_world_port, "p_world_port")
-    pts = _task_points(task_cfg)
+    pts = _layout_points(wire_cfg, psm2_tip)
     hull = pts[ConvexHull(pts).vertices]
-    to_centre = task_centre(task_cfg) - port
+    centre = _box_centre(pts)
+    to_centre = centre - port
     d_centre = float(np.linalg.norm(to_centre))
     if d_centre <= gap:
         raise FramingError(
@@ -289,6 +301,6 @@ def _port_view(
         else:
             hi = mid
     T = _port_pose(port, float(a_lo[0]), float(a_lo[1]), lo, roll)
-    look = max(float((task_centre(task_cfg) - T[:3, 3]) @ T[:3, 2]), lo)
+    look = max(float((centre - T[:3, 3]) @ T[:3, 2]), lo)
     T.setflags(write=False)
     return T, look
