@@ -22,7 +22,7 @@ from endocam.runner.experiments import study_path_config
 from endocam.sim.render import WireChaserScene
 from endocam.study.make import trajectory_seeds
 from endocam.study.observability import observe_episode
-from endocam.task.layout import _task_points
+from endocam.task.layout import task_points
 from endocam.task.study_paths import DEFAULT_STUDY_SEED, STUDY_TRAJECTORIES
 from endocam.task.trajectory import TrajectoryKind
 
@@ -38,7 +38,7 @@ def main(out: Path) -> None:
     cfg = study_path_config(ExperimentConfig(), path)
     result = run_episode(cfg, EpisodeSpec("fixed", TrajectoryKind.NOISY, path.control_points, seed))
     T_cam = result.log.T_world_cam[0]
-    uv = result.camera.project(T_cam, _task_points(cfg.task), "left")
+    uv = result.camera.project(T_cam, task_points(cfg.task), "left")
     k = result.camera.intrinsics
     inside = (uv[:, 0] >= 0) & (uv[:, 0] < k.width) & (uv[:, 1] >= 0) & (uv[:, 1] < k.height)
     with WireChaserScene(cfg.task, result.camera, arm=cfg.episode.arm) as scene:

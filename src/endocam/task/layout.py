@@ -29,6 +29,7 @@ __all__ = [
     "psm1_tip_in_ring",
     "psm2_pose",
     "task_centre",
+    "task_points",
 ]
 
 VIEW_MARGIN = 0.1  # unitless: spare fraction of each image half-size around the whole task
@@ -62,14 +63,14 @@ def psm2_pose(instruments: InstrumentConfig, p_world_tip: ArrayLike | None = Non
     return make_pose(np.column_stack([x, y, z]), tip)
 
 
-def _task_points(task_cfg: TaskConfig) -> FloatArray:
+def task_points(task_cfg: TaskConfig) -> FloatArray:
     """(N, 3) points the whole-task view must show: wire, post bases, PSM2's tip, m."""
     return _layout_points(task_cfg.wire, task_cfg.instruments.psm2_tip)
 
 
 @functools.lru_cache(maxsize=16)
 def _layout_points(wire_cfg: WireConfig, psm2_tip: Vec3) -> FloatArray:
-    """:func:`_task_points` of a wire and a tip (read-only, cached).
+    """:func:`task_points` of a wire and a tip (read-only, cached).
 
     Building the wire's splines costs milliseconds, and every episode asks for its layout
     several times (the centre, the overview) with the same wire.
@@ -82,7 +83,7 @@ def _layout_points(wire_cfg: WireConfig, psm2_tip: Vec3) -> FloatArray:
 
 def task_centre(task_cfg: TaskConfig) -> FloatArray:
     """(3,) centre of the bounding box of the wire, its posts and PSM2's tip, world, m."""
-    return _box_centre(_task_points(task_cfg))
+    return _box_centre(task_points(task_cfg))
 
 
 def _box_centre(pts: FloatArray) -> FloatArray:
@@ -121,7 +122,7 @@ def overview_camera_pose(
         raise ValueError(f"elevation must be in (0, π/2] rad, got {elevation}")
     if not 0.0 <= margin < 1.0:
         raise ValueError(f"margin must be in [0, 1), got {margin}")
-    pts = _task_points(task_cfg)
+    pts = task_points(task_cfg)
     centre = task_centre(task_cfg)
     z = np.array([0.0, math.cos(elevation), -math.sin(elevation)])
     x = np.array([1.0, 0.0, 0.0])
@@ -195,7 +196,7 @@ def port_view(
     The camera looks along a line through the port (the optical axis of a scope in its
     cannula), at least ``gap`` beyond it; the horizon is level, turned by ``roll``. Among
     these views it takes the one nearest to the task (largest distance ``s`` from the port)
-    that still shows every task point (:func:`_task_points`) in both eyes with ``margin``
+    that still shows every task point (:func:`task_points`) in both eyes with ``margin``
     spare: at each ``s`` the look direction minimising :func:`image_fraction` (Nelder–Mead
     from the direction of the task centre), and a bisection over ``s``, along which that
     minimum only grows (moving the camera forward along its axis moves every offset outwards).
