@@ -124,19 +124,13 @@ def test_carrier_never_takes_the_camera_below_the_floor(kind: ArmKind) -> None:
         DT,
         Workspace(cone, floor),
     )
-    T = actuator.reset(*actuator.start_view(_overview(cfg), np.array([0.0, 0.0, 0.04])))
+    T = actuator.reset(*actuator.start_view(cfg.task, cfg.camera.stereo()))
     assert T[2, 3] > floor
     goal = np.array(T)
     goal[2, 3] = floor - 20 * MM  # commanded 2 cm under the floor, straight down
     z = [actuator.step(goal, 0.05).T_world_cam[2, 3] for _ in range(300)]
     assert min(z) >= floor
     assert min(z) < floor + 20 * MM  # it did go down, as far as the floor allowed
-
-
-def _overview(cfg: ExperimentConfig) -> Any:
-    from endocam.task.layout import overview_camera_pose
-
-    return overview_camera_pose(cfg.task, cfg.camera.stereo())
 
 
 _rates = st.sampled_from([0.0, 0.0, 0.5, 2.0])

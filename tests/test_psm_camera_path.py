@@ -1,6 +1,6 @@
 """The PSM camera reaches a far goal along a camera-space path: its view stays on the look-at point.
 
-Independent facts, from the arm's start view (the port view of the task centre, 0.2 m back) to
+Independent facts, from the port view of the task centre (8 cm ahead of the port) to
 goals that look at the task centre from 5 cm, 35–60° away, all reachable exactly: with the path
 the optical axis never strays far from the look-at point on any step, without it (the straight
 joint-space line) it does; joints stay inside their position and velocity limits; every camera
@@ -18,9 +18,10 @@ from endocam.config import ExperimentConfig
 from endocam.robot.actuator import ActuatorStatus, ArmKind
 from endocam.robot.arm import PSM_MAX_VELOCITY
 from endocam.robot.camera_arm import CameraArm
-from endocam.task.layout import overview_camera_pose, task_centre
+from endocam.task.layout import task_centre
 from endocam.view import look_at_unchecked
 
+PORT_GAP_M = 0.08  # m: the start camera's distance ahead of the port
 LOOK_DISTANCE_M = 0.05  # m: the goal's working distance
 STEPS = 400  # count: 4 s at 100 Hz, enough to arrive and settle
 AIM_TOL_RAD = math.radians(6.0)  # rad: largest angle between optical axis and look-at point, path
@@ -36,11 +37,12 @@ def _run(direction: tuple[float, ...], camera_path: bool, monkeypatch: pytest.Mo
     monkeypatch.setattr(CameraArm, "camera_path", camera_path)
     cfg = ExperimentConfig()
     arm = CameraArm(ArmKind.PSM, cfg.task.scene.T_world_rcm, cfg.episode.T_tip_cam, 0.01)
-    T0, look0 = arm.start_view(
-        overview_camera_pose(cfg.task, cfg.camera.stereo()), task_centre(cfg.task)
-    )
-    arm.reset(T0, look0)
     c = task_centre(cfg.task)
+    p_rcm = arm.p_world_rcm
+    look0 = float(np.linalg.norm(p_rcm - c)) - PORT_GAP_M
+    T_start, _ = arm.start_view(cfg.task, cfg.camera.stereo())  # its horizon
+    T0 = look_at_unchecked(c + look0 * (p_rcm - c) / np.linalg.norm(p_rcm - c), c, T_start, T_start)
+    arm.reset(T0, look0)
     u = np.asarray(direction) / np.linalg.norm(direction)
     T_goal = look_at_unchecked(c + LOOK_DISTANCE_M * u, c, T0, T0)
     steps = [arm.step(T_goal, LOOK_DISTANCE_M) for _ in range(STEPS)]

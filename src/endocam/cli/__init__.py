@@ -1,7 +1,8 @@
 """The ``endocam`` command line: parses, validates and calls the library.
 
 Every user mistake (unknown policy, bad number, unwritable folder, malformed config) ends as one
-line on stderr and exit code 2, never a traceback; an ``OSError`` (a file system refusing) too.
+line on stderr and exit code 2, never a traceback; an ``OSError`` (a file system refusing) and a
+port that cannot frame its task (``FramingError``) too.
 Any other exception is an internal error: one line and exit code 1, its traceback only with
 ``--debug``. One module per command group (``policies``,
 ``run`` for run/demo/experiment/config, ``study``), each with ``register(subparsers)``; they
@@ -18,6 +19,7 @@ from collections.abc import Callable, Sequence
 from endocam import __version__
 from endocam.cli import check, policies, run, study, sweep
 from endocam.cli.common import EXIT_INTERNAL, EXIT_USAGE, Parser, UsageError
+from endocam.task.layout import FramingError
 
 __all__ = ["EXIT_INTERNAL", "EXIT_USAGE", "UsageError", "build_parser", "main"]
 
@@ -50,6 +52,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         code = handler(args)
     except UsageError as exc:
         print(f"endocam: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except FramingError as exc:  # the config's port cannot frame its task
+        print(f"endocam: error: config: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("endocam: interrupted", file=sys.stderr)

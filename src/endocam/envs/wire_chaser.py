@@ -64,7 +64,7 @@ from endocam.robot.arm import PSM_MAX_VELOCITY
 from endocam.robot.camera_arm import CameraArm
 from endocam.robot.carriers import make_actuator
 from endocam.task.instruments import instrument_tips
-from endocam.task.layout import overview_camera_pose, task_centre
+from endocam.task.layout import overview_camera_pose
 from endocam.task.trajectory import RingTrajectory, TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
 
@@ -208,7 +208,7 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             self.dt,
             workspace,
         )
-        start, look = self.actuator.start_view(self._T_overview, task_centre(exp.task))
+        start, look = self.actuator.start_view(exp.task, self.camera)
         self._T_cam = self.actuator.reset(start, look)
         self._q = self.actuator.q
         self._setpoint = self._T_cam.copy()  # the free camera's set point

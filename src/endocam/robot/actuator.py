@@ -13,9 +13,13 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Sequence
-from typing import NamedTuple, Protocol
+from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 from endocam.geometry import FloatArray
+
+if TYPE_CHECKING:
+    from endocam.camera import StereoCamera
+    from endocam.task.config import TaskConfig
 
 
 class ArmKind(enum.Enum):
@@ -100,13 +104,11 @@ class Actuator(Protocol):
         """Measured joint positions (n,), rad / m (``(0,)`` without joints)."""
         ...
 
-    def start_view(
-        self, T_world_overview: FloatArray, p_world_centre: FloatArray
-    ) -> tuple[FloatArray, float]:
+    def start_view(self, task_cfg: TaskConfig, camera: StereoCamera) -> tuple[FloatArray, float]:
         """The camera pose (4, 4) this carrier starts an episode from, and its look distance (m).
 
-        ``T_world_overview`` is the whole-task view, ``p_world_centre`` (3,) the task centre it
-        looks at, m.
+        A view of the whole task of ``task_cfg`` through ``camera``: the fixed camera's view,
+        and every moving camera's start.
         """
         ...
 

@@ -35,7 +35,8 @@ import math
 import numpy as np
 import ruckig
 
-from endocam.geometry import FloatArray, as_pose, invert_pose
+from endocam.camera import StereoCamera
+from endocam.geometry import UP, FloatArray, as_pose, invert_pose
 from endocam.kernels import cross, rotation_angle, so3_exp
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import (
@@ -55,7 +56,9 @@ from endocam.robot.dh import (
 from endocam.robot.ecm import ECM
 from endocam.robot.kinematics import RcmArm
 from endocam.robot.psm import PSM
-from endocam.view import look_at_unchecked
+from endocam.task.config import TaskConfig
+from endocam.task.layout import FramingError, port_view
+from endocam.view import look_at_unchecked, rotation_looking_along, vec
 
 __all__ = [
     "ARM_START_GAP",
@@ -276,11 +279,22 @@ class CameraArm:
         """Joint names from the base outwards."""
         return self.model.joint_names
 
-    def start_view(
-        self, T_world_overview: FloatArray, p_world_centre: FloatArray
-    ) -> tuple[FloatArray, float]:
-        """The port view of the task centre this arm starts from (:func:`arm_start_view`)."""
-        return arm_start_view(T_world_overview, p_world_centre, self._p_world_rcm)
+    def start_view(self, task_cfg: TaskConfig, camera: StereoCamera) -> tuple[FloatArray, float]:
+        """The port view of the whole task this arm starts from (:func:`arm_start_view`)."""
+        return arm_start_view(self, task_cfg, camera)
+
+    @property
+    def p_world_rcm(self) -> FloatArray:
+        """(3,) the RCM (the port) in world, m (copy)."""
+        return self._p_world_rcm.copy()
+
+    @property
+    def shortest_reach(self) -> float:
+        """Distance from the RCM to the camera at the shortest insertion, wrist straight, m."""
+        q = natural_pose(self.model)
+        prismatic = np.array(self.model.prismatic)
+        q[prismatic] = self.model.lower[prismatic]
+        return _norm(self.camera_pose(q)[:3, 3] - self._p_world_rcm)
 
     @property
     def q(self) -> FloatArray:
@@ -735,39 +749,76 @@ def _wrist_jump(kind: ArmKind, q_before: list[float], q_after: list[float]) -> b
     return max(abs(a - b) for a, b in zip(q_before[3:], q_after[3:], strict=True)) > WRIST_JUMP_RAD
 
 
-ARM_START_GAP = 0.08  # m: the arm's start view keeps the camera this far ahead of the port
+# m: the start view keeps the camera at least this far beyond the port (the RCM, in the body
+# wall). A scope's view starts where its tip leaves the cannula, whose tip reaches a few cm
+# beyond the remote centre (assumed: 3 cm); the arm's own shortest reach may be longer (the
+# PSM-held camera with its wrist straight: 0.061 m), and then that is the bound.
+ARM_START_GAP = 0.03
+START_ROLL_TOL_RAD = 1e-3  # rad: the start view's roll is iterated until the arm's agrees this well
+_START_ROLL_ITERATIONS = 6  # count: the default ECM settles in 4 framings (the first level)
 
 
 def arm_start_view(
-    T_world_overview: FloatArray, p_world_centre: FloatArray, p_world_rcm: FloatArray
+    arm: CameraArm, task_cfg: TaskConfig, camera: StereoCamera
 ) -> tuple[FloatArray, float]:
-    """The whole-task view an arm camera starts from, and the distance it looks at.
+    """The whole-task view a camera on an arm starts from, and the distance it looks at.
 
     The free camera starts at the overview pose. A camera on an arm starts where a surgeon
-    would aim an endoscope just inserted: at the view of the task centre straight from the
-    port (optical axis through the RCM, level horizon), which every RCM arm can take with its
-    wrist straight. The look-at distance is the overview's, shortened so the camera stays
-    ``ARM_START_GAP`` ahead of the port.
+    would aim a scope just inserted: looking along a line through the port (the RCM), as near
+    to the task as still frames all of it (:func:`~endocam.task.layout.port_view`: the wire,
+    its post bases and PSM2's tip in both eyes with ``VIEW_MARGIN`` spare), the camera at least
+    ``ARM_START_GAP`` beyond the port and no nearer than the arm reaches with its wrist
+    straight. The horizon is level where the arm can level it; a carrier whose roll is at a
+    limit there (the 4-DoF ECM) is framed with the roll it takes, found by iterating.
 
     Parameters
     ----------
-    T_world_overview : (4, 4) ndarray
-        The fixed camera's whole-task pose, m.
-    p_world_centre : (3,) ndarray
-        Task centre the overview looks at, m.
-    p_world_rcm : (3,) ndarray
-        The camera arm's RCM, m.
+    arm : CameraArm
+    task_cfg : TaskConfig
+    camera : StereoCamera
 
     Returns
     -------
     T_world_cam : (4, 4) ndarray
-        The port view of the centre from that distance, m.
+        The start view, world, optical frame, m.
     look_distance : float
         m.
+
+    Raises
+    ------
+    FramingError
+        When no view from the port frames the task, or the arm cannot take the view, or the
+        view lies outside the arm's workspace (one line naming the problem).
     """
-    d_overview = float(np.linalg.norm(p_world_centre - T_world_overview[:3, 3]))
-    d_port = float(np.linalg.norm(p_world_centre - p_world_rcm))
-    look = max(min(d_overview, d_port - ARM_START_GAP), 0.5 * d_port)
-    T = np.array(T_world_overview, dtype=float)
-    T[:3, 3] = p_world_centre - look * T[:3, 2]  # the overview, looking at the centre from there
-    return view_towards_port(T, look, p_world_rcm, 1.0), look
+    gap = max(ARM_START_GAP, arm.shortest_reach)
+    port = arm.p_world_rcm
+    roll = 0.0
+    for _ in range(_START_ROLL_ITERATIONS):
+        T, look = port_view(task_cfg, camera, vec(port), gap, roll=roll)
+        _, T_reached, status = arm.target(T, look)
+        reached_roll = _roll_from_level(T_reached)
+        if status is ActuatorStatus.NEAREST:
+            raise FramingError(
+                f"start view: the {arm.kind.value} cannot take the view of the whole task "
+                f"from its port {_norm(T[:3, 3] - port):.3f} m ahead"
+            )
+        if abs(_wrap(reached_roll - roll)) <= START_ROLL_TOL_RAD:
+            break
+        roll = reached_roll
+    else:
+        raise FramingError(f"start view: the {arm.kind.value}'s roll did not settle")
+    if arm.workspace is not None and arm.workspace.margin(T[:3, 3].tolist()) < 0.0:
+        raise FramingError("start view: the view of the whole task is outside the workspace")
+    return T, look
+
+
+def _roll_from_level(T: FloatArray) -> float:
+    """Image roll of a camera pose (4, 4) about its optical axis from the level horizon, rad."""
+    x_level = rotation_looking_along(T[:3, 2], UP, None)[:, 0]
+    x = T[:3, 0]
+    return math.atan2(float(np.cross(x_level, x) @ T[:3, 2]), float(x_level @ x))
+
+
+def _wrap(angle: float) -> float:
+    """An angle in (−π, π], rad."""
+    return math.atan2(math.sin(angle), math.cos(angle))

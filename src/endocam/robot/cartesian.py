@@ -27,10 +27,13 @@ from ruckig import (
     Trajectory,
 )
 
+from endocam.camera import StereoCamera
 from endocam.geometry import FloatArray, as_pose
 from endocam.kernels import Rows, matmul, so3_exp, so3_log, tmatmul
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import MotionStatus
+from endocam.task.config import TaskConfig
+from endocam.task.layout import overview_camera_pose, task_centre
 
 
 class MotionLimits(BaseModel):
@@ -416,12 +419,11 @@ class FreeCamera:
         """No joints: ``(0,)``."""
         return _NO_JOINTS
 
-    def start_view(
-        self, T_world_overview: FloatArray, p_world_centre: FloatArray
-    ) -> tuple[FloatArray, float]:
+    def start_view(self, task_cfg: TaskConfig, camera: StereoCamera) -> tuple[FloatArray, float]:
         """The free camera starts at the overview pose itself, looking at the task centre."""
-        look = float(np.linalg.norm(np.asarray(p_world_centre) - T_world_overview[:3, 3]))
-        return T_world_overview, look
+        T_overview = overview_camera_pose(task_cfg, camera)
+        look = float(np.linalg.norm(task_centre(task_cfg) - T_overview[:3, 3]))
+        return T_overview, look
 
     def reset(self, T_world_cam: object, look_distance: float | None = None) -> FloatArray:
         """Start at rest at ``T_world_cam`` (4, 4); returns it."""

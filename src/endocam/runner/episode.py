@@ -34,7 +34,7 @@ from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
 from endocam.robot.carriers import make_actuator
 from endocam.task.config import MAX_CONTROL_POINTS
 from endocam.task.instruments import instrument_tips
-from endocam.task.layout import overview_camera_pose, task_centre
+from endocam.task.layout import overview_camera_pose
 from endocam.task.touches import TouchReport, touch_events
 from endocam.task.trajectory import RingTrajectory, TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
@@ -254,7 +254,7 @@ def run_episode(
     actuator = make_actuator(
         kind, ep.limits, ep.T_tip_cam, config.task.scene.T_world_rcm, dt, workspace
     )
-    T_now = actuator.reset(*actuator.start_view(T_overview, task_centre(config.task)))
+    T_now = actuator.reset(*actuator.start_view(config.task, camera))
     schedule = None
     step_faults: StepFaults | None = None
     if config.faults.any:  # faults: the observations rewritten here, a hook in the loop
