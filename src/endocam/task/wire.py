@@ -7,6 +7,7 @@ interpolated with a chord-length parameter, then re-fitted against its own arc l
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import overload
 
 import numpy as np
@@ -157,6 +158,16 @@ class Wire:
         p = np.asarray(p_world, dtype=float).reshape(-1, 3)
         d, _ = self._tree.query(p)
         return np.asarray(d, dtype=float) - self.cfg.radius
+
+    def nearest_surface(self, p_world: Sequence[float]) -> tuple[float, int]:
+        """One point's distance to the tube surface, m, and its nearest search-polyline index.
+
+        The control loop's query (one KD-tree lookup on plain floats): ``p_world`` (3,) in
+        world, m. Same resolution as :meth:`surface_distance` (≤ 0.125 mm over); the index
+        points into :attr:`search_points`.
+        """
+        d, k = self._tree.query(p_world)
+        return float(d) - self.cfg.radius, int(k)
 
     @property
     def search_spacing(self) -> float:
