@@ -53,6 +53,7 @@ from endocam.view import pose_from_columns, rotation_columns
 
 CLEARANCE_MARGIN = 2.0e-3  # m, beyond the scope's radius: the carriers' tracking deviation
 WIRE_CLEARANCE = SCOPE_RADIUS + CLEARANCE_MARGIN  # m, ControllerConfig.wire_clearance default
+CACHE_SIZE = 2  # count, queries kept for the Lipschitz bound (the goal's and the camera's)
 AIM_BEYOND = 2.0e-4  # m, a rotated pose aims this far beyond the clearance, so the chord of a
 # step (≤ 2 mm) between two such poses stays clear of the zone (sag L²/8R ≈ 0.06 mm, R ≈ 9 mm)
 MAX_ESCAPE_ANGLE = math.radians(90.0)  # rad, largest rotation about the pivot that is tried
@@ -62,7 +63,6 @@ DETOUR_STEP = 0.01  # m, how far along the zone's surface a detour way-point lea
 DETOUR_PUSH = 1.0e-3  # m, a detour way-point sits this far outside the zone
 DETOUR_TOL = 1.0e-5  # m, a traced segment closer than this to the zone is blocked
 DETOUR_CREEP = 2.0e-4  # m, trace step from the zone's edge when the segment leaves it
-EXACT_BAND = 0.02  # m, margins closer than this to the clearance are exact, farther a bound
 _EPS = 1e-9  # unitless, shorter directions are degenerate
 
 Feasible = Callable[[list[float]], bool]
@@ -85,16 +85,14 @@ class ClearanceGuard:
         self.wire = wire
         self.clearance = float(clearance)
         self._points = wire.search_points
-        self._p_ref: list[float] | None = None
-        self._d_ref = -math.inf
+        self._refs: list[tuple[list[float], float]] = []  # the last queries: (point, distance)
         self._escape: Vec | None = None  # world direction used on the last adjusted step
         self.adjusted = 0  # poses rotated this episode
         self.blocked = 0  # poses with no clear, feasible rotation this episode
 
     def reset(self) -> None:
         """Forget the cached query and the escape direction (a new episode)."""
-        self._p_ref = None
-        self._d_ref = -math.inf
+        self._refs = []
         self._escape = None
         self.adjusted = 0
         self.blocked = 0
@@ -108,22 +106,27 @@ class ClearanceGuard:
         """
         if not math.isfinite(p_world[0] + p_world[1] + p_world[2]):
             return math.nan
-        ref = self._p_ref
-        if ref is not None:
-            bound = self._d_ref - math.dist(p_world, ref)
+        for ref, d_ref in self._refs:
+            bound = d_ref - math.dist(p_world, ref)
             if bound >= self.clearance + exact_below:
                 return bound  # a lower bound that already clears
         d, _ = self.wire.nearest_surface(p_world)
-        self._p_ref, self._d_ref = list(p_world), d
+        self._remember(list(p_world), d)
         return d
+
+    def _remember(self, p_world: list[float], d: float) -> None:
+        """Keep a query for the Lipschitz bound (the newest ``CACHE_SIZE``: goal and camera)."""
+        refs = self._refs
+        refs.insert(0, (p_world, d))
+        del refs[CACHE_SIZE:]
 
     def margin(self, p_world: Sequence[float]) -> float:
         """Signed clearance of a camera position (3,), world, m: ≥ 0 clear (``Workspace``).
 
-        Exact within ``EXACT_BAND`` of the clearance, a lower bound farther out (a carrier's
-        braking check needs the exact value only near the boundary).
+        Exact when negative, else possibly a lower bound (:meth:`distance`): a carrier that
+        compares it with a braking distance then checks its braking path point by point.
         """
-        return self.distance(p_world, EXACT_BAND) - self.clearance
+        return self.distance(p_world) - self.clearance
 
     def is_clear(self, p_world: list[float]) -> bool:
         """Whether a camera position (3,), world, m, keeps the clearance (NaN: not clear)."""
@@ -308,7 +311,7 @@ class ClearanceGuard:
             pos = [c[i] + a * xc[i] + b * yc[i] + w * zc[i] for i in range(3)]
             d, _ = self.wire.nearest_surface(pos)
             if d >= target and (feasible is None or feasible(pos)):
-                self._p_ref, self._d_ref = pos, d
+                self._remember(pos, d)
                 return pose_from_columns(xc, yc, zc, (pos[0], pos[1], pos[2]))
             step = (target - d) / r if d < target else MIN_ESCAPE_STEP
             theta += max(step, MIN_ESCAPE_STEP * 0.1)
