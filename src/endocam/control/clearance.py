@@ -45,6 +45,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 
+import numpy as np
+
 from endocam.camera import SCOPE_RADIUS
 from endocam.geometry import FloatArray
 from endocam.kernels import Vec, cross, dot, norm, reject, scaled
@@ -58,8 +60,11 @@ AIM_BEYOND = 2.0e-4  # m, a rotated pose aims this far beyond the clearance, so 
 # step (≤ 2 mm) between two such poses stays clear of the zone (sag L²/8R ≈ 0.06 mm, R ≈ 9 mm)
 MAX_ESCAPE_ANGLE = math.radians(90.0)  # rad, largest rotation about the pivot that is tried
 MIN_ESCAPE_STEP = math.radians(0.5)  # rad, step while the clear pose is infeasible
+NEWTON_GAIN = 4.0  # unitless, largest Newton step as a multiple of the conservative one
 MAX_ESCAPE_STEPS = 40  # count, queries per direction at most
 DETOUR_STEP = 0.01  # m, how far along the zone's surface a detour way-point leads
+SAME_SIDE_ANGLE = math.radians(30.0)  # rad, a command within this angle about the wire's axis
+# of the edge point is on its side: the detour slides straight on, else it goes round the wire
 DETOUR_PUSH = 1.0e-3  # m, a detour way-point sits this far outside the zone
 DETOUR_TOL = 1.0e-5  # m, a traced segment closer than this to the zone is blocked
 DETOUR_CREEP = 2.0e-4  # m, trace step from the zone's edge when the segment leaves it
@@ -138,6 +143,7 @@ class ClearanceGuard:
         p_world_pivot: Vec,
         feasible: Feasible | None = None,
         p_world_now: Vec | None = None,
+        back_off: float = 0.0,
     ) -> FloatArray | None:
         """The commanded pose, or the nearest clear one rotated about the pivot; ``None``: none.
 
@@ -154,6 +160,9 @@ class ClearanceGuard:
         p_world_now : 3-tuple or None
             Where the camera is now, world, m: without a remembered escape direction the pose
             turns towards it first (the camera need not cross the wire to reach it).
+        back_off : float
+            How far the pose may first move back along its optical axis, m (the look distance
+            grows, the view's direction is kept); it turns only if that does not clear.
 
         Returns
         -------
@@ -168,7 +177,11 @@ class ClearanceGuard:
         if self.is_clear(p):
             self._escape = None
             return T_world_cam
-        found = self._rotated(rows, p, p_world_pivot, feasible, p_world_now)
+        found = None
+        if back_off > 0.0:
+            found = self._backed_off(rows, p, back_off, feasible)
+        if found is None:
+            found = self._rotated(rows, p, p_world_pivot, feasible, p_world_now)
         if found is None:
             self.blocked += 1
             return None
@@ -212,24 +225,41 @@ class ClearanceGuard:
             return None
         _, k = self.wire.nearest_surface(x)
         q = self._points[k].tolist()
-        out = (x[0] - q[0], x[1] - q[1], x[2] - q[2])
-        n_out = norm(out)
-        if not n_out > _EPS:
+        out = _unit((x[0] - q[0], x[1] - q[1], x[2] - q[2]))
+        pts = self._points
+        tangent = _unit(tuple((pts[min(k + 1, len(pts) - 1)] - pts[max(k - 1, 0)]).tolist()))
+        if out is None or tangent is None:
             return None
-        out = scaled(out, 1.0 / n_out)
+        # Around the wire, not along it: the command's angle about the wire's axis, seen from
+        # the edge point, picks the way round (over the top when it is straight behind).
+        around = cross(tangent, out)
+        g = reject((b[0] - q[0], b[1] - q[1], b[2] - q[2]), tangent)
+        phi = math.atan2(dot(g, around), dot(g, out))
         rest = (b[0] - x[0], b[1] - x[1], b[2] - x[2])
-        slide = reject(rest, out)
-        n_slide = norm(slide)
-        if not n_slide > 1e-6:
-            slide = reject((0.0, 0.0, 1.0), out)  # straight behind the wire: over the top
-            n_slide = norm(slide)
-            if not n_slide > 1e-6:
-                slide, n_slide = reject((1.0, 0.0, 0.0), out), 1.0
-        step = min(DETOUR_STEP, norm(rest)) / n_slide
+        if abs(phi) < SAME_SIDE_ANGLE:
+            slide = _unit(reject(rest, out))  # the same side: straight on along the surface
+        else:
+            sign = 1.0 if phi > 0.0 else -1.0
+            if abs(phi) > math.pi - SAME_SIDE_ANGLE:  # straight behind: over the top
+                sign = 1.0 if around[2] >= 0.0 else -1.0
+            slide = scaled(around, sign)
+        if slide is None:
+            return None
+        along = max(-DETOUR_STEP, min(DETOUR_STEP, dot(rest, tangent)))
+        step = min(DETOUR_STEP, norm(rest))
         return (
-            x[0] + step * slide[0] + DETOUR_PUSH * out[0],
-            x[1] + step * slide[1] + DETOUR_PUSH * out[1],
-            x[2] + step * slide[2] + DETOUR_PUSH * out[2],
+            x[0]
+            + step * slide[0]
+            + along * tangent[0] * (abs(phi) >= SAME_SIDE_ANGLE)
+            + DETOUR_PUSH * out[0],
+            x[1]
+            + step * slide[1]
+            + along * tangent[1] * (abs(phi) >= SAME_SIDE_ANGLE)
+            + DETOUR_PUSH * out[1],
+            x[2]
+            + step * slide[2]
+            + along * tangent[2] * (abs(phi) >= SAME_SIDE_ANGLE)
+            + DETOUR_PUSH * out[2],
         )
 
     def _leaving(self, x: list[float], direction: Vec) -> bool:
@@ -261,6 +291,53 @@ class ClearanceGuard:
                 self._escape = e
                 return T
         return None
+
+    def _backed_off(
+        self, rows: list[list[float]], p: list[float], back_off: float, feasible: Feasible | None
+    ) -> FloatArray | None:
+        """The pose moved back along its optical axis (at most ``back_off``, m) until clear.
+
+        Conservative advancement again: the camera moves 1:1 with the back-off distance.
+        """
+        z = (rows[0][2], rows[1][2], rows[2][2])
+        target = self.clearance + AIM_BEYOND
+        s = 0.0
+        back = (-z[0], -z[1], -z[2])
+        for _ in range(MAX_ESCAPE_STEPS):
+            pos = [p[0] - s * z[0], p[1] - s * z[1], p[2] - s * z[2]]
+            d, k = self.wire.nearest_surface(pos)
+            if d >= target:
+                if feasible is not None and not feasible(pos):
+                    return None
+                self._remember(pos, d)
+                T = np.array(rows)
+                T[:3, 3] = pos
+                return T
+            s += self._newton(target - d, pos, k, back)
+            if s > back_off:
+                return None
+        return None
+
+    def _newton(self, short: float, pos: list[float], k: int, velocity: Vec) -> float:
+        """Parameter step that adds ``short`` (m) to the distance, the point moving at ``velocity``.
+
+        The distance's gradient at ``pos`` is the unit vector from the nearest wire point
+        (index ``k``); its rate along ``velocity`` (m per unit parameter) gives a Newton step,
+        bounded by ``[1, NEWTON_GAIN]`` times the conservative step ``short / ‖velocity‖``
+        (the distance to a line along a line is convex: the step lands at or just past the
+        clear value).
+        """
+        q = self._points[k].tolist()
+        g = (pos[0] - q[0], pos[1] - q[1], pos[2] - q[2])
+        speed = norm(velocity)
+        conservative = short / speed if speed > _EPS else short
+        length = norm(g)
+        if not length > _EPS:
+            return max(conservative, 1e-7)
+        rate = dot(g, velocity) / length
+        if rate * NEWTON_GAIN <= speed:
+            return max(NEWTON_GAIN * conservative, 1e-7)
+        return max(short / rate, conservative, 1e-7)
 
     def _directions(self, p: list[float], u: Vec, c: Vec, p_now: Vec | None) -> list[Vec]:
         """Escape directions ⟂ ``u`` to try, best first.
@@ -309,15 +386,25 @@ class ClearanceGuard:
             x_prev = _rotate(x0, k, ct, st)
             xc, yc, zc = rotation_columns(z, (0.0, 0.0, 1.0), x_prev)
             pos = [c[i] + a * xc[i] + b * yc[i] + w * zc[i] for i in range(3)]
-            d, _ = self.wire.nearest_surface(pos)
+            d, near = self.wire.nearest_surface(pos)
             if d >= target and (feasible is None or feasible(pos)):
                 self._remember(pos, d)
                 return pose_from_columns(xc, yc, zc, (pos[0], pos[1], pos[2]))
-            step = (target - d) / r if d < target else MIN_ESCAPE_STEP
+            if d < target:  # the camera's velocity per radian: k × (pos − c)
+                rel = (pos[0] - c[0], pos[1] - c[1], pos[2] - c[2])
+                step = self._newton(target - d, pos, near, cross(k, rel))
+            else:
+                step = MIN_ESCAPE_STEP
             theta += max(step, MIN_ESCAPE_STEP * 0.1)
             if theta > MAX_ESCAPE_ANGLE:
                 return None
         return None
+
+
+def _unit(a: Vec) -> Vec | None:
+    """``a`` normalised, or ``None`` if (nearly) zero or not finite."""
+    length = norm(a)
+    return scaled(a, 1.0 / length) if length > _EPS else None
 
 
 def _rotate(v: Vec, k: Vec, c: float, s: float) -> Vec:

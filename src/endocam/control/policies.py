@@ -136,8 +136,9 @@ class _MovingPolicy:
     ) -> FloatArray | None:
         """A pose to command kept ``wire_clearance`` from the wire (``control.clearance``).
 
-        ``T_world_cam`` (4, 4) itself when clear or without a wire model; else rotated about
-        ``p_world_pivot`` (3,), the ring centre, world, m, towards the camera at
+        ``T_world_cam`` (4, 4) itself when clear or without a wire model; else moved back along
+        its optical axis (the look distance grows up to ``d_max``) or, if that does not clear,
+        rotated about ``p_world_pivot`` (3,), the ring centre, world, m, towards the camera at
         ``p_world_now`` (3,), m; ``None``: no clear feasible view.
         """
         guard = self.guard
@@ -145,7 +146,8 @@ class _MovingPolicy:
             return T_world_cam
         pivot = (p_world_pivot[0], p_world_pivot[1], p_world_pivot[2])
         now = (p_world_now[0], p_world_now[1], p_world_now[2])
-        return guard.apply(T_world_cam, pivot, self._feasible, now)
+        back_off = max(0.0, self.config.d_max - self.d_f)  # the look distance may grow first
+        return guard.apply(T_world_cam, pivot, self._feasible, now, back_off)
 
     def _detoured(
         self, T_world_cmd: FloatArray, p_world_pivot: Sequence[float], p_world_now: Sequence[float]
