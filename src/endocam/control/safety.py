@@ -152,6 +152,13 @@ class Workspace:
         """Whether the region is convex: the cone and the floor are, a keep-out zone is not."""
         return self.keep_out is None
 
+    def keep_out_margin(self, p_world: Sequence[float]) -> float:
+        """Signed clearance of a point (3,) in world, m, to the keep-out zone alone (inf: none).
+
+        A lower bound when positive (``ClearanceGuard.margin``).
+        """
+        return math.inf if self.keep_out is None else self.keep_out.margin(p_world)
+
     def margin(self, p_world: FloatArray | Sequence[float]) -> float:
         """Signed clearance of a point (3,) in world, m: > 0 inside, < 0 outside (NaN: unknown)."""
         p = p_world.tolist() if isinstance(p_world, np.ndarray) else p_world

@@ -82,6 +82,10 @@ class WorkspaceBound(Protocol):
         """Whether the region is convex (a box with its corners inside is inside)."""
         ...
 
+    def keep_out_margin(self, p_world: Sequence[float]) -> float:
+        """Signed clearance of a camera position (3,), world, m, to the non-convex part alone."""
+        ...
+
     def margin(self, p_world: Sequence[float]) -> float:
         """Signed clearance of a camera position (3,), world, m: ≥ 0 inside."""
         ...

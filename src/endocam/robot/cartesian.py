@@ -208,6 +208,8 @@ class CartesianLimiter:
             return False
         if ws.convex:
             return True  # a convex region holding the path's box's corners holds the path
+        if ws.keep_out_margin(p) > self._stop_bound(v, a):
+            return True  # farther from the keep-out zone than the braking can carry it
         # a keep-out zone (the wire's): the braking path itself, at every control step
         traj, dt = self._stop_traj, self.dt
         steps = math.ceil(traj.duration / dt - 1e-9)
