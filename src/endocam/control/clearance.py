@@ -62,10 +62,11 @@ MAX_ESCAPE_ANGLE = math.radians(90.0)  # rad, largest rotation about the pivot t
 MIN_ESCAPE_STEP = math.radians(0.5)  # rad, step while the clear pose is infeasible
 NEWTON_GAIN = 4.0  # unitless, largest Newton step as a multiple of the conservative one
 MAX_ESCAPE_STEPS = 40  # count, queries per direction at most
-DETOUR_STEP = 0.01  # m, how far along the zone's surface a detour way-point leads
+DETOUR_STEP = 0.005  # m, how far along the zone's surface a detour way-point leads
 SAME_SIDE_ANGLE = math.radians(30.0)  # rad, a command within this angle about the wire's axis
 # of the edge point is on its side: the detour slides straight on, else it goes round the wire
 DETOUR_PUSH = 1.0e-3  # m, a detour way-point sits this far outside the zone
+DETOUR_SCALES = (1.0, 0.5, 0.25)  # unitless, fractions of the slide tried, longest first
 DETOUR_TOL = 1.0e-5  # m, a traced segment closer than this to the zone is blocked
 DETOUR_CREEP = 2.0e-4  # m, trace step from the zone's edge when the segment leaves it
 _EPS = 1e-9  # unitless, shorter directions are degenerate
@@ -205,6 +206,48 @@ class ClearanceGuard:
             an end is not finite).
         """
         a, b = p_world_now, p_world_cmd
+        x = self._trace(a, b)
+        if x is None:
+            return None
+        _, k = self.wire.nearest_surface(x)
+        pts = self._points
+        q = pts[k].tolist()
+        out = _unit((x[0] - q[0], x[1] - q[1], x[2] - q[2]))
+        tangent = _unit(tuple((pts[min(k + 1, len(pts) - 1)] - pts[max(k - 1, 0)]).tolist()))
+        if out is None or tangent is None:
+            return None
+        # Around the wire, not along it: the command's angle about the wire's axis, seen from
+        # the edge point, picks the way round (over the top when it is straight behind).
+        around = cross(tangent, out)
+        g = reject((b[0] - q[0], b[1] - q[1], b[2] - q[2]), tangent)
+        phi = math.atan2(dot(g, around), dot(g, out))
+        rest = (b[0] - x[0], b[1] - x[1], b[2] - x[2])
+        step = min(DETOUR_STEP, norm(rest))
+        if abs(phi) < SAME_SIDE_ANGLE:  # the same side: straight on along the surface
+            move = scaled(_unit(reject(rest, out)) or out, step)
+        else:
+            sign = 1.0 if phi > 0.0 else -1.0
+            if abs(phi) > math.pi - SAME_SIDE_ANGLE:  # straight behind: over the top
+                sign = 1.0 if around[2] >= 0.0 else -1.0
+            along = max(-step, min(step, dot(rest, tangent)))
+            move = (
+                sign * step * around[0] + along * tangent[0],
+                sign * step * around[1] + along * tangent[1],
+                sign * step * around[2] + along * tangent[2],
+            )
+        for scale in DETOUR_SCALES:  # shorter steps where the zone's surface curves away
+            via = self._lifted([x[i] + scale * move[i] for i in range(3)])
+            if via is not None and self._trace(a, via) is None:
+                return (via[0], via[1], via[2])
+        # no clear slide: straight out of the zone, away from the wire
+        lift = DETOUR_PUSH + max(0.0, self.clearance - self.distance(x))
+        return (x[0] + lift * out[0], x[1] + lift * out[1], x[2] + lift * out[2])
+
+    def _trace(self, a: Sequence[float], b: Sequence[float]) -> list[float] | None:
+        """The first point of the segment ``a → b`` (m) where it enters the zone, or ``None``.
+
+        Sphere tracing (module docstring); a start on the zone's edge moving out creeps on.
+        """
         seg = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
         length = norm(seg)
         if not math.isfinite(length) or length <= _EPS:
@@ -215,52 +258,26 @@ class ClearanceGuard:
             free = self.distance(x) - self.clearance
             if not free > DETOUR_TOL:
                 if not (free >= -DETOUR_TOL and self._leaving(x, seg)):
-                    break
+                    return x
                 free = DETOUR_CREEP  # on the edge, moving out: creep on and trace again
             t += free / length
             if t >= 1.0:
                 return None
             x = [a[0] + t * seg[0], a[1] + t * seg[1], a[2] + t * seg[2]]
-        else:
-            return None
-        _, k = self.wire.nearest_surface(x)
+        return None  # converging onto the edge without entering
+
+    def _lifted(self, p: list[float]) -> list[float] | None:
+        """``p`` (m) moved out to ``DETOUR_PUSH`` beyond the zone if it is closer, else ``p``."""
+        d, k = self.wire.nearest_surface(p)
+        want = self.clearance + DETOUR_PUSH
+        if d >= want:
+            return p
         q = self._points[k].tolist()
-        out = _unit((x[0] - q[0], x[1] - q[1], x[2] - q[2]))
-        pts = self._points
-        tangent = _unit(tuple((pts[min(k + 1, len(pts) - 1)] - pts[max(k - 1, 0)]).tolist()))
-        if out is None or tangent is None:
+        out = _unit((p[0] - q[0], p[1] - q[1], p[2] - q[2]))
+        if out is None:
             return None
-        # Around the wire, not along it: the command's angle about the wire's axis, seen from
-        # the edge point, picks the way round (over the top when it is straight behind).
-        around = cross(tangent, out)
-        g = reject((b[0] - q[0], b[1] - q[1], b[2] - q[2]), tangent)
-        phi = math.atan2(dot(g, around), dot(g, out))
-        rest = (b[0] - x[0], b[1] - x[1], b[2] - x[2])
-        if abs(phi) < SAME_SIDE_ANGLE:
-            slide = _unit(reject(rest, out))  # the same side: straight on along the surface
-        else:
-            sign = 1.0 if phi > 0.0 else -1.0
-            if abs(phi) > math.pi - SAME_SIDE_ANGLE:  # straight behind: over the top
-                sign = 1.0 if around[2] >= 0.0 else -1.0
-            slide = scaled(around, sign)
-        if slide is None:
-            return None
-        along = max(-DETOUR_STEP, min(DETOUR_STEP, dot(rest, tangent)))
-        step = min(DETOUR_STEP, norm(rest))
-        return (
-            x[0]
-            + step * slide[0]
-            + along * tangent[0] * (abs(phi) >= SAME_SIDE_ANGLE)
-            + DETOUR_PUSH * out[0],
-            x[1]
-            + step * slide[1]
-            + along * tangent[1] * (abs(phi) >= SAME_SIDE_ANGLE)
-            + DETOUR_PUSH * out[1],
-            x[2]
-            + step * slide[2]
-            + along * tangent[2] * (abs(phi) >= SAME_SIDE_ANGLE)
-            + DETOUR_PUSH * out[2],
-        )
+        lift = want - d
+        return [p[0] + lift * out[0], p[1] + lift * out[1], p[2] + lift * out[2]]
 
     def _leaving(self, x: list[float], direction: Vec) -> bool:
         """Whether moving from ``x`` (3,), m, along ``direction`` goes away from the wire."""
