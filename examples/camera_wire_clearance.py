@@ -1,4 +1,4 @@
-"""How close the camera comes to the wire: a safety quantity no controller or check bounds yet.
+"""How close the camera comes to the wire (the controllers keep `controller.wire_clearance`).
 
 Reads finished runs (what ``endocam run`` writes: ``scene.json`` with the wire's dense centre
 line and radius, ``episode.csv`` with the camera's optical centre) and prints, per run, the

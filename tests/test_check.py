@@ -9,6 +9,7 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
@@ -105,6 +106,30 @@ def test_camera_outside_the_cone_is_reported(clean_run: Path, tmp_path: Path) ->
             _add(rows[i], "cmd_x", 1.0)
 
     assert STEP in _steps(_edited(clean_run, tmp_path, edit), "cone")
+
+
+def test_camera_near_the_wire_is_reported(clean_run: Path, tmp_path: Path) -> None:
+    """The camera and its command put 3 mm beside the wire's surface: inside the clearance."""
+    scene = json.loads((clean_run / "scene.json").read_text())
+    points = np.asarray(scene["wire"]["points"])
+    k = len(points) // 2
+    tangent = points[k + 1] - points[k - 1]
+    side = np.cross(tangent, [0.0, 0.0, 1.0])  # horizontal, perpendicular to the wire
+    radius = scene["wire"]["wire_radius"]
+    p = points[k] + (radius + 3 * MM) * side / np.linalg.norm(side)
+    assert 3 * MM < _config("free").controller.wire_clearance
+
+    def edit(rows: list[dict[str, str]]) -> None:
+        assert rows[STEP]["state"] in ("tracking", "planning")
+        for prefix in ("cam", "cmd"):
+            for axis, value in zip("xyz", p.tolist(), strict=True):
+                rows[STEP][f"{prefix}_{axis}"] = repr(value)
+
+    found = [v for v in check_run(_edited(clean_run, tmp_path, edit)).violations]
+    near = [v for v in found if v.invariant == "wire_clearance"]
+    assert {v.step for v in near} == {STEP}
+    assert {v.detail for v in near} == {"camera to the wire", "command to the wire"}
+    assert [v.value for v in near] == pytest.approx([3 * MM] * 2, abs=0.2 * MM)
 
 
 def test_a_missing_pose_value_is_reported(clean_run: Path, tmp_path: Path) -> None:

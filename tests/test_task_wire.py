@@ -110,3 +110,15 @@ def test_surface_distance_matches_the_exact_closest_point() -> None:
     assert np.all(fast >= exact - closest_atol_m)
     assert np.all(fast - exact <= wire.search_spacing / 2 + closest_atol_m)
     assert wire.surface_distance(wire.points(s[:3]))[0] < 0  # on the centre line: inside
+
+
+def test_nearest_surface_equals_the_tree_bit_for_bit(wire: Wire) -> None:
+    """The grid-cell search near the wire gives the KD-tree's point and distance exactly."""
+    rng = np.random.default_rng(7)
+    s = rng.uniform(0.0, wire.length, 3000)
+    spread = rng.choice([0.002, 0.01, 0.05], size=(3000, 1))  # m: at, near and far from it
+    points = wire.points(s) + rng.normal(size=(3000, 3)) * spread
+    d_tree = wire.surface_distance(points)
+    k_tree = [int(np.argmin(np.linalg.norm(wire.search_points - p, axis=1))) for p in points]
+    for p, d, k in zip(points.tolist(), d_tree.tolist(), k_tree, strict=True):
+        assert wire.nearest_surface(p) == (d, k)

@@ -22,6 +22,9 @@ DEFAULT_WIDTH_PX = 640
 DEFAULT_HEIGHT_PX = 480
 DEFAULT_FOVY = math.radians(60.0)  # rad, vertical field of view (da Vinci-like endoscope)
 DEFAULT_BASELINE = 5.0e-3  # m, stereo baseline of a chip-on-tip pickup camera
+SCOPE_RADIUS = (
+    6.0e-3  # m, half the 12 mm da Vinci stereo endoscope (README, "Camera–wire clearance")
+)
 MIN_DEPTH = 1e-6  # m, points closer than this to the eye's plane cannot be projected
 
 

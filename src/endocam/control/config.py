@@ -9,6 +9,7 @@ from typing import Annotated
 from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from endocam.control.clearance import WIRE_CLEARANCE, ClearanceGuard
 from endocam.control.goal import SIDE_HYSTERESIS
 from endocam.control.safety import (
     CONE_BASE_RADIUS,
@@ -19,6 +20,7 @@ from endocam.control.safety import (
     RingGate,
     Workspace,
 )
+from endocam.task.wire import Wire
 
 __all__ = ["ControllerConfig", "SideRule", "TrackerConfig", "Transfer"]
 
@@ -177,6 +179,15 @@ class ControllerConfig(BaseModel):
         "policies' side hysteresis never keeps a side below it, and endocam never commands a "
         "pose below it (its goals aim floor_clearance higher)",
     )
+    wire_clearance: float = Field(
+        WIRE_CLEARANCE,
+        ge=0.0,
+        allow_inf_nan=False,
+        description="smallest distance from the camera's optical centre to the wire's surface "
+        "in every pose a moving policy commands, m: the 12 mm da Vinci endoscope's radius "
+        "(6 mm) + a 2 mm margin for the carriers' tracking; a goal closer is rotated about "
+        "the ring centre by the smallest angle that clears (control.clearance)",
+    )
     planner_speed: float = Field(0.15, gt=0, description="progress speed along way-points, m/s")
     planner_lookahead: float = Field(
         0.01, gt=0, description="how far progress may lead the camera's projection, m"
@@ -246,16 +257,21 @@ class ControllerConfig(BaseModel):
             raise ValueError("window_inner_frac must be smaller than window_outer_frac")
         return self
 
-    def workspace(self, p_world_rcm: ArrayLike, p_world_feature: ArrayLike) -> Workspace:
-        """Where the camera may be (the carriers keep it there): cone and floor.
+    def workspace(
+        self, p_world_rcm: ArrayLike, p_world_feature: ArrayLike, wire: Wire | None = None
+    ) -> Workspace:
+        """Where the camera may be (the carriers keep it there): cone, floor, off the wire.
 
         The cone runs from the RCM ``p_world_rcm`` (3,) towards the feature's initial position
-        ``p_world_feature`` (3,), world, m; the floor is ``min_camera_height``.
+        ``p_world_feature`` (3,), world, m; the floor is ``min_camera_height``; with a ``wire``
+        model the camera keeps ``wire_clearance`` from its surface. Each call builds its own
+        clearance cache: give each user (a carrier, a policy) its own workspace.
         """
         cone = ConeWorkspace.from_rcm(
             p_world_rcm, p_world_feature, self.cone_height, self.cone_base_radius
         )
-        return Workspace(cone, self.min_camera_height)
+        keep_out = None if wire is None else ClearanceGuard(wire, self.wire_clearance)
+        return Workspace(cone, self.min_camera_height, keep_out)
 
     def ring_gate(self) -> RingGate:
         """A fresh observation gate with these bounds."""

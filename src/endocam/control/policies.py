@@ -17,15 +17,18 @@ and a one-line reason.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
+from endocam.control.clearance import ClearanceGuard
 from endocam.control.config import ControllerConfig, SideRule
 from endocam.control.goal import goal_pose_unchecked
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.safety import (
     ConeWorkspace,
     WindowGeometry,
+    Workspace,
     adjust_working_distance,
     window_status_rows,
 )
@@ -44,6 +47,8 @@ FREEZE_RELEASE_MARGIN = 1e-3  # m, how far back inside the cone the goal must be
 LIFT_TOL = 1e-4  # m, resolution of the cone-limited way-point height
 _MIN_NORMAL = 1e-9  # unitless, a ring normal shorter than this is degenerate
 GATE_REASON = "ring pose rejected by the observation gate (moved too fast); holding"
+DETOUR_REASON = "detouring around the wire's clearance zone"
+WIRE_REASON = "no view of the ring keeps the wire clearance inside the workspace; holding"
 
 
 class FixedPolicy:
@@ -77,6 +82,8 @@ class _MovingPolicy:
         self._window_geometry: WindowGeometry | None = None
         self._ctx: PolicyContext | None = None
         self._cone: ConeWorkspace | None = None
+        self._workspace: Workspace | None = None
+        self.guard: ClearanceGuard | None = None  # the wire clearance, given a wire model
         self.d_f = self.config.d_f
         self._last_goal: FloatArray | None = None  # last unplanned goal (jump detection)
         self._last_goal_p: list[float] = []  # its position as plain floats
@@ -90,7 +97,13 @@ class _MovingPolicy:
         """Fix the cone axis from the RCM to the ring's initial position; clear all memory."""
         self._ctx = context
         self._window_geometry = WindowGeometry.of(context.camera, self._windows)
-        self._cone = self.config.workspace(context.p_world_rcm, context.T_world_ring[:3, 3]).cone
+        self._workspace = self.config.workspace(
+            context.p_world_rcm, context.T_world_ring[:3, 3], context.wire
+        )
+        self._cone = self._workspace.cone
+        self.guard = None
+        if context.wire is not None:
+            self.guard = ClearanceGuard(context.wire, self.config.wire_clearance)
         self.d_f = self.config.d_f
         self._last_goal = None
         self._last_cmd = np.array(context.T_world_cam, dtype=float)
@@ -112,6 +125,48 @@ class _MovingPolicy:
         ``None``: the ring pose gives no goal (a degenerate normal).
         """
         raise NotImplementedError
+
+    def _feasible(self, p_world: list[float]) -> bool:
+        """Whether a camera position (3,), world, m, is inside the workspace (cone and floor)."""
+        assert self._workspace is not None  # set by reset()
+        return self._workspace.margin(p_world) >= 0.0
+
+    def _clear(
+        self, T_world_cam: FloatArray, p_world_pivot: Sequence[float], p_world_now: Sequence[float]
+    ) -> FloatArray | None:
+        """A pose to command kept ``wire_clearance`` from the wire (``control.clearance``).
+
+        ``T_world_cam`` (4, 4) itself when clear or without a wire model; else moved back along
+        its optical axis (the look distance grows up to ``d_max``) or, if that does not clear,
+        rotated about ``p_world_pivot`` (3,), the ring centre, world, m, towards the camera at
+        ``p_world_now`` (3,), m; ``None``: no clear feasible view.
+        """
+        guard = self.guard
+        if guard is None:
+            return T_world_cam
+        pivot = (p_world_pivot[0], p_world_pivot[1], p_world_pivot[2])
+        now = (p_world_now[0], p_world_now[1], p_world_now[2])
+        back_off = max(0.0, self.config.d_max - self.d_f)  # the look distance may grow first
+        return guard.apply(T_world_cam, pivot, self._feasible, now, back_off)
+
+    def _detoured(
+        self, T_world_cmd: FloatArray, p_world_pivot: Sequence[float], p_world_now: Sequence[float]
+    ) -> FloatArray | None:
+        """A way-point pose around the wire if the straight move to the command crosses it.
+
+        ``None``: the move from the camera at ``p_world_now`` (3,), m, to ``T_world_cmd``
+        (4, 4) keeps the clearance (or there is no wire model). The way-point pose looks at
+        ``p_world_pivot`` (3,), the ring centre, world, m, with a level horizon, and passes the
+        clearance guard itself.
+        """
+        guard = self.guard
+        if guard is None:
+            return None
+        via = guard.detour(p_world_now, T_world_cmd[:3, 3].tolist())
+        if via is None:
+            return None
+        T = look_at_unchecked(np.array(via), np.asarray(p_world_pivot), T_world_cmd, self._last_cmd)
+        return self._clear(T, p_world_pivot, p_world_now) if self._feasible(list(via)) else None
 
     def _hold(self, state: TrackingState, reason: str) -> CameraCommand:
         assert self._last_cmd is not None
@@ -163,6 +218,14 @@ class _MovingPolicy:
             self._last_goal = None
             self._path = None
             return self._hold(TrackingState.LOST_TRACKING, "ring pose degenerate (zero normal)")
+        p_ring = [ring_rows[0][3], ring_rows[1][3], ring_rows[2][3]]
+        p_now = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
+        goal = self._clear(goal, p_ring, p_now)
+        if goal is None:  # the last command passed the guard: hold it, as a freeze does
+            self.d_f = d_f_before
+            self._last_goal = None
+            self._path = None
+            return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
         goal_rows = goal.tolist()
         p_goal = [goal_rows[0][3], goal_rows[1][3], goal_rows[2][3]]
         margin = self.cone.margin(p_goal)
@@ -213,8 +276,17 @@ class _MovingPolicy:
                 self._path = None  # arrived: back to plain tracking
             else:
                 p = self._path.point_at(self._s)
-                cmd = self._waypoint_pose(p, T_ring, goal)
+                wp = self._clear(self._waypoint_pose(p, T_ring, goal), p_ring, p_now)
+                if wp is None:
+                    self._path = None
+                    self._last_goal = None
+                    return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
+                cmd = wp
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
+        via = self._detoured(cmd, p_ring, p_now)
+        if via is not None:
+            cmd = via
+            state, reason = TrackingState.PLANNING, DETOUR_REASON
         self._last_cmd = cmd
         return CameraCommand(cmd, state, self.d_f, reason)
 

@@ -13,6 +13,7 @@ import enum
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -116,9 +117,17 @@ class ConeWorkspace:
         return math.isfinite(margin) and margin >= 0.0
 
 
+class KeepOut(Protocol):
+    """A region the camera must stay out of (``control.clearance.ClearanceGuard``: the wire)."""
+
+    def margin(self, p_world: Sequence[float]) -> float:
+        """Signed clearance of a camera position (3,), world, m: ≥ 0 outside the region."""
+        ...
+
+
 @dataclass(frozen=True)
 class Workspace:
-    """Where the camera may be: inside the cone workspace and at or above the floor.
+    """Where the camera may be: inside the cone workspace, at or above the floor, off the wire.
 
     The carriers keep the camera here (``robot.actuator.WorkspaceBound``), whatever they are
     commanded; the controllers' goals stay inside it too.
@@ -129,15 +138,34 @@ class Workspace:
     floor : float
         Lowest camera height (world z), m: the tissue plane plus the minimum height
         (``ControllerConfig.min_camera_height``).
+    keep_out : KeepOut or None
+        The wire's clearance zone (``ControllerConfig.wire_clearance`` around the wire's
+        surface); ``None``: no structure model.
     """
 
     cone: ConeWorkspace
     floor: float
+    keep_out: KeepOut | None = None
+
+    @property
+    def convex(self) -> bool:
+        """Whether the region is convex: the cone and the floor are, a keep-out zone is not."""
+        return self.keep_out is None
+
+    def keep_out_margin(self, p_world: Sequence[float]) -> float:
+        """Signed clearance of a point (3,) in world, m, to the keep-out zone alone (inf: none).
+
+        A lower bound when positive (``ClearanceGuard.margin``).
+        """
+        return math.inf if self.keep_out is None else self.keep_out.margin(p_world)
 
     def margin(self, p_world: FloatArray | Sequence[float]) -> float:
         """Signed clearance of a point (3,) in world, m: > 0 inside, < 0 outside (NaN: unknown)."""
         p = p_world.tolist() if isinstance(p_world, np.ndarray) else p_world
-        return min(self.cone.margin(p), p[2] - self.floor)
+        m = min(self.cone.margin(p), p[2] - self.floor)
+        if self.keep_out is not None:
+            return min(m, self.keep_out.margin(p))
+        return m
 
 
 class RingGate:

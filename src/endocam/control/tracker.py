@@ -47,7 +47,14 @@ import numpy as np
 from endocam.control.config import ControllerConfig, SideRule, Transfer
 from endocam.control.goal import goal_pose_unchecked
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
-from endocam.control.policies import _UP, FREEZE_RELEASE_MARGIN, GATE_REASON, _MovingPolicy
+from endocam.control.policies import (
+    _UP,
+    DETOUR_REASON,
+    FREEZE_RELEASE_MARGIN,
+    GATE_REASON,
+    WIRE_REASON,
+    _MovingPolicy,
+)
 from endocam.control.safety import WindowStatus, adjust_working_distance, window_status_rows
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
 from endocam.geometry import UP, FloatArray
@@ -342,9 +349,18 @@ class EndocamPolicy(_MovingPolicy):
             chosen = self._paper_view(p_c, n, d, previous)
         margin = -math.inf
         goal = None
+        adjusted = False  # the goal was turned off the view for the wire clearance
         if chosen is not None:
             s, u = chosen
-            goal = self._pose(p_c, u, d, previous)
+            view = self._pose(p_c, u, d, previous)
+            goal = self._clear(view, p_c, p_cam)
+            if goal is None:
+                self._path = None
+                self._transfer = None
+                self._last_goal = None
+                self.d_f = d_before
+                return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
+            adjusted = goal is not view
             margin = self.cone.margin(goal[:3, 3])
         release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0
         if goal is None or not margin >= release:
@@ -385,12 +401,26 @@ class EndocamPolicy(_MovingPolicy):
             elif not tc.keep_side:
                 twist = self._twist(goal, self._pose(p2, _flip(n2, u, n), d, goal), ctx.dt)
         near_edge = goal[2, 3] <= self._aim_floor + FLOOR_TOL_M or margin < tc.floor_clearance
-        if twist is not None and not near_edge:
+        if twist is not None and not near_edge and not adjusted:
             g_lin, g_ang = tc.feedforward_gain
             twist[:3] *= g_lin
             twist[3:] *= g_ang
         else:
             twist = None  # a goal at the floor or the cone arrives at rest: nothing carries it out
+        if cmd is not goal:  # an orbit or way-point pose keeps the clearance too
+            cleared = self._clear(cmd, p_c, p_cam)
+            if cleared is None:
+                self._side = side_before
+                self._path = None
+                self._transfer = None
+                self._last_goal = None
+                self.d_f = d_before
+                return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
+            cmd = cleared
+        via = self._detoured(cmd, p_c, p_cam)
+        if via is not None:
+            cmd, twist = via, None
+            state, reason = TrackingState.PLANNING, DETOUR_REASON
         if not self._in_workspace(cmd):  # last gate: never command outside the workspace
             self._side = side_before
             return self._freeze(

@@ -15,6 +15,7 @@ import numpy as np
 
 from endocam.camera import StereoCamera
 from endocam.geometry import FloatArray
+from endocam.task.wire import Wire
 
 __all__ = [
     "CameraCommand",
@@ -62,6 +63,10 @@ class PolicyContext:
     follows_twist : bool
         Whether the carrier uses a command's velocity (``CameraCommand.twist``); when it does
         not (a dVRK arm), a policy may leave ``twist`` ``None`` rather than compute it.
+    wire : Wire or None
+        The structure the camera must keep ``ControllerConfig.wire_clearance`` from: a
+        pre-operative model (centre line and radius, world, m), as a real system has from
+        planning images. ``None``: no model, no clearance constraint.
     """
 
     camera: StereoCamera
@@ -73,6 +78,7 @@ class PolicyContext:
     future: Callable[[FloatArray], FloatArray] | None = None
     future_duration: float = 0.0
     follows_twist: bool = True
+    wire: Wire | None = None
 
 
 _NO_TIPS = np.zeros((0, 3))

@@ -198,7 +198,7 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._T_overview = overview_camera_pose(exp.task, self.camera)
         self._p_rcm = np.array(exp.task.scene.rcm_position)
         # the episode loop's workspace: the carriers keep the camera in its cone and above its floor
-        workspace = exp.controller.workspace(self._p_rcm, self._T_sensed[0][:3, 3])
+        workspace = exp.controller.workspace(self._p_rcm, self._T_sensed[0][:3, 3], self.wire)
         self.cone = workspace.cone
         self.actuator: Actuator = make_actuator(
             self.arm,
@@ -319,6 +319,7 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             future=self.trajectory.poses,
             future_duration=float(self.trajectory.duration),
             follows_twist=False,  # action_towards maps the pose alone; a twist would be ignored
+            wire=self.wire,
         )
 
     def action_towards(self, T_world_cmd: FloatArray, look_distance: float) -> np.ndarray:

@@ -79,7 +79,16 @@ class ActuatorStep(NamedTuple):
 
 
 class WorkspaceBound(Protocol):
-    """Where a carrier may put the camera (``control.safety.Workspace``: cone and floor)."""
+    """Where a carrier may put the camera (``control.safety.Workspace``: cone, floor, wire)."""
+
+    @property
+    def convex(self) -> bool:
+        """Whether the region is convex (a box with its corners inside is inside)."""
+        ...
+
+    def keep_out_margin(self, p_world: Sequence[float]) -> float:
+        """Signed clearance of a camera position (3,), world, m, to the non-convex part alone."""
+        ...
 
     def margin(self, p_world: Sequence[float]) -> float:
         """Signed clearance of a camera position (3,), world, m: ≥ 0 inside."""

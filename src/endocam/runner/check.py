@@ -22,6 +22,14 @@ them) and checks, step by step:
     non-finite value as an empty cell);
 ``fk``
     the logged camera pose equal to FK of the logged joints where an arm carries it;
+``wire_clearance``
+    the camera and its command at least ``ControllerConfig.wire_clearance`` from the wire's
+    surface in every autonomous state (the scope tip must not touch the structure it looks
+    at; ``control.clearance``). Measured to ``scene.json``'s polyline of the wire (which can
+    only overestimate the distance); the tolerance is the controller's own overestimate, half
+    the spacing of the wire's search polyline (``Wire.search_spacing``, ≤ 0.125 mm), plus
+    the log's round-off. No speed × dt term: the carriers keep the camera itself out of the
+    zone at every control step, not only its command;
 ``lost_hold``
     a lost or invalid observation (an invalid ring pose injected by a fault, :mod:`endocam.faults`)
     answered in the same control step by holding: state ``lost_tracking`` and the command of
@@ -44,6 +52,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from endocam.config import ExperimentConfig
 from endocam.control.safety import Workspace
@@ -59,6 +68,7 @@ from endocam.robot.arm import (
 )
 from endocam.robot.camera_arm import CameraArm, arm_model
 from endocam.runner.episode import UNREACHABLE
+from endocam.task.wire import Wire
 
 SCENE_JSON = "scene.json"
 EPISODE_CSV = "episode.csv"
@@ -85,6 +95,7 @@ INVARIANTS = (
     "angular_speed",
     "angular_acceleration",
     "fk",
+    "wire_clearance",
     "lost_hold",
 )
 MAX_LISTED = 1000  # count: violations kept in check.json per run (all are counted)
@@ -199,11 +210,17 @@ class RunLog:
         The cone of ``scene.json`` and the config's floor.
     columns : dict of str to ndarray
         Every ``episode.csv`` column: floats (NaN for an empty cell) or strings.
+    wire_points : (M, 3)
+        ``scene.json``'s polyline of the wire's centre line, world, m.
+    wire_radius : float
+        The wire's tube radius, m.
     """
 
     config: ExperimentConfig
     workspace: Workspace
     columns: dict[str, np.ndarray]
+    wire_points: FloatArray
+    wire_radius: float
 
     @property
     def n(self) -> int:
@@ -247,6 +264,8 @@ def read_run(run_dir: Path) -> RunLog:
         workspace = config.controller.workspace(
             scene["cone"]["apex"], scene["cone"]["axis_towards"]
         )
+        wire_points = np.asarray(scene["wire"]["points"], dtype=float).reshape(-1, 3)
+        wire_radius = float(scene["wire"]["wire_radius"])
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{scene_path} is not an endocam scene: {exc}") from None
     header, body = rows[0], rows[1:]
@@ -265,7 +284,7 @@ def read_run(run_dir: Path) -> RunLog:
     missing = [c for c in ("t", "state", "cam_x", "cam_qw", "cmd_x") if c not in columns]
     if missing:
         raise ValueError(f"{csv_path}: missing columns {', '.join(missing)}")
-    return RunLog(config, workspace, columns)
+    return RunLog(config, workspace, columns, wire_points, wire_radius)
 
 
 def check_run(run_dir: Path) -> CheckResult:
@@ -278,7 +297,7 @@ def check_run(run_dir: Path) -> CheckResult:
     """
     log = read_run(run_dir)
     found: list[Violation] = []
-    for rule in (_floor, _cone, _finite, _limits, _fk, _lost_hold):
+    for rule in (_floor, _cone, _wire_clearance, _finite, _limits, _fk, _lost_hold):
         found.extend(rule(log))
     found.sort(key=lambda v: (v.step, v.invariant))
     counts = dict.fromkeys(INVARIANTS, 0)
@@ -345,6 +364,23 @@ def _cone(log: RunLog) -> list[Violation]:
         entered = np.maximum.accumulate(inside) if prefix == "cam" else np.ones_like(inside)
         bad = auto & entered & ~inside & np.isfinite(margin)
         out += _violations(log, bad, "cone", -margin, 0.0, "m", f"{what} outside by")
+    return out
+
+
+def _wire_clearance(log: RunLog) -> list[Violation]:
+    clearance = log.config.controller.wire_clearance
+    spacing = Wire(log.config.task.wire).search_spacing
+    limit = clearance - 0.5 * spacing - POSITION_TOL_M  # the controller's overestimate
+    auto = np.isin(log.columns["state"], AUTONOMOUS_STATES)
+    tree = cKDTree(log.wire_points)
+    out: list[Violation] = []
+    for prefix, what in (("cam", "camera"), ("cmd", "command")):
+        p = log.xyz(prefix)
+        finite = np.all(np.isfinite(p), axis=1)
+        d = np.full(len(p), math.inf)
+        d[finite] = tree.query(p[finite])[0] - log.wire_radius
+        bad = auto & (d < limit)
+        out += _violations(log, bad, "wire_clearance", d, clearance, "m", f"{what} to the wire")
     return out
 
 

@@ -250,7 +250,8 @@ def run_episode(
     T_overview = overview_camera_pose(config.task, camera)
     p_rcm = np.array(config.task.scene.rcm_position)
     kind = episode_arm(config, spec.policy)
-    workspace = config.controller.workspace(p_rcm, T_sensed[0][:3, 3])  # the policy's cone
+    # the policy's cone and floor, and the wire's clearance zone (the carriers keep out of it)
+    workspace = config.controller.workspace(p_rcm, T_sensed[0][:3, 3], wire)
     actuator = make_actuator(
         kind, ep.limits, ep.T_tip_cam, config.task.scene.T_world_rcm, dt, workspace
     )
@@ -276,6 +277,7 @@ def run_episode(
             future=trajectory.poses,  # the true trajectory: only non-causal policies read it
             future_duration=float(trajectory.duration),
             follows_twist=actuator.follows_twist,  # a dVRK arm ignores the feed-forward twist
+            wire=wire,  # the pre-operative model the camera keeps its clearance from
         )
     )
 

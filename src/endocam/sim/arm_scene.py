@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import mujoco
 
-from endocam.camera import StereoCamera
+from endocam.camera import SCOPE_RADIUS, StereoCamera
 from endocam.robot.camera_arm import ArmKind
 from endocam.robot.ecm import ECM_CHAIN
 from endocam.robot.psm import PSM_CHAIN
@@ -73,7 +73,7 @@ TOOL_BACK_END_HALF = (0.015, 0.025, 0.03)  # m, half-extents of the PSM tool's b
 PSM_ROLL_LINK_D = PSM_CHAIN.links[3].D  # m, frame 3 to the wrist-pitch axis along the shaft
 PSM_WRIST_A = PSM_CHAIN.links[5].A  # m, wrist-pitch to wrist-yaw axis
 SHAFT_WRIST_GAP = 3.0e-3  # m, shaft end before the wrist-pitch axis
-ECM_SCOPE_RADIUS = 6.0e-3  # m, a 12 mm stereo endoscope
+ECM_SCOPE_RADIUS = SCOPE_RADIUS  # m, a 12 mm stereo endoscope (the controller's clearance too)
 ECM_ROLL_LINK_D = ECM_CHAIN.links[3].D  # m, frame 3 to the scope tip
 ECM_HEAD_HALF = (0.025, 0.025, 0.05)  # m, half-extents of the endoscope's camera head (box)
 PORT_RGBA = (0.3, 0.6, 0.9, 0.6)  # port marker colour

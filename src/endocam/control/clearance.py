@@ -1,0 +1,445 @@
+r"""The camera–wire clearance: no commanded camera pose closer than ``wire_clearance`` to the wire.
+
+The orientation goal looks along the ring normal, which is nearly the wire's tangent, so the
+on-normal goal sits on the wire's continuation. :class:`ClearanceGuard` filters every pose a
+moving policy commands (goal, way-point, orbit): a pose whose optical centre is at least the
+clearance ``c`` from the wire's tube surface passes unchanged; a closer one is rotated about the
+pivot it looks at (the ring centre) by the smallest angle along an escape direction that restores
+the clearance, keeping the pivot at the same place in the camera frame (ring centred, same look
+distance) and the horizon level:
+
+.. math::
+
+    u(\theta) = \cos\theta\,u + \sin\theta\,e, \qquad
+    \theta_{k+1} = \theta_k + \frac{c + \delta - d(\theta_k)}{r}
+
+``u`` is the unit direction from the pivot to the camera, ``r`` their distance, ``e ⟂ u`` the
+escape direction, ``d`` the surface distance and ``δ = AIM_BEYOND``. The distance is 1-Lipschitz
+in position and the camera moves at most ``r Δθ`` along the arc, so this conservative
+advancement never steps over the first angle clear by ``δ`` (which keeps the chord between two
+successive poses clear too). The escape direction is the one remembered from the previous step
+(no chatter between two sides of a symmetric wire), else towards where the camera is now (it
+need not cross the wire), else the distance's gradient (away from the nearest wire point), each
+projected perpendicular to ``u``; then the perpendiculars and the opposite are tried. An angle
+is accepted only if the pose is also feasible (inside the workspace, above the floor). If no
+direction clears within ``MAX_ESCAPE_ANGLE`` the guard returns ``None`` and the policy holds its
+last command, which passed the guard (the wire does not move).
+
+Paths: a command may be clear while the straight move to it is not (the camera on one side of
+the wire, the goal on the other). :meth:`ClearanceGuard.detour` sphere-traces that move and, if
+it is blocked, gives a way-point that slides along the zone's surface; the policies command it
+(state ``planning``). The carriers keep the camera itself out of the zone
+(``control.safety.Workspace.keep_out``), braking like at the cone and the floor.
+
+Cost: the distance is 1-Lipschitz, so a pose within ``d_ref − c`` of the last queried position
+``p_ref`` (distance ``d_ref``) is clear without a query; only then is the KD-tree of
+:class:`~endocam.task.wire.Wire` asked (one query), and the search runs only when too close.
+
+The wire reaches the controller through :class:`~endocam.control.types.PolicyContext` as a
+pre-operative model of the structure (its centre line and radius), as a real system would have
+from planning images; the ring's pose is still only what the controller observes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from endocam.camera import SCOPE_RADIUS
+from endocam.geometry import FloatArray
+from endocam.kernels import Vec, cross, dot, norm, reject, scaled
+from endocam.task.wire import Wire
+from endocam.view import pose_from_columns, rotation_columns
+
+CLEARANCE_MARGIN = 2.0e-3  # m, beyond the scope's radius: the carriers' tracking deviation
+WIRE_CLEARANCE = SCOPE_RADIUS + CLEARANCE_MARGIN  # m, ControllerConfig.wire_clearance default
+CACHE_SIZE = 2  # count, queries kept for the Lipschitz bound (the goal's and the camera's)
+AIM_BEYOND = 2.0e-4  # m, a rotated pose aims this far beyond the clearance, so the chord of a
+# step (≤ 2 mm) between two such poses stays clear of the zone (sag L²/8R ≈ 0.06 mm, R ≈ 9 mm)
+MAX_ESCAPE_ANGLE = math.radians(90.0)  # rad, largest rotation about the pivot that is tried
+MIN_ESCAPE_STEP = math.radians(0.5)  # rad, step while the clear pose is infeasible
+NEWTON_GAIN = 4.0  # unitless, largest Newton step as a multiple of the conservative one
+MAX_ESCAPE_STEPS = 40  # count, queries per direction at most
+DETOUR_STEP = 0.005  # m, how far along the zone's surface a detour way-point leads
+SAME_SIDE_ANGLE = math.radians(30.0)  # rad, a command within this angle about the wire's axis
+# of the edge point is on its side: the detour slides straight on, else it goes round the wire
+DETOUR_PUSH = 1.0e-3  # m, a detour way-point sits this far outside the zone
+DETOUR_SCALES = (1.0, 0.5, 0.25)  # unitless, fractions of the slide tried, longest first
+DETOUR_TOL = 1.0e-5  # m, a traced segment closer than this to the zone is blocked
+DETOUR_CREEP = 2.0e-4  # m, trace step from the zone's edge when the segment leaves it
+_EPS = 1e-9  # unitless, shorter directions are degenerate
+
+Feasible = Callable[[list[float]], bool]
+
+
+class ClearanceGuard:
+    """Keeps commanded camera positions ``clearance`` from the wire's surface (module docstring).
+
+    Parameters
+    ----------
+    wire : Wire
+        The structure to avoid (its centre line and tube radius), world, m.
+    clearance : float
+        Smallest distance from the camera's optical centre to the tube's surface, m (≥ 0).
+    """
+
+    def __init__(self, wire: Wire, clearance: float) -> None:
+        if not (math.isfinite(clearance) and clearance >= 0.0):
+            raise ValueError(f"clearance must be ≥ 0 m, got {clearance}")
+        self.wire = wire
+        self.clearance = float(clearance)
+        self._points = wire.search_points
+        self._refs: list[tuple[list[float], float]] = []  # the last queries: (point, distance)
+        self._escape: Vec | None = None  # world direction used on the last adjusted step
+        self.adjusted = 0  # poses rotated this episode
+        self.blocked = 0  # poses with no clear, feasible rotation this episode
+
+    def reset(self) -> None:
+        """Forget the cached query and the escape direction (a new episode)."""
+        self._refs = []
+        self._escape = None
+        self.adjusted = 0
+        self.blocked = 0
+
+    def distance(self, p_world: Sequence[float], exact_below: float = 0.0) -> float:
+        """Surface distance of a camera position (3,), world, m; one KD-tree query at most.
+
+        The distance is 1-Lipschitz: while ``d_ref − ‖p − p_ref‖`` (the last query's distance
+        less how far the point moved) is at least ``clearance + exact_below`` (m), that lower
+        bound is returned without a query. NaN for a non-finite position.
+        """
+        if not math.isfinite(p_world[0] + p_world[1] + p_world[2]):
+            return math.nan
+        for ref, d_ref in self._refs:
+            bound = d_ref - math.dist(p_world, ref)
+            if bound >= self.clearance + exact_below:
+                return bound  # a lower bound that already clears
+        d, _ = self.wire.nearest_surface(p_world)
+        self._remember(list(p_world), d)
+        return d
+
+    def _remember(self, p_world: list[float], d: float) -> None:
+        """Keep a query for the Lipschitz bound (the newest ``CACHE_SIZE``: goal and camera)."""
+        refs = self._refs
+        refs.insert(0, (p_world, d))
+        del refs[CACHE_SIZE:]
+
+    def margin(self, p_world: Sequence[float]) -> float:
+        """Signed clearance of a camera position (3,), world, m: ≥ 0 clear (``Workspace``).
+
+        Exact when negative, else possibly a lower bound (:meth:`distance`): a carrier that
+        compares it with a braking distance then checks its braking path point by point.
+        """
+        return self.distance(p_world) - self.clearance
+
+    def is_clear(self, p_world: list[float]) -> bool:
+        """Whether a camera position (3,), world, m, keeps the clearance (NaN: not clear)."""
+        return self.distance(p_world) >= self.clearance
+
+    def apply(
+        self,
+        T_world_cam: FloatArray,
+        p_world_pivot: Vec,
+        feasible: Feasible | None = None,
+        p_world_now: Vec | None = None,
+        back_off: float = 0.0,
+    ) -> FloatArray | None:
+        """The commanded pose, or the nearest clear one rotated about the pivot; ``None``: none.
+
+        Parameters
+        ----------
+        T_world_cam : (4, 4)
+            Commanded camera pose, optical frame, world, m.
+        p_world_pivot : 3-tuple
+            The point the pose looks at (the ring centre), world, m: it keeps its place in the
+            camera frame.
+        feasible : callable or None
+            ``feasible(p_world)`` for a camera position (3,), world, m: whether it may be
+            commanded (the workspace); ``None``: everywhere.
+        p_world_now : 3-tuple or None
+            Where the camera is now, world, m: without a remembered escape direction the pose
+            turns towards it first (the camera need not cross the wire to reach it).
+        back_off : float
+            How far the pose may first move back along its optical axis, m (the look distance
+            grows, the view's direction is kept); it turns only if that does not clear.
+
+        Returns
+        -------
+        (4, 4) or None
+            ``T_world_cam`` itself when clear; a rotated, clear and feasible pose; or ``None``
+            (non-finite input, or no clear feasible rotation up to ``MAX_ESCAPE_ANGLE``).
+        """
+        rows = T_world_cam.tolist()
+        p = [rows[0][3], rows[1][3], rows[2][3]]
+        if not math.isfinite(p[0] + p[1] + p[2] + sum(p_world_pivot)):
+            return None
+        if self.is_clear(p):
+            self._escape = None
+            return T_world_cam
+        found = None
+        if back_off > 0.0:
+            found = self._backed_off(rows, p, back_off, feasible)
+        if found is None:
+            found = self._rotated(rows, p, p_world_pivot, feasible, p_world_now)
+        if found is None:
+            self.blocked += 1
+            return None
+        self.adjusted += 1
+        return found
+
+    def detour(self, p_world_now: Sequence[float], p_world_cmd: Sequence[float]) -> Vec | None:
+        """A way-point around the wire when the straight move to the command would cross it.
+
+        The segment from the camera ``p_world_now`` to the commanded position ``p_world_cmd``
+        (both (3,), world, m) is sphere-traced: from a point at surface distance ``d`` the next
+        ``d − clearance`` of the segment cannot enter the zone (1-Lipschitz), so one query
+        clears a short move. If the trace stops at the zone's edge before the command, the
+        way-point slides from there along the zone's surface: the remaining direction with its
+        component into the wire removed, ``DETOUR_STEP`` long, pushed ``DETOUR_PUSH`` out.
+
+        Returns
+        -------
+        3-tuple or None
+            The way-point, world, m; ``None`` when the straight move keeps the clearance (or
+            an end is not finite).
+        """
+        a, b = p_world_now, p_world_cmd
+        x = self._trace(a, b)
+        if x is None:
+            return None
+        _, k = self.wire.nearest_surface(x)
+        pts = self._points
+        q = pts[k].tolist()
+        out = _unit((x[0] - q[0], x[1] - q[1], x[2] - q[2]))
+        tangent = _unit(tuple((pts[min(k + 1, len(pts) - 1)] - pts[max(k - 1, 0)]).tolist()))
+        if out is None or tangent is None:
+            return None
+        # Around the wire, not along it: the command's angle about the wire's axis, seen from
+        # the edge point, picks the way round (over the top when it is straight behind).
+        around = cross(tangent, out)
+        g = reject((b[0] - q[0], b[1] - q[1], b[2] - q[2]), tangent)
+        phi = math.atan2(dot(g, around), dot(g, out))
+        rest = (b[0] - x[0], b[1] - x[1], b[2] - x[2])
+        step = min(DETOUR_STEP, norm(rest))
+        if abs(phi) < SAME_SIDE_ANGLE:  # the same side: straight on along the surface
+            move = scaled(_unit(reject(rest, out)) or out, step)
+        else:
+            sign = 1.0 if phi > 0.0 else -1.0
+            if abs(phi) > math.pi - SAME_SIDE_ANGLE:  # straight behind: over the top
+                sign = 1.0 if around[2] >= 0.0 else -1.0
+            along = max(-step, min(step, dot(rest, tangent)))
+            move = (
+                sign * step * around[0] + along * tangent[0],
+                sign * step * around[1] + along * tangent[1],
+                sign * step * around[2] + along * tangent[2],
+            )
+        for scale in DETOUR_SCALES:  # shorter steps where the zone's surface curves away
+            via = self._lifted([x[i] + scale * move[i] for i in range(3)])
+            if via is not None and self._trace(a, via) is None:
+                return (via[0], via[1], via[2])
+        # no clear slide: straight out of the zone, away from the wire
+        lift = DETOUR_PUSH + max(0.0, self.clearance - self.distance(x))
+        return (x[0] + lift * out[0], x[1] + lift * out[1], x[2] + lift * out[2])
+
+    def _trace(self, a: Sequence[float], b: Sequence[float]) -> list[float] | None:
+        """The first point of the segment ``a → b`` (m) where it enters the zone, or ``None``.
+
+        Sphere tracing (module docstring); a start on the zone's edge moving out creeps on.
+        """
+        seg = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
+        length = norm(seg)
+        if not math.isfinite(length) or length <= _EPS:
+            return None
+        t = 0.0
+        x = [a[0], a[1], a[2]]
+        for _ in range(MAX_ESCAPE_STEPS):
+            free = self.distance(x) - self.clearance
+            if not free > DETOUR_TOL:
+                if not (free >= -DETOUR_TOL and self._leaving(x, seg)):
+                    return x
+                free = DETOUR_CREEP  # on the edge, moving out: creep on and trace again
+            t += free / length
+            if t >= 1.0:
+                return None
+            x = [a[0] + t * seg[0], a[1] + t * seg[1], a[2] + t * seg[2]]
+        return None  # converging onto the edge without entering
+
+    def _lifted(self, p: list[float]) -> list[float] | None:
+        """``p`` (m) moved out to ``DETOUR_PUSH`` beyond the zone if it is closer, else ``p``."""
+        d, k = self.wire.nearest_surface(p)
+        want = self.clearance + DETOUR_PUSH
+        if d >= want:
+            return p
+        q = self._points[k].tolist()
+        out = _unit((p[0] - q[0], p[1] - q[1], p[2] - q[2]))
+        if out is None:
+            return None
+        lift = want - d
+        return [p[0] + lift * out[0], p[1] + lift * out[1], p[2] + lift * out[2]]
+
+    def _leaving(self, x: list[float], direction: Vec) -> bool:
+        """Whether moving from ``x`` (3,), m, along ``direction`` goes away from the wire."""
+        _, k = self.wire.nearest_surface(x)
+        q = self._points[k].tolist()
+        return dot((x[0] - q[0], x[1] - q[1], x[2] - q[2]), direction) > 0.0
+
+    def _rotated(
+        self,
+        rows: list[list[float]],
+        p: list[float],
+        c: Vec,
+        feasible: Feasible | None,
+        p_now: Vec | None,
+    ) -> FloatArray | None:
+        x: Vec = (rows[0][0], rows[1][0], rows[2][0])
+        y: Vec = (rows[0][1], rows[1][1], rows[2][1])
+        z: Vec = (rows[0][2], rows[1][2], rows[2][2])
+        rel = (p[0] - c[0], p[1] - c[1], p[2] - c[2])
+        r = norm(rel)
+        if not r > _EPS:
+            return None
+        a, b, w = dot(rel, x), dot(rel, y), dot(rel, z)  # camera position in its own frame
+        u = scaled(rel, 1.0 / r)
+        for e in self._directions(p, u, c, p_now):
+            T = self._search(u, e, r, c, (a, b, w), (x, z), feasible)
+            if T is not None:
+                self._escape = e
+                return T
+        return None
+
+    def _backed_off(
+        self, rows: list[list[float]], p: list[float], back_off: float, feasible: Feasible | None
+    ) -> FloatArray | None:
+        """The pose moved back along its optical axis (at most ``back_off``, m) until clear.
+
+        Conservative advancement again: the camera moves 1:1 with the back-off distance.
+        """
+        z = (rows[0][2], rows[1][2], rows[2][2])
+        target = self.clearance + AIM_BEYOND
+        s = 0.0
+        back = (-z[0], -z[1], -z[2])
+        for _ in range(MAX_ESCAPE_STEPS):
+            pos = [p[0] - s * z[0], p[1] - s * z[1], p[2] - s * z[2]]
+            d, k = self.wire.nearest_surface(pos)
+            if d >= target:
+                if feasible is not None and not feasible(pos):
+                    return None
+                self._remember(pos, d)
+                T = np.array(rows)
+                T[:3, 3] = pos
+                return T
+            s += self._newton(target - d, pos, k, back)
+            if s > back_off:
+                return None
+        return None
+
+    def _newton(self, short: float, pos: list[float], k: int, velocity: Vec) -> float:
+        """Parameter step that adds ``short`` (m) to the distance, the point moving at ``velocity``.
+
+        The distance's gradient at ``pos`` is the unit vector from the nearest wire point
+        (index ``k``); its rate along ``velocity`` (m per unit parameter) gives a Newton step,
+        bounded by ``[1, NEWTON_GAIN]`` times the conservative step ``short / ‖velocity‖``
+        (the distance to a line along a line is convex: the step lands at or just past the
+        clear value).
+        """
+        q = self._points[k].tolist()
+        g = (pos[0] - q[0], pos[1] - q[1], pos[2] - q[2])
+        speed = norm(velocity)
+        conservative = short / speed if speed > _EPS else short
+        length = norm(g)
+        if not length > _EPS:
+            return max(conservative, 1e-7)
+        rate = dot(g, velocity) / length
+        if rate * NEWTON_GAIN <= speed:
+            return max(NEWTON_GAIN * conservative, 1e-7)
+        return max(short / rate, conservative, 1e-7)
+
+    def _directions(self, p: list[float], u: Vec, c: Vec, p_now: Vec | None) -> list[Vec]:
+        """Escape directions ⟂ ``u`` to try, best first.
+
+        The remembered one, else towards the camera now, else the distance's gradient (away
+        from the nearest wire point); then the perpendiculars and the opposite.
+        """
+        out: list[Vec] = []
+        _, k = self.wire.nearest_surface(p)
+        q = self._points[k].tolist()
+        candidates = [] if self._escape is None else [self._escape]
+        if p_now is not None:
+            candidates.append((p_now[0] - c[0], p_now[1] - c[1], p_now[2] - c[2]))
+        candidates += [(p[0] - q[0], p[1] - q[1], p[2] - q[2]), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)]
+        for cand in candidates:
+            e = reject(cand, u)
+            length = norm(e)
+            if length > 1e-6:
+                out.append(scaled(e, 1.0 / length))
+                break
+        if not out:
+            return out
+        e0 = out[0]
+        e1 = cross(u, e0)
+        return [e0, e1, scaled(e1, -1.0), scaled(e0, -1.0)]
+
+    def _search(
+        self,
+        u: Vec,
+        e: Vec,
+        r: float,
+        c: Vec,
+        local: tuple[float, float, float],
+        xz: tuple[Vec, Vec],
+        feasible: Feasible | None,
+    ) -> FloatArray | None:
+        """Smallest angle along ``e`` with a clear, feasible pose (conservative advancement)."""
+        a, b, w = local
+        x0, z0 = xz
+        k = cross(u, e)  # rotation axis: u turns towards e
+        theta = 0.0
+        target = self.clearance + AIM_BEYOND
+        for _ in range(MAX_ESCAPE_STEPS):
+            ct, st = math.cos(theta), math.sin(theta)
+            z = _rotate(z0, k, ct, st)
+            x_prev = _rotate(x0, k, ct, st)
+            xc, yc, zc = rotation_columns(z, (0.0, 0.0, 1.0), x_prev)
+            pos = [c[i] + a * xc[i] + b * yc[i] + w * zc[i] for i in range(3)]
+            d, near = self.wire.nearest_surface(pos)
+            if d >= target and (feasible is None or feasible(pos)):
+                self._remember(pos, d)
+                return pose_from_columns(xc, yc, zc, (pos[0], pos[1], pos[2]))
+            if d < target:  # the camera's velocity per radian: k × (pos − c)
+                rel = (pos[0] - c[0], pos[1] - c[1], pos[2] - c[2])
+                step = self._newton(target - d, pos, near, cross(k, rel))
+            else:
+                step = MIN_ESCAPE_STEP
+            theta += max(step, MIN_ESCAPE_STEP * 0.1)
+            if theta > MAX_ESCAPE_ANGLE:
+                return None
+        return None
+
+
+def _unit(a: Vec) -> Vec | None:
+    """``a`` normalised, or ``None`` if (nearly) zero or not finite."""
+    length = norm(a)
+    return scaled(a, 1.0 / length) if length > _EPS else None
+
+
+def _rotate(v: Vec, k: Vec, c: float, s: float) -> Vec:
+    """``v`` rotated about the unit axis ``k`` by the angle with cosine ``c`` and sine ``s``."""
+    kv = cross(k, v)
+    kd = dot(k, v) * (1.0 - c)
+    return (
+        v[0] * c + kv[0] * s + k[0] * kd,
+        v[1] * c + kv[1] * s + k[1] * kd,
+        v[2] * c + kv[2] * s + k[2] * kd,
+    )
+
+
+def clear_pose_or_none(
+    guard: ClearanceGuard | None, T: FloatArray, pivot: Vec, feasible: Feasible | None = None
+) -> FloatArray | None:
+    """``guard.apply(T, pivot, feasible)``, or ``T`` when there is no guard (no wire model)."""
+    return T if guard is None else guard.apply(T, pivot, feasible)
+
+
+__all__ = ["CLEARANCE_MARGIN", "WIRE_CLEARANCE", "ClearanceGuard", "clear_pose_or_none"]
