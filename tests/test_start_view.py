@@ -68,7 +68,9 @@ def _arm(cfg: ExperimentConfig, kind: ArmKind) -> CameraArm:
     p_rcm = np.array(cfg.task.scene.rcm_position)
     workspace = cfg.controller.workspace(p_rcm, cfg.task.wire.knots[0])
     T_world_rcm = cfg.task.scene.T_world_rcm
-    arm = make_actuator(kind, cfg.episode.limits, cfg.episode.T_tip_cam, T_world_rcm, 0.01, workspace)
+    arm = make_actuator(
+        kind, cfg.episode.limits, cfg.episode.T_tip_cam, T_world_rcm, 0.01, workspace
+    )
     assert isinstance(arm, CameraArm)
     return arm
 
@@ -82,8 +84,10 @@ def _image_up_lean(T_world_cam: np.ndarray, look: float, camera: StereoCamera) -
     second is straight above the first (smaller v, same u).
     """
     centre = T_world_cam[:3, 3] + look * T_world_cam[:3, 2]
-    points = np.array([centre, centre + [0.0, 0.0, UP_PROBE_M]])
-    uv = 0.5 * (camera.project(T_world_cam, points, "left") + camera.project(T_world_cam, points, "right"))
+    points = np.array([centre, centre + np.array([0.0, 0.0, UP_PROBE_M])])
+    uv = 0.5 * (
+        camera.project(T_world_cam, points, "left") + camera.project(T_world_cam, points, "right")
+    )
     du, dv = uv[1] - uv[0]
     return abs(math.atan2(du, -dv))
 
