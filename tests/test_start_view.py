@@ -32,8 +32,8 @@ ARMS = (ArmKind.PSM, ArmKind.ECM)
 LIMIT_SLACK = 1e-9  # rad (m): round-off at a joint limit
 AXIS_TOL_M = 1e-9  # m: the optical axis passes this close to the port
 LEVEL_TOL = 1e-9  # unitless: the PSM's image x axis has at most this world-z component
-# rad: the ECM (4 DoF) levels its start view only as far as its roll joint allows; from the
-# default port it needs a few degrees of roll, so the image's up may lean this far from upright
+# rad: the ECM (4 DoF) levels its start view only as far as its ±88° roll allows (from the
+# default port and the test wires: fully); its image's up may lean this far from world up
 ECM_ROLL_TOL_RAD = math.radians(10.0)
 LEVEL_TOL_RAD = LEVEL_TOL  # rad: the same bound as an angle (small-angle: sin θ ≈ θ)
 ZERO_ROLL_TOL_RAD = math.radians(3.0)  # rad: "upright at zero roll" allows this lean
@@ -64,7 +64,7 @@ def _task_points(cfg: ExperimentConfig) -> np.ndarray:
 
 
 def _arm(cfg: ExperimentConfig, kind: ArmKind) -> CameraArm:
-    """The carrier an episode builds (each arm with its own camera mount), unbounded or not."""
+    """The carrier an episode builds (each arm with its own camera mount), in its workspace."""
     p_rcm = np.array(cfg.task.scene.rcm_position)
     workspace = cfg.controller.workspace(p_rcm, cfg.task.wire.knots[0])
     T_world_rcm = cfg.task.scene.T_world_rcm
@@ -135,7 +135,7 @@ def _check_start(cfg: ExperimentConfig, kind: ArmKind) -> None:
 @pytest.mark.parametrize("kind", ARMS)
 def test_image_is_upright_at_zero_roll(kind: ArmKind) -> None:
     # mid-range joints (yaw, pitch, roll 0) aim the shaft along the default RCM frame's -z,
-    # towards the task: the image a dVRK user sees when the arm is homed must be upright
+    # towards the task: there the image is upright with a level horizon (config description)
     cfg = _config()
     arm = _arm(cfg, kind)
     q = natural_pose(arm.model)
