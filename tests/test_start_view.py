@@ -33,7 +33,7 @@ LIMIT_SLACK = 1e-9  # rad (m): round-off at a joint limit
 AXIS_TOL_M = 1e-9  # m: the optical axis passes this close to the port
 LEVEL_TOL = 1e-9  # unitless: the PSM's image x axis has at most this world-z component
 # rad: the ECM (4 DoF) levels its start view only as far as its ±88° roll allows (from the
-# default port and the test wires: fully); its image's up may lean this far from world up
+# default port: fully); its image's up may lean this far from world up
 ECM_ROLL_TOL_RAD = math.radians(10.0)
 LEVEL_TOL_RAD = LEVEL_TOL  # rad: the same bound as an angle (small-angle: sin θ ≈ θ)
 ZERO_ROLL_TOL_RAD = math.radians(3.0)  # rad: "upright at zero roll" allows this lean
