@@ -19,10 +19,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from endocam.camera import StereoCamera
 from endocam.cli import main
 from endocam.config import ExperimentConfig
 from endocam.robot.actuator import ArmKind
-from endocam.robot.camera_arm import ARM_START_GAP, START_ROLL_TOL_RAD, CameraArm
+from endocam.robot.camera_arm import ARM_START_GAP, START_ROLL_TOL_RAD, CameraArm, natural_pose
+from endocam.robot.carriers import make_actuator
 from endocam.task.config import DEFAULT_KNOTS
 from endocam.task.layout import VIEW_MARGIN, FramingError, port_view
 
@@ -30,6 +32,13 @@ ARMS = (ArmKind.PSM, ArmKind.ECM)
 LIMIT_SLACK = 1e-9  # rad (m): round-off at a joint limit
 AXIS_TOL_M = 1e-9  # m: the optical axis passes this close to the port
 LEVEL_TOL = 1e-9  # unitless: the PSM's image x axis has at most this world-z component
+# rad: the ECM (4 DoF) levels its start view only as far as its ±88° roll allows (from the
+# default port: fully); its image's up may lean this far from world up
+ECM_ROLL_TOL_RAD = math.radians(10.0)
+LEVEL_TOL_RAD = LEVEL_TOL  # rad: the same bound as an angle (small-angle: sin θ ≈ θ)
+ZERO_ROLL_TOL_RAD = math.radians(3.0)  # rad: "upright at zero roll" allows this lean
+LOOK_M = 0.1  # m: a distance the camera looks at, for the zero-roll image
+UP_PROBE_M = 0.01  # m: a point this far above the looked-at point shows where the image's up is
 # unitless: the ECM's reached roll may differ from the framed one by START_ROLL_TOL_RAD, which
 # moves an image corner (half-diagonal 400 px at 640 × 480) by at most this share of 240 px
 ROLL_FRACTION_TOL = START_ROLL_TOL_RAD * math.hypot(320.0, 240.0) / 240.0
@@ -54,10 +63,40 @@ def _task_points(cfg: ExperimentConfig) -> np.ndarray:
     return np.vstack([wire.polyline(), ends, cfg.task.instruments.psm2_tip])
 
 
-def _check_start(cfg: ExperimentConfig, kind: ArmKind) -> None:
+def _arm(cfg: ExperimentConfig, kind: ArmKind) -> CameraArm:
+    """The carrier an episode builds (each arm with its own camera mount), in its workspace."""
     p_rcm = np.array(cfg.task.scene.rcm_position)
     workspace = cfg.controller.workspace(p_rcm, cfg.task.wire.knots[0])
-    arm = CameraArm(kind, cfg.task.scene.T_world_rcm, cfg.episode.T_tip_cam, 0.01, workspace)
+    T_world_rcm = cfg.task.scene.T_world_rcm
+    arm = make_actuator(
+        kind, cfg.episode.limits, cfg.episode.T_tip_cam, T_world_rcm, 0.01, workspace
+    )
+    assert isinstance(arm, CameraArm)
+    return arm
+
+
+def _image_up_lean(T_world_cam: np.ndarray, look: float, camera: StereoCamera) -> float:
+    """Angle (rad, in [0, π]) between world up, as the camera draws it, and the image's up.
+
+    Projects the point ``look`` ahead of the camera (on its optical axis) and a point
+    ``UP_PROBE_M`` above it, in the mean of both eyes' pixels (the view from the midpoint
+    between them, whose principal ray that is): in an upright image with a level horizon the
+    second is straight above the first (smaller v, same u).
+    """
+    centre = T_world_cam[:3, 3] + look * T_world_cam[:3, 2]
+    points = np.array([centre, centre + np.array([0.0, 0.0, UP_PROBE_M])])
+    uv = 0.5 * (
+        camera.project(T_world_cam, points, "left") + camera.project(T_world_cam, points, "right")
+    )
+    du, dv = uv[1] - uv[0]
+    return abs(math.atan2(du, -dv))
+
+
+def _check_start(cfg: ExperimentConfig, kind: ArmKind) -> None:
+    p_rcm = np.array(cfg.task.scene.rcm_position)
+    arm = _arm(cfg, kind)
+    workspace = arm.workspace
+    assert workspace is not None
     camera = cfg.camera.stereo()
     T_goal, look = arm.start_view(cfg.task, camera)
     T = arm.reset(T_goal, look)
@@ -73,6 +112,10 @@ def _check_start(cfg: ExperimentConfig, kind: ArmKind) -> None:
     assert to_cam @ T[:3, 2] >= ARM_START_GAP
     if kind is ArmKind.PSM:
         assert abs(T[2, 0]) <= LEVEL_TOL and T[2, 1] < 0.0  # level horizon, image y down
+    # up in the world is up in the image (the ECM as level as its roll joint allows)
+    assert _image_up_lean(T, look, camera) <= (
+        ECM_ROLL_TOL_RAD if kind is ArmKind.ECM else LEVEL_TOL_RAD
+    )
     # every task point in both eyes with the margin; the image used up to it
     k = camera.intrinsics
     tol = ROLL_FRACTION_TOL if kind is ArmKind.ECM else 0.0
@@ -87,6 +130,19 @@ def _check_start(cfg: ExperimentConfig, kind: ArmKind) -> None:
         off = np.abs(uv - [k.cx, k.cy]) / [0.5 * k.width, 0.5 * k.height]
         used = max(used, float(off.max()))
     assert used >= 1.0 - VIEW_MARGIN - FILL_TOL
+
+
+@pytest.mark.parametrize("kind", ARMS)
+def test_image_is_upright_at_zero_roll(kind: ArmKind) -> None:
+    # mid-range joints (yaw, pitch, roll 0) aim the shaft along the default RCM frame's -z,
+    # towards the task: there the image is upright with a level horizon (config description)
+    cfg = _config()
+    arm = _arm(cfg, kind)
+    q = natural_pose(arm.model)
+    assert not q[~np.array(arm.model.prismatic)].any()
+    T = arm.camera_pose(q)
+    assert T[:3, 2] @ [0.0, 0.0, 1.0] < 0.0  # looking down into the task, not up
+    assert _image_up_lean(T, LOOK_M, cfg.camera.stereo()) <= ZERO_ROLL_TOL_RAD
 
 
 @pytest.mark.parametrize("kind", ARMS)

@@ -755,7 +755,7 @@ def _wrist_jump(kind: ArmKind, q_before: list[float], q_after: list[float]) -> b
 # PSM-held camera with its wrist straight: 0.061 m), and then that is the bound.
 ARM_START_GAP = 0.03
 START_ROLL_TOL_RAD = 1e-3  # rad: the start view's roll is iterated until the arm's agrees this well
-_START_ROLL_ITERATIONS = 6  # count: the default ECM settles in 4 framings (the first level)
+_START_ROLL_ITERATIONS = 6  # count: the default ECM levels its view in 1 framing (roll 0.094 rad)
 
 
 def arm_start_view(

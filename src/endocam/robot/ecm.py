@@ -9,7 +9,8 @@ away from the RCM** — the viewing direction of a 0° endoscope. For a straight
 an OpenCV-style optical frame (z forward); the image's x/y turn with the roll joint. A
 different optical mount (e.g. a 30° scope) is a ``T_tip_cam`` given to
 :meth:`~endocam.robot.kinematics.RcmArm.solve_camera`. Whatever the mount, the optical axis
-of a straight scope passes through the RCM.
+of a straight scope passes through the RCM. The dVRK appends a tool-tip offset ``Rz(−π/2)``
+(an ISI camera frame: x left, y up) instead; docs/robot.md relates the two frames.
 
 IK (position first, closed form). With 4 DoF the ECM cannot reach a general 6-DoF goal:
 

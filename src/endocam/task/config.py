@@ -337,8 +337,10 @@ class SceneConfig(BaseModel):
         (0.0, 1.2121, 3.1416),
         description="Orientation of the RCM frame in world, Tait-Bryan (α, β, γ), rad. The "
         "default aims the frame's −z axis (the shaft of a dVRK arm at mid-range yaw/pitch) from "
-        "the default RCM at the task centre (0, 0, 45) mm, with y horizontal: the ECM's image "
-        "(and the default PSM camera mount's) is upright at zero roll.",
+        "the default RCM at the task centre (0, 0, 45) mm, with y horizontal: at zero yaw, pitch "
+        "and roll the ECM's image (its optical frame is its tip frame) and the PSM's (with the "
+        "default episode.tip_cam_euler_xyz) are upright with a level horizon. The dVRK's RCM "
+        "frame for the same image is this one turned by +90° about z (docs/robot.md).",
     )
 
     @field_validator(
