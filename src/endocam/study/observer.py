@@ -64,9 +64,6 @@ MIN_RING_PX = 12  # px, smaller orange components are noise (or a ring too small
 N_BINS = 120  # directions around the ring's centre (3° each)
 RIM_RHO = 0.84  # ellipse-normalised radius of the rim's middle: (R − r)/(R + r) = 2/3 .. 1
 OUTSIDE_RHO = 1.3  # ellipse-normalised radius up to which the wire counts as crossing the rim
-BEYOND_OUTLINE_RHO = 1.1  # ellipse-normalised: wire this far out continues past the rim
-OBLIQUE_VIEW_DEG = 15.0  # deg off the ring's normal (ellipse axis ratio cos θ): lateral gap
-STRIP_HALF_WIDTH = 0.5  # minor-normalised half-width of the band around the major axis
 CONTACT_GAP_PX = 1.0  # px, a silhouette gap this small reads as contact (anti-alias free render)
 OPEN_GAP_PX = 3.0  # px, a gap this wide is clearly open: it ends a touch (and is resolvable)
 RELEASE_FRAMES = 8  # consecutive clearly open frames that end a touch (0.27 s at 30 fps)
@@ -160,25 +157,8 @@ def frame_gap_px(ring: NDArray[np.bool_], wire: NDArray[np.bool_]) -> float:
     t = math.radians(angle)
     e1 = np.array([math.cos(t), math.sin(t)])  # the ellipse's first axis (length a1)
     e2 = np.array([-math.sin(t), math.cos(t)])
-    if a2 > a1:  # e1 along the major axis
-        e1, e2, a1, a2 = e2, e1, a2, a1
-    if a2 / a1 < math.cos(math.radians(OBLIQUE_VIEW_DEG)):
-        return _lateral_gap_px(ring, wire, (cx, cy), e1, e2, a1, a2)
-    return _radial_gap_px(ring, wire, (cx, cy), e1, e2, a1, a2)
-
-
-def _ellipse_coords(
-    shape: tuple[int, int],
-    centre: tuple[float, float],
-    e1: NDArray[np.float64],
-    e2: NDArray[np.float64],
-    a1: float,
-    a2: float,
-) -> tuple[tuple[slice, slice], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]]:
-    """Box around the ring and, per pixel of it, ellipse-normalised (u, v), ρ and direction bin."""
-    cx, cy = centre
     reach = math.ceil(OUTSIDE_RHO * max(a1, a2)) + 1
-    h, w = shape
+    h, w = ring.shape
     x0, x1 = max(0, int(cx) - reach), min(w, int(cx) + reach + 1)
     y0, y1 = max(0, int(cy) - reach), min(h, int(cy) + reach + 1)
     gy, gx = np.mgrid[y0:y1, x0:x1]
@@ -187,60 +167,7 @@ def _ellipse_coords(
     v = (dx * e2[0] + dy * e2[1]) / a2
     rho = np.hypot(u, v)
     theta = ((np.arctan2(v, u) + math.pi) / (2.0 * math.pi) * N_BINS).astype(int) % N_BINS
-    return (slice(y0, y1), slice(x0, x1)), u, v, rho, theta
-
-
-def _lateral_gap_px(
-    ring: NDArray[np.bool_],
-    wire: NDArray[np.bool_],
-    centre: tuple[float, float],
-    e1: NDArray[np.float64],
-    e2: NDArray[np.float64],
-    a1: float,
-    a2: float,
-) -> float:
-    """Gap of an oblique view (ellipse axis ratio below cos ``OBLIQUE_VIEW_DEG``), px.
-
-    Seen obliquely, the ring's normal projects along the ellipse's minor axis ``e2`` and the wire,
-    which passes the ring roughly along its normal, is a band along it: where along the band the
-    wire pierces the ring's plane is not seen (depth), but its offset along the major axis ``e1``
-    (no foreshortening) is. The gap is the clearance, along ``e1``, between the wire inside the
-    outline near the major axis (``|v| ≤ STRIP_HALF_WIDTH``) and the rim's inner edge there (the
-    median inner-edge ρ of all directions, times ``a1``). Directions in which the wire continues
-    beyond the outline (ρ > ``BEYOND_OUTLINE_RHO``: it crosses the rim, in front or behind) are
-    left out, with one bin on each side. A wire over the rim's annulus there reads 0.
-    """
-    box, u, v, rho, theta = _ellipse_coords(ring.shape, centre, e1, e2, a1, a2)
-    r_box, w_box = ring[box], wire[box]
-    inner_edge = np.full(N_BINS, np.inf)
-    np.minimum.at(inner_edge, theta[r_box], rho[r_box])
-    seen = inner_edge[np.isfinite(inner_edge)]
-    if seen.size < N_BINS // 4:  # too little of the rim to know where its inner edge is
-        return math.nan
-    crossing = np.zeros(N_BINS, dtype=bool)
-    crossing[theta[w_box & (rho > BEYOND_OUTLINE_RHO) & (rho <= OUTSIDE_RHO)]] = True
-    crossing |= np.roll(crossing, 1) | np.roll(crossing, -1)
-    near_axis = w_box & (np.abs(v) <= STRIP_HALF_WIDTH) & (rho <= 1.0) & ~crossing[theta]
-    wire_u = u[near_axis]
-    if wire_u.size == 0:
-        return math.nan
-    u_in = float(np.median(seen))  # the inner edge on the major axis, in units of a1
-    gap = (u_in - max(float(wire_u.max()), -float(wire_u.min()))) * a1 - 1.0
-    return float(max(gap, 0.0))
-
-
-def _radial_gap_px(
-    ring: NDArray[np.bool_],
-    wire: NDArray[np.bool_],
-    centre: tuple[float, float],
-    e1: NDArray[np.float64],
-    e2: NDArray[np.float64],
-    a1: float,
-    a2: float,
-) -> float:
-    """Gap of a view through the ring (steps 2-3 of the module docstring), px."""
-    box, _, _, rho, theta = _ellipse_coords(ring.shape, centre, e1, e2, a1, a2)
-    r_box, w_box = ring[box], wire[box]
+    r_box, w_box = ring[y0:y1, x0:x1], wire[y0:y1, x0:x1]
     near = rho <= OUTSIDE_RHO
     inner_edge = np.full(N_BINS, np.inf)  # ρ of the rim's inner edge per direction
     np.minimum.at(inner_edge, theta[r_box & near], rho[r_box & near])
@@ -329,7 +256,7 @@ def count_touches(gaps_px: Sequence[float] | NDArray[np.float64], fps: float) ->
     """
     if not fps > 0.0:
         raise ValueError(f"fps must be positive, got {fps}")
-    gaps = _without_flicker(np.asarray(gaps_px, dtype=float))
+    gaps = np.asarray(gaps_px, dtype=float)
     touches: list[SeenTouch] = []
     state = False
     start = last_contact = contacts = open_run = 0
@@ -355,22 +282,6 @@ def count_touches(gaps_px: Sequence[float] | NDArray[np.float64], fps: float) ->
     if state:
         close()
     return touches
-
-
-def _without_flicker(gaps: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``gaps`` with every lone contact frame (both nearest seen frames clearly open) set open.
-
-    One frame is 33 ms at 30 fps: a ring that closes and reopens a gap within it would move
-    faster than any study trajectory; such frames are segmentation noise (a few wire pixels at
-    a crossing's edge), and an assessor does not see them either.
-    """
-    out = gaps.copy()
-    seen = np.flatnonzero(np.isfinite(gaps))
-    g = gaps[seen]
-    for i in range(1, seen.size - 1):
-        if g[i] <= CONTACT_GAP_PX and g[i - 1] > OPEN_GAP_PX and g[i + 1] > OPEN_GAP_PX:
-            out[seen[i]] = g[i - 1]
-    return out
 
 
 @dataclass(frozen=True)
