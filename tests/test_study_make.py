@@ -13,14 +13,16 @@ from endocam.study.make import (
     DESIGN_JSON,
     HYPOTHESIS_JSON,
     STUDY_TRAJECTORIES,
+    extra_seed_values,
     practice_seed,
+    run_extra_seeds,
     trajectory_config,
     trajectory_seeds,
     video_ids,
 )
 from endocam.study.manifest import Condition, load_manifest
 from endocam.study.observability import OBSERVABILITY_CSV, OBSERVABILITY_JSON, load_summary
-from endocam.study.observer import OBSERVER_HTML, OBSERVER_JSON
+from endocam.study.observer import OBSERVER_HTML, OBSERVER_JSON, ColourKeys
 from endocam.study.responses import ResponseRow, rows_to_csv
 from endocam.task.trajectory import TrajectoryKind
 
@@ -259,6 +261,7 @@ def test_seeds_and_ids_are_deterministic_and_distinct() -> None:
         ("unknown_key", "camera.colour"),
         ("negative_seed", "--seed"),
         ("negative_seeds", "--seeds"),
+        ("zero_workers", "--workers"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(
@@ -281,6 +284,8 @@ def test_bad_input_is_one_line_exit_2(
         config.write_text("[camera]\ncolour = 1\n", encoding="utf-8")
     elif setup == "negative_seeds":
         extra = ["--seeds", "-1"]
+    elif setup == "zero_workers":
+        extra = ["--seeds", "1", "--workers", "0"]
     else:
         extra = ["--seed", "-3"]
     code = main(["study", "make", "--out", str(out), "--config", str(config), *extra])
@@ -289,3 +294,18 @@ def test_bad_input_is_one_line_exit_2(
     assert needle in err
     assert len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out").is_dir()
+
+
+def test_extra_seeds_in_the_process_pool_equal_a_serial_run(
+    config_file: Path, tmp_path: Path
+) -> None:
+    config = load_config(config_file)
+    hardest = max(STUDY_TRAJECTORIES, key=lambda t: t.difficulty)
+    keys = ColourKeys.from_scene(config.task.scene)
+    serial = run_extra_seeds(config, hardest, SEED, 2, keys, tmp_path, workers=1)
+    pooled = run_extra_seeds(config, hardest, SEED, 2, keys, tmp_path, workers=2)
+    assert [(r["seed"], r["condition"]) for r in serial] == [
+        (s, c.value) for s in extra_seed_values(SEED, 2) for c in Condition
+    ]
+    assert json.dumps(pooled) == json.dumps(serial)  # NaN gaps compare equal as text
+    assert not list(tmp_path.iterdir())  # the seeds' videos are deleted

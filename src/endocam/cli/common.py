@@ -15,6 +15,7 @@ from endocam.robot.carriers import ArmKind
 EXIT_USAGE = 2
 EXIT_INTERNAL = 1
 ARM_CHOICES = tuple(k.value for k in ArmKind)  # the carrier choices, from their one source
+MAX_WORKERS = 64  # count: --workers
 
 
 class UsageError(Exception):
@@ -35,6 +36,12 @@ def integer(text: str) -> int:
         return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+def check_workers(n: int) -> None:
+    """Raise a :class:`UsageError` unless ``--workers`` is in 1..``MAX_WORKERS``."""
+    if not 1 <= n <= MAX_WORKERS:
+        raise UsageError(f"--workers must be in 1..{MAX_WORKERS}, got {n}")
 
 
 def load_config_arg(path: str | None) -> ExperimentConfig:

@@ -9,6 +9,7 @@ import yaml
 from endocam.cli.common import (
     ARM_CHOICES,
     UsageError,
+    check_workers,
     integer,
     load_config_arg,
     out_dir,
@@ -23,7 +24,6 @@ from endocam.task.trajectory import TrajectoryKind
 
 SEED_HELP = f"noise seed (default {DEFAULT_SEED})"
 MAX_EXTRA_SEEDS = 1000  # count: --seeds of experiment tracking
-MAX_WORKERS = 64  # count: --workers
 
 
 def _config(args: argparse.Namespace) -> ExperimentConfig:
@@ -102,7 +102,7 @@ def _tracking(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     if not 0 <= args.seeds <= MAX_EXTRA_SEEDS:
         raise UsageError(f"--seeds must be in 0..{MAX_EXTRA_SEEDS}, got {args.seeds}")
-    _workers(args.workers)
+    check_workers(args.workers)
     cfg = _config(args)
     out = out_dir(args.out)
     table = run_tracking_experiment(
@@ -117,15 +117,10 @@ def _tracking(args: argparse.Namespace) -> int:
     return 0
 
 
-def _workers(n: int) -> None:
-    if not 1 <= n <= MAX_WORKERS:
-        raise UsageError(f"--workers must be in 1..{MAX_WORKERS}, got {n}")
-
-
 def _faults(args: argparse.Namespace) -> int:
     from endocam.runner.fault_matrix import run_fault_matrix
 
-    _workers(args.workers)
+    check_workers(args.workers)
     cfg = _config(args)
     out = out_dir(args.out)
     table = run_fault_matrix(cfg, out, workers=args.workers)

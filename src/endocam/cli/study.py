@@ -15,7 +15,8 @@ import socket
 from collections.abc import Callable
 from pathlib import Path
 
-from endocam.cli.common import UsageError
+from endocam.cli.common import UsageError, check_workers, integer
+from endocam.runner.pool import DEFAULT_WORKERS
 from endocam.study.analysis import AnalysisConfig, OutlierRule
 from endocam.study.db import ABANDON_AFTER_S
 
@@ -32,6 +33,7 @@ def _make(args: argparse.Namespace) -> int:
         raise UsageError(f"--seed must be ≥ 0, got {args.seed}")
     if args.seeds < 0:
         raise UsageError(f"--seeds must be ≥ 0, got {args.seeds}")
+    check_workers(args.workers)
     try:
         config = ExperimentConfig() if args.config is None else load_config(args.config)
         check_study_config(config)
@@ -39,7 +41,12 @@ def _make(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     manifest = make_study(
-        config, args.out, seed=args.seed, extra_seeds=args.seeds, practice=args.practice
+        config,
+        args.out,
+        seed=args.seed,
+        extra_seeds=args.seeds,
+        practice=args.practice,
+        workers=args.workers,
     )
     for v in manifest.videos:
         print(f"{v.id}  {v.condition.value:12s} {v.trajectory:12s} {v.true_touches:3d} touches")
@@ -213,6 +220,12 @@ def _add_make(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="also render and observe N more seeds of the most difficult trajectory for "
         "hypothesis.json (videos not kept; default: %(default)s)",
+    )
+    p.add_argument(
+        "--workers",
+        type=integer,
+        default=DEFAULT_WORKERS,
+        help="worker processes for the --seeds (1: in this process; default: %(default)s)",
     )
     p.add_argument(
         "--no-practice",

@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import concurrent.futures
+import multiprocessing
 from typing import Any
 
 DEFAULT_WORKERS = 2  # processes: the machine this was measured on has two cores
@@ -24,8 +25,13 @@ class InlineExecutor(concurrent.futures.Executor):
         return fut
 
 
-def executor(workers: int) -> concurrent.futures.Executor:
+def executor(workers: int, start_method: str | None = None) -> concurrent.futures.Executor:
     """A process pool of ``workers`` processes, or an :class:`InlineExecutor` for one.
+
+    ``start_method`` (``"spawn"``, ``"forkserver"``, ``"fork"``; None: the platform's default)
+    is how the workers start. Jobs that render need ``"spawn"``: a worker forked from a process
+    that has rendered inherits its EGL state and hangs in its first render (measured: the study's
+    extra seeds never finished).
 
     Raises
     ------
@@ -36,4 +42,5 @@ def executor(workers: int) -> concurrent.futures.Executor:
         raise ValueError(f"workers must be ≥ 1, got {workers}")
     if workers == 1:
         return InlineExecutor()
-    return concurrent.futures.ProcessPoolExecutor(max_workers=workers)
+    context = None if start_method is None else multiprocessing.get_context(start_method)
+    return concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=context)

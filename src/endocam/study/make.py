@@ -42,6 +42,7 @@ Written (atomically: a temporary folder renamed at the end)::
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import json
 import math
@@ -57,6 +58,7 @@ from tqdm import tqdm
 
 from endocam import __version__
 from endocam.config import ExperimentConfig
+from endocam.runner.pool import DEFAULT_WORKERS, executor
 from endocam.study.counterbalance import presentation_orders
 from endocam.study.manifest import (
     MANIFEST_NAME,
@@ -189,6 +191,7 @@ def make_study(
     trajectories: Sequence[StudyTrajectory] = STUDY_TRAJECTORIES,
     extra_seeds: int = 0,
     practice: bool = True,
+    workers: int = DEFAULT_WORKERS,
 ) -> Manifest:
     """Simulate, render and write a complete study folder (see the module docstring).
 
@@ -209,6 +212,8 @@ def make_study(
     practice : bool
         Also render the practice video (easiest trajectory, fixed camera, :func:`practice_seed`)
         and name it in the manifest.
+    workers : int
+        Processes for the extra seeds (≥ 1; 1: in this process); the results do not depend on it.
 
     Returns
     -------
@@ -223,6 +228,8 @@ def make_study(
     check_study_config(config)
     if extra_seeds < 0:
         raise ValueError(f"extra_seeds must be ≥ 0, got {extra_seeds}")
+    if workers < 1:
+        raise ValueError(f"workers must be ≥ 1, got {workers}")
     out = Path(out_dir)
     check_writable(out)
     seeds = trajectory_seeds(seed, len(trajectories))
@@ -320,7 +327,7 @@ def make_study(
         (tmp / OBSERVER_JSON).write_text(json.dumps(observer, indent=2) + "\n", "utf-8")
         (tmp / OBSERVER_HTML).write_text(observer_html(manifest, observations), "utf-8")
         hardest = max(trajectories, key=lambda t: t.difficulty)
-        extra = run_extra_seeds(config, hardest, seed, extra_seeds, keys, tmp)
+        extra = run_extra_seeds(config, hardest, seed, extra_seeds, keys, tmp, workers)
         hypothesis = hypothesis_dict(
             manifest, observer, records, hardest, extra, 1.0 / config.episode.video_fps
         )
@@ -355,58 +362,83 @@ def run_extra_seeds(
     n: int,
     keys: ColourKeys,
     work_dir: Path,
+    workers: int = DEFAULT_WORKERS,
 ) -> list[dict[str, Any]]:
     """Simulate, render and observe ``n`` more seeds of ``trajectory`` (three conditions each).
+
+    The seeds run in the runner's process pool (:func:`endocam.runner.pool.executor`,
+    ``workers`` processes started by ``spawn``, as they render; 1: in this process), one job per
+    seed; the rows are in seed order
+    whatever order the jobs finish in, so the result equals a serial run's.
 
     Returns one dict per seed and condition: ``seed``, ``condition``, ``true_touches``,
     ``counted_touches``, ``matched_touches`` (seen touches overlapping a true one, one to one:
     :func:`~endocam.study.observer.match_events`), ``gap_before_px`` and ``closes_visibly`` (per
-    true touch). The
-    videos are rendered into a temporary folder under ``work_dir`` and deleted.
+    true touch). The videos are rendered into a temporary folder under ``work_dir`` and deleted.
     """
-    from endocam.runner.episode import EpisodeSpec
-    from endocam.runner.experiments import CONDITION_POLICY, ground_truth, run_with_progress
-
-    rows: list[dict[str, Any]] = []
     if n == 0:
-        return rows
+        return []
+    seeds = extra_seed_values(seed, n)
+    rows: dict[int, list[dict[str, Any]]] = {}
+    with tqdm(total=n, desc="extra seeds", unit="seed") as bar, executor(workers, "spawn") as pool:
+        futures = {
+            pool.submit(_extra_seed_rows, config, trajectory, s, keys, work_dir): k
+            for k, s in enumerate(seeds)
+        }
+        for fut in concurrent.futures.as_completed(futures):
+            rows[futures[fut]] = fut.result()
+            bar.update(1)
+    return [row for k in range(n) for row in rows[k]]
+
+
+def _extra_seed_rows(
+    config: ExperimentConfig,
+    trajectory: StudyTrajectory,
+    s: int,
+    keys: ColourKeys,
+    work_dir: Path,
+) -> list[dict[str, Any]]:
+    """One extra seed's rows (see :func:`run_extra_seeds`); a pool job, no progress bar."""
+    from endocam.runner.episode import EpisodeSpec, run_episode
+    from endocam.runner.experiments import CONDITION_POLICY, ground_truth
+
     cfg = trajectory_config(config, trajectory)
     kind = TrajectoryKind.NOISY
-    for s in tqdm(extra_seed_values(seed, n), desc="extra seeds", leave=False):
-        touches = ground_truth(cfg, kind, trajectory.control_points, s)
-        results = [
-            run_with_progress(
-                cfg,
-                EpisodeSpec(CONDITION_POLICY[c.value], kind, trajectory.control_points, s),
-                touches,
+    touches = ground_truth(cfg, kind, trajectory.control_points, s)
+    results = [
+        run_episode(
+            cfg,
+            EpisodeSpec(CONDITION_POLICY[c.value], kind, trajectory.control_points, s),
+            touches=touches,
+        )
+        for c in STUDY_CONDITIONS
+    ]
+    rows: list[dict[str, Any]] = []
+    folder = Path(tempfile.mkdtemp(prefix="extra-", dir=work_dir))
+    try:
+        paths = [folder / f"{c.value}.mp4" for c in STUDY_CONDITIONS]
+        render_conditions(results, paths)
+        for c, path in zip(STUDY_CONDITIONS, paths, strict=True):
+            obs = observe_video(path, keys)
+            views = [gap_view(obs.gaps_px, obs.fps, e.t_start, e.t_end) for e in touches.events]
+            match = match_events(
+                [(t.t_start, t.t_end) for t in obs.touches],
+                [(e.t_start, e.t_end) for e in touches.events],
+                1.0 / obs.fps,
             )
-            for c in STUDY_CONDITIONS
-        ]
-        folder = Path(tempfile.mkdtemp(prefix="extra-", dir=work_dir))
-        try:
-            paths = [folder / f"{c.value}.mp4" for c in STUDY_CONDITIONS]
-            render_conditions(results, paths)
-            for c, path in zip(STUDY_CONDITIONS, paths, strict=True):
-                obs = observe_video(path, keys)
-                views = [gap_view(obs.gaps_px, obs.fps, e.t_start, e.t_end) for e in touches.events]
-                match = match_events(
-                    [(t.t_start, t.t_end) for t in obs.touches],
-                    [(e.t_start, e.t_end) for e in touches.events],
-                    1.0 / obs.fps,
-                )
-                rows.append(
-                    {
-                        "seed": s,
-                        "condition": c.value,
-                        "true_touches": touches.count,
-                        "counted_touches": len(obs.touches),
-                        "matched_touches": match.true_positives,
-                        "gap_before_px": [v.gap_before_px for v in views],
-                        "closes_visibly": [v.closes_visibly for v in views],
-                    }
-                )
-        finally:
-            shutil.rmtree(folder, ignore_errors=True)
+            rows.append(
+                {
+                    "seed": s,
+                    "condition": c.value,
+                    "true_touches": touches.count,
+                    "counted_touches": len(obs.touches),
+                    "matched_touches": match.true_positives,
+                    "gap_before_px": [v.gap_before_px for v in views],
+                    "closes_visibly": [v.closes_visibly for v in views],
+                }
+            )
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
     return rows
 
 
