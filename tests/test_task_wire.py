@@ -96,7 +96,7 @@ def test_config_validation() -> None:
 
 def test_surface_distance_matches_the_exact_closest_point() -> None:
     from endocam.task.config import WireConfig
-    from endocam.task.wire import Wire, _nearest_kernel
+    from endocam.task.wire import Wire
 
     wire = Wire(WireConfig())
     rng = np.random.default_rng(11)
