@@ -3,7 +3,7 @@ import pytest
 from pydantic import ValidationError
 
 from endocam.task.config import DEFAULT_KNOTS, RingConfig, TaskConfig, WireConfig
-from endocam.task.wire import Wire, _nearest_kernel
+from endocam.task.wire import Wire, _ball_kernel, _nearest_kernel
 
 ATOL_M = 1e-9  # m
 UNIT_TOL = 1e-9  # unitless
@@ -138,3 +138,6 @@ def test_compiled_nearest_gives_the_interpreters_floats() -> None:
             pts[n - 1] = pts[0]  # a tie: the first row wins, as argmin's
         expected = _nearest_kernel.py_func(pts, x, y, z)
         assert _nearest_kernel(pts, x, y, z) == expected
+        idx, d_c = _ball_kernel(pts, x, y, z, 2e-3)
+        idx_py, d_c_py = _ball_kernel.py_func(pts, x, y, z, 2e-3)
+        assert d_c == d_c_py and idx.tolist() == idx_py.tolist()
