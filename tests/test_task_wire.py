@@ -3,7 +3,7 @@ import pytest
 from pydantic import ValidationError
 
 from endocam.task.config import DEFAULT_KNOTS, RingConfig, TaskConfig, WireConfig
-from endocam.task.wire import Wire
+from endocam.task.wire import Wire, _ball_kernel, _nearest_kernel
 
 ATOL_M = 1e-9  # m
 UNIT_TOL = 1e-9  # unitless
@@ -122,3 +122,22 @@ def test_nearest_surface_equals_the_tree_bit_for_bit(wire: Wire) -> None:
     k_tree = [int(np.argmin(np.linalg.norm(wire.search_points - p, axis=1))) for p in points]
     for p, d, k in zip(points.tolist(), d_tree.tolist(), k_tree, strict=True):
         assert wire.nearest_surface(p) == (d, k)
+
+
+def test_compiled_nearest_gives_the_interpreters_floats() -> None:
+    """The compiled nearest-candidate search is its Python form's IEEE arithmetic, bit for bit.
+
+    (No fast-math and the same operations in the same order: the episode logs depend on it.)
+    """
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        n = int(rng.integers(1, 300))
+        pts = rng.normal(size=(n, 3)) * rng.choice([1e-3, 1e-2, 1.0])  # m
+        x, y, z = rng.normal(size=3).tolist()
+        if n > 1 and rng.random() < 0.2:
+            pts[n - 1] = pts[0]  # a tie: the first row wins, as argmin's
+        expected = _nearest_kernel.py_func(pts, x, y, z)
+        assert _nearest_kernel(pts, x, y, z) == expected
+        idx, d_c = _ball_kernel(pts, x, y, z, 2e-3)
+        idx_py, d_c_py = _ball_kernel.py_func(pts, x, y, z, 2e-3)
+        assert d_c == d_c_py and idx.tolist() == idx_py.tolist()

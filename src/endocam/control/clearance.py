@@ -32,8 +32,9 @@ it is blocked, gives a way-point that slides along the zone's surface; the polic
 (``control.safety.Workspace.keep_out``), braking like at the cone and the floor.
 
 Cost: the distance is 1-Lipschitz, so a pose within ``d_ref − c`` of the last queried position
-``p_ref`` (distance ``d_ref``) is clear without a query; only then is the KD-tree of
-:class:`~endocam.task.wire.Wire` asked (one query), and the search runs only when too close.
+``p_ref`` (distance ``d_ref``) is clear without a query; only then is
+:meth:`~endocam.task.wire.Wire.nearest_surface` asked (one query), and the search runs only
+when too close.
 
 The wire reaches the controller through :class:`~endocam.control.types.PolicyContext` as a
 pre-operative model of the structure (its centre line and radius), as a real system would have
@@ -104,7 +105,7 @@ class ClearanceGuard:
         self.blocked = 0
 
     def distance(self, p_world: Sequence[float], exact_below: float = 0.0) -> float:
-        """Surface distance of a camera position (3,), world, m; one KD-tree query at most.
+        """Surface distance of a camera position (3,), world, m; one nearest-point query at most.
 
         The distance is 1-Lipschitz: while ``d_ref − ‖p − p_ref‖`` (the last query's distance
         less how far the point moved) is at least ``clearance + exact_below`` (m), that lower

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from typing import overload
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike
 from scipy.integrate import cumulative_simpson
 from scipy.interpolate import make_interp_spline
@@ -24,10 +25,58 @@ from endocam.task.config import WireConfig
 _PARAM_SAMPLES = 20001  # count, dense samples of the chord-length spline for the arc-length map
 _SEARCH_SAMPLES_PER_M = 4000  # 1/m, KD-tree sample density for nearest-point seeds (0.25 mm)
 _CELL = 2.0e-3  # m, grid cell of the cached nearest-point candidates (nearest_surface)
-_CELL_RANGE = 0.03  # m, cells whose centre is farther from the wire use the KD-tree
+_CELL_RANGE = 0.03  # m, cells whose centre is farther from the wire search every point
 _BALL_SLACK = 1e-9  # m, widens the candidate ball against round-off at its edge
 _MAX_CELLS = 20_000  # count, cached cells at most (a few MB)
 ARC_TOL = 1e-9  # m, arc-length tolerance of queries just outside [0, length]
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _nearest_kernel(pts: FloatArray, x: float, y: float, z: float) -> tuple[int, float]:
+    """The nearest of the candidate points (n, 3), m, to ``(x, y, z)``, m: row and distance, m.
+
+    The first row of least squared distance (as ``argmin``); the distance is summed as the
+    KD-tree sums it, ``√(a² + b² + c²)`` left to right, so the result is the tree's bit for bit
+    (no fast-math: docs/conventions.md "Compiled kernels").
+    """
+    best = 0
+    best_d2 = math.inf
+    for i in range(pts.shape[0]):
+        a, b, c = x - pts[i, 0], y - pts[i, 1], z - pts[i, 2]
+        d2 = a * a + b * b + c * c
+        if d2 < best_d2:
+            best, best_d2 = i, d2
+    a, b, c = x - pts[best, 0], y - pts[best, 1], z - pts[best, 2]
+    return best, math.sqrt(a * a + b * b + c * c)
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _ball_kernel(
+    pts: FloatArray, x: float, y: float, z: float, h: float
+) -> tuple[np.ndarray, float]:
+    """A grid cell's candidates (``Wire._cell``): rows of ``pts`` (n, 3), m, near its centre.
+
+    ``d_c`` is the centre ``(x, y, z)``'s distance to the nearest row, m; the candidates are
+    the rows within ``d_c + h√3`` (``h`` the cell's edge, m), widened by ``_BALL_SLACK``
+    against round-off, in increasing order. Returns the row indices (k,) and ``d_c``, m.
+    """
+    n = pts.shape[0]
+    d2 = np.empty(n)
+    least = math.inf
+    for i in range(n):
+        a, b, c = x - pts[i, 0], y - pts[i, 1], z - pts[i, 2]
+        d2[i] = a * a + b * b + c * c
+        least = min(least, d2[i])
+    d_c = math.sqrt(least)
+    r = d_c + h * math.sqrt(3.0) + _BALL_SLACK
+    r2 = r * r
+    idx = np.empty(n, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        if d2[i] <= r2:
+            idx[count] = i
+            count += 1
+    return idx[:count].copy(), d_c
 
 
 class Wire:
@@ -170,7 +219,9 @@ class Wire:
 
         The control loop's query on plain floats: ``p_world`` (3,) in world, m. Near the wire
         the candidates of its 2 mm grid cell (cached) are searched instead of the KD-tree, with
-        the same answer, bit for bit (``tests/test_task_wire.py``), at about half the cost.
+        the same answer, bit for bit (``tests/test_task_wire.py``), by compiled kernels
+        (:func:`_nearest_kernel`, :func:`_ball_kernel`; ~1 µs a query near the wire,
+        ``bench/bench_clearance.py``); far from it every search point is tried (a few µs).
         Same resolution as :meth:`surface_distance` (≤ 0.125 mm over); the index points into
         :attr:`search_points`.
         """
@@ -180,15 +231,10 @@ class Wire:
         if cell is None:
             cell = self._cell(key)
         idx, pts = cell
-        if idx is None:  # far from the wire: the tree
-            d, k = self._tree.query(p_world)
-            return float(d) - self.cfg.radius, int(k)
-        diff = pts - np.array(p_world)
-        d2 = np.einsum("ij,ij->i", diff, diff)
-        j = int(d2.argmin())
-        q = pts[j].tolist()  # the distance summed as the tree sums it (bit for bit)
-        a, b, c = p_world[0] - q[0], p_world[1] - q[1], p_world[2] - q[2]
-        return math.sqrt(a * a + b * b + c * c) - self.cfg.radius, int(idx[j])
+        if idx is None:  # far from the wire: all the search points
+            pts = self._search_pts
+        j, dist = _nearest_kernel(pts, float(p_world[0]), float(p_world[1]), float(p_world[2]))
+        return dist - self.cfg.radius, j if idx is None else int(idx[j])
 
     def _cell(self, key: tuple[int, int, int]) -> tuple[np.ndarray | None, FloatArray]:
         """Candidates for the nearest search point of every point in a grid cell (cached).
@@ -196,16 +242,15 @@ class Wire:
         Every point ``p`` of the cell lies within ``h√3/2`` of its centre ``c``, so its nearest
         point lies within ``d(c) + h√3`` of ``c``: that ball's points are the candidates, and
         the argmin over them is the tree's answer. Cells farther than ``_CELL_RANGE`` from
-        the wire keep the tree (their balls would hold too many points).
+        the wire search all the points (their balls would hold too many).
         """
         h = _CELL
-        c = ((key[0] + 0.5) * h, (key[1] + 0.5) * h, (key[2] + 0.5) * h)
-        d_c, _ = self._tree.query(c)
+        idx, d_c = _ball_kernel(
+            self._search_pts, (key[0] + 0.5) * h, (key[1] + 0.5) * h, (key[2] + 0.5) * h, h
+        )
         if d_c > _CELL_RANGE:
             cell: tuple[np.ndarray | None, FloatArray] = (None, self._search_pts[:0])
         else:
-            r = float(d_c) + h * math.sqrt(3.0) + _BALL_SLACK
-            idx = np.asarray(self._tree.query_ball_point(c, r))
             cell = (idx, self._search_pts[idx])
         if len(self._cells) >= _MAX_CELLS:
             self._cells.clear()  # bounded memory; cells are rebuilt on demand
