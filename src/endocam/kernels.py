@@ -31,6 +31,7 @@ __all__ = [
     "so3_exp",
     "so3_log",
     "tmatmul",
+    "unit_or_none",
 ]
 
 Vec = tuple[float, float, float]
@@ -56,6 +57,14 @@ def norm(a: Vec) -> float:
 def scaled(a: Vec, k: float) -> Vec:
     """``k a``."""
     return (a[0] * k, a[1] * k, a[2] * k)
+
+
+def unit_or_none(a: Vec, eps: float = 1e-9) -> Vec | None:
+    """``a`` normalised, or ``None`` if its length is ≤ ``eps`` (unitless) or not finite."""
+    length = norm(a)
+    if not length > eps:
+        return None
+    return scaled(a, 1.0 / length)
 
 
 def reject(a: Vec, z: Vec) -> Vec:

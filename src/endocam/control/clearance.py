@@ -50,7 +50,7 @@ import numpy as np
 
 from endocam.camera import SCOPE_RADIUS
 from endocam.geometry import FloatArray
-from endocam.kernels import Vec, cross, dot, norm, reject, scaled
+from endocam.kernels import Vec, cross, dot, norm, reject, scaled, unit_or_none
 from endocam.task.wire import Wire
 from endocam.view import pose_from_columns, rotation_columns
 
@@ -213,8 +213,8 @@ class ClearanceGuard:
         _, k = self.wire.nearest_surface(x)
         pts = self._points
         q = pts[k].tolist()
-        out = _unit((x[0] - q[0], x[1] - q[1], x[2] - q[2]))
-        tangent = _unit(tuple((pts[min(k + 1, len(pts) - 1)] - pts[max(k - 1, 0)]).tolist()))
+        out = unit_or_none((x[0] - q[0], x[1] - q[1], x[2] - q[2]))
+        tangent = unit_or_none(tuple((pts[min(k + 1, len(pts) - 1)] - pts[max(k - 1, 0)]).tolist()))
         if out is None or tangent is None:
             return None
         # Around the wire, not along it: the command's angle about the wire's axis, seen from
@@ -225,7 +225,7 @@ class ClearanceGuard:
         rest = (b[0] - x[0], b[1] - x[1], b[2] - x[2])
         step = min(DETOUR_STEP, norm(rest))
         if abs(phi) < SAME_SIDE_ANGLE:  # the same side: straight on along the surface
-            move = scaled(_unit(reject(rest, out)) or out, step)
+            move = scaled(unit_or_none(reject(rest, out)) or out, step)
         else:
             sign = 1.0 if phi > 0.0 else -1.0
             if abs(phi) > math.pi - SAME_SIDE_ANGLE:  # straight behind: over the top
@@ -274,7 +274,7 @@ class ClearanceGuard:
         if d >= want:
             return p
         q = self._points[k].tolist()
-        out = _unit((p[0] - q[0], p[1] - q[1], p[2] - q[2]))
+        out = unit_or_none((p[0] - q[0], p[1] - q[1], p[2] - q[2]))
         if out is None:
             return None
         lift = want - d
@@ -417,12 +417,6 @@ class ClearanceGuard:
             if theta > MAX_ESCAPE_ANGLE:
                 return None
         return None
-
-
-def _unit(a: Vec) -> Vec | None:
-    """``a`` normalised, or ``None`` if (nearly) zero or not finite."""
-    length = norm(a)
-    return scaled(a, 1.0 / length) if length > _EPS else None
 
 
 def _rotate(v: Vec, k: Vec, c: float, s: float) -> Vec:

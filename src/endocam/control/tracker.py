@@ -58,20 +58,12 @@ from endocam.control.policies import (
 from endocam.control.safety import WindowStatus, adjust_working_distance, window_status_rows
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
 from endocam.geometry import UP, FloatArray
-from endocam.kernels import Vec, cross, dot, finite_rows, norm, scaled
+from endocam.kernels import Vec, cross, dot, finite_rows, norm, unit_or_none
 from endocam.view import look_at_unchecked
 
 _EPS = 1e-9  # unitless: shorter directions are degenerate
 ORBIT_DONE_ANGLE = math.radians(1.0)  # rad: an orbit this close to its goal direction ends
 FLOOR_TOL_M = 1e-9  # m: round-off allowed on the floor height of a built pose
-
-
-def _unit(a: Vec) -> Vec | None:
-    """``a`` normalised, or ``None`` if (nearly) zero or not finite."""
-    length = norm(a)
-    if not length > _EPS:
-        return None
-    return scaled(a, 1.0 / length)
 
 
 def _angle(a: Vec, b: Vec) -> float:
@@ -135,7 +127,7 @@ class RingPredictor:
             else:
                 k = h / tau
                 x = [a0 + (a0 - a1) * k for a0, a1 in zip(x_k, x_m, strict=True)]
-        n = _unit((x[3], x[4], x[5])) or (x_k[3], x_k[4], x_k[5])
+        n = unit_or_none((x[3], x[4], x[5])) or (x_k[3], x_k[4], x_k[5])
         return (x[0], x[1], x[2]), n
 
 
@@ -244,7 +236,7 @@ class EndocamPolicy(_MovingPolicy):
         if cfg.side_rule is SideRule.PORT:
             assert self._ctx is not None
             r = self._ctx.p_world_rcm.tolist()
-            toward = _unit((r[0] - p_c[0], r[1] - p_c[1], r[2] - p_c[2]))
+            toward = unit_or_none((r[0] - p_c[0], r[1] - p_c[1], r[2] - p_c[2]))
         T = goal_pose_unchecked(
             p_c,
             n,
@@ -320,7 +312,7 @@ class EndocamPolicy(_MovingPolicy):
         if ring_rows is None:
             return self._lose("ring pose missing or not finite")
         R = ring_rows
-        n_obs = _unit((R[0][2], R[1][2], R[2][2]))
+        n_obs = unit_or_none((R[0][2], R[1][2], R[2][2]))
         if n_obs is None:
             return self._lose("ring pose degenerate (zero normal)")
         p_obs = (R[0][3], R[1][3], R[2][3])
@@ -434,7 +426,7 @@ class EndocamPolicy(_MovingPolicy):
         self.transfers += 1
         self._transfer = None if kind is Transfer.DIRECT else kind
         if kind is Transfer.ORBIT:
-            u = _unit((p_cam[0] - p_c[0], p_cam[1] - p_c[1], p_cam[2] - p_c[2]))
+            u = unit_or_none((p_cam[0] - p_c[0], p_cam[1] - p_c[1], p_cam[2] - p_c[2]))
             if u is None:
                 self._transfer = None
             else:
@@ -470,15 +462,15 @@ class EndocamPolicy(_MovingPolicy):
         if ang < ORBIT_DONE_ANGLE:
             self._transfer = None
             return None
-        k = _unit(cross(u, u_goal))
+        k = unit_or_none(cross(u, u_goal))
         if k is None or ang > math.pi - 1e-3:  # opposite ends: go over the top
-            k = _unit(cross(u, (0.0, 0.0, 1.0))) or _unit(cross(u, (1.0, 0.0, 0.0)))
+            k = unit_or_none(cross(u, (0.0, 0.0, 1.0))) or unit_or_none(cross(u, (1.0, 0.0, 0.0)))
             assert k is not None
         tangent = cross(k, u)  # unit: k ⟂ u
         rate = tc.orbit_max_speed / (r * max(map(abs, tangent)) + _EPS)
         # The camera turns about k; its per-axis share is largest when k is along one axis.
         rate = min(rate, tc.orbit_max_rate)
-        to_cam = _unit((p_cam[0] - p_c[0], p_cam[1] - p_c[1], p_cam[2] - p_c[2]))
+        to_cam = unit_or_none((p_cam[0] - p_c[0], p_cam[1] - p_c[1], p_cam[2] - p_c[2]))
         keeping_up = (
             to_cam is not None
             and _angle(to_cam, u) <= tc.orbit_lookahead
