@@ -383,3 +383,48 @@ def test_study_observe_names_a_kept_seed_without_its_video(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "missing video(s) orientation" in err[0]
     assert (copy / OBSERVER_JSON).read_text() == before  # nothing rewritten
+
+
+def _children(pid: int) -> set[int]:
+    """Process ids whose parent is ``pid`` (Linux /proc)."""
+    out = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.add(int(stat.parent.name))
+    return out
+
+
+def test_sigterm_during_the_extra_seeds_leaves_no_folder_and_no_worker(
+    config_file: Path, tmp_path: Path
+) -> None:
+    """A job scheduler stops `study make` half-way: nothing half-written, no orphan process."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "study"
+    cmd = [sys.executable, "-m", "endocam.cli", "study", "make", "--out", str(out)]
+    cmd += ["--config", str(config_file), "--seeds", "6", "--workers", "2", "--no-practice"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 300.0  # s: the nine tiny videos come first
+    while not list(tmp_path.glob(f".{out.name}.tmp-*/{SEEDS_DIR}/*")):
+        assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+        assert time.monotonic() < deadline, "the extra seeds never started"
+        time.sleep(0.05)
+    workers = _children(proc.pid)
+    assert workers  # the pool's processes (and multiprocessing's resource tracker)
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=60.0) == 130
+    assert proc.stderr is not None and "interrupted" in proc.stderr.read().decode()
+    assert not out.exists()
+    assert not list(tmp_path.glob(f".{out.name}*"))  # the temporary folder is gone
+    time.sleep(1.0)  # s: the resource tracker leaves once its pipe closes
+    alive = [p for p in workers if Path(f"/proc/{p}").exists()]
+    for p in alive:  # a zombie is gone already; anything else outlived the command
+        state = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        assert state == "Z", f"process {p} outlived the command"
