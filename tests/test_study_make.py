@@ -428,3 +428,44 @@ def test_sigterm_during_the_extra_seeds_leaves_no_folder_and_no_worker(
     for p in alive:  # a zombie is gone already; anything else outlived the command
         state = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0]
         assert state == "Z", f"process {p} outlived the command"
+
+
+def test_gap_in_sight_is_recorded_for_every_touch_and_seed(study: Path) -> None:
+    records = json.loads((study / OBSERVABILITY_JSON).read_text())["touches"]
+    assert records and all(isinstance(r["gap_in_sight"], bool) for r in records)
+    (s,) = extra_seed_values(SEED, 1)
+    truth = json.loads((study / SEEDS_DIR / str(s) / TRUTH_JSON).read_text())
+    assert set(truth["gap_in_sight"]) == {c.value for c in Condition}
+    for flags in truth["gap_in_sight"].values():
+        assert len(flags) == len(truth["true_events"])
+    hypothesis = json.loads((study / HYPOTHESIS_JSON).read_text())
+    for c in Condition:
+        rows = [r for r in records if r["video_id"] == hypothesis["study"][c.value]["video"]]
+        share = hypothesis["study"][c.value]["gap_in_sight_share"]
+        if rows:
+            assert share == pytest.approx(sum(r["gap_in_sight"] for r in rows) / len(rows))
+        else:
+            assert share is None
+
+
+def test_study_observe_replays_the_episodes_for_a_missing_gap_in_sight(
+    study: Path, tmp_path: Path
+) -> None:
+    """A folder made before the column existed gets it from replayed episodes, the same values."""
+    copy = tmp_path / "study"
+    shutil.copytree(study, copy)
+    observability = json.loads((copy / OBSERVABILITY_JSON).read_text())
+    (s,) = extra_seed_values(SEED, 1)
+    truth_path = copy / SEEDS_DIR / str(s) / TRUTH_JSON
+    truth = json.loads(truth_path.read_text())
+    old = json.loads(json.dumps(observability))
+    for r in old["touches"]:
+        del r["gap_in_sight"]
+    (copy / OBSERVABILITY_JSON).write_text(json.dumps(old))
+    truth_path.write_text(json.dumps({k: v for k, v in truth.items() if k != "gap_in_sight"}))
+    assert main(["study", "observe", "--study", str(copy), "--workers", "1"]) == 0
+    assert json.loads((copy / OBSERVABILITY_JSON).read_text()) == observability
+    assert json.loads(truth_path.read_text())["gap_in_sight"] == truth["gap_in_sight"]
+    assert json.loads((copy / HYPOTHESIS_JSON).read_text()) == json.loads(
+        (study / HYPOTHESIS_JSON).read_text()
+    )

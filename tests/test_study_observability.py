@@ -1,3 +1,4 @@
+import dataclasses
 import json
 import math
 from collections.abc import Iterator
@@ -213,3 +214,26 @@ def test_json_round_trip_csv_and_bad_files(tmp_path: Path) -> None:
     path.write_text('{"eye": "left"}', encoding="utf-8")
     with pytest.raises(ValueError, match="instant"):
         load_summary(path)
+
+
+def test_gap_in_sight_is_false_for_a_camera_looking_away() -> None:
+    """The flag needs the closing gap in the image: a camera turned round never has it."""
+    from endocam.config import ExperimentConfig
+    from endocam.runner.episode import EpisodeSpec, run_episode
+    from endocam.sim.render import WireChaserScene
+    from endocam.study.observability import gap_in_sight
+    from endocam.task.trajectory import TrajectoryKind
+
+    data = ExperimentConfig().model_dump(mode="json")
+    data["task"]["trajectory"]["duration"] = 20.0
+    data["episode"]["arm"] = "free"
+    cfg = ExperimentConfig.model_validate(data)
+    result = run_episode(cfg, EpisodeSpec("endocam", TrajectoryKind.NOISY, 36, 1))
+    assert result.touches.events
+    with WireChaserScene(cfg.task, result.camera) as scene:
+        facing = [gap_in_sight(result, scene, e.t_start) for e in result.touches.events]
+        turned = result.log.T_world_cam.copy()
+        turned[:, :3, :3] = turned[:, :3, :3] @ np.diag([-1.0, 1.0, -1.0])  # look backwards
+        away = dataclasses.replace(result, log=dataclasses.replace(result.log, T_world_cam=turned))
+        assert not any(gap_in_sight(away, scene, e.t_start) for e in result.touches.events)
+    assert any(facing)  # the tracking camera sees some of its gaps close

@@ -32,7 +32,7 @@ import numpy as np
 
 from endocam.runner.outputs import write_atomic
 from endocam.runner.pool import DEFAULT_WORKERS, executor
-from endocam.study.manifest import STUDY_CONDITIONS, Manifest, load_manifest
+from endocam.study.manifest import STUDY_CONDITIONS, Condition, Manifest, load_manifest
 from endocam.study.observability import (
     OBSERVABILITY_CSV,
     OBSERVABILITY_JSON,
@@ -96,14 +96,19 @@ def load_records(path: str | Path) -> list[TouchObservation]:
 
 # ------------------------------------------------------------------------------ extra seeds
 def seed_rows(
-    folder: Path, seed: int, true_events: Sequence[Interval], keys: ColourKeys
+    folder: Path,
+    seed: int,
+    true_events: Sequence[Interval],
+    keys: ColourKeys,
+    in_sight: dict[str, list[bool]] | None = None,
 ) -> list[dict[str, Any]]:
     """Observe one extra seed's three videos (``folder/<condition>.mp4``), one row per condition.
 
     Each row: ``seed``, ``condition``, ``true_touches``, ``counted_touches``,
     ``matched_touches`` (seen touches overlapping a true one within a frame, one to one:
-    :func:`~endocam.study.observer.match_events`), and per true touch ``gap_before_px`` and
-    ``closes_visibly``.
+    :func:`~endocam.study.observer.match_events`), and per true touch ``gap_before_px``,
+    ``closes_visibly`` and ``gap_in_sight`` (from the simulator, ``in_sight[condition]``;
+    None when not known).
     """
     rows: list[dict[str, Any]] = []
     for c in STUDY_CONDITIONS:
@@ -121,26 +126,41 @@ def seed_rows(
                 "matched_touches": match.true_positives,
                 "gap_before_px": [v.gap_before_px for v in views],
                 "closes_visibly": [v.closes_visibly for v in views],
+                "gap_in_sight": None if in_sight is None else in_sight[c.value],
             }
         )
     return rows
 
 
-def write_truth(folder: Path, seed: int, fps: float, true_events: Sequence[Interval]) -> None:
-    """Write a kept seed's ``truth.json`` (atomically)."""
-    doc = {"seed": seed, "fps": fps, "true_events": [list(e) for e in true_events]}
+def write_truth(
+    folder: Path,
+    seed: int,
+    fps: float,
+    true_events: Sequence[Interval],
+    in_sight: dict[str, list[bool]] | None,
+) -> None:
+    """Write a kept seed's ``truth.json`` (atomically); ``in_sight``: per condition, per touch."""
+    doc = {
+        "seed": seed,
+        "fps": fps,
+        "true_events": [list(e) for e in true_events],
+        "gap_in_sight": in_sight,
+    }
     write_atomic(folder / TRUTH_JSON, lambda p: p.write_text(json.dumps(doc) + "\n", "utf-8"))
 
 
-def kept_seeds(study: Path) -> list[tuple[int, list[Interval]]]:
-    """``(seed, true touch intervals)`` of every extra seed whose videos the study kept.
+KeptSeed = tuple[int, list[Interval], dict[str, list[bool]] | None]
+
+
+def kept_seeds(study: Path) -> list[KeptSeed]:
+    """``(seed, true touch intervals, gap in sight)`` of every extra seed the study kept.
 
     Raises
     ------
     ValueError
         One line naming a kept seed's folder that lacks a video or has a malformed truth.json.
     """
-    out: list[tuple[int, list[Interval]]] = []
+    out: list[KeptSeed] = []
     root = study / SEEDS_DIR
     if not root.is_dir():
         return out
@@ -151,12 +171,13 @@ def kept_seeds(study: Path) -> list[tuple[int, list[Interval]]]:
             doc = json.loads((folder / TRUTH_JSON).read_text("utf-8"))
             events = [(float(a), float(b)) for a, b in doc["true_events"]]
             seed = int(doc["seed"])
+            in_sight = doc.get("gap_in_sight")
         except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{folder}: no valid {TRUTH_JSON}: {exc}") from None
         missing = [c.value for c in STUDY_CONDITIONS if not (folder / f"{c.value}.mp4").is_file()]
         if missing:
             raise ValueError(f"{folder}: missing video(s) {', '.join(missing)}")
-        out.append((seed, events))
+        out.append((seed, events, in_sight))
     return out
 
 
@@ -199,6 +220,7 @@ def hypothesis_dict(
             "recall": match.recall,
             "median_gap_before_px": _nan_median([r.gap_before_px for r in rs]),
             "closes_visibly_share": float(np.mean([r.closes_visibly for r in rs])) if rs else None,
+            "gap_in_sight_share": _share([r.gap_in_sight for r in rs]),
         }
     seeds: dict[str, Any] = {}
     for c in manifest.conditions:
@@ -219,6 +241,9 @@ def hypothesis_dict(
             "recall": tp / n_true if n_true else 1.0,
             "median_gap_before_px": _nan_median(gaps),
             "closes_visibly_share": float(np.mean(closes)) if closes else None,
+            "gap_in_sight_share": _share(
+                [f for r in rows for f in (r.get("gap_in_sight") or [None] * r["true_touches"])]
+            ),
         }
     return {
         "trajectory": trajectory,
@@ -233,6 +258,12 @@ def hypothesis_dict(
     }
 
 
+def _share(flags: Sequence[bool | None]) -> float | None:
+    """Share of True among the known flags (None: none known)."""
+    known = [f for f in flags if f is not None]
+    return float(np.mean(known)) if known else None
+
+
 def _fmt(value: float | None, spec: str) -> str:
     return "–" if value is None else format(value, spec)
 
@@ -243,25 +274,28 @@ def hypothesis_table(doc: dict[str, Any]) -> str:
     stale = "" if extra.get("recounted", True) else " (earlier observer)"
     lines = [
         f"| condition | {doc['trajectory']}: counted / true, abs. error | precision / recall | "
-        f"gap before (px) | closes visibly | {extra['n']} extra seeds{stale}: mean abs. error "
-        "(SD) | precision / recall | gap before (px) | closes visibly |",
-        "|---|---|---|---|---|---|---|---|---|",
+        f"gap before (px) | closes visibly | gap in sight | {extra['n']} extra seeds{stale}: "
+        "mean abs. error (SD) | precision / recall | gap before (px) | closes visibly | "
+        "gap in sight |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for c, row in doc["study"].items():
         e = extra["conditions"].get(c)
         tail = (
-            "– | – | – | –"
+            "– | – | – | – | –"
             if e is None
             else f"{e['mean_abs_error']:.2f} ({_fmt(e['sd_abs_error'], '.2f')}) | "
             f"{e['precision']:.2f} / {e['recall']:.2f} | "
             f"{_fmt(e['median_gap_before_px'], '.1f')} | "
-            f"{_fmt(e['closes_visibly_share'], '.0%')}"
+            f"{_fmt(e['closes_visibly_share'], '.0%')} | "
+            f"{_fmt(e.get('gap_in_sight_share'), '.0%')}"
         )
         lines.append(
             f"| {c} | {row['counted_touches']} / {row['true_touches']}, {row['abs_error']} | "
             f"{row['precision']:.2f} / {row['recall']:.2f} | "
             f"{_fmt(row['median_gap_before_px'], '.1f')} | "
-            f"{_fmt(row['closes_visibly_share'], '.0%')} | {tail} |"
+            f"{_fmt(row['closes_visibly_share'], '.0%')} | "
+            f"{_fmt(row.get('gap_in_sight_share'), '.0%')} | {tail} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -306,6 +340,8 @@ def recount_study(
     manifest = load_manifest(root)
     keys = keys_for_study(root)
     has_records = (root / OBSERVABILITY_JSON).is_file()
+    if has_records:
+        replay_gap_in_sight(root, workers)
     seeds = kept_seeds(root) if has_records else []
     observations: dict[str, VideoObservation] = {}
     extra_rows: dict[int, list[dict[str, Any]]] = {}
@@ -315,7 +351,8 @@ def recount_study(
             pool.submit(observe_video, root / v.file, keys): v.id for v in manifest.videos
         }
         seed_jobs = {
-            pool.submit(seed_rows, root / SEEDS_DIR / str(s), s, ev, keys): s for s, ev in seeds
+            pool.submit(seed_rows, root / SEEDS_DIR / str(s), s, ev, keys, sight): s
+            for s, ev, sight in seeds
         }
         for fut in concurrent.futures.as_completed(video_jobs):
             observations[video_jobs[fut]] = fut.result()
@@ -334,7 +371,7 @@ def recount_study(
     _write_text(root / OBSERVABILITY_CSV, observability_csv(records))
     recounted = True
     if seeds:
-        extra = [row for s, _ in seeds for row in extra_rows[s]]
+        extra = [row for s, _, _ in seeds for row in extra_rows[s]]
     else:
         extra = _earlier_rows(root / HYPOTHESIS_JSON)
         recounted = not extra
@@ -355,3 +392,110 @@ def _earlier_rows(path: Path) -> list[dict[str, Any]]:
         return list(json.loads(path.read_text("utf-8"))["extra_seeds"]["videos"])
     except (OSError, json.JSONDecodeError, KeyError, TypeError) as exc:
         raise ValueError(f"cannot read the extra seeds of {path}: {exc}") from None
+
+
+# ------------------------------------------------------------------------------ replay
+def replay_gap_in_sight(study: Path, workers: int = DEFAULT_WORKERS) -> int:
+    """Fill in ``gap_in_sight`` where a study folder lacks it, by replaying its episodes.
+
+    Folders made before the column existed: the episodes are deterministic, so each is run
+    again (no rendering) from its logged config (``logs/<id>/scene.json``), its condition's
+    policy and its trajectory's noise seed (``design.json``; a kept seed's ``truth.json``), and
+    the column is computed as ``study make`` computes it
+    (:func:`endocam.study.observability.gap_in_sight`). ``observability.json`` and the kept
+    seeds' ``truth.json`` are rewritten atomically.
+
+    Returns
+    -------
+    int
+        Episodes replayed (0: nothing was missing).
+
+    Raises
+    ------
+    ValueError
+        One line if a replayed episode's touches differ from the recorded ones (a folder made
+        by other code or another config).
+    """
+    records = load_records(study / OBSERVABILITY_JSON)
+    videos = sorted({r.video_id for r in records if r.gap_in_sight is None})
+    seeds = [(s, ev) for s, ev, sight in kept_seeds(study) if sight is None]
+    if not videos and not seeds:
+        return 0
+    design = json.loads((study / "design.json").read_text("utf-8"))
+    manifest = load_manifest(study)
+    by_id = {v.id: v for v in manifest.videos}
+    paths = {t["name"]: t for t in design["trajectories"]}
+
+    def logged_config(video_id: str) -> dict[str, Any]:
+        scene = json.loads((study / "logs" / video_id / "scene.json").read_text("utf-8"))
+        return dict(scene["config"])
+
+    jobs: dict[concurrent.futures.Future[Any], tuple[str, Any]] = {}
+    with executor(workers, "spawn") as pool:
+        for vid in videos:
+            v = by_id[vid]
+            path = paths[v.trajectory]
+            starts = [r.t_start_s for r in records if r.video_id == vid]
+            fut = pool.submit(
+                _replay,
+                logged_config(vid),
+                path["control_points"],
+                path["noise_seed"],
+                [v.condition],
+                starts,
+            )
+            jobs[fut] = ("video", vid)
+        if seeds:
+            hardest = manifest.most_difficult(manifest.conditions[0])
+            cfg, cp = logged_config(hardest.id), paths[hardest.trajectory]["control_points"]
+            conditions = list(STUDY_CONDITIONS)
+            for s, ev in seeds:
+                fut = pool.submit(_replay, cfg, cp, s, conditions, [a for a, _ in ev])
+                jobs[fut] = ("seed", s)
+        results = {key: fut.result() for fut, key in jobs.items()}
+    for (kind, key), sight in results.items():
+        if kind == "seed":
+            folder = study / SEEDS_DIR / str(key)
+            doc = json.loads((folder / TRUTH_JSON).read_text("utf-8"))
+            doc["gap_in_sight"] = sight
+            _write_text(folder / TRUTH_JSON, json.dumps(doc) + "\n")
+    filled = {vid: iter(results[("video", vid)][by_id[vid].condition.value]) for vid in videos}
+    records = [
+        dataclasses.replace(r, gap_in_sight=next(filled[r.video_id])) if r.video_id in filled else r
+        for r in records
+    ]
+    _write_text(study / OBSERVABILITY_JSON, observability_json(summarize(records), records))
+    _write_text(study / OBSERVABILITY_CSV, observability_csv(records))
+    return len(videos) + len(STUDY_CONDITIONS) * len(seeds)
+
+
+def _replay(
+    config: dict[str, Any],
+    control_points: int,
+    seed: int,
+    conditions: Sequence[Condition],
+    t_starts: Sequence[float],
+) -> dict[str, list[bool]]:
+    """Run one trajectory's episodes again; per condition, ``gap_in_sight`` of each touch."""
+    from endocam.config import ExperimentConfig
+    from endocam.runner.episode import EpisodeSpec, run_episode
+    from endocam.runner.experiments import CONDITION_POLICY, ground_truth
+    from endocam.sim.render import WireChaserScene
+    from endocam.study.observability import gap_in_sight
+    from endocam.task.trajectory import TrajectoryKind
+
+    cfg = ExperimentConfig.model_validate(config)
+    kind = TrajectoryKind.NOISY
+    touches = ground_truth(cfg, kind, control_points, seed)
+    if [e.t_start for e in touches.events] != list(t_starts):
+        raise ValueError(
+            f"replaying noise seed {seed} gives other touches than the study recorded: "
+            "the folder was made by other code or another config"
+        )
+    out: dict[str, list[bool]] = {}
+    for c in conditions:
+        spec = EpisodeSpec(CONDITION_POLICY[c.value], kind, control_points, seed)
+        result = run_episode(cfg, spec, touches=touches)
+        with WireChaserScene(cfg.task, result.camera) as scene:
+            out[c.value] = [gap_in_sight(result, scene, t) for t in t_starts]
+    return out

@@ -82,6 +82,7 @@ from endocam.study.observability import (
     OBSERVABILITY_CSV,
     OBSERVABILITY_JSON,
     TouchObservation,
+    gap_in_sight,
     observability_csv,
     observability_json,
     observe_episode,
@@ -404,6 +405,7 @@ def _extra_seed_rows(
     """One extra seed's rows (see :func:`run_extra_seeds`); a pool job, no progress bar."""
     from endocam.runner.episode import EpisodeSpec, run_episode
     from endocam.runner.experiments import CONDITION_POLICY, ground_truth
+    from endocam.sim.render import WireChaserScene
 
     cfg = trajectory_config(config, trajectory)
     kind = TrajectoryKind.NOISY
@@ -417,13 +419,18 @@ def _extra_seed_rows(
         for c in STUDY_CONDITIONS
     ]
     events = [(e.t_start, e.t_end) for e in touches.events]
+    with WireChaserScene(cfg.task, results[0].camera) as scene:
+        in_sight = {
+            c.value: [gap_in_sight(r, scene, e.t_start) for e in touches.events]
+            for c, r in zip(STUDY_CONDITIONS, results, strict=True)
+        }
     folder = work_dir / SEEDS_DIR / str(s)
     folder.mkdir(parents=True, exist_ok=True)
     try:
         render_conditions(results, [folder / f"{c.value}.mp4" for c in STUDY_CONDITIONS])
-        rows = seed_rows(folder, s, events, keys)
+        rows = seed_rows(folder, s, events, keys, in_sight)
         if keep_videos:
-            write_truth(folder, s, cfg.episode.video_fps, events)
+            write_truth(folder, s, cfg.episode.video_fps, events, in_sight)
     except BaseException:
         shutil.rmtree(folder, ignore_errors=True)
         raise

@@ -58,11 +58,15 @@ from endocam.camera import MIN_DEPTH, Eye, StereoCamera, points_in_eye
 from endocam.geometry import as_pose, as_vector3
 from endocam.metrics import orientation_error
 from endocam.study.manifest import Condition
+from endocam.study.observer import PRE_TOUCH_S
 from endocam.task.touches import contact_normal
 
 if TYPE_CHECKING:
     from endocam.runner.episode import EpisodeResult
     from endocam.sim.render import WireChaserScene
+
+GAP_SEEN = 0.5e-3  # m, a ring-wire gap this wide is "still open": where its closing is judged
+GAP_SEEN_DT = 1e-3  # s, sampling of the clearance when finding that instant
 
 OBSERVABILITY_JSON = "observability.json"
 OBSERVABILITY_CSV = "observability.csv"
@@ -223,6 +227,12 @@ class TouchObservation:
         smallest gap just before and during it (px, NaN: no frame showed it), and whether the
         gap closes visibly (resolvable just before, seen closed during). Filled in after
         rendering (``study make``); NaN / False until then.
+    gap_in_sight : bool or None
+        Whether the closing gap itself can be seen at all, from the simulator
+        (:func:`gap_in_sight`): the closest-approach point between wire and rim, at the last
+        instant before the onset when the gap is still ``GAP_SEEN`` open, is in the image and
+        unoccluded from the eye. An observer-independent upper bound on what any assessor can
+        see close. ``None``: not computed (files written before the column existed).
     """
 
     video_id: str
@@ -242,12 +252,43 @@ class TouchObservation:
     gap_before_px: float = math.nan
     gap_min_px: float = math.nan
     closes_visibly: bool = False
+    gap_in_sight: bool | None = None
 
 
 def _step(result: EpisodeResult, t: float) -> int:
     """Control step nearest to time ``t`` (s)."""
     rate = result.config.episode.control_rate
     return int(np.clip(round(t * rate), 0, len(result.log.t) - 1))
+
+
+def gap_in_sight(
+    result: EpisodeResult, scene: WireChaserScene, t_start: float, eye: Eye = "left"
+) -> bool:
+    """Whether the gap that closes at a touch's onset ``t_start`` (s) can be seen from ``eye``.
+
+    The instant: the first one in the ``PRE_TOUCH_S`` (the observer's "just before") before the
+    onset at which the exact clearance (``task.touches.clearances``, sampled every
+    ``GAP_SEEN_DT``) is at most ``GAP_SEEN`` (the window's start if it is smaller throughout).
+    There the closest-approach point between the wire and the ring's tube, in the open gap,
+    must project into the image in front of the eye and be unoccluded (MuJoCo ray cast through
+    every geom: the wire's near part, the rim, the handle, an instrument), with the logged
+    camera pose and PSM2 tip of the nearest control step: the test every validation clip's view
+    passes (:func:`endocam.study.observer_clips.gap_visible`).
+    """
+    from endocam.task.touches import clearances
+
+    t0 = max(t_start - PRE_TOUCH_S, 0.0)
+    ts = np.append(np.arange(t0, t_start, GAP_SEEN_DT), t_start)
+    T_rings = result.trajectory.poses(ts)
+    c, p = clearances(T_rings, result.wire, result.config.task.ring)
+    closing = np.flatnonzero(c <= GAP_SEEN)
+    i = int(closing[0]) if closing.size else len(ts) - 1
+    k = _step(result, float(ts[i]))
+    T_cam = result.log.T_world_cam[k]
+    scene.set_psm2_tip(result.log.p_world_tips[k, 1])
+    scene.set_ring_pose(T_rings[i])
+    scene.set_camera_pose(T_cam)
+    return bool(in_image(scene.camera, T_cam, p[i], eye) and scene.ray_visible(p[i], T_cam, eye))
 
 
 def observe_episode(
@@ -323,6 +364,7 @@ def observe_episode(
                 gap_px_per_mm=view.gap_px_per_mm,
                 frames=int(inside.size),
                 visible_frames=seen,
+                gap_in_sight=gap_in_sight(result, scene, float(ev.t_start), eye),
             )
         )
     return records
@@ -350,6 +392,7 @@ class ConditionObservability(_Frozen):
     touches_without_frame: Annotated[int, Field(ge=0)]
     median_gap_before_px: float | None = None
     closes_visibly_share: float | None = None
+    gap_in_sight_share: float | None = None
 
 
 class ObservabilitySummary(_Frozen):
@@ -395,6 +438,7 @@ def summarize(records: Sequence[TouchObservation], eye: Eye = "left") -> Observa
             touches_without_frame=sum(1 for r in rs if r.frames == 0),
             median_gap_before_px=_median([r.gap_before_px for r in rs]),
             closes_visibly_share=_share([r.closes_visibly for r in rs]),
+            gap_in_sight_share=_share([r.gap_in_sight for r in rs if r.gap_in_sight is not None]),
         )
     return ObservabilitySummary(eye=eye, instant="touch onset (t_start)", conditions=out)
 
