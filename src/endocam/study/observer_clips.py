@@ -77,6 +77,8 @@ SWAY_DISTANCE = 0.1  # unitless, relative amplitude of the camera's slow in/out 
 SWAY_PERIOD_S = 4.0  # s, period of the camera's slow motion
 ROLL_DEG = 20.0  # deg, largest roll of the camera about its optical axis
 AIM_OFFSET = 2.0e-3  # m, largest offset of the aim point from the ring's centre
+BOX_MARGIN = 0.01  # m, the camera keeps this far inside the box's walls, board and top
+BOX_STEP = 0.95  # unitless, distance factor per step when a view would leave the box
 TRUTH_DT = 1e-3  # s, sampling of the true clearance
 CLIP_TOUCHES = 4  # pushes per validation clip
 CLIP_FPS = 30.0  # frames/s of the validation clips (the study's video rate)
@@ -129,7 +131,7 @@ class ClipSpec:
         """A file-name-safe label."""
         return (
             f"{self.view}-{self.arc_fraction:.2f}-v{self.view_deg:+.0f}-t{self.tilt_deg:+.0f}"
-            f"-p{self.push_angle_deg:.0f}"
+            f"-p{self.push_angle_deg:.0f}-d{1e3 * self.distance:.0f}"
         )
 
 
@@ -156,12 +158,27 @@ def draw_spec(rng: np.random.Generator, arc_fraction: float, view: str) -> ClipS
     )
 
 
+def _camera_in_box(task: TaskConfig, spec: ClipSpec) -> bool:
+    """Whether the clip's camera (at every sway extreme) is inside the training box."""
+    t = np.linspace(0.0, SWAY_PERIOD_S, 9)
+    p = camera_poses(task, spec, t)[:, :3, 3]
+    half = 0.5 * np.asarray(task.scene.board_size[:2]) - BOX_MARGIN
+    return bool(
+        np.all(np.abs(p[:, :2]) <= half)
+        and np.all((p[:, 2] > BOX_MARGIN) & (p[:, 2] < task.scene.backdrop_height - BOX_MARGIN))
+    )
+
+
 def from_above(task: TaskConfig, spec: ClipSpec) -> ClipSpec:
-    """``spec`` with the sign of its view angle that puts the camera higher (inside the box,
-    looking down at the board as the study's cameras do)."""
-    flipped = replace(spec, view_deg=-spec.view_deg)
-    z = [camera_poses(task, s, np.zeros(1))[0, 2, 3] for s in (spec, flipped)]
-    return spec if z[0] >= z[1] else flipped
+    """``spec`` with the sign of its view angle that keeps the camera inside the training box
+    (as the study's cameras are) and higher (looking down at the board), moved nearer the ring
+    by ``BOX_STEP`` until it fits."""
+    while True:
+        options = [spec, replace(spec, view_deg=-spec.view_deg)]
+        inside = [o for o in options if _camera_in_box(task, o)]
+        if inside:
+            return max(inside, key=lambda o: camera_poses(task, o, np.zeros(1))[0, 2, 3])
+        spec = replace(spec, distance=spec.distance * BOX_STEP)
 
 
 def validation_specs(held_out: bool, task: TaskConfig | None = None) -> list[ClipSpec]:
