@@ -79,6 +79,9 @@ ROLL_DEG = 20.0  # deg, largest roll of the camera about its optical axis
 AIM_OFFSET = 2.0e-3  # m, largest offset of the aim point from the ring's centre
 BOX_MARGIN = 0.01  # m, the camera keeps this far inside the box's walls, board and top
 BOX_STEP = 0.95  # unitless, distance factor per step when a view would leave the box
+GAP_SEEN = 0.5e-3  # m, clearance at which the closing gap must be in sight (still open)
+GAP_SEEN_DT = 5e-3  # s, time step searching for that instant
+MAX_DRAWS = 50  # draws per clip before giving up
 TRUTH_DT = 1e-3  # s, sampling of the true clearance
 CLIP_TOUCHES = 4  # pushes per validation clip
 CLIP_FPS = 30.0  # frames/s of the validation clips (the study's video rate)
@@ -181,17 +184,58 @@ def from_above(task: TaskConfig, spec: ClipSpec) -> ClipSpec:
         spec = replace(spec, distance=spec.distance * BOX_STEP)
 
 
+def gap_visible(task: TaskConfig, spec: ClipSpec, touches: int = CLIP_TOUCHES) -> bool:
+    """Whether the closing gap is in sight before every push's touch (MuJoCo ray casts).
+
+    For each push, at the first instant its clearance falls to ``GAP_SEEN`` (the gap still
+    open), the closest-approach point between the wire and the rim (in the gap) must be
+    unoccluded from the left eye at the camera's pose then: nothing (not the wire's near part,
+    not the rim, not an instrument) hides the place where the gap closes.
+    """
+    from endocam.config import CameraConfig
+    from endocam.sim.render import WireChaserScene
+    from endocam.task.touches import clearances
+
+    t = np.arange(0.0, LEAD_IN_S + touches * PUSH_PERIOD_S, GAP_SEEN_DT)
+    depths = push_depths(task, spec)
+    rings = ring_poses(task, spec, t, depths)
+    c, p = clearances(rings, Wire(task.wire), task.ring)
+    cams = camera_poses(task, spec, t)
+    push = np.floor(np.maximum(t - LEAD_IN_S, 0.0) / PUSH_PERIOD_S).astype(int)
+    with WireChaserScene(task, CameraConfig().stereo()) as scene:
+        for k in range(touches):
+            idx = np.flatnonzero((push == k) & (t > LEAD_IN_S) & (c <= GAP_SEEN))
+            if idx.size == 0:
+                return False
+            i = int(idx[0])
+            scene.set_ring_pose(rings[i])
+            scene.set_camera_pose(cams[i])
+            if not scene.ray_visible(p[i], cams[i], "left"):
+                return False
+    return True
+
+
 def validation_specs(held_out: bool, task: TaskConfig | None = None) -> list[ClipSpec]:
-    """The tuning (``held_out=False``) or held-out clip specs, noise seeded per set."""
+    """The tuning (``held_out=False``) or held-out clip specs, noise seeded per set.
+
+    Each is drawn (:func:`draw_spec`, :func:`from_above`) until its gap is in sight before
+    every touch (:func:`gap_visible`), at most ``MAX_DRAWS`` times.
+    """
     task = TaskConfig() if task is None else task
     rng = np.random.default_rng(TEST_SEED if held_out else TUNING_SEED)
     arcs = TEST_ARC_FRACTIONS if held_out else TUNING_ARC_FRACTIONS
-    return [
-        from_above(task, draw_spec(rng, arc, view))
-        for arc in arcs
-        for view in VIEW_KINDS
-        for _ in range(CLIPS_PER_CELL)
-    ]
+    specs = []
+    for arc in arcs:
+        for view in VIEW_KINDS:
+            for _ in range(CLIPS_PER_CELL):
+                for _ in range(MAX_DRAWS):
+                    spec = from_above(task, draw_spec(rng, arc, view))
+                    if gap_visible(task, spec):
+                        break
+                else:  # pragma: no cover - no default bend needs it
+                    raise RuntimeError(f"no view of {view} at {arc} shows the gap")
+                specs.append(spec)
+    return specs
 
 
 @dataclass(frozen=True)

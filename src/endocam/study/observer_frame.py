@@ -57,7 +57,13 @@ _WIRE = TaskConfig().wire
 WIRE_FRACTION = _WIRE.radius / (_RING.major_radius + _RING.minor_radius)  # r_w / (R + r)
 PIXEL_PX = 1.0  # px, one pixel: adjacent silhouettes have no background between them
 DEBUG: dict[str, Any] | None = None
-MODE = 2
+MODE = 1
+import os
+WIDTH_RULE = 'W' in os.environ.get('OBSF', '')
+BEND_RULE = 'B' in os.environ.get('OBSF', '')
+SCALE_RULE = 'S' in os.environ.get('OBSF', '')
+WIDTH_TOL = 1.25
+SCALE_MIN_PX = 3.0
 CONTACT_PX = 1.0  # px, = observer.CONTACT_GAP_PX
 BAND_GAP_PX = 1  # px, a hole in the wire's run this small (encoding noise) does not end it
 
@@ -198,7 +204,9 @@ def frame_gap_px(ring: NDArray[np.bool_], wire: NDArray[np.bool_]) -> float:
     ring_pts = np.column_stack([rx + x0, ry + y0]).astype(float)
     half_strip = max(PIXEL_PX, tube_px)
     wire_px = WIRE_FRACTION * max(outline.a, outline.b)
-    if MODE >= 3 and _bend_px(in_hole, origin, along, across, tube_px) > wire_px:
+    if SCALE_RULE and wire_px < SCALE_MIN_PX:
+        return math.nan  # 1 mm spans too few pixels to tell a gap from contact
+    if (MODE >= 3 or BEND_RULE) and _bend_px(in_hole, origin, along, across, tube_px) > wire_px:
         return math.nan  # the band is not straight through the hole: its centre line is unknown
     gaps = [
         _side_gap(
@@ -282,6 +290,14 @@ def _side_gap(
         edge += 1
     if edge > q_hole + tube_px:
         return math.nan  # the wire's edge lies over the rim's tube: in front of it, hiding it
+    if WIDTH_RULE:
+        low = 0
+        while low - 1 > -n and wire_bins[n + low - 2 - BAND_GAP_PX : n + low - 1 + 1].any():
+            low -= 1
+        if DEBUG is not None:
+            DEBUG.setdefault("width", []).append((edge - low + PIXEL_PX, 2.0 * wire_px))
+        if edge - low + PIXEL_PX > WIDTH_TOL * 2.0 * wire_px + 2.0 * PIXEL_PX:
+            return math.nan  # the wire is wider here than at the ring's depth: nearer, in front
     if MODE >= 2:
         low = 0
         while low - 1 > -n and wire_bins[n + low - 2 - BAND_GAP_PX : n + low - 1 + 1].any():
