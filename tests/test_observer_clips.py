@@ -1,4 +1,4 @@
-"""The validation clips carry the study's conditions (angle noise, pushes, views, a moving camera)."""
+"""The validation clips carry the study's conditions: angle noise, pushes, views, moving camera."""
 
 import math
 
@@ -81,7 +81,7 @@ def test_the_gap_opens_across_the_line_of_sight_of_a_moving_camera() -> None:
 def test_each_push_goes_past_contact_both_ways() -> None:
     spec = validation_specs(held_out=True)[0]
     d_plus, d_minus = push_depths(TASK, spec)
-    R, centre, u = _rest_frame(TASK, spec)
+    _, centre, u = _rest_frame(TASK, spec)
     wire = Wire(TASK.wire)
     for d in (d_plus, -d_minus):
         T = ring_poses(TASK, spec, np.array([0.0]))[0]

@@ -173,9 +173,11 @@ def _camera_in_box(task: TaskConfig, spec: ClipSpec) -> bool:
 
 
 def from_above(task: TaskConfig, spec: ClipSpec) -> ClipSpec:
-    """``spec`` with the sign of its view angle that keeps the camera inside the training box
-    (as the study's cameras are) and higher (looking down at the board), moved nearer the ring
-    by ``BOX_STEP`` until it fits."""
+    """``spec`` with the sign of its view angle that keeps the camera inside the training box.
+
+    As the study's cameras are; of two that fit, the higher (looking down at the board). A view
+    that fits neither way is moved nearer the ring by ``BOX_STEP`` until it does.
+    """
     while True:
         options = [spec, replace(spec, view_deg=-spec.view_deg)]
         inside = [o for o in options if _camera_in_box(task, o)]
@@ -383,8 +385,11 @@ def render_clip(
     fps: float = CLIP_FPS,
     depth_scale: float = 1.0,
 ) -> Clip:
-    """Render a clip of ``touches`` pushes (``depth_scale`` × the push depths of :func:`push_depths`;
-    one scaled below the free play touches nothing)."""
+    """Render a clip of ``touches`` pushes at ``fps`` frames/s.
+
+    Each push goes ``depth_scale`` × its depth from :func:`push_depths` (m); scaled below the
+    free play, it touches nothing.
+    """
     from endocam.sim.render import WireChaserScene
 
     d_plus, d_minus = push_depths(task, spec)
@@ -404,7 +409,7 @@ def render_clip(
 
 
 def write_clip(clip: Clip, folder: Path) -> Path:
-    """Encode ``clip`` as H.264 into ``folder`` (``<name>.mp4`` + ``<name>.json`` with the truth)."""
+    """Encode ``clip`` as H.264 into ``folder``: ``<name>.mp4`` and ``<name>.json`` (the truth)."""
     from endocam.runner.outputs import video_writer
 
     path = folder / f"clip-{clip.spec.name}.mp4"
@@ -426,7 +431,7 @@ def score_video(path: Path, keys: ColourKeys) -> Match:
     obs = observe_video(path, keys)
     seen = [(s.t_start, s.t_end) for s in obs.touches]
     true = [tuple(e) for e in meta["true_events"]]
-    return match_events(seen, true, 1.0 / float(meta["fps"]))  # type: ignore[arg-type]
+    return match_events(seen, true, 1.0 / float(meta["fps"]))
 
 
 def observe_clip(clip: Clip, keys: ColourKeys, folder: Path) -> Match:
@@ -474,7 +479,6 @@ def main(argv: list[str] | None = None) -> int:  # pragma: no cover - the docume
         m = pooled(ms)
         print(f"| {name} | {view} | {m.true} | {m.seen} | {m.precision:.2f} | {m.recall:.2f} |")
     return 0
-
 
 
 if __name__ == "__main__":  # pragma: no cover

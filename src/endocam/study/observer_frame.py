@@ -43,29 +43,24 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from endocam.task.config import RGBA, RingConfig, SceneConfig, TaskConfig
+from endocam.task.config import RGBA, RingConfig, SceneConfig, WireConfig
 
 HUE_TOL = 12  # OpenCV hue units (0..180 ↔ 0..360°): ±24° around the object's hue
 SAT_MIN = 110  # 8-bit saturation: the ring and the wire are saturated, board and walls are not
 VAL_MIN = 35  # 8-bit value: darker pixels carry no reliable hue
 MIN_RING_PX = 12  # px, smaller orange components are noise (or a ring too small to judge)
-MIN_HOLE_PX = 2.0  # px, smallest semi-axis of the hole's outline that can show a gap
 MIN_BAND_PX = 3  # px, fewest wire pixels inside the hole that make a band
 _RING = RingConfig()
+_WIRE = WireConfig()
 TUBE_FRACTION = _RING.minor_radius / (_RING.major_radius + _RING.minor_radius)  # r / (R + r)
-_WIRE = TaskConfig().wire
 WIRE_FRACTION = _WIRE.radius / (_RING.major_radius + _RING.minor_radius)  # r_w / (R + r)
 PIXEL_PX = 1.0  # px, one pixel: adjacent silhouettes have no background between them
-DEBUG: dict[str, Any] | None = None
-MODE = 1
-import os
-WIDTH_RULE = 'W' in os.environ.get('OBSF', '')
-BEND_RULE = 'B' in os.environ.get('OBSF', '')
-SCALE_RULE = 'S' in os.environ.get('OBSF', '')
-WIDTH_TOL = 1.25
-SCALE_MIN_PX = 3.0
-CONTACT_PX = 1.0  # px, = observer.CONTACT_GAP_PX
 BAND_GAP_PX = 1  # px, a hole in the wire's run this small (encoding noise) does not end it
+CONTACT_PX = 1.0  # px, a gap this small is contact (the counter's CONTACT_GAP_PX)
+RESOLVE_PX = 3.0  # px, a gap this wide is resolvable (the counter's OPEN_GAP_PX)
+WIDTH_TOL = 1.25  # unitless, the band may look this much wider than the wire at the ring's depth
+# (a wire point nearer the camera than the ring by a fifth of the ring's distance looks wider)
+WIDTH_SLACK_PX = 2.0 * PIXEL_PX  # px, encoding blur: one pixel on each edge of the band
 
 
 # --------------------------------------------------------------------------- segmentation
@@ -127,7 +122,7 @@ def segment(
 # --------------------------------------------------------------------------- geometry
 @dataclass(frozen=True)
 class Ellipse:
-    """An image ellipse: centre (2,), px; semi-axes ``a`` along ``e1`` and ``b`` along ``e2``, px."""
+    """An image ellipse: centre (2,), px; semi-axes ``a`` along ``e1``, ``b`` along ``e2``, px."""
 
     centre: NDArray[np.float64]
     a: float
@@ -182,96 +177,88 @@ def frame_gap_px(ring: NDArray[np.bool_], wire: NDArray[np.bool_]) -> float:
     outline = ring_outline(ring)
     if outline is None:
         return math.nan
-    tube_px = TUBE_FRACTION * max(outline.a, outline.b)
+    scale_px = max(outline.a, outline.b)  # the ring's outer radius R + r, px
+    wire_px = WIRE_FRACTION * scale_px  # the wire's radius at the ring's depth, px (= 1 mm)
+    if wire_px < RESOLVE_PX:
+        return math.nan  # one wire radius spans too few pixels to tell a gap from contact
+    tube_px = TUBE_FRACTION * scale_px
     hole = outline.shrunk(2.0 * tube_px)
-    if min(hole.a, hole.b) < MIN_HOLE_PX:
-        return math.nan
-    reach = math.ceil(max(outline.a, outline.b)) + 2
+    reach = math.ceil(scale_px) + 2
     h, w = ring.shape
     cx, cy = outline.centre
     x0, x1 = max(0, int(cx) - reach), min(w, int(cx) + reach + 1)
     y0, y1 = max(0, int(cy) - reach), min(h, int(cy) + reach + 1)
     wy, wx = np.nonzero(wire[y0:y1, x0:x1])
     wire_pts = np.column_stack([wx + x0, wy + y0]).astype(float)
-    in_hole = wire_pts[hole.inside(wire_pts)] if wire_pts.size else wire_pts
+    in_hole = wire_pts[hole.inside(wire_pts)]
     if len(in_hole) < MIN_BAND_PX:
         return math.nan
     vx, vy, px, py = cv2.fitLine(in_hole.astype(np.float32), cv2.DIST_L2, 0, 0.01, 0.01).ravel()
-    along = np.array([vx, vy], dtype=float)
-    across = np.array([-vy, vx], dtype=float)
-    origin = np.array([px, py], dtype=float)
+    band = _Band(
+        origin=np.array([px, py], dtype=float),
+        along=np.array([vx, vy], dtype=float),
+        half_strip_px=max(PIXEL_PX, tube_px),
+        tube_px=tube_px,
+        wire_px=wire_px,
+    )
     ry, rx = np.nonzero(ring[y0:y1, x0:x1])
     ring_pts = np.column_stack([rx + x0, ry + y0]).astype(float)
-    half_strip = max(PIXEL_PX, tube_px)
-    wire_px = WIRE_FRACTION * max(outline.a, outline.b)
-    if SCALE_RULE and wire_px < SCALE_MIN_PX:
-        return math.nan  # 1 mm spans too few pixels to tell a gap from contact
-    if (MODE >= 3 or BEND_RULE) and _bend_px(in_hole, origin, along, across, tube_px) > wire_px:
-        return math.nan  # the band is not straight through the hole: its centre line is unknown
-    gaps = [
-        _side_gap(
-            ring_pts, wire_pts, hole, origin, along, sign * across, half_strip, tube_px, wire_px
-        )
-        for sign in (1.0, -1.0)
-    ]
-    if DEBUG is not None:
-        DEBUG.update(hole=hole, origin=origin, along=along, gaps=gaps,
-                     sup=[hole.support(across), hole.support(-across)])
+    gaps = [_side_gap(ring_pts, wire_pts, hole, band, sign) for sign in (1.0, -1.0)]
     seen = [g for g in gaps if not math.isnan(g)]
     if not seen or (len(seen) < len(gaps) and min(seen) > CONTACT_PX):
         return math.nan  # one side hidden, the other open: the touch could be on the hidden one
     return min(seen)
 
 
-def _bend_px(
-    pts: NDArray[np.float64],
-    origin: NDArray[np.float64],
-    along: NDArray[np.float64],
-    across: NDArray[np.float64],
-    bin_px: float,
-) -> float:
-    """Largest offset (px) of the band's local centre (mid of its extent across, per ``bin_px``
-    long piece along it) from the fitted line: 0 for a straight band of any taper."""
-    d = pts - origin
-    s, q = d @ along, d @ across
-    k = np.floor(s / max(bin_px, PIXEL_PX)).astype(int)
-    k -= k.min()
-    hi = np.full(k.max() + 1, -np.inf)
-    lo = np.full(k.max() + 1, np.inf)
-    np.maximum.at(hi, k, q)
-    np.minimum.at(lo, k, q)
-    ok = np.isfinite(hi)
-    return float(np.abs(0.5 * (hi[ok] + lo[ok])).max())
+@dataclass(frozen=True)
+class _Band:
+    """The wire's band through the hole, and the ring's scale.
+
+    ``origin`` (2,) and unit ``along`` (2,): the band's line, px; ``half_strip_px``: half the
+    strip read across the band; ``tube_px``: the ring tube's radius; ``wire_px``: the wire's
+    radius at the ring's depth (all px).
+    """
+
+    origin: NDArray[np.float64]
+    along: NDArray[np.float64]
+    half_strip_px: float
+    tube_px: float
+    wire_px: float
+
+    @property
+    def across(self) -> NDArray[np.float64]:
+        """Unit normal (2,) of the band's line."""
+        return np.array([-self.along[1], self.along[0]])
 
 
 def _side_gap(
     ring_pts: NDArray[np.float64],
     wire_pts: NDArray[np.float64],
     hole: Ellipse,
-    origin: NDArray[np.float64],
-    along: NDArray[np.float64],
-    across: NDArray[np.float64],
-    half_strip: float,
-    tube_px: float,
-    wire_px: float = 0.0,
+    band: _Band,
+    sign: float,
 ) -> float:
-    """The gap (px) on the ``across`` side of the band, read at the hole's support point there.
+    """The gap (px) on the ``sign · across`` side of the band, at the hole's support point there.
 
-    ``ring_pts``, ``wire_pts``: (N, 2) pixel centres (x, y); ``origin``, ``along``: the band's
-    line; ``half_strip``: half the strip's width along the band, px; ``tube_px``: the tube's
-    radius, px (how far past the hole's outline the rim's inner edge is looked for). NaN when the
-    band does not reach the strip, the wire runs over the rim there, or no rim pixel is found.
+    ``ring_pts``, ``wire_pts``: (N, 2) pixel centres (x, y), px. The strip ``±half_strip_px``
+    along the band through the support point is read across it (1 px bins, max-pooled along
+    the strip): from the band's centre line out, the wire's run, background, the first rim
+    pixel. NaN (nothing seen) when the band does not cross the strip, no rim pixel is in reach,
+    the wire continues over or past that rim pixel or its edge lies beyond the hole's outline
+    by more than half the tube (the wire in front of the rim hides the place), or the wire's
+    run is wider than the wire at the ring's depth allows (``WIDTH_TOL``: that part of the wire
+    is nearer the camera than the ring, so its edge beside the rim is not at the ring's plane).
     """
+    across = sign * band.across
     p = hole.support(across)
-    s_p = float((p - origin) @ along)
-    q_hole = float((p - origin) @ across)  # the hole's outline on this side
-    q_end = q_hole + 2.0 * tube_px + PIXEL_PX
-    n = math.ceil(q_end) + 1
+    s_p = float((p - band.origin) @ band.along)
+    q_hole = float((p - band.origin) @ across)  # the hole's outline on this side
+    n = math.ceil(q_hole + 2.0 * band.tube_px + PIXEL_PX) + 1
 
     def profile(pts: NDArray[np.float64]) -> NDArray[np.bool_]:
-        d = pts - origin
-        s, q = d @ along, d @ across
-        pick = (np.abs(s - s_p) <= half_strip) & (np.abs(q) < n)
+        d = pts - band.origin
+        s, q = d @ band.along, d @ across
+        pick = (np.abs(s - s_p) <= band.half_strip_px) & (np.abs(q) < n)
         bins = np.zeros(2 * n + 1, dtype=bool)  # bin n + k holds q in [k, k + 1)
         bins[np.floor(q[pick]).astype(int) + n] = True
         return bins
@@ -285,23 +272,24 @@ def _side_gap(
     first_ring = int(ring_idx[0])
     if wire_bins[n + first_ring :].any():
         return math.nan  # the wire over or past the rim: the place is hidden in front
-    edge = 0
-    while edge + 1 < first_ring and wire_bins[n + edge + 1 : n + edge + 2 + BAND_GAP_PX].any():
-        edge += 1
-    if edge > q_hole + tube_px:
+    edge = _run_end(wire_bins, n, first_ring, +1)
+    if edge > q_hole + band.tube_px:
         return math.nan  # the wire's edge lies over the rim's tube: in front of it, hiding it
-    if WIDTH_RULE:
-        low = 0
-        while low - 1 > -n and wire_bins[n + low - 2 - BAND_GAP_PX : n + low - 1 + 1].any():
-            low -= 1
-        if DEBUG is not None:
-            DEBUG.setdefault("width", []).append((edge - low + PIXEL_PX, 2.0 * wire_px))
-        if edge - low + PIXEL_PX > WIDTH_TOL * 2.0 * wire_px + 2.0 * PIXEL_PX:
-            return math.nan  # the wire is wider here than at the ring's depth: nearer, in front
-    if MODE >= 2:
-        low = 0
-        while low - 1 > -n and wire_bins[n + low - 2 - BAND_GAP_PX : n + low - 1 + 1].any():
-            low -= 1
-        centre = 0.5 * (low + edge)
-        return float(max(first_ring - centre - wire_px, 0.0))
+    low = _run_end(wire_bins, n, n - 1, -1)
+    if edge - low + PIXEL_PX > WIDTH_TOL * 2.0 * band.wire_px + WIDTH_SLACK_PX:
+        return math.nan  # wider than the wire at the ring's depth: nearer, in front of the plane
     return float(max(first_ring - edge - PIXEL_PX, 0.0))
+
+
+def _run_end(bins: NDArray[np.bool_], n: int, limit: int, step: int) -> int:
+    """Last bin offset (from the centre bin ``n``) of the wire's run going ``step`` (±1).
+
+    Holes of up to ``BAND_GAP_PX`` bins are bridged; at most ``limit`` bins out.
+    """
+    k = 0
+    while abs(k) + 1 < limit:
+        nxt = [n + k + step * j for j in range(1, BAND_GAP_PX + 2)]
+        if not any(0 <= i < bins.size and bins[i] for i in nxt):
+            break
+        k += step
+    return k
