@@ -39,6 +39,7 @@ observer on the decoded video and prints its precision and recall per clip and p
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import sys
@@ -81,6 +82,7 @@ BOX_MARGIN = 0.01  # m, the camera keeps this far inside the box's walls, board 
 BOX_STEP = 0.95  # unitless, distance factor per step when a view would leave the box
 GAP_SEEN = 0.5e-3  # m, clearance at which the closing gap must be in sight (still open)
 GAP_SEEN_DT = 5e-3  # s, time step searching for that instant
+RAY_CAMERA_PX = (64, 48)  # px, the (unused) image of the scene that only casts rays
 MAX_DRAWS = 50  # draws per clip before giving up
 TRUTH_DT = 1e-3  # s, sampling of the true clearance
 CLIP_TOUCHES = 4  # pushes per validation clip
@@ -204,7 +206,8 @@ def gap_visible(task: TaskConfig, spec: ClipSpec, touches: int = CLIP_TOUCHES) -
     c, p = clearances(rings, Wire(task.wire), task.ring)
     cams = camera_poses(task, spec, t)
     push = np.floor(np.maximum(t - LEAD_IN_S, 0.0) / PUSH_PERIOD_S).astype(int)
-    with WireChaserScene(task, CameraConfig().stereo()) as scene:
+    rays_only = CameraConfig(width=RAY_CAMERA_PX[0], height=RAY_CAMERA_PX[1]).stereo()
+    with WireChaserScene(task, rays_only) as scene:
         for k in range(touches):
             idx = np.flatnonzero((push == k) & (t > LEAD_IN_S) & (c <= GAP_SEEN))
             if idx.size == 0:
@@ -217,13 +220,20 @@ def gap_visible(task: TaskConfig, spec: ClipSpec, touches: int = CLIP_TOUCHES) -
     return True
 
 
+@functools.cache
+def _default_specs(held_out: bool) -> tuple[ClipSpec, ...]:
+    """:func:`validation_specs` of the default task, drawn once per process."""
+    return tuple(validation_specs(held_out, TaskConfig()))
+
+
 def validation_specs(held_out: bool, task: TaskConfig | None = None) -> list[ClipSpec]:
     """The tuning (``held_out=False``) or held-out clip specs, noise seeded per set.
 
     Each is drawn (:func:`draw_spec`, :func:`from_above`) until its gap is in sight before
     every touch (:func:`gap_visible`), at most ``MAX_DRAWS`` times.
     """
-    task = TaskConfig() if task is None else task
+    if task is None:
+        return list(_default_specs(held_out))
     rng = np.random.default_rng(TEST_SEED if held_out else TUNING_SEED)
     arcs = TEST_ARC_FRACTIONS if held_out else TUNING_ARC_FRACTIONS
     specs = []
