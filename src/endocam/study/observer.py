@@ -4,23 +4,15 @@ The paper's claim is that people count touches more accurately when the camera f
 ring's orientation. Before anyone watches a video, this observer counts the touches the way an
 assessor would, from the decoded left-eye MP4 and nothing else (no pose, no clearance, no ground
 truth inside the counter): it only knows what the ring and the wire look like (their colours,
-as a participant is told "the orange ring, the blue wire").
+as a participant is told "the orange ring, the blue wire") and their shapes.
 
-Per frame (:func:`frame_gap_px`):
-
-1. **Segment** the ring and the wire by colour (OpenCV HSV: hue within ``HUE_TOL`` of the
-   configured colour's hue, saturation ≥ ``SAT_MIN``, value ≥ ``VAL_MIN``), ring components of
-   fewer than ``MIN_RING_PX`` pixels dropped.
-2. **The ring's outline**: an ellipse fitted (``cv2.fitEllipse``) to the convex hull of the
-   ring's pixels. Pixels near the ring get ellipse-normalised polar coordinates (ρ = 1 on the
-   outline), binned into ``N_BINS`` directions.
-3. **Gap** (px) per direction: from the outermost wire pixel inside the hole to the rim's inner
-   edge (the innermost ring pixel of that direction). Directions in which the wire lies over or
-   beyond the rim (ρ ≥ ``RIM_RHO`` up to ``OUTSIDE_RHO``: it crosses the rim, in front or behind)
-   are left out, widened by their own angular width on each side (beside a crossing the band's
-   edges meet the rim without touching it). The frame's gap is the smallest remaining one (0:
-   the silhouettes meet); NaN when no direction shows the wire inside the hole (no ring, the
-   ring too small, or the wire only crossing it).
+Per frame, :func:`~endocam.study.observer_frame.frame_gap_px` (in
+:mod:`endocam.study.observer_frame`, with the colour segmentation) reads the gap between the
+wire's band through the ring's hole and the rim's inner edge, in px, where the hole's edge runs
+parallel to the band; it says nothing (NaN) where the place is hidden, the wire there is in
+front of the ring, or the ring is too small to resolve a gap. It also knows the ring's and the
+wire's shapes (tube and wire radius relative to the ring), as a participant told about the task
+does.
 
 Touches (:func:`count_touches`): a frame shows contact when its gap is at most
 ``CONTACT_GAP_PX``; a frame that shows nothing keeps the previous state (an assessor cannot see
@@ -53,13 +45,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from endocam.study.manifest import Manifest, load_manifest
-from endocam.study.observer_frame import ColourKeys, frame_gap_px, segment
+from endocam.study.observer_frame import (
+    CONTACT_PX,
+    RESOLVE_PX,
+    ColourKeys,
+    frame_gap_px,
+    segment,
+)
 from endocam.task.config import SceneConfig
 
 OBSERVER_JSON = "observer.json"
 OBSERVER_HTML = "observer.html"
-CONTACT_GAP_PX = 1.0  # px, a silhouette gap this small reads as contact (anti-alias free render)
-OPEN_GAP_PX = 3.0  # px, a gap this wide is clearly open: it ends a touch (and is resolvable)
+CONTACT_GAP_PX = CONTACT_PX  # px, a silhouette gap this small reads as contact
+OPEN_GAP_PX = RESOLVE_PX  # px, a gap this wide is clearly open: it ends a touch (resolvable)
 RELEASE_FRAMES = 8  # consecutive clearly open frames that end a touch (0.27 s at 30 fps)
 MIN_TOUCH_FRAMES = 2  # frames of contact a touch needs to be counted (one frame is flicker)
 PRE_TOUCH_S = 0.25  # s, "just before" a touch: the window whose gap shows it closing
