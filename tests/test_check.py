@@ -204,6 +204,22 @@ def test_an_invalid_observation_not_held_is_reported(clean_run: Path, tmp_path: 
     assert _steps(_edited(clean_run, tmp_path, edit), "lost_hold") == {STEP}
 
 
+def test_a_frozen_tracker_acted_on_when_stale_is_reported(clean_run: Path, tmp_path: Path) -> None:
+    """Frozen for 30 steps while the camera kept tracking: the steps past ring_max_age."""
+    cfg = ExperimentConfig()
+    first = STEP - 30
+    # the repeated pose is at least (k - first) dt + latency old at step k
+    fresh_steps = round((cfg.controller.ring_max_age - cfg.episode.sensing_latency) / DT)
+
+    def edit(rows: list[dict[str, str]]) -> None:
+        for k in range(first, STEP):
+            assert rows[k]["state"] != "lost_tracking"
+            rows[k]["fault"] = "tracker_frozen"
+
+    reported = _steps(_edited(clean_run, tmp_path, edit), "lost_hold")
+    assert reported == set(range(first + fresh_steps + 1, STEP))
+
+
 def test_cli_exit_codes_and_check_json(
     free_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

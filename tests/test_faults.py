@@ -71,7 +71,7 @@ def test_observation_faults_rewrite_the_sensed_poses() -> None:
         tip_dropout={"rate": 1.0, "burst": 0.2},
     )
     schedule = fault_schedule(cfg, N, DT, arm=False)
-    T_f, tips_f = apply_observation_faults(schedule, t, T, tips, lambda ts: T[:1], 0.05)
+    T_f, tips_f, t_ring = apply_observation_faults(schedule, t, T, tips, lambda ts: T[:1], 0.05)
     drop, out = schedule.mask("ring_dropout"), schedule.mask("ring_outlier")
     frozen = schedule.mask("tracker_frozen") & ~drop & ~out
     assert np.isnan(T_f[drop]).all() and np.isfinite(T_f[~drop]).all()
@@ -88,6 +88,12 @@ def test_observation_faults_rewrite_the_sensed_poses() -> None:
     assert np.isnan(tips_f[schedule.mask("tip_dropout")]).all()
     untouched = ~(drop | out | schedule.mask("tracker_frozen"))
     assert np.array_equal(T_f[untouched], T[untouched])
+    # capture stamps: the sensing delay, except that a frozen tracker keeps its pose's stamp
+    on_time = ~schedule.mask("tracker_frozen")
+    assert np.array_equal(t_ring[on_time], np.clip(t - 0.05, 0.0, None)[on_time])
+    for b in schedule.bursts["tracker_frozen"]:
+        assert np.all(t_ring[b.start : b.stop] == t_ring[b.start])
+        assert t[b.stop - 1] - t_ring[b.stop - 1] >= 0.05 + (b.stop - 1 - b.start) * DT - 1e-12
 
 
 def test_gate_rejects_a_wild_pose_and_reacquires_a_moved_ring() -> None:
@@ -176,3 +182,48 @@ def test_gate_reacquires_only_inside_the_workspace() -> None:
     assert not gate.accept(t + DT, (1.0, 0.0, 0.05), n)  # agrees, but outside: not the ring
     assert not gate.accept(t + 2 * DT, (0.2, 0.0, 0.05), n)
     assert gate.accept(t + 3 * DT, (0.2, 0.0, 0.05), n)  # inside and agreeing: re-acquired
+
+
+def test_latency_spikes_stamp_older_poses() -> None:
+    t = np.arange(N) * DT
+    T = np.tile(np.eye(4), (N, 1, 1))
+    cfg = _faults(latency_spike={"rate": 1.0, "burst": 0.3, "extra_delay": 0.2})
+    schedule = fault_schedule(cfg, N, DT, arm=False)
+    _, _, t_ring = apply_observation_faults(
+        schedule, t, T, np.zeros((N, 2, 3)), lambda ts: T[:1], 0.05
+    )
+    spike = schedule.mask("latency_spike")
+    assert spike.any()
+    np.testing.assert_allclose(t[spike] - t_ring[spike], 0.25, atol=1e-12)
+    assert np.array_equal(t_ring[~spike], np.clip(t - 0.05, 0.0, None)[~spike])
+
+
+@pytest.mark.parametrize("arm", ["free", "psm"])
+def test_a_frozen_tracker_is_held_once_its_pose_is_too_old(arm: str, tmp_path: Path) -> None:
+    """The tracker repeats one pose for 1 s: the camera acts on it only while it is fresh."""
+    data = ExperimentConfig().model_dump(mode="json")
+    data["task"]["trajectory"]["duration"] = PROPERTY_DURATION_S
+    data["episode"]["arm"] = arm
+    data["faults"] = {"seed": 3, "tracker_frozen": {"rate": 0.5, "burst": 1.0}}
+    cfg = ExperimentConfig.model_validate(data)
+    result = run_episode(cfg, EpisodeSpec("endocam", TrajectoryKind.NOISY, 36, 1))
+    schedule = fault_schedule(cfg.faults, len(result.log.t), DT, arm=arm != "free")
+    max_age, latency = cfg.controller.ring_max_age, cfg.episode.sensing_latency
+    stale_steps = 0
+    for b in schedule.bursts["tracker_frozen"]:
+        for k in range(b.start, b.stop):
+            age = result.log.t[k] - (result.log.t[b.start] - latency)
+            if age > max_age + 1e-9:
+                assert result.log.state[k] == "lost_tracking", (k, age)
+                stale_steps += 1
+    assert stale_steps > 0  # the schedule has a burst longer than ring_max_age
+    out = tmp_path / "run"
+    write_run(result, out, video=False)
+    assert check_run(out).ok
+
+
+def test_sensing_latency_must_be_below_the_ring_max_age() -> None:
+    data = ExperimentConfig().model_dump(mode="json")
+    data["episode"]["sensing_latency"] = data["controller"]["ring_max_age"]
+    with pytest.raises(ValueError, match="ring_max_age"):
+        ExperimentConfig.model_validate(data)

@@ -308,3 +308,32 @@ def test_unknown_tool_positions_hold_the_working_distance() -> None:
     nan_tips = np.full((2, 3), np.nan)
     cmds = _run(make_policy("orientation", WIDE), _context(ring), [ring] * 100, tips=nan_tips)
     assert {c.d_f for c in cmds} == {WIDE.d_f}
+
+
+LATENCY_S = 0.05  # s, the default sensing delay: a fresh pose is this old
+
+
+@pytest.mark.parametrize("name", ["centering", "orientation", "endocam"])
+@pytest.mark.parametrize(
+    ("age_s", "stale"),
+    [(LATENCY_S, False), (None, False), (0.3, True), (-1e-3, True), (math.nan, True)],
+)
+def test_a_stale_ring_pose_holds(name: str, age_s: float | None, stale: bool) -> None:
+    """A pose older than ring_max_age (a frozen tracker), or stamped ahead, is not acted on."""
+    from endocam.control.safety import STALE_REASON
+
+    cfg = WIDE
+    assert cfg.ring_max_age < 0.3 and LATENCY_S < cfg.ring_max_age
+    ring0 = _ring(np.array([0.0, 0.0, 0.05]), np.array([0.0, 0.3, 1.0]))
+    ring1 = _ring(np.array([0.003, 0.0, 0.05]), np.array([0.0, 0.3, 1.0]))  # moved 3 mm
+    policy = make_policy(name, cfg)
+    ctx = _context(ring0)
+    cmds = _run(policy, ctx, [ring0] * 50)  # settled on the first pose
+    t = 50 * DT
+    t_ring = None if age_s is None else t - age_s
+    cmd = policy.step(Observation(t, ring1, cmds[-1].T_world_cam, np.zeros((0, 3)), None, t_ring))
+    if stale:
+        assert cmd.state is TrackingState.LOST_TRACKING and cmd.reason == STALE_REASON
+        np.testing.assert_array_equal(cmd.T_world_cam, cmds[-1].T_world_cam)
+    else:
+        assert cmd.state is not TrackingState.LOST_TRACKING

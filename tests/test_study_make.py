@@ -1,5 +1,6 @@
 import json
 import re
+import shutil
 from pathlib import Path
 
 import imageio_ffmpeg
@@ -9,9 +10,9 @@ from endocam.cli import main
 from endocam.config import load_config
 from endocam.runner.experiments import CONDITION_POLICY, ground_truth
 from endocam.study.counterbalance import presentation_orders
+from endocam.study.hypothesis import HYPOTHESIS_JSON, SEEDS_DIR, TRUTH_JSON
 from endocam.study.make import (
     DESIGN_JSON,
-    HYPOTHESIS_JSON,
     STUDY_TRAJECTORIES,
     extra_seed_values,
     practice_seed,
@@ -61,7 +62,7 @@ def config_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def study(config_file: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("made") / "study"
     args = ["study", "make", "--out", str(out), "--config", str(config_file)]
-    assert main([*args, "--seed", str(SEED), "--seeds", "1"]) == 0
+    assert main([*args, "--seed", str(SEED), "--seeds", "1", "--keep-seed-videos"]) == 0
     return out
 
 
@@ -309,3 +310,121 @@ def test_extra_seeds_in_the_process_pool_equal_a_serial_run(
     ]
     assert json.dumps(pooled) == json.dumps(serial)  # NaN gaps compare equal as text
     assert not list(tmp_path.iterdir())  # the seeds' videos are deleted
+
+
+def _frames(path: Path) -> int:
+    reader = imageio_ffmpeg.read_frames(str(path))
+    next(reader)
+    return sum(1 for _ in reader)
+
+
+def test_kept_seed_videos_hold_the_three_conditions_and_the_true_touches(
+    study: Path, config_file: Path
+) -> None:
+    (s,) = extra_seed_values(SEED, 1)
+    folder = study / SEEDS_DIR / str(s)
+    assert sorted(p.name for p in (study / SEEDS_DIR).iterdir()) == [str(s)]
+    for c in Condition:
+        assert _frames(folder / f"{c.value}.mp4") == N_FRAMES
+    truth = json.loads((folder / TRUTH_JSON).read_text())
+    hardest = max(STUDY_TRAJECTORIES, key=lambda t: t.difficulty)
+    cfg = trajectory_config(load_config(config_file), hardest)
+    events = ground_truth(cfg, TrajectoryKind.NOISY, hardest.control_points, s).events
+    assert truth["seed"] == s and truth["fps"] == FPS
+    assert truth["true_events"] == [[e.t_start, e.t_end] for e in events]
+
+
+def test_study_observe_recounts_the_kept_seeds_and_the_gap_columns(
+    study: Path, tmp_path: Path
+) -> None:
+    copy = tmp_path / "study"
+    shutil.copytree(study, copy)
+    hypothesis = json.loads((copy / HYPOTHESIS_JSON).read_text())
+    observability = json.loads((copy / OBSERVABILITY_JSON).read_text())
+    spoiled = json.loads(json.dumps(hypothesis))
+    for row in spoiled["extra_seeds"]["videos"]:
+        row["counted_touches"] = 99
+    (copy / HYPOTHESIS_JSON).write_text(json.dumps(spoiled))
+    spoiled_obs = json.loads(json.dumps(observability))
+    for touch in spoiled_obs["touches"]:
+        touch["gap_before_px"], touch["closes_visibly"] = 1234.0, True
+    (copy / OBSERVABILITY_JSON).write_text(json.dumps(spoiled_obs))
+    assert main(["study", "observe", "--study", str(copy), "--workers", "1"]) == 0
+    # the same videos and observer give back exactly what study make wrote
+    assert json.loads((copy / HYPOTHESIS_JSON).read_text()) == hypothesis
+    assert json.loads((copy / OBSERVABILITY_JSON).read_text()) == observability
+    assert (copy / OBSERVABILITY_CSV).read_text() == (study / OBSERVABILITY_CSV).read_text()
+    assert not list(copy.glob(".*.tmp-*"))  # every file replaced atomically
+
+
+def test_study_observe_without_kept_videos_keeps_and_marks_the_earlier_seed_rows(
+    study: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    copy = tmp_path / "study"
+    shutil.copytree(study, copy)
+    shutil.rmtree(copy / SEEDS_DIR)
+    before = json.loads((copy / HYPOTHESIS_JSON).read_text())
+    assert main(["study", "observe", "--study", str(copy), "--workers", "1"]) == 0
+    after = json.loads((copy / HYPOTHESIS_JSON).read_text())
+    assert after["extra_seeds"]["videos"] == before["extra_seeds"]["videos"]
+    assert after["extra_seeds"]["recounted"] is False and before["extra_seeds"]["recounted"]
+    assert "not counted again" in capsys.readouterr().out
+
+
+def test_study_observe_names_a_kept_seed_without_its_video(
+    study: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    copy = tmp_path / "study"
+    shutil.copytree(study, copy)
+    (s,) = extra_seed_values(SEED, 1)
+    (copy / SEEDS_DIR / str(s) / "orientation.mp4").unlink()
+    before = (copy / OBSERVER_JSON).read_text()
+    assert main(["study", "observe", "--study", str(copy)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "missing video(s) orientation" in err[0]
+    assert (copy / OBSERVER_JSON).read_text() == before  # nothing rewritten
+
+
+def _children(pid: int) -> set[int]:
+    """Process ids whose parent is ``pid`` (Linux /proc)."""
+    out = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.add(int(stat.parent.name))
+    return out
+
+
+def test_sigterm_during_the_extra_seeds_leaves_no_folder_and_no_worker(
+    config_file: Path, tmp_path: Path
+) -> None:
+    """A job scheduler stops `study make` half-way: nothing half-written, no orphan process."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "study"
+    cmd = [sys.executable, "-m", "endocam.cli", "study", "make", "--out", str(out)]
+    cmd += ["--config", str(config_file), "--seeds", "6", "--workers", "2", "--no-practice"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 300.0  # s: the nine tiny videos come first
+    while not list(tmp_path.glob(f".{out.name}.tmp-*/{SEEDS_DIR}/*")):
+        assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+        assert time.monotonic() < deadline, "the extra seeds never started"
+        time.sleep(0.05)
+    workers = _children(proc.pid)
+    assert workers  # the pool's processes (and multiprocessing's resource tracker)
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=60.0) == 130
+    assert proc.stderr is not None and "interrupted" in proc.stderr.read().decode()
+    assert not out.exists()
+    assert not list(tmp_path.glob(f".{out.name}*"))  # the temporary folder is gone
+    time.sleep(1.0)  # s: the resource tracker leaves once its pipe closes
+    alive = [p for p in workers if Path(f"/proc/{p}").exists()]
+    for p in alive:  # a zombie is gone already; anything else outlived the command
+        state = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        assert state == "Z", f"process {p} outlived the command"

@@ -15,13 +15,14 @@ import pyarrow.parquet as pq
 import pytest
 from fastapi.testclient import TestClient
 
-from endocam.study.app import MAX_BODY_BYTES, RateLimit, create_app
+from endocam.study.app import create_app
 from endocam.study.catalogue import DEFAULT_CATALOGUE, load_catalogue
 from endocam.study.db import StudyDB
 from endocam.study.export import TABLES
 from endocam.study.flow import video_sequence
 from endocam.study.manifest import load_manifest
 from endocam.study.responses import rows_from_csv
+from endocam.study.web import MAX_BODY_BYTES, RateLimit
 from study_helpers import ATTENTION_ANSWER, PRACTICE_TOUCHES, make_study
 
 ADMIN = "online-admin"

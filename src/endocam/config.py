@@ -119,6 +119,12 @@ class ExperimentConfig(BaseModel):
                 f"task.trajectory.duration × episode.control_rate = {steps:.3g} control steps, "
                 f"more than {MAX_CONTROL_STEPS}"
             )
+        if not self.episode.sensing_latency < self.controller.ring_max_age:
+            raise ValueError(
+                f"episode.sensing_latency ({self.episode.sensing_latency} s) must be less than "
+                f"controller.ring_max_age ({self.controller.ring_max_age} s): every ring pose "
+                "would be too old to act on"
+            )
         return self
 
 

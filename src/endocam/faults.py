@@ -273,7 +273,7 @@ def apply_observation_faults(
     p_world_tips: FloatArray,
     poses: object,
     sensing_latency: float,
-) -> tuple[FloatArray, FloatArray]:
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The observations the controller sees under the schedule's sensing faults.
 
     Parameters
@@ -296,15 +296,22 @@ def apply_observation_faults(
         With faults: a missing pose is all NaN.
     p_world_tips : (N, K, 3)
         With tip dropouts as NaN.
+    t_ring : (N,)
+        When each ring pose was captured, s (:attr:`Observation.t_ring`): ``t`` minus the
+        delay (clipped at 0, as the sensed poses are); a frozen tracker keeps the stamp of the
+        pose it repeats, a latency spike's poses are older.
     """
     T = np.array(T_world_ring_sensed, dtype=float)
+    t_ring = np.clip(np.asarray(t, dtype=float) - sensing_latency, 0.0, None)
     tips = np.array(p_world_tips, dtype=float)
     cfg = schedule.config
     for b in schedule.bursts.get("latency_spike", ()):
         delay = sensing_latency + cfg.latency_spike.extra_delay
-        T[b.start : b.stop] = poses(np.clip(t[b.start : b.stop] - delay, 0.0, None))  # type: ignore[operator]
+        t_ring[b.start : b.stop] = np.clip(t[b.start : b.stop] - delay, 0.0, None)
+        T[b.start : b.stop] = poses(t_ring[b.start : b.stop])  # type: ignore[operator]
     for b in schedule.bursts.get("tracker_frozen", ()):
         T[b.start : b.stop] = T[b.start]
+        t_ring[b.start : b.stop] = t_ring[b.start]
     for b in schedule.bursts.get("ring_outlier", ()):
         spec = cfg.ring_outlier
         offset = spec.distance * _unit_from(b.draw[0], b.draw[1])
@@ -319,7 +326,7 @@ def apply_observation_faults(
         T[b.start : b.stop] = math.nan
     for b in schedule.bursts.get("tip_dropout", ()):
         tips[b.start : b.stop] = math.nan
-    return T, tips
+    return T, tips, t_ring
 
 
 class StepFaults:

@@ -4,17 +4,22 @@ Every user mistake (unknown policy, bad number, unwritable folder, malformed con
 line on stderr and exit code 2, never a traceback; an ``OSError`` (a file system refusing) and a
 port that cannot frame its task (``FramingError``) too.
 Any other exception is an internal error: one line and exit code 1, its traceback only with
-``--debug``. One module per command group (``policies``,
-``run`` for run/demo/experiment/config, ``study``), each with ``register(subparsers)``; they
-import heavy parts (MuJoCo, FastAPI) only inside their handlers.
+``--debug``. An interrupt (Ctrl-C, or ``SIGTERM`` as a job scheduler sends it) unwinds like an
+error: temporary folders are removed, worker processes stopped, exit code 130. One module per
+command group (``policies``, ``run`` for run/demo/experiment/config, ``study``), each with
+``register(subparsers)``; they import heavy parts (MuJoCo, FastAPI) only inside their handlers.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+import threading
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from types import FrameType
 
 from endocam import __version__
 from endocam.cli import check, policies, run, study, sweep
@@ -49,7 +54,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     handler: Handler = args.handler
     try:
-        code = handler(args)
+        with _sigterm_interrupts():
+            code = handler(args)
     except UsageError as exc:
         print(f"endocam: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -72,6 +78,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"endocam: internal error: {type(exc).__name__}: {exc}{hint}", file=sys.stderr)
         return EXIT_INTERNAL
     return int(code or 0)
+
+
+def _interrupt(signum: int, frame: FrameType | None) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """While a command runs, ``SIGTERM`` raises ``KeyboardInterrupt`` (so clean-ups run).
+
+    Only the main thread may set a signal handler; elsewhere (a test calling :func:`main` from
+    a thread) nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -47,6 +47,7 @@ def _make(args: argparse.Namespace) -> int:
         extra_seeds=args.seeds,
         practice=args.practice,
         workers=args.workers,
+        keep_seed_videos=args.keep_seed_videos,
     )
     for v in manifest.videos:
         print(f"{v.id}  {v.condition.value:12s} {v.trajectory:12s} {v.true_touches:3d} touches")
@@ -77,31 +78,45 @@ def _bind(host: str, port: int) -> socket.socket:
 def _print_hypothesis(folder: Path) -> None:
     import json
 
-    from endocam.study.make import HYPOTHESIS_JSON, hypothesis_table
+    from endocam.study.hypothesis import HYPOTHESIS_JSON, hypothesis_table
 
     print(hypothesis_table(json.loads((folder / HYPOTHESIS_JSON).read_text("utf-8"))), end="")
 
 
 def _observe(args: argparse.Namespace) -> int:
+    import json
+
     from tqdm import tqdm
 
+    from endocam.study.hypothesis import SEEDS_DIR, kept_seeds, recount_study
     from endocam.study.manifest import ManifestError, load_manifest
-    from endocam.study.observer import OBSERVER_JSON, observe_study, write_observer
+    from endocam.study.observer import OBSERVER_JSON
 
+    check_workers(args.workers)
     folder = Path(args.study)
     try:
         manifest = load_manifest(folder)
-    except ManifestError as exc:
+        n_seeds = len(kept_seeds(folder))
+    except (ManifestError, ValueError) as exc:
         raise UsageError(str(exc)) from None
-    with tqdm(desc="observer", unit="frame", leave=False) as bar:
-        document, page = observe_study(folder, progress=bar.update)
-    write_observer(folder, document, page)
+    total = len(manifest.videos) + 3 * n_seeds
+    with tqdm(total=total, desc="observer", unit="video", leave=False) as bar:
+        hypothesis = recount_study(folder, args.workers, progress=bar.update)
+    document = json.loads((folder / OBSERVER_JSON).read_text("utf-8"))
     for v in document["videos"]:
         print(
             f"{v['id']}  {v['condition']:12s} counted {v['counted_touches']:3d}  "
             f"true {v['true_touches']:3d}"
         )
     print(f"wrote {folder / OBSERVER_JSON} ({len(manifest.videos)} videos)")
+    if hypothesis is not None:
+        extra = hypothesis["extra_seeds"]
+        if not extra["recounted"]:
+            print(
+                f"note: the {extra['n']} extra seeds were not counted again: their videos were "
+                f"not kept (study make --keep-seed-videos writes {SEEDS_DIR}/)"
+            )
+        _print_hypothesis(folder)
     return 0
 
 
@@ -110,9 +125,17 @@ def _add_observe(sub: argparse._SubParsersAction) -> None:
         "observe",
         help="count the touches in the study videos automatically",
         description="Count ring-wire touches in every video of a study folder from the video "
-        "alone (colour segmentation, image-space gap); write observer.json and observer.html.",
+        "alone (colour segmentation, image-space gap); write observer.json and observer.html, "
+        "and refresh observability.json/.csv (image-space columns) and hypothesis.json "
+        "(extra seeds counted again when study make kept their videos).",
     )
     p.add_argument("--study", required=True, metavar="DIR", help="study folder with manifest.json")
+    p.add_argument(
+        "--workers",
+        type=integer,
+        default=DEFAULT_WORKERS,
+        help="worker processes that count videos (1: in this process; default: %(default)s)",
+    )
     p.set_defaults(handler=_observe)
 
 
@@ -219,7 +242,13 @@ def _add_make(sub: argparse._SubParsersAction) -> None:
         default=0,
         metavar="N",
         help="also render and observe N more seeds of the most difficult trajectory for "
-        "hypothesis.json (videos not kept; default: %(default)s)",
+        "hypothesis.json (default: %(default)s)",
+    )
+    p.add_argument(
+        "--keep-seed-videos",
+        action="store_true",
+        help="keep the --seeds videos and true touches in seeds/<seed>/ so that `study observe` "
+        "can count them again (default: deleted once counted)",
     )
     p.add_argument(
         "--workers",

@@ -227,6 +227,14 @@ class ControllerConfig(BaseModel):
         le=1.0,
         description="longest time the gate's bounds grow over after the last accepted pose, s",
     )
+    ring_max_age: float = Field(
+        0.25,
+        gt=0,
+        le=10.0,
+        description="oldest ring pose the camera acts on, s (capture stamp to control time; 5x the "
+        "default sensing latency, ~7 frames of a 30 fps endoscope): an older one, e.g. a frozen "
+        "tracker re-sending its last pose, is answered by holding",
+    )
     ring_reacquire: float = Field(
         1.0,
         gt=0,

@@ -285,9 +285,9 @@ class OraclePolicy(EndocamPolicy):
         return EndocamPolicy._twist(poses[0], poses[1], w)
 
     def step(self, obs: Observation) -> CameraCommand:
-        """One step on the true ring pose now (no sensing delay), whatever ``obs`` sensed."""
+        """One step on the true ring pose now (no sensing delay, fresh), whatever ``obs`` sensed."""
         future = self._future
         if future is None:
             raise RuntimeError("call reset() before step()")
         T_true = future.poses[future.index(obs.t)]
-        return super().step(obs._replace(T_world_ring=T_true))
+        return super().step(obs._replace(T_world_ring=T_true, t_ring=obs.t))

@@ -26,10 +26,12 @@ from endocam.control.config import ControllerConfig, SideRule
 from endocam.control.goal import goal_pose_unchecked
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.safety import (
+    STALE_REASON,
     ConeWorkspace,
     WindowGeometry,
     Workspace,
     adjust_working_distance,
+    is_stale,
     window_status_rows,
 )
 from endocam.control.types import (
@@ -198,6 +200,10 @@ class _MovingPolicy:
             self._last_goal = None
             self._path = None
             return self._hold(TrackingState.LOST_TRACKING, "ring pose missing or not finite")
+        if is_stale(obs.t, obs.t_ring, cfg.ring_max_age):
+            self._last_goal = None
+            self._path = None
+            return self._hold(TrackingState.LOST_TRACKING, STALE_REASON)
         if not self._gated(obs.t, ring_rows):
             self._last_goal = None
             self._path = None

@@ -168,6 +168,22 @@ class Workspace:
         return m
 
 
+STALE_REASON = "ring pose stale (older than ring_max_age, or stamped in the future); holding"
+CLOCK_TOL = 1e-6  # s, a capture stamp this far after the control time is round-off, not a fault
+
+
+def is_stale(t: float, t_ring: float | None, max_age: float) -> bool:
+    """Whether a ring pose captured at ``t_ring`` (s) is too old to act on at time ``t`` (s).
+
+    Stale: older than ``max_age`` (s), stamped after ``t`` by more than ``CLOCK_TOL``, or a
+    non-finite stamp. ``t_ring`` None (an unstamped pose): never stale.
+    """
+    if t_ring is None:
+        return False
+    age = t - t_ring
+    return not (-CLOCK_TOL <= age <= max_age)
+
+
 class RingGate:
     """Gates ring observations by a speed bound before they reach the goal.
 

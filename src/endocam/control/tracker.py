@@ -55,7 +55,13 @@ from endocam.control.policies import (
     WIRE_REASON,
     _MovingPolicy,
 )
-from endocam.control.safety import WindowStatus, adjust_working_distance, window_status_rows
+from endocam.control.safety import (
+    STALE_REASON,
+    WindowStatus,
+    adjust_working_distance,
+    is_stale,
+    window_status_rows,
+)
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
 from endocam.geometry import UP, FloatArray
 from endocam.kernels import Vec, cross, dot, finite_rows, norm, unit_or_none
@@ -311,6 +317,8 @@ class EndocamPolicy(_MovingPolicy):
         ring_rows = finite_rows(obs.T_world_ring)
         if ring_rows is None:
             return self._lose("ring pose missing or not finite")
+        if is_stale(obs.t, obs.t_ring, cfg.ring_max_age):
+            return self._lose(STALE_REASON)
         R = ring_rows
         n_obs = unit_or_none((R[0][2], R[1][2], R[2][2]))
         if n_obs is None:

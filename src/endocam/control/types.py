@@ -103,6 +103,11 @@ class Observation(NamedTuple):
         position, m (world): non-zero when an arm concedes a goal it cannot reach (the
         nearest feasible view). The way-point planner measures the camera's progress against
         where the actuator can put it; ``None``: the actuator reaches what it is sent.
+    t_ring : float or None
+        When the ring pose was captured, s (the tracker's stamp, on the clock of ``t``). A pose
+        older than ``ControllerConfig.ring_max_age`` (a frozen tracker re-sending its last
+        pose, a long delay) or stamped in the future is not acted on: the camera holds
+        (``lost_tracking``). ``None``: no stamp, the age is not checked.
     """
 
     t: float
@@ -110,6 +115,7 @@ class Observation(NamedTuple):
     T_world_cam: FloatArray
     p_world_tips: FloatArray = _NO_TIPS
     p_world_reach_offset: FloatArray | None = None
+    t_ring: float | None = None
 
 
 class CameraCommand(NamedTuple):

@@ -63,6 +63,7 @@ class PolicyAgent:
             pose_from7(obs["ring_pose"]),
             pose_from7(obs["camera_pose"]),
             obs["tool_tips"],
+            t_ring=float(obs["ring_time"][0]),
         )
         cmd = self.policy.step(seen)
         return self.env.action_towards(cmd.T_world_cam, cmd.d_f)

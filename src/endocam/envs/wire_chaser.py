@@ -23,6 +23,8 @@ happened, ``info["unsafe"]`` says whether any of it did, and the reward pays
 
 **Observation** (a ``Dict``; poses as position, m, then quaternion w, x, y, z; world frame):
 ``time`` (1,) s; ``ring_pose`` (7,) the ring as sensed, ``sensing_latency`` late;
+``ring_time`` (1,) s, when that pose was captured (the agents pass it on as
+``Observation.t_ring``, so the policies' stale-pose hold applies);
 ``camera_pose`` (7,) the camera's optical frame; ``tool_tips`` (2, 3) PSM1 and PSM2 tips, m;
 with ``image_observation``, ``image`` (H, W, 3) uint8: the left eye rendered through
 :mod:`endocam.sim` (``render_mode="rgb_array"`` renders the same image).
@@ -165,6 +167,7 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         obs: dict[str, spaces.Space[Any]] = {
             "time": spaces.Box(0.0, duration, shape=(1,), dtype=np.float64),
             "ring_pose": spaces.Box(low7, high7, dtype=np.float64),
+            "ring_time": spaces.Box(0.0, duration, shape=(1,), dtype=np.float64),
             "camera_pose": spaces.Box(low7, high7, dtype=np.float64),
             "tool_tips": spaces.Box(-b, b, shape=(2, 3), dtype=np.float64),
         }
@@ -193,7 +196,8 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         t = np.arange(self.n_steps, dtype=float) * self.dt
         self._t = t
         self._T_ring = self.trajectory.poses(t)
-        self._T_sensed = self.trajectory.poses(np.clip(t - exp.episode.sensing_latency, 0, None))
+        self._t_ring = np.clip(t - exp.episode.sensing_latency, 0.0, None)  # capture times, s
+        self._T_sensed = self.trajectory.poses(self._t_ring)
         self._tips = instrument_tips(exp.task, t, self._T_ring)
         self._T_overview = overview_camera_pose(exp.task, self.camera)
         self._p_rcm = np.array(exp.task.scene.rcm_position)
@@ -299,6 +303,7 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         obs = {
             "time": np.array([self._t[k]]),
             "ring_pose": pose7(self._T_sensed[k]),
+            "ring_time": np.array([self._t_ring[k]]),
             "camera_pose": pose7(self._T_cam),
             "tool_tips": np.array(self._tips[k], dtype=float),
         }

@@ -33,7 +33,10 @@ them) and checks, step by step:
 ``lost_hold``
     a lost or invalid observation (an invalid ring pose injected by a fault, :mod:`endocam.faults`)
     answered in the same control step by holding: state ``lost_tracking`` and the command of
-    the step before.
+    the step before. A frozen tracker (fault ``tracker_frozen``: the same pose, its capture
+    stamp kept) counts as lost from the step at which the repeated pose is surely older than
+    ``ControllerConfig.ring_max_age``: at least the time since the run of frozen steps began
+    plus the sensing latency (the capture can only be earlier).
 
 Finite differences of positions sampled every control step ``dt`` bound the mean of the
 derivative over the differenced steps, so a limit that held at every instant holds for them
@@ -78,6 +81,7 @@ POSITION_TOL_M = 1e-9  # m: round-off of a logged position (repr floats, product
 ANGLE_TOL_RAD = 1e-9  # rad: round-off of a logged orientation (quaternion → matrix)
 JOINT_TOL = 1e-9  # rad or m: round-off of a logged joint position
 ARRIVED_TOL_M = 1e-9  # m: a held command repeats the last one to this round-off
+TIME_TOL_S = 1e-9  # s: round-off of a logged time
 AUTONOMOUS_STATES = (TrackingState.TRACKING.value, TrackingState.PLANNING.value, UNREACHABLE)
 """States in which the controller drives the camera (the cone applies)."""
 HOLD_STATES = (TrackingState.LOST_TRACKING.value, TrackingState.HOLDING.value)
@@ -529,10 +533,33 @@ def _lost_hold(log: RunLog) -> list[Violation]:
     fault = log.columns.get("fault")
     if fault is None:
         return []
-    invalid = np.array([bool(fault_names(f) & OBSERVATION_INVALID_FAULTS) for f in fault])
+    names = [fault_names(f) for f in fault]
+    invalid = np.array([bool(f & OBSERVATION_INVALID_FAULTS) for f in names])
+    frozen = np.array(["tracker_frozen" in f for f in names], dtype=bool)
+    invalid |= _frozen_age(log.columns["t"], frozen, log.config.episode.sensing_latency) > (
+        log.config.controller.ring_max_age + TIME_TOL_S
+    )
     state = log.columns["state"]
     cmd = log.xyz("cmd")
     moved = np.zeros(log.n)
     moved[1:] = np.linalg.norm(np.diff(cmd, axis=0), axis=1)
     bad = invalid & (~np.isin(state, HOLD_STATES) | ~(moved <= ARRIVED_TOL_M))
     return _violations(log, bad, "lost_hold", moved, ARRIVED_TOL_M, "m", "command moved")
+
+
+def _frozen_age(t: FloatArray, frozen: np.ndarray, latency: float) -> FloatArray:
+    """(N,) a lower bound of the sensed ring pose's age, s, at frozen steps (0 elsewhere).
+
+    Through a run of frozen steps from step ``s`` the tracker repeats the pose it sent at
+    ``s``, captured at the latest ``max(t_s - latency, 0)`` (earlier under a latency spike).
+    """
+    age = np.zeros(len(t))
+    start = None
+    for k in range(len(t)):
+        if not frozen[k]:
+            start = None
+            continue
+        if start is None:
+            start = k
+        age[k] = t[k] - max(t[start] - latency, 0.0)
+    return age

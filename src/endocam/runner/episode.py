@@ -244,7 +244,8 @@ def run_episode(
     n = math.floor(trajectory.duration / dt + 1e-9) + 1
     t = np.arange(n, dtype=float) * dt
     T_ring = trajectory.poses(t)
-    T_sensed = trajectory.poses(np.clip(t - ep.sensing_latency, 0.0, None))
+    t_ring = np.clip(t - ep.sensing_latency, 0.0, None)  # when each sensed pose was captured, s
+    T_sensed = trajectory.poses(t_ring)
     tips = instrument_tips(config.task, t, T_ring)
 
     T_overview = overview_camera_pose(config.task, camera)
@@ -262,7 +263,7 @@ def run_episode(
         schedule = fault_schedule(
             config.faults, n, dt, arm=kind is not ArmKind.FREE, joints=len(actuator.joint_names)
         )
-        T_sensed, tips = apply_observation_faults(
+        T_sensed, tips, t_ring = apply_observation_faults(
             schedule, t, T_sensed, tips, trajectory.poses, ep.sensing_latency
         )
         step_faults = StepFaults(schedule, actuator.stall) if schedule.steps_faulty else None
@@ -293,11 +294,13 @@ def run_episode(
     q_now = actuator.q
     chunk = max(1, n // 100)
     reach_offset: FloatArray | None = None
-    t_s = t.tolist()  # plain floats, and bound methods: the loop runs n times
+    t_s, t_ring_s = t.tolist(), t_ring.tolist()  # plain floats, and bound methods: n times
     policy_step, actuator_step, log_reason = policy.step, actuator.step, reason.append
     for k in range(n):
         T_cam[k] = T_now
-        cmd = policy_step(Observation(t_s[k], T_sensed[k], T_now, tips[k], reach_offset))
+        cmd = policy_step(
+            Observation(t_s[k], T_sensed[k], T_now, tips[k], reach_offset, t_ring_s[k])
+        )
         T_cmd[k] = cmd.T_world_cam
         d_f[k] = cmd.d_f
         if jointed:  # the pivot of a conceded view; a carrier without joints concedes none

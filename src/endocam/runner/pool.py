@@ -6,7 +6,9 @@
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import multiprocessing
+from collections.abc import Iterator
 from typing import Any
 
 DEFAULT_WORKERS = 2  # processes: the machine this was measured on has two cores
@@ -25,13 +27,20 @@ class InlineExecutor(concurrent.futures.Executor):
         return fut
 
 
-def executor(workers: int, start_method: str | None = None) -> concurrent.futures.Executor:
+@contextlib.contextmanager
+def executor(
+    workers: int, start_method: str | None = None
+) -> Iterator[concurrent.futures.Executor]:
     """A process pool of ``workers`` processes, or an :class:`InlineExecutor` for one.
 
     ``start_method`` (``"spawn"``, ``"forkserver"``, ``"fork"``; None: the platform's default)
     is how the workers start. Jobs that render need ``"spawn"``: a worker forked from a process
     that has rendered inherits its EGL state and hangs in its first render (measured: the study's
     extra seeds never finished).
+
+    A context manager: on leaving normally it waits for every job; on an exception (an
+    interrupt, a failed job) it cancels the jobs not started and terminates the workers, so no
+    process outlives the command and the caller's clean-up (a temporary folder) runs at once.
 
     Raises
     ------
@@ -41,6 +50,20 @@ def executor(workers: int, start_method: str | None = None) -> concurrent.future
     if workers < 1:
         raise ValueError(f"workers must be ≥ 1, got {workers}")
     if workers == 1:
-        return InlineExecutor()
+        yield InlineExecutor()
+        return
     context = None if start_method is None else multiprocessing.get_context(start_method)
-    return concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=context)
+    pool = concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=context)
+    try:
+        yield pool
+    except BaseException:
+        # the pool's own shutdown would wait for the running jobs (minutes for a render); the
+        # executor has no public way to stop them before Python 3.14's terminate_workers()
+        processes = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in processes:
+            proc.terminate()
+        for proc in processes:
+            proc.join(timeout=5.0)
+        raise
+    pool.shutdown(wait=True)

@@ -31,21 +31,17 @@ Admin (``Authorization: Bearer TOKEN`` or ``?token=TOKEN``; 403 when the app has
 ``GET /admin/export/{responses|participants|events}.{csv|parquet}``, ``/admin/export.json``,
 ``/admin/codebook.md`` and, as before, ``/admin/export.csv`` (= responses).
 
-Limits: request bodies above :data:`MAX_BODY_BYTES` get 413; validation errors (422) name the
-field and the rule but never echo the input; session starts are rate-limited per client address
-and in total (:data:`SESSION_RATE`, 429).
+Limits (:mod:`endocam.study.web`): request bodies above :data:`MAX_BODY_BYTES` get 413;
+validation errors (422) name the field and the rule but never echo the input; session starts
+are rate-limited per client address and in total (:data:`SESSION_RATE`, 429).
 """
 
 import math
 import secrets
-import threading
-import time
-from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any, Literal, cast
+from typing import Annotated, Any, cast
 from urllib.parse import urlencode
 
 from fastapi import Depends, FastAPI, Form, HTTPException, Request, Response
@@ -53,10 +49,22 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, PlainTextResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
-from pydantic import BaseModel, ConfigDict, Field, StrictInt, TypeAdapter, ValidationError
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from pydantic import ValidationError
 
 from endocam import __version__
+from endocam.study.api_models import (
+    MAX_TRAINING_YEARS,
+    AnswerIn,
+    AttentionIn,
+    CountIn,
+    DemographicsIn,
+    EventIn,
+    RefusedError,
+    SessionIn,
+    form_id,
+    step_json,
+    validation_error_body,
+)
 from endocam.study.catalogue import Catalogue, load_catalogue
 from endocam.study.db import (
     ABANDON_AFTER_S,
@@ -75,246 +83,23 @@ from endocam.study.export import (
 )
 from endocam.study.export import to_parquet as table_to_parquet
 from endocam.study.flow import Step, StepKind, next_step, video_sequence
-from endocam.study.manifest import ID_PATTERN, MAX_TOUCHES, Manifest, load_manifest
+from endocam.study.manifest import MAX_TOUCHES, Manifest, load_manifest
 from endocam.study.responses import parse_count
+from endocam.study.web import (
+    SESSION_RATE,
+    BodyLimit,
+    RateLimit,
+    RateLimiter,
+    SecurityHeaders,
+)
 
 SESSION_COOKIE = "endocam_session"
 SESSION_MAX_AGE_S = 7 * 24 * 3600  # s, cookie lifetime
-MAX_BODY_BYTES = 16 * 1024  # largest request body accepted (forms and JSON are far smaller)
-MAX_TRAINING_YEARS = 60  # years, largest years-of-training answer
-MAX_MEDIA_TIME_S = 24 * 3600.0  # s, largest media time / watched seconds an event may report
-MAX_PLAYBACK_RATE = 16.0  # fastest playback rate an event may report (browsers allow ≤ 16)
 PRACTICE_ID = "_practice"  # video id of the practice video (never a manifest id: see ID_PATTERN)
 PRIOR_ASSESSMENT = ("yes", "no", "unsure")
 _HERE = Path(__file__).parent
 TEMPLATES_DIR = _HERE / "templates"
 STATIC_DIR = _HERE / "static"
-
-
-@dataclass(frozen=True)
-class RateLimit:
-    """Limit on session starts within any ``window_s`` seconds.
-
-    Attributes
-    ----------
-    per_client : int
-        Starts allowed per client address.
-    total : int
-        Starts allowed in total.
-    window_s : float
-        Length of the sliding window, s.
-    """
-
-    per_client: int
-    total: int
-    window_s: float
-
-
-SESSION_RATE = RateLimit(per_client=20, total=600, window_s=60.0)
-
-Touches = Annotated[StrictInt, Field(ge=0, le=MAX_TOUCHES)]
-ParticipantId = Annotated[str, Field(pattern=ID_PATTERN)]
-_form_id: TypeAdapter[str] = TypeAdapter(ParticipantId)
-Seconds = Annotated[float, Field(ge=0.0, le=MAX_MEDIA_TIME_S, allow_inf_nan=False)]
-
-
-class SessionIn(BaseModel):
-    """Body of ``POST /api/session``; without an id the server generates one."""
-
-    model_config = ConfigDict(extra="forbid")
-    consent: Literal[True]
-    participant_id: ParticipantId | None = None
-    recruitment: dict[str, ParticipantId] | None = None
-
-
-class AnswerIn(BaseModel):
-    """Body of ``POST /api/answer``; ``participant_id``, if sent, must be the caller's own."""
-
-    model_config = ConfigDict(extra="forbid")
-    video_id: Annotated[str, Field(min_length=1, max_length=128)]
-    reported_touches: Touches
-    participant_id: str | None = None
-
-
-class CountIn(BaseModel):
-    """Body of ``POST /api/practice``."""
-
-    model_config = ConfigDict(extra="forbid")
-    reported_touches: Touches
-
-
-class AttentionIn(BaseModel):
-    """Body of ``POST /api/attention``."""
-
-    model_config = ConfigDict(extra="forbid")
-    answer: Touches
-
-
-class DemographicsIn(BaseModel):
-    """Body of ``POST /api/demographics``; both answers optional."""
-
-    model_config = ConfigDict(extra="forbid")
-    training_years: Annotated[StrictInt, Field(ge=0, le=MAX_TRAINING_YEARS)] | None = None
-    prior_assessment: Literal["yes", "no", "unsure"] | None = None
-
-
-class EventIn(BaseModel):
-    """Body of ``POST /api/event``: one player event (times in s of media time)."""
-
-    model_config = ConfigDict(extra="forbid")
-    video_id: Annotated[str, Field(min_length=1, max_length=128)]
-    kind: Literal["play", "pause", "seeked", "ratechange", "ended", "progress"]
-    media_time_s: Seconds | None = None
-    playback_rate: Annotated[float, Field(gt=0.0, le=MAX_PLAYBACK_RATE)] | None = None
-    watched_s: Seconds | None = None
-
-
-class _RefusedError(Exception):
-    """A request the study refuses; ``message`` for the API, ``key`` for the page's text."""
-
-    def __init__(self, status: int, message: str, key: str = "error_step") -> None:
-        super().__init__(message)
-        self.status = status
-        self.message = message
-        self.key = key
-
-
-class _SecurityHeaders:
-    """Pure-ASGI middleware: no caching of participant data, no framing, same-origin content."""
-
-    _HEADERS = (
-        (b"cache-control", b"no-store"),
-        (b"x-content-type-options", b"nosniff"),
-        (b"referrer-policy", b"no-referrer"),
-        (b"x-frame-options", b"DENY"),
-        (b"content-security-policy", b"default-src 'self'; frame-ancestors 'none'"),
-    )
-
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-
-        async def send_with_headers(message: Message) -> None:
-            if message["type"] == "http.response.start":
-                message.setdefault("headers", [])
-                message["headers"] = list(message["headers"]) + list(self._HEADERS)
-            await send(message)
-
-        await self.app(scope, receive, send_with_headers)
-
-
-class _BodyLimit:
-    """Pure-ASGI middleware: refuse request bodies above ``max_bytes`` with 413.
-
-    Both a declared ``Content-Length`` and the bytes actually streamed are checked.
-    """
-
-    def __init__(self, app: ASGIApp, max_bytes: int = MAX_BODY_BYTES) -> None:
-        self.app = app
-        self.max_bytes = max_bytes
-
-    async def _refuse(self, send: Send) -> None:
-        body = f'{{"detail":"request body larger than {self.max_bytes} bytes"}}'.encode()
-        await send(
-            {
-                "type": "http.response.start",
-                "status": 413,
-                "headers": [
-                    (b"content-type", b"application/json"),
-                    (b"content-length", str(len(body)).encode()),
-                    (b"connection", b"close"),
-                ],
-            }
-        )
-        await send({"type": "http.response.body", "body": body})
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-        declared = dict(scope["headers"]).get(b"content-length")
-        if declared is not None and (not declared.isdigit() or int(declared) > self.max_bytes):
-            await self._refuse(send)
-            return
-        # bodies are small: read the whole body (up to the cap) before the app sees it
-        chunks: list[bytes] = []
-        size = 0
-        while True:
-            message = await receive()
-            if message["type"] != "http.request":  # client went away
-                return
-            chunk = message.get("body", b"")
-            size += len(chunk)
-            if size > self.max_bytes:
-                await self._refuse(send)
-                return
-            chunks.append(chunk)
-            if not message.get("more_body", False):
-                break
-        body = b"".join(chunks)
-        sent = False
-
-        async def replay() -> Message:
-            nonlocal sent
-            if not sent:
-                sent = True
-                return {"type": "http.request", "body": body, "more_body": False}
-            return await receive()
-
-        await self.app(scope, replay, send)
-
-
-class _RateLimiter:
-    """Sliding-window counter of session starts (thread-safe, in memory)."""
-
-    def __init__(self, limit: RateLimit) -> None:
-        self.limit = limit
-        self._lock = threading.Lock()
-        self._all: deque[float] = deque()
-        self._by_client: dict[str, deque[float]] = {}
-
-    def allow(self, client: str) -> bool:
-        """Count one start by ``client``; False if it is over a limit (then nothing is counted)."""
-        now = time.monotonic()
-        with self._lock:
-            for stamps in (self._all, *self._by_client.values()):
-                while stamps and now - stamps[0] > self.limit.window_s:
-                    stamps.popleft()
-            self._by_client = {k: v for k, v in self._by_client.items() if v}
-            mine = self._by_client.setdefault(client, deque())
-            if len(mine) >= self.limit.per_client or len(self._all) >= self.limit.total:
-                return False
-            mine.append(now)
-            self._all.append(now)
-            return True
-
-
-def _step_json(step: Step) -> dict[str, Any]:
-    return {
-        "kind": step.kind.value,
-        "video_id": step.video_id,
-        "video_url": f"/videos/{step.video_id}" if step.video_id else None,
-        "set_number": step.set_number,
-        "position_in_set": step.position_in_set,
-        "videos_in_set": step.videos_in_set,
-        "n_sets": step.n_sets,
-        "n_answered": step.n_answered,
-        "n_videos": step.n_videos,
-    }
-
-
-def _validation_error_body(exc: RequestValidationError) -> dict[str, Any]:
-    """422 body naming each failed field and rule, never the submitted input."""
-    return {
-        "detail": [
-            {"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
-            for e in exc.errors()
-        ]
-    }
 
 
 def create_app(
@@ -371,21 +156,21 @@ def create_app(
     templates.env.globals.update(
         t=t, manifest=manifest, max_touches=MAX_TOUCHES, max_years=MAX_TRAINING_YEARS
     )
-    limiter = _RateLimiter(session_rate)
+    limiter = RateLimiter(session_rate)
     recruitment_params = (manifest.recruitment.id_param, *manifest.recruitment.extra_params)
 
     app = FastAPI(
         title="endocam study", version=__version__, docs_url=None, redoc_url=None, openapi_url=None
     )
-    app.add_middleware(_SecurityHeaders)
-    app.add_middleware(_BodyLimit)
+    app.add_middleware(SecurityHeaders)
+    app.add_middleware(BodyLimit)
     app.mount("/static", StaticFiles(directory=str(STATIC_DIR)), name="static")
     app.state.manifest = manifest
     app.state.db = db
 
     @app.exception_handler(RequestValidationError)
     async def no_echo(request: Request, exc: RequestValidationError) -> JSONResponse:
-        return JSONResponse(_validation_error_body(exc), status_code=422)
+        return JSONResponse(validation_error_body(exc), status_code=422)
 
     # ---- shared logic ---------------------------------------------------------------------
     def session_participant(request: Request) -> Participant | None:
@@ -415,10 +200,10 @@ def create_app(
     ) -> Participant:
         client = request.client.host if request.client else "unknown"
         if not limiter.allow(client):
-            raise _RefusedError(429, "too many new sessions; wait a minute", "error_rate")
+            raise RefusedError(429, "too many new sessions; wait a minute", "error_rate")
         unknown = sorted(set(recruitment) - set(recruitment_params))
         if unknown:
-            raise _RefusedError(422, f"unknown recruitment parameters {unknown}", "error_platform")
+            raise RefusedError(422, f"unknown recruitment parameters {unknown}", "error_platform")
         pid = recruitment.get(manifest.recruitment.id_param) or participant_id
         participant, token = db.create_participant(
             pid or f"p-{secrets.token_hex(4)}",
@@ -446,41 +231,41 @@ def create_app(
     def expect_step(participant: Participant, kind: StepKind) -> None:
         step = current_step(participant)
         if step.kind != kind:
-            raise _RefusedError(409, f"{kind.value} is not the current step ({step.kind.value})")
+            raise RefusedError(409, f"{kind.value} is not the current step ({step.kind.value})")
 
     def submit_demographics(participant: Participant, years: int | None, prior: str | None) -> None:
         expect_step(participant, StepKind.DEMOGRAPHICS)
         try:
             db.record_demographics(participant, years, prior)
         except ConflictError as exc:
-            raise _RefusedError(409, str(exc)) from None
+            raise RefusedError(409, str(exc)) from None
 
     def submit_practice(participant: Participant, touches: int) -> None:
         expect_step(participant, StepKind.PRACTICE)
         if manifest.must_watch and not db.watched_to_end(participant, PRACTICE_ID):
-            raise _RefusedError(409, "watch the video to its end first", "error_must_watch")
+            raise RefusedError(409, "watch the video to its end first", "error_must_watch")
         try:
             db.record_practice(participant, touches)
         except ConflictError as exc:
-            raise _RefusedError(409, str(exc)) from None
+            raise RefusedError(409, str(exc)) from None
 
     def submit_answer(participant: Participant, video_id: str, touches: int) -> None:
         if video_id not in video_files or video_id == PRACTICE_ID:
-            raise _RefusedError(404, f"unknown video {video_id!r}")
+            raise RefusedError(404, f"unknown video {video_id!r}")
         answers = db.answers(participant)
         if video_id in answers:
-            raise _RefusedError(409, f"video {video_id!r} is already answered; answers are final")
+            raise RefusedError(409, f"video {video_id!r} is already answered; answers are final")
         step = current_step(participant)
         if step.kind != StepKind.VIDEO or step.video_id != video_id:
-            raise _RefusedError(
+            raise RefusedError(
                 409, f"video {video_id!r} is not the current step ({step.kind.value})"
             )
         if manifest.must_watch and not db.watched_to_end(participant, video_id):
-            raise _RefusedError(409, "watch the video to its end first", "error_must_watch")
+            raise RefusedError(409, "watch the video to its end first", "error_must_watch")
         try:
             db.record_answer(participant, video_id, touches)
         except ConflictError as exc:
-            raise _RefusedError(409, str(exc)) from None
+            raise RefusedError(409, str(exc)) from None
         finish_if_done(participant)
 
     def submit_attention(participant: Participant, answer: int) -> None:
@@ -488,7 +273,7 @@ def create_app(
         try:
             db.record_attention(participant, answer, answer == manifest.attention.answer)
         except ConflictError as exc:
-            raise _RefusedError(409, str(exc)) from None
+            raise RefusedError(409, str(exc)) from None
         finish_if_done(participant)
 
     def check_admin(request: Request) -> str:
@@ -503,7 +288,7 @@ def create_app(
 
     CurrentParticipant = Annotated[Participant, Depends(require_participant)]
 
-    def api_refusal(exc: _RefusedError) -> HTTPException:
+    def api_refusal(exc: RefusedError) -> HTTPException:
         return HTTPException(exc.status, exc.message)
 
     # ---- JSON API -------------------------------------------------------------------------
@@ -513,16 +298,16 @@ def create_app(
             participant = start_session(
                 request, response, body.participant_id, body.recruitment or {}
             )
-        except _RefusedError as exc:
+        except RefusedError as exc:
             raise api_refusal(exc) from None
         return {
             "participant_id": participant.participant_id,
-            "next": _step_json(current_step(participant)),
+            "next": step_json(current_step(participant)),
         }
 
     @app.get("/api/next")
     def api_next(participant: CurrentParticipant) -> dict[str, Any]:
-        return _step_json(current_step(participant))
+        return step_json(current_step(participant))
 
     @app.get("/api/me")
     def api_me(participant: CurrentParticipant) -> dict[str, Any]:
@@ -536,20 +321,20 @@ def create_app(
     def api_demographics(body: DemographicsIn, participant: CurrentParticipant) -> dict[str, Any]:
         try:
             submit_demographics(participant, body.training_years, body.prior_assessment)
-        except _RefusedError as exc:
+        except RefusedError as exc:
             raise api_refusal(exc) from None
-        return {"next": _step_json(current_step(db.refresh(participant)))}
+        return {"next": step_json(current_step(db.refresh(participant)))}
 
     @app.post("/api/practice", status_code=201)
     def api_practice(body: CountIn, participant: CurrentParticipant) -> dict[str, Any]:
         try:
             submit_practice(participant, body.reported_touches)
-        except _RefusedError as exc:
+        except RefusedError as exc:
             raise api_refusal(exc) from None
         assert manifest.practice is not None  # submit_practice checked the step
         return {
             "true_touches": manifest.practice.true_touches,
-            "next": _step_json(current_step(db.refresh(participant))),
+            "next": step_json(current_step(db.refresh(participant))),
         }
 
     @app.post("/api/answer", status_code=201)
@@ -558,17 +343,17 @@ def create_app(
             raise HTTPException(403, "a session may only answer for its own participant")
         try:
             submit_answer(participant, body.video_id, body.reported_touches)
-        except _RefusedError as exc:
+        except RefusedError as exc:
             raise api_refusal(exc) from None
-        return {"next": _step_json(current_step(participant))}
+        return {"next": step_json(current_step(participant))}
 
     @app.post("/api/attention", status_code=201)
     def api_attention(body: AttentionIn, participant: CurrentParticipant) -> dict[str, Any]:
         try:
             submit_attention(participant, body.answer)
-        except _RefusedError as exc:
+        except RefusedError as exc:
             raise api_refusal(exc) from None
-        return {"next": _step_json(current_step(db.refresh(participant)))}
+        return {"next": step_json(current_step(db.refresh(participant)))}
 
     @app.post("/api/event", status_code=204)
     def api_event(body: EventIn, participant: CurrentParticipant) -> Response:
@@ -606,7 +391,7 @@ def create_app(
         params = {k: v for k, v in request.query_params.items() if k in recruitment_params}
         try:
             for v in params.values():
-                _form_id.validate_python(v)
+                form_id.validate_python(v)
         except ValidationError:
             context = start_context({})
             return page(request, "start.html", 400, error=t("error_platform"), **context)
@@ -622,16 +407,16 @@ def create_app(
         if fields.get("consent") != "yes":
             return page(request, "start.html", 400, error=t("error_consent"), **context)
         try:
-            chosen = _form_id.validate_python(value) if value else None
+            chosen = form_id.validate_python(value) if value else None
             for v in params.values():
-                _form_id.validate_python(v)
+                form_id.validate_python(v)
         except ValidationError:
             key = "error_platform" if params else "error_id"
             return page(request, "start.html", 400, error=t(key), **context)
         redirect = RedirectResponse("/study", status_code=303)
         try:
             start_session(request, redirect, chosen, params)
-        except _RefusedError as exc:
+        except RefusedError as exc:
             return page(request, "start.html", exc.status, error=t(exc.key), **context)
         return redirect
 
@@ -696,7 +481,7 @@ def create_app(
         prior = prior_assessment if prior_assessment in PRIOR_ASSESSMENT else None
         try:
             submit_demographics(participant, years, prior)
-        except _RefusedError as exc:
+        except RefusedError as exc:
             return step_page(request, participant, exc.status, t(exc.key))
         return RedirectResponse("/study", status_code=303)
 
@@ -712,7 +497,7 @@ def create_app(
             return step_page(request, participant, 400, t("error_count", max_touches=MAX_TOUCHES))
         try:
             submit(participant, value)
-        except _RefusedError as exc:
+        except RefusedError as exc:
             return step_page(request, participant, exc.status, t(exc.key))
         return RedirectResponse(then, status_code=303)
 

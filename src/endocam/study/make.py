@@ -38,16 +38,16 @@ Written (atomically: a temporary folder renamed at the end)::
                            on the most difficult trajectory and over ``extra_seeds`` more seeds
     logs/<id>/             scene.json, episode.csv, metrics.json, tracking.png, report.html
     logs/practice/         the same for the practice video
+    seeds/<seed>/          with ``keep_seed_videos``: the extra seeds' three videos and truth.json
 """
 
 from __future__ import annotations
 
 import concurrent.futures
-import dataclasses
+import contextlib
 import json
 import math
 import shutil
-import tempfile
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
@@ -60,8 +60,17 @@ from endocam import __version__
 from endocam.config import ExperimentConfig
 from endocam.runner.pool import DEFAULT_WORKERS, executor
 from endocam.study.counterbalance import presentation_orders
+from endocam.study.hypothesis import (
+    HYPOTHESIS_JSON,
+    SEEDS_DIR,
+    hypothesis_dict,
+    seed_rows,
+    with_gaps,
+    write_truth,
+)
 from endocam.study.manifest import (
     MANIFEST_NAME,
+    STUDY_CONDITIONS,
     AttentionQuestion,
     Condition,
     Manifest,
@@ -83,8 +92,6 @@ from endocam.study.observer import (
     OBSERVER_JSON,
     ColourKeys,
     VideoObservation,
-    gap_view,
-    match_events,
     observe_video,
     observer_document,
     observer_html,
@@ -104,7 +111,6 @@ DEFAULT_SEED = DEFAULT_STUDY_SEED
 ID_STREAM = 1  # second entry of the id generator's seed, keeps ids apart from trajectory seeds
 ID_HEX_DIGITS = 8  # hex digits of a video id (32 random bits)
 DESIGN_JSON = "design.json"
-HYPOTHESIS_JSON = "hypothesis.json"
 EXTRA_STREAM = 2  # second entry of the extra seeds' generator seed (ids use ID_STREAM)
 PRACTICE_STREAM = 3  # second entry of the practice seed's generator seed
 PRACTICE_NAME = "practice"  # stem of the practice video and name of its log folder
@@ -115,7 +121,6 @@ PRACTICE_FILE = f"{VIDEOS_DIR}/{PRACTICE_NAME}.mp4"  # the manifest's practice.f
 DEFAULT_ATTENTION = AttentionQuestion(
     question="To show you are paying attention, enter the number four as a digit.", answer=4
 )
-STUDY_CONDITIONS = (Condition.FIXED, Condition.CENTERING, Condition.ORIENTATION)
 
 
 def trajectory_config(config: ExperimentConfig, trajectory: StudyTrajectory) -> ExperimentConfig:
@@ -192,6 +197,7 @@ def make_study(
     extra_seeds: int = 0,
     practice: bool = True,
     workers: int = DEFAULT_WORKERS,
+    keep_seed_videos: bool = False,
 ) -> Manifest:
     """Simulate, render and write a complete study folder (see the module docstring).
 
@@ -207,13 +213,15 @@ def make_study(
         The design; distinct names and difficulties in 1..3.
     extra_seeds : int
         More noise seeds of the most difficult trajectory (≥ 0): each is simulated, rendered
-        with the three conditions and counted by the observer for ``hypothesis.json``; their
-        videos are not kept.
+        with the three conditions and counted by the observer for ``hypothesis.json``.
     practice : bool
         Also render the practice video (easiest trajectory, fixed camera, :func:`practice_seed`)
         and name it in the manifest.
     workers : int
         Processes for the extra seeds (≥ 1; 1: in this process); the results do not depend on it.
+    keep_seed_videos : bool
+        Keep the extra seeds' videos and true touches in ``seeds/<noise seed>/``, so that
+        ``study observe`` can count them again (:mod:`endocam.study.hypothesis`).
 
     Returns
     -------
@@ -319,7 +327,7 @@ def make_study(
         with tqdm(total=n_frames, desc="observer", unit="frame", leave=False) as bar:
             for v in manifest.videos:
                 observations[v.id] = observe_video(tmp / v.file, keys, bar.update)
-        records = [_with_gaps(r, observations[r.video_id]) for r in records]
+        records = [with_gaps(r, observations[r.video_id]) for r in records]
         summary = summarize(records)
         (tmp / OBSERVABILITY_JSON).write_text(observability_json(summary, records), "utf-8")
         (tmp / OBSERVABILITY_CSV).write_text(observability_csv(records), "utf-8")
@@ -327,26 +335,17 @@ def make_study(
         (tmp / OBSERVER_JSON).write_text(json.dumps(observer, indent=2) + "\n", "utf-8")
         (tmp / OBSERVER_HTML).write_text(observer_html(manifest, observations), "utf-8")
         hardest = max(trajectories, key=lambda t: t.difficulty)
-        extra = run_extra_seeds(config, hardest, seed, extra_seeds, keys, tmp, workers)
+        extra = run_extra_seeds(
+            config, hardest, seed, extra_seeds, keys, tmp, workers, keep_seed_videos
+        )
         hypothesis = hypothesis_dict(
-            manifest, observer, records, hardest, extra, 1.0 / config.episode.video_fps
+            manifest, observer, records, hardest.name, extra, 1.0 / config.episode.video_fps
         )
         (tmp / HYPOTHESIS_JSON).write_text(json.dumps(hypothesis, indent=2) + "\n", "utf-8")
         design = design_dict(config, runs, key, seed, practice_run)
         (tmp / DESIGN_JSON).write_text(json.dumps(design, indent=2) + "\n", "utf-8")
         (tmp / MANIFEST_NAME).write_text(manifest_json(manifest), "utf-8")
     return manifest
-
-
-def _with_gaps(record: TouchObservation, obs: VideoObservation) -> TouchObservation:
-    """``record`` with the image-space gap columns from its video's per-frame gaps."""
-    view = gap_view(obs.gaps_px, obs.fps, record.t_start_s, record.t_end_s)
-    return dataclasses.replace(
-        record,
-        gap_before_px=view.gap_before_px,
-        gap_min_px=view.gap_min_px,
-        closes_visibly=view.closes_visibly,
-    )
 
 
 def extra_seed_values(seed: int, n: int) -> tuple[int, ...]:
@@ -363,6 +362,7 @@ def run_extra_seeds(
     keys: ColourKeys,
     work_dir: Path,
     workers: int = DEFAULT_WORKERS,
+    keep_videos: bool = False,
 ) -> list[dict[str, Any]]:
     """Simulate, render and observe ``n`` more seeds of ``trajectory`` (three conditions each).
 
@@ -371,10 +371,9 @@ def run_extra_seeds(
     seed; the rows are in seed order
     whatever order the jobs finish in, so the result equals a serial run's.
 
-    Returns one dict per seed and condition: ``seed``, ``condition``, ``true_touches``,
-    ``counted_touches``, ``matched_touches`` (seen touches overlapping a true one, one to one:
-    :func:`~endocam.study.observer.match_events`), ``gap_before_px`` and ``closes_visibly`` (per
-    true touch). The videos are rendered into a temporary folder under ``work_dir`` and deleted.
+    Returns one dict per seed and condition (:func:`endocam.study.hypothesis.seed_rows`). The
+    videos are rendered into ``work_dir/seeds/<noise seed>/`` with the seed's ``truth.json``;
+    unless ``keep_videos``, each seed's folder is deleted once it is counted.
     """
     if n == 0:
         return []
@@ -382,12 +381,15 @@ def run_extra_seeds(
     rows: dict[int, list[dict[str, Any]]] = {}
     with tqdm(total=n, desc="extra seeds", unit="seed") as bar, executor(workers, "spawn") as pool:
         futures = {
-            pool.submit(_extra_seed_rows, config, trajectory, s, keys, work_dir): k
+            pool.submit(_extra_seed_rows, config, trajectory, s, keys, work_dir, keep_videos): k
             for k, s in enumerate(seeds)
         }
         for fut in concurrent.futures.as_completed(futures):
             rows[futures[fut]] = fut.result()
             bar.update(1)
+    if not keep_videos:
+        with contextlib.suppress(OSError):
+            (work_dir / SEEDS_DIR).rmdir()  # empty unless someone else put files there
     return [row for k in range(n) for row in rows[k]]
 
 
@@ -397,6 +399,7 @@ def _extra_seed_rows(
     s: int,
     keys: ColourKeys,
     work_dir: Path,
+    keep_videos: bool,
 ) -> list[dict[str, Any]]:
     """One extra seed's rows (see :func:`run_extra_seeds`); a pool job, no progress bar."""
     from endocam.runner.episode import EpisodeSpec, run_episode
@@ -413,133 +416,20 @@ def _extra_seed_rows(
         )
         for c in STUDY_CONDITIONS
     ]
-    rows: list[dict[str, Any]] = []
-    folder = Path(tempfile.mkdtemp(prefix="extra-", dir=work_dir))
+    events = [(e.t_start, e.t_end) for e in touches.events]
+    folder = work_dir / SEEDS_DIR / str(s)
+    folder.mkdir(parents=True, exist_ok=True)
     try:
-        paths = [folder / f"{c.value}.mp4" for c in STUDY_CONDITIONS]
-        render_conditions(results, paths)
-        for c, path in zip(STUDY_CONDITIONS, paths, strict=True):
-            obs = observe_video(path, keys)
-            views = [gap_view(obs.gaps_px, obs.fps, e.t_start, e.t_end) for e in touches.events]
-            match = match_events(
-                [(t.t_start, t.t_end) for t in obs.touches],
-                [(e.t_start, e.t_end) for e in touches.events],
-                1.0 / obs.fps,
-            )
-            rows.append(
-                {
-                    "seed": s,
-                    "condition": c.value,
-                    "true_touches": touches.count,
-                    "counted_touches": len(obs.touches),
-                    "matched_touches": match.true_positives,
-                    "gap_before_px": [v.gap_before_px for v in views],
-                    "closes_visibly": [v.closes_visibly for v in views],
-                }
-            )
-    finally:
+        render_conditions(results, [folder / f"{c.value}.mp4" for c in STUDY_CONDITIONS])
+        rows = seed_rows(folder, s, events, keys)
+        if keep_videos:
+            write_truth(folder, s, cfg.episode.video_fps, events)
+    except BaseException:
+        shutil.rmtree(folder, ignore_errors=True)
+        raise
+    if not keep_videos:
         shutil.rmtree(folder, ignore_errors=True)
     return rows
-
-
-def _nan_median(values: Sequence[float]) -> float | None:
-    finite = [v for v in values if math.isfinite(v)]
-    return float(np.median(finite)) if finite else None
-
-
-def hypothesis_dict(
-    manifest: Manifest,
-    observer: dict[str, Any],
-    records: Sequence[TouchObservation],
-    hardest: StudyTrajectory,
-    extra: Sequence[dict[str, Any]],
-    frame_s: float,
-) -> dict[str, Any]:
-    """``hypothesis.json``: the observer's counting error and image-space observability.
-
-    Per condition, on the most difficult study trajectory and over the extra seeds; precision
-    and recall pair seen with true touches overlapping within ``frame_s`` (one frame, s).
-    """
-    counted = {v["id"]: v["counted_touches"] for v in observer["videos"]}
-    events = {v["id"]: v["events"] for v in observer["videos"]}
-    study: dict[str, Any] = {}
-    for c in manifest.conditions:
-        video = manifest.most_difficult(c)
-        rs = [r for r in records if r.video_id == video.id]
-        seen = [(e["t_start"], e["t_end"]) for e in events[video.id]]
-        match = match_events(seen, [(r.t_start_s, r.t_end_s) for r in rs], frame_s)
-        study[c.value] = {
-            "video": video.id,
-            "true_touches": video.true_touches,
-            "counted_touches": counted[video.id],
-            "abs_error": abs(counted[video.id] - video.true_touches),
-            "precision": match.precision,
-            "recall": match.recall,
-            "median_gap_before_px": _nan_median([r.gap_before_px for r in rs]),
-            "closes_visibly_share": float(np.mean([r.closes_visibly for r in rs])) if rs else None,
-        }
-    seeds: dict[str, Any] = {}
-    for c in manifest.conditions:
-        rows = [r for r in extra if r["condition"] == c.value]
-        if not rows:
-            continue
-        errors = [abs(r["counted_touches"] - r["true_touches"]) for r in rows]
-        tp = sum(r["matched_touches"] for r in rows)
-        n_seen = sum(r["counted_touches"] for r in rows)
-        n_true = sum(r["true_touches"] for r in rows)
-        gaps = [g for r in rows for g in r["gap_before_px"]]
-        closes = [f for r in rows for f in r["closes_visibly"]]
-        seeds[c.value] = {
-            "videos": len(rows),
-            "mean_abs_error": float(np.mean(errors)),
-            "sd_abs_error": float(np.std(errors, ddof=1)) if len(errors) > 1 else None,
-            "precision": tp / n_seen if n_seen else 1.0,
-            "recall": tp / n_true if n_true else 1.0,
-            "median_gap_before_px": _nan_median(gaps),
-            "closes_visibly_share": float(np.mean(closes)) if closes else None,
-        }
-    return {
-        "trajectory": hardest.name,
-        "study": study,
-        "extra_seeds": {
-            "n": len({r["seed"] for r in extra}),
-            "seeds": sorted({r["seed"] for r in extra}),
-            "conditions": seeds,
-            "videos": list(extra),
-        },
-    }
-
-
-def _fmt(value: float | None, spec: str) -> str:
-    return "–" if value is None else format(value, spec)
-
-
-def hypothesis_table(doc: dict[str, Any]) -> str:
-    """``hypothesis.json`` as a Markdown table (one row per condition)."""
-    extra = doc["extra_seeds"]
-    lines = [
-        f"| condition | {doc['trajectory']}: counted / true, abs. error | precision / recall | "
-        f"gap before (px) | closes visibly | {extra['n']} extra seeds: mean abs. error (SD) | "
-        "precision / recall | gap before (px) | closes visibly |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for c, row in doc["study"].items():
-        e = extra["conditions"].get(c)
-        tail = (
-            "– | – | – | –"
-            if e is None
-            else f"{e['mean_abs_error']:.2f} ({_fmt(e['sd_abs_error'], '.2f')}) | "
-            f"{e['precision']:.2f} / {e['recall']:.2f} | "
-            f"{_fmt(e['median_gap_before_px'], '.1f')} | "
-            f"{_fmt(e['closes_visibly_share'], '.0%')}"
-        )
-        lines.append(
-            f"| {c} | {row['counted_touches']} / {row['true_touches']}, {row['abs_error']} | "
-            f"{row['precision']:.2f} / {row['recall']:.2f} | "
-            f"{_fmt(row['median_gap_before_px'], '.1f')} | "
-            f"{_fmt(row['closes_visibly_share'], '.0%')} | {tail} |"
-        )
-    return "\n".join(lines) + "\n"
 
 
 def design_dict(

@@ -56,6 +56,9 @@ class Condition(StrEnum):
     ORIENTATION = "orientation"
 
 
+STUDY_CONDITIONS = (Condition.FIXED, Condition.CENTERING, Condition.ORIENTATION)  # I, II, III
+
+
 URL_PARAM_PATTERN = r"^[A-Za-z][A-Za-z0-9_]{0,31}$"  # recruitment URL parameter names
 
 

@@ -21,11 +21,12 @@ frames with a clearly open gap (more than ``OPEN_GAP_PX``), so a gap flickering 
 frames is not a new touch; a touch needs ``MIN_TOUCH_FRAMES`` contact frames. These four numbers
 were set on the default study's most difficult trajectory (the validation clips are others).
 
-:func:`observe_video` runs this over a video; :func:`observe_study` over a study folder, writing
-``observer.json`` (per condition: videos, mean and SD of ``|counted − true|``; per video the
-events) and ``observer.html`` (the frame where each touch was seen). :func:`match_events` scores
-seen against true events (precision and recall), used to validate the observer on clips with
-known touches.
+:func:`observe_video` runs this over a video; :func:`observer_document` and
+:func:`observer_html` are ``observer.json`` (per condition: videos, mean and SD of
+``|counted − true|``; per video the events) and ``observer.html`` (the frame where each touch
+was seen); :func:`endocam.study.hypothesis.recount_study` writes them for a study folder.
+:func:`match_events` scores seen against true events (precision and recall), used to validate
+the observer on clips with known touches.
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ import imageio_ffmpeg
 import numpy as np
 from numpy.typing import NDArray
 
-from endocam.study.manifest import Manifest, load_manifest
+from endocam.study.manifest import Manifest
 from endocam.study.observer_frame import (
     CONTACT_PX,
     RESOLVE_PX,
@@ -406,45 +407,3 @@ def keys_for_study(folder: Path) -> ColourKeys:
         if "ring_rgba" in data and "wire_rgba" in data:
             return ColourKeys.from_rgba(tuple(data["ring_rgba"]), tuple(data["wire_rgba"]))
     return ColourKeys.from_scene(scene)
-
-
-def observe_study(
-    folder: str | Path,
-    keys: ColourKeys | None = None,
-    progress: Callable[[int], object] | None = None,
-) -> tuple[dict[str, Any], str]:
-    """Observe every video of a study folder.
-
-    Parameters
-    ----------
-    folder : str or Path
-        Study folder (``manifest.json`` and the videos).
-    keys : ColourKeys, optional
-        Default: :func:`keys_for_study`.
-    progress : callable, optional
-        Called with 1 per decoded frame.
-
-    Returns
-    -------
-    document : dict
-        ``observer.json``'s content.
-    page : str
-        ``observer.html``.
-    """
-    root = Path(folder)
-    manifest = load_manifest(root)
-    keys = keys_for_study(root) if keys is None else keys
-    observations = {v.id: observe_video(root / v.file, keys, progress) for v in manifest.videos}
-    return observer_document(manifest, observations), observer_html(manifest, observations)
-
-
-def write_observer(folder: str | Path, document: dict[str, Any], page: str) -> None:
-    """Write ``observer.json`` and ``observer.html`` into ``folder`` (each via a temp + rename)."""
-    root = Path(folder)
-    for name, text in (
-        (OBSERVER_JSON, json.dumps(document, indent=2) + "\n"),
-        (OBSERVER_HTML, page),
-    ):
-        tmp = root / f".{name}.tmp"
-        tmp.write_text(text, "utf-8")
-        tmp.replace(root / name)

@@ -1,0 +1,357 @@
+"""The paper's claim, measured: the observer's counting error and what each condition shows.
+
+``hypothesis.json`` compares the three camera conditions on the study's most difficult trajectory
+and over extra noise seeds of it (``study make --seeds N``): per condition the automatic
+observer's counting error, precision and recall against the simulator's touches, and the
+image-space observability of the true touches (the silhouette gap seen just before each one and
+whether it closes visibly, :func:`endocam.study.observer.gap_view`).
+
+Re-analysis without re-rendering. ``study make --keep-seed-videos`` keeps the extra seeds'
+videos in the study folder::
+
+    seeds/<noise seed>/fixed.mp4, centering.mp4, orientation.mp4   left eye, H.264
+    seeds/<noise seed>/truth.json   {"seed", "fps", "true_events": [[t_start, t_end], ...]} (s)
+
+and :func:`recount_study` (``endocam study observe``) counts every video of the folder again
+with the current observer and rewrites ``observer.json/.html``, the image-space columns of
+``observability.json/.csv`` and ``hypothesis.json`` from them. Seeds whose videos were not kept
+cannot be counted again: their rows are left as they were and ``extra_seeds.recounted`` says so.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import json
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from endocam.runner.outputs import write_atomic
+from endocam.runner.pool import DEFAULT_WORKERS, executor
+from endocam.study.manifest import STUDY_CONDITIONS, Manifest, load_manifest
+from endocam.study.observability import (
+    OBSERVABILITY_CSV,
+    OBSERVABILITY_JSON,
+    TouchObservation,
+    observability_csv,
+    observability_json,
+    summarize,
+)
+from endocam.study.observer import (
+    OBSERVER_HTML,
+    OBSERVER_JSON,
+    ColourKeys,
+    VideoObservation,
+    gap_view,
+    keys_for_study,
+    match_events,
+    observe_video,
+    observer_document,
+    observer_html,
+)
+
+HYPOTHESIS_JSON = "hypothesis.json"
+SEEDS_DIR = "seeds"  # kept extra-seed videos: seeds/<noise seed>/<condition>.mp4
+TRUTH_JSON = "truth.json"  # per kept seed: the simulator's touch intervals
+
+Interval = tuple[float, float]  # (t_start, t_end), s
+_FLOAT = ("float", float)  # a dataclass field's type, as a string under postponed annotations
+
+
+# ------------------------------------------------------------------------------ per touch
+def with_gaps(record: TouchObservation, obs: VideoObservation) -> TouchObservation:
+    """``record`` with the image-space gap columns from its video's per-frame gaps."""
+    view = gap_view(obs.gaps_px, obs.fps, record.t_start_s, record.t_end_s)
+    return dataclasses.replace(
+        record,
+        gap_before_px=view.gap_before_px,
+        gap_min_px=view.gap_min_px,
+        closes_visibly=view.closes_visibly,
+    )
+
+
+def load_records(path: str | Path) -> list[TouchObservation]:
+    """The per-touch records of an ``observability.json`` (JSON ``null`` read back as NaN).
+
+    Raises
+    ------
+    ValueError
+        One line if the file is unreadable or a record does not match :class:`TouchObservation`.
+    """
+    p = Path(path)
+    try:
+        touches = json.loads(p.read_text("utf-8"))["touches"]
+        floats = {f.name for f in dataclasses.fields(TouchObservation) if f.type in _FLOAT}
+        nan_for_null: list[dict[str, Any]] = [
+            {k: math.nan if v is None and k in floats else v for k, v in t.items()} for t in touches
+        ]
+        return [TouchObservation(**t) for t in nan_for_null]
+    except (OSError, json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise ValueError(f"cannot read the touches of {p}: {exc}") from None
+
+
+# ------------------------------------------------------------------------------ extra seeds
+def seed_rows(
+    folder: Path, seed: int, true_events: Sequence[Interval], keys: ColourKeys
+) -> list[dict[str, Any]]:
+    """Observe one extra seed's three videos (``folder/<condition>.mp4``), one row per condition.
+
+    Each row: ``seed``, ``condition``, ``true_touches``, ``counted_touches``,
+    ``matched_touches`` (seen touches overlapping a true one within a frame, one to one:
+    :func:`~endocam.study.observer.match_events`), and per true touch ``gap_before_px`` and
+    ``closes_visibly``.
+    """
+    rows: list[dict[str, Any]] = []
+    for c in STUDY_CONDITIONS:
+        obs = observe_video(folder / f"{c.value}.mp4", keys)
+        views = [gap_view(obs.gaps_px, obs.fps, t0, t1) for t0, t1 in true_events]
+        match = match_events(
+            [(t.t_start, t.t_end) for t in obs.touches], list(true_events), 1.0 / obs.fps
+        )
+        rows.append(
+            {
+                "seed": seed,
+                "condition": c.value,
+                "true_touches": len(true_events),
+                "counted_touches": len(obs.touches),
+                "matched_touches": match.true_positives,
+                "gap_before_px": [v.gap_before_px for v in views],
+                "closes_visibly": [v.closes_visibly for v in views],
+            }
+        )
+    return rows
+
+
+def write_truth(folder: Path, seed: int, fps: float, true_events: Sequence[Interval]) -> None:
+    """Write a kept seed's ``truth.json`` (atomically)."""
+    doc = {"seed": seed, "fps": fps, "true_events": [list(e) for e in true_events]}
+    write_atomic(folder / TRUTH_JSON, lambda p: p.write_text(json.dumps(doc) + "\n", "utf-8"))
+
+
+def kept_seeds(study: Path) -> list[tuple[int, list[Interval]]]:
+    """``(seed, true touch intervals)`` of every extra seed whose videos the study kept.
+
+    Raises
+    ------
+    ValueError
+        One line naming a kept seed's folder that lacks a video or has a malformed truth.json.
+    """
+    out: list[tuple[int, list[Interval]]] = []
+    root = study / SEEDS_DIR
+    if not root.is_dir():
+        return out
+    for folder in sorted(root.iterdir(), key=lambda p: p.name):
+        if not folder.is_dir():
+            continue
+        try:
+            doc = json.loads((folder / TRUTH_JSON).read_text("utf-8"))
+            events = [(float(a), float(b)) for a, b in doc["true_events"]]
+            seed = int(doc["seed"])
+        except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{folder}: no valid {TRUTH_JSON}: {exc}") from None
+        missing = [c.value for c in STUDY_CONDITIONS if not (folder / f"{c.value}.mp4").is_file()]
+        if missing:
+            raise ValueError(f"{folder}: missing video(s) {', '.join(missing)}")
+        out.append((seed, events))
+    return out
+
+
+# ------------------------------------------------------------------------------ the document
+def _nan_median(values: Sequence[float]) -> float | None:
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.median(finite)) if finite else None
+
+
+def hypothesis_dict(
+    manifest: Manifest,
+    observer: dict[str, Any],
+    records: Sequence[TouchObservation],
+    trajectory: str,
+    extra: Sequence[dict[str, Any]],
+    frame_s: float,
+    recounted: bool = True,
+) -> dict[str, Any]:
+    """``hypothesis.json``: the observer's counting error and image-space observability.
+
+    Per condition, on the most difficult study trajectory (named ``trajectory``) and over the
+    extra seeds' rows (:func:`seed_rows`); precision and recall pair seen with true touches
+    overlapping within ``frame_s`` (one frame, s). ``recounted`` is False when the extra rows
+    were counted by an earlier observer (their videos were not kept).
+    """
+    counted = {v["id"]: v["counted_touches"] for v in observer["videos"]}
+    events = {v["id"]: v["events"] for v in observer["videos"]}
+    study: dict[str, Any] = {}
+    for c in manifest.conditions:
+        video = manifest.most_difficult(c)
+        rs = [r for r in records if r.video_id == video.id]
+        seen = [(e["t_start"], e["t_end"]) for e in events[video.id]]
+        match = match_events(seen, [(r.t_start_s, r.t_end_s) for r in rs], frame_s)
+        study[c.value] = {
+            "video": video.id,
+            "true_touches": video.true_touches,
+            "counted_touches": counted[video.id],
+            "abs_error": abs(counted[video.id] - video.true_touches),
+            "precision": match.precision,
+            "recall": match.recall,
+            "median_gap_before_px": _nan_median([r.gap_before_px for r in rs]),
+            "closes_visibly_share": float(np.mean([r.closes_visibly for r in rs])) if rs else None,
+        }
+    seeds: dict[str, Any] = {}
+    for c in manifest.conditions:
+        rows = [r for r in extra if r["condition"] == c.value]
+        if not rows:
+            continue
+        errors = [abs(r["counted_touches"] - r["true_touches"]) for r in rows]
+        tp = sum(r["matched_touches"] for r in rows)
+        n_seen = sum(r["counted_touches"] for r in rows)
+        n_true = sum(r["true_touches"] for r in rows)
+        gaps = [g for r in rows for g in r["gap_before_px"]]
+        closes = [f for r in rows for f in r["closes_visibly"]]
+        seeds[c.value] = {
+            "videos": len(rows),
+            "mean_abs_error": float(np.mean(errors)),
+            "sd_abs_error": float(np.std(errors, ddof=1)) if len(errors) > 1 else None,
+            "precision": tp / n_seen if n_seen else 1.0,
+            "recall": tp / n_true if n_true else 1.0,
+            "median_gap_before_px": _nan_median(gaps),
+            "closes_visibly_share": float(np.mean(closes)) if closes else None,
+        }
+    return {
+        "trajectory": trajectory,
+        "study": study,
+        "extra_seeds": {
+            "n": len({r["seed"] for r in extra}),
+            "seeds": sorted({r["seed"] for r in extra}),
+            "recounted": recounted,
+            "conditions": seeds,
+            "videos": list(extra),
+        },
+    }
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "–" if value is None else format(value, spec)
+
+
+def hypothesis_table(doc: dict[str, Any]) -> str:
+    """``hypothesis.json`` as a Markdown table (one row per condition)."""
+    extra = doc["extra_seeds"]
+    stale = "" if extra.get("recounted", True) else " (earlier observer)"
+    lines = [
+        f"| condition | {doc['trajectory']}: counted / true, abs. error | precision / recall | "
+        f"gap before (px) | closes visibly | {extra['n']} extra seeds{stale}: mean abs. error "
+        "(SD) | precision / recall | gap before (px) | closes visibly |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for c, row in doc["study"].items():
+        e = extra["conditions"].get(c)
+        tail = (
+            "– | – | – | –"
+            if e is None
+            else f"{e['mean_abs_error']:.2f} ({_fmt(e['sd_abs_error'], '.2f')}) | "
+            f"{e['precision']:.2f} / {e['recall']:.2f} | "
+            f"{_fmt(e['median_gap_before_px'], '.1f')} | "
+            f"{_fmt(e['closes_visibly_share'], '.0%')}"
+        )
+        lines.append(
+            f"| {c} | {row['counted_touches']} / {row['true_touches']}, {row['abs_error']} | "
+            f"{row['precision']:.2f} / {row['recall']:.2f} | "
+            f"{_fmt(row['median_gap_before_px'], '.1f')} | "
+            f"{_fmt(row['closes_visibly_share'], '.0%')} | {tail} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------------------ re-analysis
+def _write_text(path: Path, text: str) -> None:
+    write_atomic(path, lambda p: p.write_text(text, "utf-8"))
+
+
+def recount_study(
+    folder: str | Path,
+    workers: int = DEFAULT_WORKERS,
+    progress: Callable[[int], object] | None = None,
+) -> dict[str, Any] | None:
+    """Count every video of a study folder again with the current observer (module docstring).
+
+    Always rewrites ``observer.json`` and ``observer.html``. When the folder has
+    ``observability.json`` (every ``study make`` writes it), also its image-space columns and
+    ``observability.csv``, and ``hypothesis.json`` (extra seeds from the kept videos, else the
+    earlier rows, marked ``recounted: false``). Each file is replaced atomically.
+
+    Parameters
+    ----------
+    folder : str or Path
+        Study folder (``manifest.json``, the videos).
+    workers : int
+        Processes that decode and count videos in parallel (1: in this process).
+    progress : callable, optional
+        Called with 1 per video (the study's and each kept seed's three) counted.
+
+    Returns
+    -------
+    dict or None
+        The new ``hypothesis.json``; None when the folder has no ``observability.json``.
+
+    Raises
+    ------
+    ValueError
+        One line for a malformed observability.json, hypothesis.json or kept seed.
+    """
+    root = Path(folder)
+    manifest = load_manifest(root)
+    keys = keys_for_study(root)
+    has_records = (root / OBSERVABILITY_JSON).is_file()
+    seeds = kept_seeds(root) if has_records else []
+    observations: dict[str, VideoObservation] = {}
+    extra_rows: dict[int, list[dict[str, Any]]] = {}
+    tick = progress or (lambda _n: None)
+    with executor(workers, "spawn") as pool:
+        video_jobs = {
+            pool.submit(observe_video, root / v.file, keys): v.id for v in manifest.videos
+        }
+        seed_jobs = {
+            pool.submit(seed_rows, root / SEEDS_DIR / str(s), s, ev, keys): s for s, ev in seeds
+        }
+        for fut in concurrent.futures.as_completed(video_jobs):
+            observations[video_jobs[fut]] = fut.result()
+            tick(1)
+        for job in concurrent.futures.as_completed(seed_jobs):
+            extra_rows[seed_jobs[job]] = job.result()
+            tick(len(STUDY_CONDITIONS))
+    observer = observer_document(manifest, observations)
+    _write_text(root / OBSERVER_JSON, json.dumps(observer, indent=2) + "\n")
+    _write_text(root / OBSERVER_HTML, observer_html(manifest, observations))
+    if not has_records:
+        return None
+    earlier = load_records(root / OBSERVABILITY_JSON)
+    records = [with_gaps(r, observations[r.video_id]) for r in earlier]
+    _write_text(root / OBSERVABILITY_JSON, observability_json(summarize(records), records))
+    _write_text(root / OBSERVABILITY_CSV, observability_csv(records))
+    recounted = True
+    if seeds:
+        extra = [row for s, _ in seeds for row in extra_rows[s]]
+    else:
+        extra = _earlier_rows(root / HYPOTHESIS_JSON)
+        recounted = not extra
+    hardest = manifest.most_difficult(manifest.conditions[0])
+    fps = next(iter(observations.values())).fps if observations else 30.0
+    doc = hypothesis_dict(
+        manifest, observer, records, hardest.trajectory, extra, 1.0 / fps, recounted
+    )
+    _write_text(root / HYPOTHESIS_JSON, json.dumps(doc, indent=2) + "\n")
+    return doc
+
+
+def _earlier_rows(path: Path) -> list[dict[str, Any]]:
+    """The extra-seed rows of an existing ``hypothesis.json`` (none if there is no file)."""
+    if not path.is_file():
+        return []
+    try:
+        return list(json.loads(path.read_text("utf-8"))["extra_seeds"]["videos"])
+    except (OSError, json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise ValueError(f"cannot read the extra seeds of {path}: {exc}") from None
