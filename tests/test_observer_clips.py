@@ -20,6 +20,8 @@ from endocam.study.observer_clips import (
     _rest_frame,
     camera_poses,
     draw_spec,
+    from_above,
+    gap_visible,
     push_depths,
     ring_poses,
     true_touches,
@@ -94,3 +96,14 @@ def test_each_push_goes_past_contact_both_ways() -> None:
         assert c[0] == pytest.approx(-PUSH_PAST, abs=DEPTH_TOL)
     events = true_touches(TASK, spec, LEAD_IN_S + 2 * PUSH_PERIOD_S)
     assert len(events) == 2 and events[0][0] > LEAD_IN_S
+
+
+def test_a_view_with_the_gap_behind_the_wire_is_redrawn() -> None:
+    # the first head-on draw at the first tuning bend looks through the ring with the wire's
+    # near part over the place where the gap closes (a ray cast to the gap hits the wire); the
+    # next draw shows it, and validation_specs keeps that one
+    rng = np.random.default_rng(TUNING_SEED)
+    hidden = from_above(TASK, draw_spec(rng, TUNING_ARC_FRACTIONS[0], "head-on"))
+    shown = from_above(TASK, draw_spec(rng, TUNING_ARC_FRACTIONS[0], "head-on"))
+    assert not gap_visible(TASK, hidden)
+    assert gap_visible(TASK, shown)
