@@ -4,23 +4,15 @@ The paper's claim is that people count touches more accurately when the camera f
 ring's orientation. Before anyone watches a video, this observer counts the touches the way an
 assessor would, from the decoded left-eye MP4 and nothing else (no pose, no clearance, no ground
 truth inside the counter): it only knows what the ring and the wire look like (their colours,
-as a participant is told "the orange ring, the blue wire").
+as a participant is told "the orange ring, the blue wire") and their shapes.
 
-Per frame (:func:`frame_gap_px`):
-
-1. **Segment** the ring and the wire by colour (OpenCV HSV: hue within ``HUE_TOL`` of the
-   configured colour's hue, saturation ≥ ``SAT_MIN``, value ≥ ``VAL_MIN``), ring components of
-   fewer than ``MIN_RING_PX`` pixels dropped.
-2. **The ring's outline**: an ellipse fitted (``cv2.fitEllipse``) to the convex hull of the
-   ring's pixels. Pixels near the ring get ellipse-normalised polar coordinates (ρ = 1 on the
-   outline), binned into ``N_BINS`` directions.
-3. **Gap** (px) per direction: from the outermost wire pixel inside the hole to the rim's inner
-   edge (the innermost ring pixel of that direction). Directions in which the wire lies over or
-   beyond the rim (ρ ≥ ``RIM_RHO`` up to ``OUTSIDE_RHO``: it crosses the rim, in front or behind)
-   are left out, widened by their own angular width on each side (beside a crossing the band's
-   edges meet the rim without touching it). The frame's gap is the smallest remaining one (0:
-   the silhouettes meet); NaN when no direction shows the wire inside the hole (no ring, the
-   ring too small, or the wire only crossing it).
+Per frame, :func:`~endocam.study.observer_frame.frame_gap_px` (in
+:mod:`endocam.study.observer_frame`, with the colour segmentation) reads the gap between the
+wire's band through the ring's hole and the rim's inner edge, in px, where the hole's edge runs
+parallel to the band; it says nothing (NaN) where the place is hidden, the wire there is in
+front of the ring, or the ring is too small to resolve a gap. It also knows the ring's and the
+wire's shapes (tube and wire radius relative to the ring), as a participant told about the task
+does.
 
 Touches (:func:`count_touches`): a frame shows contact when its gap is at most
 ``CONTACT_GAP_PX``; a frame that shows nothing keeps the previous state (an assessor cannot see
@@ -54,168 +46,24 @@ import numpy as np
 from numpy.typing import NDArray
 
 from endocam.study.manifest import Manifest
-from endocam.task.config import RGBA, SceneConfig
+from endocam.study.observer_frame import (
+    CONTACT_PX,
+    RESOLVE_PX,
+    ColourKeys,
+    frame_gap_px,
+    segment,
+)
+from endocam.task.config import SceneConfig
 
 OBSERVER_JSON = "observer.json"
 OBSERVER_HTML = "observer.html"
-HUE_TOL = 12  # OpenCV hue units (0..180 ↔ 0..360°): ±24° around the object's hue
-SAT_MIN = 110  # 8-bit saturation: the ring and the wire are saturated, board and walls are not
-VAL_MIN = 35  # 8-bit value: darker pixels carry no reliable hue
-MIN_RING_PX = 12  # px, smaller orange components are noise (or a ring too small to judge)
-N_BINS = 120  # directions around the ring's centre (3° each)
-RIM_RHO = 0.84  # ellipse-normalised radius of the rim's middle: (R − r)/(R + r) = 2/3 .. 1
-OUTSIDE_RHO = 1.3  # ellipse-normalised radius up to which the wire counts as crossing the rim
-CONTACT_GAP_PX = 1.0  # px, a silhouette gap this small reads as contact (anti-alias free render)
-OPEN_GAP_PX = 3.0  # px, a gap this wide is clearly open: it ends a touch (and is resolvable)
+CONTACT_GAP_PX = CONTACT_PX  # px, a silhouette gap this small reads as contact
+OPEN_GAP_PX = RESOLVE_PX  # px, a gap this wide is clearly open: it ends a touch (resolvable)
 RELEASE_FRAMES = 8  # consecutive clearly open frames that end a touch (0.27 s at 30 fps)
 MIN_TOUCH_FRAMES = 2  # frames of contact a touch needs to be counted (one frame is flicker)
 PRE_TOUCH_S = 0.25  # s, "just before" a touch: the window whose gap shows it closing
 THUMB_WIDTH_PX = 320  # px, width of the frames in observer.html
 JPEG_QUALITY = 85  # 0..100
-
-
-# --------------------------------------------------------------------------- segmentation
-@dataclass(frozen=True)
-class ColourKeys:
-    """What the observer knows: the hues of the ring and of the wire (OpenCV units, 0..180)."""
-
-    ring_hue: int
-    wire_hue: int
-
-    @classmethod
-    def from_rgba(cls, ring_rgba: RGBA, wire_rgba: RGBA) -> ColourKeys:
-        """Keys from the scene's RGBA colours (components 0..1)."""
-        return cls(ring_hue=_hue(ring_rgba), wire_hue=_hue(wire_rgba))
-
-    @classmethod
-    def from_scene(cls, scene: SceneConfig) -> ColourKeys:
-        """Keys of a scene config's ring and wire."""
-        return cls.from_rgba(scene.ring_rgba, scene.wire_rgba)
-
-
-def _hue(rgba: RGBA) -> int:
-    rgb = np.clip(np.round(np.asarray(rgba[:3]) * 255.0), 0, 255).astype(np.uint8)
-    return int(cv2.cvtColor(rgb.reshape(1, 1, 3), cv2.COLOR_RGB2HSV)[0, 0, 0])
-
-
-def _hue_mask(hsv: NDArray[Any], hue: int) -> NDArray[np.bool_]:
-    h = hsv[..., 0].astype(np.int16)
-    d = np.abs(h - hue)
-    d = np.minimum(d, 180 - d)  # hue is circular
-    return np.asarray((d <= HUE_TOL) & (hsv[..., 1] >= SAT_MIN) & (hsv[..., 2] >= VAL_MIN))
-
-
-def segment(
-    frame_rgb: NDArray[np.uint8], keys: ColourKeys
-) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
-    """Ring and wire masks of one frame.
-
-    Parameters
-    ----------
-    frame_rgb : (H, W, 3) uint8
-        RGB image.
-    keys : ColourKeys
-
-    Returns
-    -------
-    ring, wire : (H, W) bool
-        Ring pixels (components of at least ``MIN_RING_PX``) and wire pixels.
-    """
-    hsv = cv2.cvtColor(np.ascontiguousarray(frame_rgb), cv2.COLOR_RGB2HSV)
-    ring = _hue_mask(hsv, keys.ring_hue)
-    wire = _hue_mask(hsv, keys.wire_hue)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(ring.astype(np.uint8), connectivity=8)
-    keep = np.zeros(n, dtype=bool)
-    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= MIN_RING_PX
-    return keep[labels], wire
-
-
-# --------------------------------------------------------------------------- one frame
-def frame_gap_px(ring: NDArray[np.bool_], wire: NDArray[np.bool_]) -> float:
-    """Image-space gap between the wire's and the ring's silhouettes (see the module docstring).
-
-    Parameters
-    ----------
-    ring, wire : (H, W) bool
-        Masks from :func:`segment`.
-
-    Returns
-    -------
-    float
-        Gap, px (0 = the silhouettes meet); NaN when the frame shows no part of the ring's inner
-        edge the wire could touch (no ring, no wire in its hole, or the wire only crossing it).
-    """
-    ys, xs = np.nonzero(ring)
-    if xs.size < MIN_RING_PX:
-        return math.nan
-    hull = cv2.convexHull(np.column_stack([xs, ys]).astype(np.int32))
-    if len(hull) < 5:
-        return math.nan
-    (cx, cy), (d1, d2), angle = cv2.fitEllipse(hull)
-    a1, a2 = 0.5 * d1, 0.5 * d2
-    if min(a1, a2) < 1.0:
-        return math.nan
-    t = math.radians(angle)
-    e1 = np.array([math.cos(t), math.sin(t)])  # the ellipse's first axis (length a1)
-    e2 = np.array([-math.sin(t), math.cos(t)])
-    reach = math.ceil(OUTSIDE_RHO * max(a1, a2)) + 1
-    h, w = ring.shape
-    x0, x1 = max(0, int(cx) - reach), min(w, int(cx) + reach + 1)
-    y0, y1 = max(0, int(cy) - reach), min(h, int(cy) + reach + 1)
-    gy, gx = np.mgrid[y0:y1, x0:x1]
-    dx, dy = gx - cx, gy - cy
-    u = (dx * e1[0] + dy * e1[1]) / a1  # ellipse-normalised: the ring's outline is ρ = 1
-    v = (dx * e2[0] + dy * e2[1]) / a2
-    rho = np.hypot(u, v)
-    theta = ((np.arctan2(v, u) + math.pi) / (2.0 * math.pi) * N_BINS).astype(int) % N_BINS
-    r_box, w_box = ring[y0:y1, x0:x1], wire[y0:y1, x0:x1]
-    near = rho <= OUTSIDE_RHO
-    inner_edge = np.full(N_BINS, np.inf)  # ρ of the rim's inner edge per direction
-    np.minimum.at(inner_edge, theta[r_box & near], rho[r_box & near])
-    wire_t, wire_rho = theta[w_box & near], rho[w_box & near]
-    if wire_t.size == 0:
-        return math.nan
-    reach_in = np.full(N_BINS, -np.inf)  # outermost wire pixel inside the hole per direction
-    inside = wire_rho < inner_edge[wire_t]
-    np.maximum.at(reach_in, wire_t[inside], wire_rho[inside])
-    crossing = np.zeros(N_BINS, dtype=bool)  # the wire over or beyond the rim in that direction
-    crossing[wire_t[wire_rho >= RIM_RHO]] = True
-    excluded = _widen_runs(crossing)
-    ok = np.isfinite(inner_edge) & np.isfinite(reach_in) & ~excluded
-    if not ok.any():
-        return math.nan
-    phi = (np.arange(N_BINS) + 0.5) / N_BINS * 2.0 * math.pi - math.pi
-    px_per_rho = np.hypot(a1 * np.cos(phi), a2 * np.sin(phi))  # ellipse radius per direction
-    gaps = (inner_edge - reach_in) * px_per_rho - 1.0  # adjacent pixels: no background between
-    return float(max(gaps[ok].min(), 0.0))
-
-
-def _widen_runs(flags: NDArray[np.bool_]) -> NDArray[np.bool_]:
-    """Circular runs of True widened by their own length on each side (at least one bin).
-
-    Where the wire crosses the rim (in front of it, or behind it and out the other side), the
-    band's edges meet the inner edge next to the crossing without touching it: those
-    directions are not read as a gap.
-    """
-    n = flags.size
-    if flags.all() or not flags.any():
-        return flags.copy()
-    out = flags.copy()
-    start = int(np.argmin(flags))  # a False bin: runs do not wrap past it
-    k = 0
-    while k < n:
-        i = (start + k) % n
-        if flags[i]:
-            length = 0
-            while flags[(i + length) % n] and length < n:
-                length += 1
-            pad = max(1, length)
-            for j in range(-pad, length + pad):
-                out[(i + j) % n] = True
-            k += length
-        else:
-            k += 1
-    return out
 
 
 # --------------------------------------------------------------------------- counting
