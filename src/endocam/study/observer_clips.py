@@ -53,6 +53,7 @@ from scipy.spatial.transform import Rotation
 from endocam.camera import StereoCamera
 from endocam.config import CameraConfig
 from endocam.geometry import FloatArray, make_pose
+from endocam.study.observability import GAP_SEEN
 from endocam.study.observer import ColourKeys, Match, match_events, observe_video
 from endocam.task.config import TaskConfig
 from endocam.task.trajectory import ideal_ring_rotations
@@ -80,8 +81,7 @@ ROLL_DEG = 20.0  # deg, largest roll of the camera about its optical axis
 AIM_OFFSET = 2.0e-3  # m, largest offset of the aim point from the ring's centre
 BOX_MARGIN = 0.01  # m, the camera keeps this far inside the box's walls, board and top
 BOX_STEP = 0.95  # unitless, distance factor per step when a view would leave the box
-GAP_SEEN = 0.5e-3  # m, clearance at which the closing gap must be in sight (still open)
-GAP_SEEN_DT = 5e-3  # s, time step searching for that instant
+GAP_SEEN_DT = 5e-3  # s, time step searching for the GAP_SEEN instant (observability's is 1 ms)
 RAY_CAMERA_PX = (64, 48)  # px, the (unused) image of the scene that only casts rays
 MAX_DRAWS = 50  # draws per clip before giving up
 TRUTH_DT = 1e-3  # s, sampling of the true clearance
