@@ -30,8 +30,8 @@ D_F_STEP = 1.0e-3  # m, working-distance change per control step (paper: ±1 mm)
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _first_outside_kernel(
     p: FloatArray,
-    apex: tuple[float, float, float],
-    axis: tuple[float, float, float],
+    apex: tuple[float, ...],
+    axis: tuple[float, ...],
     tan_half: float,
     cos_half: float,
     height: float,

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
+from numpy.typing import ArrayLike
 
 from endocam.geometry import FloatArray
 
@@ -287,7 +288,7 @@ def _compose_kernel(
 
 
 def chain_points(
-    chain: DHChain, q_rows: FloatArray, T0: Pose12, point: tuple[float, float, float]
+    chain: DHChain, q_rows: ArrayLike, T0: Pose12, point: tuple[float, float, float]
 ) -> FloatArray:
     """Where a point fixed to the last link goes, for many joint vectors at once.
 
