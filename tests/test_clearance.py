@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
-from endocam.control.clearance import WIRE_CLEARANCE, ClearanceGuard
+from endocam.control.clearance import WIRE_CLEARANCE, ClearanceGuard, _first_unbounded
 from endocam.control.goal import goal_pose
 from endocam.control.policies import WIRE_REASON, OrientationPolicy
 from endocam.control.types import Observation, PolicyContext, TrackingState
@@ -141,3 +141,47 @@ def test_a_60_s_episode_keeps_the_clearance(policy: str, arm: str) -> None:
     nearest = np.argsort(wire.surface_distance(p))[:20]  # exact distance at the closest steps
     exact = min(_exact_surface_distance(wire, p[k]) for k in nearest)
     assert exact >= config.controller.wire_clearance - 0.5 * wire.search_spacing - ROUND_M
+
+
+N_PATH_CHECKS = 400  # count: random braking paths checked at once and point by point
+
+
+def test_path_check_is_the_point_by_point_check() -> None:
+    """``Workspace.all_inside`` answers as ``margin`` on each point in turn, and leaves the
+    keep-out cache as those calls do (the cache steers later bounds)."""
+    cfg = ExperimentConfig()
+    wire = Wire(cfg.task.wire)
+    rcm = np.array(cfg.task.scene.rcm_position)
+    feature = wire.point(0.5 * wire.length)
+    at_once = cfg.controller.workspace(rcm, feature, wire)
+    in_turn = cfg.controller.workspace(rcm, feature, wire)
+    rng = np.random.default_rng(12)
+    p = feature + np.array([0.0, 0.0, 0.02])
+    outcomes = set()
+    for _ in range(N_PATH_CHECKS):
+        s_wire = rng.uniform(0.1, 0.9) * wire.length
+        if rng.random() < 0.3:  # jump next to the wire: the cache has to query again
+            p = wire.point(s_wire) + rng.normal(0.0, 0.012, 3)
+        n = int(rng.integers(1, 40))
+        path = p + np.cumsum(rng.normal(0.0, 0.002, (n, 3)), axis=0)
+        if rng.random() < 0.05:
+            path[int(rng.integers(0, n)), 0] = math.nan
+        expected = all(in_turn.margin(row) >= 0.0 for row in path.tolist())
+        assert at_once.all_inside(path) == expected
+        assert at_once.keep_out._refs == in_turn.keep_out._refs
+        outcomes.add(expected)
+        p = path[-1] if math.isfinite(path[-1].sum()) else p
+    assert outcomes == {True, False}  # both answers were exercised
+
+
+def test_first_unbounded_kernel_is_its_interpreted_form() -> None:
+    """The compiled cache check gives its interpreted form's index on random points."""
+    rng = np.random.default_rng(13)
+    for _ in range(N_PATH_CHECKS):
+        n = int(rng.integers(0, 30))
+        p = rng.normal(0.0, 0.02, (n, 3))
+        ref_p = rng.normal(0.0, 0.02, (int(rng.integers(0, 3)), 3))
+        ref_d = rng.uniform(0.0, 0.05, len(ref_p))
+        start = int(rng.integers(0, n + 1))
+        args = (p, start, n, ref_p, ref_d, WIRE_CLEARANCE)
+        assert _first_unbounded(*args) == _first_unbounded.py_func(*args)

@@ -15,10 +15,13 @@ from endocam.robot.dh import (
     DHLink,
     JointType,
     _compose_kernel,
+    _points_kernel,
     chain_forward,
+    chain_points,
     compose_links,
     link_transform,
     pose12_from_matrix,
+    pose12_point,
 )
 from endocam.robot.kinematics import ORIENTATION_WEIGHT_M_PER_RAD
 
@@ -109,6 +112,24 @@ def test_compiled_compose_gives_the_interpreters_floats(arm: PSM | ECM) -> None:
         expected = _compose_kernel.py_func(chain._param_array, tuple(q), start, stop, T0)
         assert compose_links(chain, q, start, stop, T0) == expected
     assert compose_links(chain, [0] * n) == compose_links(chain, [0.0] * n)  # ints: floats
+
+
+@pytest.mark.parametrize("arm", [PSM_ARM, ECM_ARM], ids=["psm", "ecm"])
+def test_chain_points_are_the_per_point_floats(arm: PSM | ECM) -> None:
+    """A whole path's points (one compiled call) are the per-point FK's floats, bit for bit."""
+    rng = np.random.default_rng(8)
+    chain, n = arm.chain, arm.n_joints
+    q_rows = rng.uniform(-4.0, 4.0, (N_COMPILED, n))
+    T0 = tuple(rng.normal(size=12).tolist())
+    rows = tuple(tuple(r) for r in rng.normal(size=(3, 4)).tolist())
+    point = (rows[0][3], rows[1][3], rows[2][3])
+    got = chain_points(chain, q_rows.tolist(), T0, point)
+    assert got.shape == (N_COMPILED, 3)
+    for k, q in enumerate(q_rows.tolist()):
+        assert got[k].tolist() == pose12_point(compose_links(chain, q, T0=T0), rows)
+    interpreted = _points_kernel.py_func(chain._param_array, q_rows, T0, *point)
+    assert np.array_equal(got, interpreted)
+    assert chain_points(chain, np.zeros((0, n)), T0, point).shape == (0, 3)
 
 
 def test_psm_zero_pose() -> None:

@@ -13,12 +13,14 @@ from endocam.control.safety import (
     ConeWorkspace,
     ImageWindows,
     WindowStatus,
+    _first_outside_kernel,
     adjust_working_distance,
     window_status,
 )
 from endocam.geometry import transform_points
 
 ATOL_M = 1e-12  # m, round-off at 0.1 m scale
+N_PATHS = 2000  # count: random point sequences checked, compiled vs scalar
 PX_EPS = 1e-3  # px, how far past a window edge a test tip is placed
 
 CAM = StereoCamera()
@@ -139,3 +141,39 @@ def test_no_usable_tip_holds() -> None:
     T = look_at_pose([0.0, -0.1, 0.1], [0.0, 0.0, 0.0])
     assert window_status(CAM, T, np.zeros((0, 3)), WINDOWS) is WindowStatus.BETWEEN
     assert window_status(CAM, T, np.full((2, 3), np.nan), WINDOWS) is WindowStatus.BETWEEN
+
+
+def _first_outside_scalar(cone: ConeWorkspace, path: np.ndarray, floor: float) -> int:
+    """The interpreted reference: the scalar margins in turn, as ``Workspace.margin`` does."""
+    for i, p in enumerate(path.tolist()):
+        if not min(cone.margin(p), p[2] - floor) >= 0.0:
+            return i
+    return len(path)
+
+
+def test_cone_first_outside_is_the_scalar_decision() -> None:
+    """The compiled path check finds the scalar margins' first point outside, every time.
+
+    Points near the cone's lateral surface, its base, its tip and the floor (some exactly on
+    the floor), and non-finite ones.
+    """
+    cone = _cone()
+    floor = 0.08  # m
+    rng = np.random.default_rng(11)
+    apex, axis = np.asarray(cone.apex), np.asarray(cone.axis)
+    for _ in range(N_PATHS):
+        n = int(rng.integers(1, 30))
+        h = rng.uniform(-0.01, 0.26, n)
+        r = h * cone.base_radius / cone.height * rng.uniform(0.9, 1.02, n)
+        phi = rng.uniform(0.0, 2.0 * math.pi, n)
+        path = apex + h[:, None] * axis
+        path[:, 0] += r * np.cos(phi)
+        path[:, 1] += r * np.sin(phi)
+        path[rng.random(n) < 0.1, 2] = floor
+        path[rng.random(n) < 0.02, int(rng.integers(0, 3))] = rng.choice([math.nan, math.inf])
+        expected = _first_outside_scalar(cone, path, floor)
+        assert cone.first_outside(path, floor) == expected
+        args = (cone._apex, cone._axis, cone._tan_half, cone._cos_half, cone.height, floor)
+        with np.errstate(invalid="ignore"):  # the interpreter on numpy floats: inf · 0 warns
+            assert _first_outside_kernel.py_func(path, *args) == expected
+    assert cone.first_outside(np.zeros((0, 3))) == 0

@@ -58,7 +58,7 @@ def test_camera_pose_fast_path_is_fk(kind: ArmKind):
         expected = arm.T_world_rcm @ arm.model.forward(q) @ arm.T_tip_cam
         np.testing.assert_allclose(arm.camera_pose(q), expected, atol=ATOL_M)
         # the workspace guard's braking check sees exactly the logged camera position
-        assert arm._camera_position(q.tolist()) == arm.camera_pose(q)[:3, 3].tolist()
+        assert arm._camera_positions([q.tolist()])[0].tolist() == arm.camera_pose(q)[:3, 3].tolist()
 
 
 @pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])

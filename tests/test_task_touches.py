@@ -6,7 +6,14 @@ from scipy.spatial import cKDTree
 
 from endocam.geometry import make_pose, transform_points
 from endocam.task.config import RingConfig, TaskConfig, WireConfig
-from endocam.task.touches import clearance, clearances, touch_events
+from endocam.task.touches import (
+    _coarse_kernel,
+    _coarse_minimiser,
+    _core_distance,
+    clearance,
+    clearances,
+    touch_events,
+)
 from endocam.task.trajectory import TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
 
@@ -198,3 +205,27 @@ def test_ideal_handle_never_meets_the_wire(wire: Wire) -> None:
         for T in traj.poses(np.linspace(0.0, traj.duration, 1201)):
             d, _ = tree.query(transform_points(T, handle))
             assert d.min() > ring.handle_radius + wire.radius + 1e-3
+
+
+N_COARSE = 300  # count: random coarse searches compared with the numpy arithmetic
+
+
+def test_coarse_search_is_the_numpy_argmin() -> None:
+    """The compiled coarse search picks numpy's argmin of ``_core_distance``, tie rule included."""
+    wire = Wire(WireConfig())
+    pts = wire.search_points
+    xyz = (pts[:, 0].copy(), pts[:, 1].copy(), pts[:, 2].copy())
+    rng = np.random.default_rng(21)
+    m = len(pts)
+    for _ in range(N_COARSE):
+        n_poses, k = int(rng.integers(1, 20)), int(rng.integers(1, 60))
+        idx = np.clip(rng.integers(-5, m + 5, n_poses)[:, None] + np.arange(k), 0, m - 1)
+        c = pts[idx[:, k // 2]] + rng.normal(0.0, 0.01, (n_poses, 3))
+        n = rng.normal(size=(n_poses, 3))
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        major = float(rng.uniform(0.002, 0.02))
+        d = _core_distance(pts[idx], c[:, None, :], n[:, None, :], major)
+        expected = idx[np.arange(n_poses), np.argmin(d, axis=1)]
+        got = _coarse_minimiser(xyz, idx, c, n, major)
+        np.testing.assert_array_equal(got, expected)  # clipped idx repeats points: ties
+        np.testing.assert_array_equal(_coarse_kernel.py_func(*xyz, idx, c, n, major), expected)

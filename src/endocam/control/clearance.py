@@ -47,6 +47,7 @@ import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
+from numba import njit
 
 from endocam.camera import SCOPE_RADIUS
 from endocam.geometry import FloatArray
@@ -73,6 +74,34 @@ DETOUR_CREEP = 2.0e-4  # m, trace step from the zone's edge when the segment lea
 _EPS = 1e-9  # unitless, shorter directions are degenerate
 
 Feasible = Callable[[list[float]], bool]
+
+
+# m: a cached query's bound that clears by more than this in the compiled check clears in the
+# interpreter too (their square roots of sums differ by a few ulp, ~1e-17 m here)
+SURE_BOUND_M = 1e-12
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _first_unbounded(
+    p: FloatArray, start: int, count: int, ref_p: FloatArray, ref_d: FloatArray, need: float
+) -> int:
+    """The first row ``i`` in ``start..count-1`` of ``p`` (N, 3), m, no cached bound clears.
+
+    A cached query at ``ref_p[r]`` (m) with surface distance ``ref_d[r]`` (m) clears a point
+    when ``ref_d[r] − |p_i − ref_p[r]| > need`` (m); a non-finite point is never cleared.
+    Returns ``count`` when every point is cleared.
+    """
+    for i in range(start, count):
+        x, y, z = p[i, 0], p[i, 1], p[i, 2]
+        cleared = False
+        for r in range(ref_p.shape[0]):
+            a, b, c = x - ref_p[r, 0], y - ref_p[r, 1], z - ref_p[r, 2]
+            if ref_d[r] - math.sqrt(a * a + b * b + c * c) > need:
+                cleared = True
+                break
+        if not cleared:
+            return i
+    return count
 
 
 class ClearanceGuard:
@@ -134,6 +163,34 @@ class ClearanceGuard:
         compares it with a braking distance then checks its braking path point by point.
         """
         return self.distance(p_world) - self.clearance
+
+    def first_outside(self, p_world: FloatArray, count: int) -> int:
+        """The first of ``p_world[:count]`` whose :meth:`margin` is < 0 (or NaN), else ``count``.
+
+        ``p_world`` (N, 3): camera positions, world, m. The cache ends as :meth:`margin` called
+        on each in turn (up to that point) leaves it.
+
+        A point that a cached query's Lipschitz bound clears needs no query and changes no
+        cache: a compiled kernel (:func:`_first_unbounded`) skips the points the cached bounds
+        clear by more than ``SURE_BOUND_M`` (so the interpreter's ``math.dist`` clears them
+        too), and :meth:`margin` itself is called on the others, in turn.
+        """
+        p = np.ascontiguousarray(p_world, dtype=float).reshape(-1, 3)
+        need = self.clearance + SURE_BOUND_M
+        refs: list[tuple[list[float], float]] = []
+        ref_p, ref_d = np.empty((0, 3)), np.empty(0)
+        i = 0
+        while True:
+            if refs != self._refs:  # the first pass, or a query changed the cache
+                refs = list(self._refs)
+                ref_p = np.array([r for r, _ in refs], dtype=float).reshape(-1, 3)
+                ref_d = np.array([d for _, d in refs], dtype=float)
+            i = _first_unbounded(p, i, count, ref_p, ref_d, need)
+            if i >= count:
+                return count
+            if not self.margin(p[i].tolist()) >= 0.0:
+                return i
+            i += 1
 
     def is_clear(self, p_world: list[float]) -> bool:
         """Whether a camera position (3,), world, m, keeps the clearance (NaN: not clear)."""

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike
 
 from endocam.camera import MIN_DEPTH, StereoCamera
@@ -24,6 +25,35 @@ from endocam.geometry import FloatArray, as_vector3, unit_vector
 CONE_HEIGHT = 0.30  # m, the PSM-held camera's reach, slightly under the instrument (paper III-C)
 CONE_BASE_RADIUS = 0.25  # m; the paper chose 0.10 m for its farther port (docs/world.md)
 D_F_STEP = 1.0e-3  # m, working-distance change per control step (paper: ±1 mm)
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _first_outside_kernel(
+    p: FloatArray,
+    apex: tuple[float, ...],
+    axis: tuple[float, ...],
+    tan_half: float,
+    cos_half: float,
+    height: float,
+    floor: float,
+) -> int:
+    """The first row of ``p`` (N, 3), world, m, outside the cone or below ``floor`` (m); N if none.
+
+    A row is outside when ``min(ConeWorkspace.margin(row), row[2] − floor) >= 0`` fails (a
+    non-finite row: the cone's margin is NaN); the cone's margin is computed with the scalar
+    method's operations in its order (no fast-math: docs/conventions.md, "Compiled kernels").
+    """
+    for i in range(p.shape[0]):
+        d0, d1, d2 = p[i, 0] - apex[0], p[i, 1] - apex[1], p[i, 2] - apex[2]
+        h = d0 * axis[0] + d1 * axis[1] + d2 * axis[2]
+        r0, r1, r2 = d0 - h * axis[0], d1 - h * axis[1], d2 - h * axis[2]
+        radial = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        lateral = (h * tan_half - radial) * cos_half
+        if not math.isfinite(h + radial):
+            return i
+        if not min(min(lateral, height - h, h), p[i, 2] - floor) >= 0.0:
+            return i
+    return p.shape[0]
 
 
 @dataclass(frozen=True)
@@ -111,6 +141,19 @@ class ConeWorkspace:
             return math.nan
         return min(lateral, self.height - h, h)
 
+    def first_outside(self, p_world: FloatArray, floor: float = -math.inf) -> int:
+        """The first point of ``p_world`` (N, 3), world, m, outside the cone or below ``floor``.
+
+        As ``min(margin(p), p[2] − floor) >= 0`` decides it for each point in turn (compiled:
+        :func:`_first_outside_kernel`); N if none.
+        """
+        p = np.ascontiguousarray(p_world, dtype=float).reshape(-1, 3)
+        return int(
+            _first_outside_kernel(
+                p, self._apex, self._axis, self._tan_half, self._cos_half, self.height, floor
+            )
+        )
+
     def contains(self, p_world: FloatArray | Sequence[float]) -> bool:
         """Whether a point (3,) in world, m, is inside the cone or on its surface."""
         margin = self.margin(p_world)
@@ -122,6 +165,14 @@ class KeepOut(Protocol):
 
     def margin(self, p_world: Sequence[float]) -> float:
         """Signed clearance of a camera position (3,), world, m: ≥ 0 outside the region."""
+        ...
+
+    def first_outside(self, p_world: FloatArray, count: int) -> int:
+        """The first of ``p_world[:count]`` whose :meth:`margin` is not ≥ 0, else ``count``.
+
+        ``p_world`` (N, 3): camera positions, world, m. As :meth:`margin` called on each in
+        turn would find it, any cache it keeps left as those calls leave it.
+        """
         ...
 
 
@@ -166,6 +217,22 @@ class Workspace:
         if self.keep_out is not None:
             return min(m, self.keep_out.margin(p))
         return m
+
+    def all_inside(self, p_world: FloatArray) -> bool:
+        """Whether every point (N, 3), world, m, is inside: ``all(margin(p) >= 0 for p in …)``.
+
+        The same answer, and the keep-out zone's cache left as those calls in turn (stopping
+        at the first point outside) would leave it, for a whole path at once: the cone and the
+        floor are checked for every point (:meth:`ConeWorkspace.first_outside`, compiled), the
+        keep-out zone up to the first point they reject (:meth:`KeepOut.first_outside`).
+        """
+        p = np.ascontiguousarray(p_world, dtype=float).reshape(-1, 3)
+        n = len(p)
+        first = self.cone.first_outside(p, self.floor)  # the first outside the cone or floor
+        if self.keep_out is None:
+            return first == n
+        count = min(first + 1, n)  # margin() asks the keep-out zone about the failing point too
+        return self.keep_out.first_outside(p, count) == count and first == n
 
 
 STALE_REASON = "ring pose stale (older than ring_max_age, or stamped in the future); holding"

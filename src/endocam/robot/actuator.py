@@ -94,6 +94,13 @@ class WorkspaceBound(Protocol):
         """Signed clearance of a camera position (3,), world, m: ≥ 0 inside."""
         ...
 
+    def all_inside(self, p_world: FloatArray) -> bool:
+        """Whether every camera position (N, 3), world, m, is inside (a path, at once).
+
+        The answer of ``all(margin(p) >= 0.0 for p in p_world)``.
+        """
+        ...
+
 
 class Actuator(Protocol):
     """The interface of every camera carrier (free camera, PSM, ECM)."""

@@ -138,7 +138,7 @@ def _finite_floats(x: object, n: int) -> list[float] | None:
         out = [float(v) for v in values]
     except (TypeError, ValueError):
         return None
-    return out if all(math.isfinite(v) for v in out) else None
+    return out if all(map(math.isfinite, out)) else None
 
 
 class SimulatedArm:

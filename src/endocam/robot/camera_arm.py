@@ -47,9 +47,9 @@ from endocam.robot.arm import (
     SimulatedArm,
 )
 from endocam.robot.dh import (
+    chain_points,
     compose_links,
     pose12_from_matrix,
-    pose12_point,
     pose12_times,
     pose12_to_matrix,
 )
@@ -244,6 +244,11 @@ class CameraArm:
         self._cam_tip_rows = tuple(tuple(row) for row in self._T_cam_tip[:3].tolist())
         T_last_cam = self.model.chain.T_last_tip @ self._T_tip_cam
         self._last_cam_rows = tuple(tuple(row) for row in T_last_cam[:3].tolist())
+        self._last_cam_point = (
+            self._last_cam_rows[0][3],
+            self._last_cam_rows[1][3],
+            self._last_cam_rows[2][3],
+        )  # the camera's origin in the last link's frame, m
         self._arm = SimulatedArm(self.model, dt=dt, q0=natural_pose(self.model))
         self._q = self._arm.measured_js()[0]
         self._T_cam = self.camera_pose(self._q)
@@ -325,11 +330,12 @@ class CameraArm:
         T = compose_links(self.model.chain, q, T0=self._world_rcm12)
         return pose12_to_matrix(T, self._last_cam_rows)
 
-    def _camera_position(self, q: list[float]) -> list[float]:
-        """The translation of :meth:`_camera_pose` alone (world, m): the same floats."""
-        return pose12_point(
-            compose_links(self.model.chain, q, T0=self._world_rcm12), self._last_cam_rows
-        )
+    def _camera_positions(self, q_rows: list[list[float]]) -> FloatArray:
+        """The translations of :meth:`_camera_pose` for joint rows (m, n): (m, 3), world, m.
+
+        The same floats (:func:`~endocam.robot.dh.chain_points`).
+        """
+        return chain_points(self.model.chain, q_rows, self._world_rcm12, self._last_cam_point)
 
     def camera_poses(self, q: FloatArray) -> FloatArray:
         """:meth:`camera_pose` for joint rows ``q`` (N, n): ``T_world_cam`` (N, 4, 4), m."""
@@ -709,12 +715,12 @@ class CameraArm:
             ruckig.Result.Finished,
         ):
             return False
-        steps = math.ceil(self._brake_traj.duration / self._dt - 1e-9)
-        for i in range(1, steps + 1):
-            q_i = self._brake_traj.at_time(min(i * self._dt, self._brake_traj.duration))[0]
-            if not ws.margin(self._camera_position(q_i)) >= 0.0:
-                return False
-        return ws.margin(self._camera_position(stop)) >= 0.0
+        traj, dt = self._brake_traj, self._dt
+        duration = traj.duration
+        steps = math.ceil(duration / dt - 1e-9)
+        path = [traj.at_time(min(i * dt, duration))[0] for i in range(1, steps + 1)]
+        path.append(stop)  # every control step of the path, then where it stops
+        return ws.all_inside(self._camera_positions(path))
 
     def _keep_inside(self, q_before: FloatArray, qd_before: FloatArray) -> FloatArray | None:
         """Undo a joint step that could take the camera out; brake along a checked one.

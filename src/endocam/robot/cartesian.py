@@ -207,7 +207,7 @@ class CartesianLimiter:
             return False
         # (ruckig's position_extrema counts the target position 0 under velocity control)
         xs, ys, zs = (_extrema(pr) for pr in self._stop_traj.profiles[0])
-        if not all(ws.margin([x, y, z]) >= 0.0 for x in xs for y in ys for z in zs):
+        if not ws.all_inside(np.array([[x, y, z] for x in xs for y in ys for z in zs])):
             return False
         if ws.convex:
             return True  # a convex region holding the path's box's corners holds the path
@@ -215,11 +215,11 @@ class CartesianLimiter:
             return True  # farther from the keep-out zone than the braking can carry it
         # a keep-out zone (the wire's): the braking path itself, at every control step
         traj, dt = self._stop_traj, self.dt
-        steps = math.ceil(traj.duration / dt - 1e-9)
-        for i in range(1, steps + 1):
-            if not ws.margin(traj.at_time(min(i * dt, traj.duration))[0]) >= 0.0:
-                return False
-        return True
+        duration = traj.duration
+        steps = math.ceil(duration / dt - 1e-9)
+        return ws.all_inside(
+            np.array([traj.at_time(min(i * dt, duration))[0] for i in range(1, steps + 1)])
+        )
 
     def _stop_bound(self, v: list[float], a: list[float]) -> float:
         """An upper bound of the braking distance from velocity ``v`` and acceleration ``a``, m.

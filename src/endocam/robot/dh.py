@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
+from numpy.typing import ArrayLike
 
 from endocam.geometry import FloatArray
 
@@ -34,6 +35,7 @@ __all__ = [
     "Pose12",
     "chain_forward",
     "chain_frames",
+    "chain_points",
     "compose_links",
     "geometric_jacobian",
     "link_transform",
@@ -283,6 +285,52 @@ def _compose_kernel(
         r10, r11 = c * r10 + s * u1, -s * r10 + c * u1
         r20, r21 = c * r20 + s * u2, -s * r20 + c * u2
     return (r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz)
+
+
+def chain_points(
+    chain: DHChain, q_rows: ArrayLike, T0: Pose12, point: tuple[float, float, float]
+) -> FloatArray:
+    """Where a point fixed to the last link goes, for many joint vectors at once.
+
+    Row ``k`` is ``pose12_point(compose_links(chain, q_rows[k], T0=T0), rows)`` for ``rows``
+    whose last column is ``point``: the same floats (the same compiled product, then the same
+    products and sums in the same order), one call for a whole path (e.g. a braking path's
+    camera positions).
+
+    Parameters
+    ----------
+    chain : DHChain
+        The chain with ``n`` links.
+    q_rows : (m, n) array_like
+        Joint vectors, rad / m.
+    T0 : Pose12
+        Pose the chain starts from (rotation row-major, then translation), m.
+    point : 3-tuple of float
+        The point in the last link's frame, m.
+
+    Returns
+    -------
+    (m, 3) ndarray
+        The point in ``T0``'s frame for each row, m.
+    """
+    q = np.ascontiguousarray(q_rows, dtype=float).reshape(-1, len(chain._params))
+    return _points_kernel(chain._param_array, q, T0, point[0], point[1], point[2])
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _points_kernel(
+    params: FloatArray, q_rows: FloatArray, T0: Pose12, a3: float, b3: float, c3: float
+) -> FloatArray:
+    """:func:`chain_points` on the chain's (n, 7) parameter array and joint rows (m, n)."""
+    out = np.empty((q_rows.shape[0], 3))
+    for k in range(q_rows.shape[0]):
+        r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = _compose_kernel(
+            params, q_rows[k], 0, params.shape[0], T0
+        )
+        out[k, 0] = r00 * a3 + r01 * b3 + r02 * c3 + px
+        out[k, 1] = r10 * a3 + r11 * b3 + r12 * c3 + py
+        out[k, 2] = r20 * a3 + r21 * b3 + r22 * c3 + pz
+    return out
 
 
 def pose12_from_matrix(T: FloatArray) -> Pose12:

@@ -33,6 +33,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import elementwise, minimize_scalar
 
@@ -146,33 +147,48 @@ def _coarse_minimiser(
     """The index in ``idx`` (N, k) of each pose's search point nearest to its core circle.
 
     The same arithmetic as :func:`_core_distance`, operation for operation (so the same
-    values and the same argmin), on the contiguous coordinate columns ``xyz`` ((M,) each, m)
-    of the search polyline, in place: the coarse search is the bulk of the touch detection.
-    Centres and normals ``c``, ``n`` are (N, 3), m.
+    values and the same argmin, the first of equal ones), compiled (:func:`_coarse_kernel`)
+    on the contiguous coordinate columns ``xyz`` ((M,) each, m) of the search polyline: the
+    coarse search is the bulk of the touch detection. Centres and normals ``c``, ``n`` are
+    (N, 3), m.
     """
-    dx = np.take(xyz[0], idx)
-    dx -= c[:, 0, None]
-    dy = np.take(xyz[1], idx)
-    dy -= c[:, 1, None]
-    dz = np.take(xyz[2], idx)
-    dz -= c[:, 2, None]
-    h = dx * n[:, 0, None]
-    h += dy * n[:, 1, None]
-    h += dz * n[:, 2, None]
-    np.multiply(dx, dx, out=dx)  # dx² + dy² + dz² − h², then ρ, then (ρ − R)²
-    np.multiply(dy, dy, out=dy)
-    dx += dy
-    np.multiply(dz, dz, out=dz)
-    dx += dz
-    np.multiply(h, h, out=h)
-    dx -= h
-    np.maximum(dx, 0.0, out=dx)
-    np.sqrt(dx, out=dx)
-    dx -= major
-    np.multiply(dx, dx, out=dx)
-    h += dx  # h² + (ρ − R)²
-    np.sqrt(h, out=h)
-    return idx[np.arange(idx.shape[0]), np.argmin(h, axis=1)]
+    return _coarse_kernel(
+        xyz[0], xyz[1], xyz[2], np.ascontiguousarray(idx, dtype=np.intp), c, n, major
+    )
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _coarse_kernel(
+    x: FloatArray,
+    y: FloatArray,
+    z: FloatArray,
+    idx: NDArray[np.intp],
+    c: FloatArray,
+    n: FloatArray,
+    major: float,
+) -> NDArray[np.intp]:
+    """:func:`_coarse_minimiser`'s loop: per pose, the first least core distance's index.
+
+    No fast-math (docs/conventions.md, "Compiled kernels"): each distance is
+    :func:`_core_distance`'s float, summed in its order.
+    """
+    out = np.empty(idx.shape[0], dtype=np.intp)
+    for i in range(idx.shape[0]):
+        c0, c1, c2 = c[i, 0], c[i, 1], c[i, 2]
+        n0, n1, n2 = n[i, 0], n[i, 1], n[i, 2]
+        best = idx[i, 0]
+        best_d = math.inf
+        for j in range(idx.shape[1]):
+            k = idx[i, j]
+            dx, dy, dz = x[k] - c0, y[k] - c1, z[k] - c2
+            h = dx * n0 + dy * n1 + dz * n2
+            rho = math.sqrt(max(dx * dx + dy * dy + dz * dz - h * h, 0.0))
+            e = rho - major
+            d = math.sqrt(h * h + e * e)
+            if d < best_d:
+                best, best_d = k, d
+        out[i] = best
+    return out
 
 
 def _contact_point(
