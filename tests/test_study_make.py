@@ -312,6 +312,13 @@ def test_extra_seeds_in_the_process_pool_equal_a_serial_run(
     assert not list(tmp_path.iterdir())  # the seeds' videos are deleted
 
 
+def _copy(study: Path, tmp_path: Path) -> Path:
+    """A copy of the module's study folder that a test may change."""
+    copy = tmp_path / "study"
+    shutil.copytree(study, copy)
+    return copy
+
+
 def _frames(path: Path) -> int:
     reader = imageio_ffmpeg.read_frames(str(path))
     next(reader)
@@ -337,8 +344,7 @@ def test_kept_seed_videos_hold_the_three_conditions_and_the_true_touches(
 def test_study_observe_recounts_the_kept_seeds_and_the_gap_columns(
     study: Path, tmp_path: Path
 ) -> None:
-    copy = tmp_path / "study"
-    shutil.copytree(study, copy)
+    copy = _copy(study, tmp_path)
     hypothesis = json.loads((copy / HYPOTHESIS_JSON).read_text())
     observability = json.loads((copy / OBSERVABILITY_JSON).read_text())
     spoiled = json.loads(json.dumps(hypothesis))
@@ -360,8 +366,7 @@ def test_study_observe_recounts_the_kept_seeds_and_the_gap_columns(
 def test_study_observe_without_kept_videos_keeps_and_marks_the_earlier_seed_rows(
     study: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    copy = tmp_path / "study"
-    shutil.copytree(study, copy)
+    copy = _copy(study, tmp_path)
     shutil.rmtree(copy / SEEDS_DIR)
     before = json.loads((copy / HYPOTHESIS_JSON).read_text())
     assert main(["study", "observe", "--study", str(copy), "--workers", "1"]) == 0
@@ -374,8 +379,7 @@ def test_study_observe_without_kept_videos_keeps_and_marks_the_earlier_seed_rows
 def test_study_observe_names_a_kept_seed_without_its_video(
     study: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    copy = tmp_path / "study"
-    shutil.copytree(study, copy)
+    copy = _copy(study, tmp_path)
     (s,) = extra_seed_values(SEED, 1)
     (copy / SEEDS_DIR / str(s) / "orientation.mp4").unlink()
     before = (copy / OBSERVER_JSON).read_text()
@@ -452,8 +456,7 @@ def test_study_observe_replays_the_episodes_for_a_missing_gap_in_sight(
     study: Path, tmp_path: Path
 ) -> None:
     """A folder made before the column existed gets it from replayed episodes, the same values."""
-    copy = tmp_path / "study"
-    shutil.copytree(study, copy)
+    copy = _copy(study, tmp_path)
     observability = json.loads((copy / OBSERVABILITY_JSON).read_text())
     (s,) = extra_seed_values(SEED, 1)
     truth_path = copy / SEEDS_DIR / str(s) / TRUTH_JSON
