@@ -472,3 +472,13 @@ def test_study_observe_replays_the_episodes_for_a_missing_gap_in_sight(
     assert json.loads((copy / HYPOTHESIS_JSON).read_text()) == json.loads(
         (study / HYPOTHESIS_JSON).read_text()
     )
+
+
+def test_study_observe_names_a_malformed_observability_file(
+    study: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    copy = _copy(study, tmp_path)
+    (copy / OBSERVABILITY_JSON).write_text('{"touches": [{"video_id": 1}]}')
+    assert main(["study", "observe", "--study", str(copy), "--workers", "1"]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if "endocam:" in line]
+    assert len(errors) == 1 and OBSERVABILITY_JSON in errors[0]  # (the progress bar aside)

@@ -101,7 +101,10 @@ def _observe(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     total = len(manifest.videos) + 3 * n_seeds
     with tqdm(total=total, desc="observer", unit="video", leave=False) as bar:
-        hypothesis = recount_study(folder, args.workers, progress=bar.update)
+        try:
+            hypothesis = recount_study(folder, args.workers, progress=bar.update)
+        except ValueError as exc:  # a malformed or foreign file in the folder: one line
+            raise UsageError(str(exc)) from None
     document = json.loads((folder / OBSERVER_JSON).read_text("utf-8"))
     for v in document["videos"]:
         print(
