@@ -27,6 +27,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from endocam.geometry import FloatArray
+from endocam.task.trajectory import capture_times
 
 _FROZEN = ConfigDict(frozen=True, extra="forbid")
 MAX_RATE_HZ = 10.0  # bursts/s: more would be a permanent fault, not a burst
@@ -302,12 +303,12 @@ def apply_observation_faults(
         pose it repeats, a latency spike's poses are older.
     """
     T = np.array(T_world_ring_sensed, dtype=float)
-    t_ring = np.clip(np.asarray(t, dtype=float) - sensing_latency, 0.0, None)
+    t_ring = capture_times(t, sensing_latency)
     tips = np.array(p_world_tips, dtype=float)
     cfg = schedule.config
     for b in schedule.bursts.get("latency_spike", ()):
         delay = sensing_latency + cfg.latency_spike.extra_delay
-        t_ring[b.start : b.stop] = np.clip(t[b.start : b.stop] - delay, 0.0, None)
+        t_ring[b.start : b.stop] = capture_times(t[b.start : b.stop], delay)
         T[b.start : b.stop] = poses(t_ring[b.start : b.stop])  # type: ignore[operator]
     for b in schedule.bursts.get("tracker_frozen", ()):
         T[b.start : b.stop] = T[b.start]

@@ -67,7 +67,12 @@ from endocam.robot.camera_arm import CameraArm
 from endocam.robot.carriers import make_actuator
 from endocam.task.instruments import instrument_tips
 from endocam.task.layout import overview_camera_pose
-from endocam.task.trajectory import RingTrajectory, TrajectoryKind, make_trajectory
+from endocam.task.trajectory import (
+    RingTrajectory,
+    TrajectoryKind,
+    capture_times,
+    make_trajectory,
+)
 from endocam.task.wire import Wire
 
 ENV_ID = "endocam/WireChaser-v0"
@@ -196,7 +201,7 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         t = np.arange(self.n_steps, dtype=float) * self.dt
         self._t = t
         self._T_ring = self.trajectory.poses(t)
-        self._t_ring = np.clip(t - exp.episode.sensing_latency, 0.0, None)  # capture times, s
+        self._t_ring = capture_times(t, exp.episode.sensing_latency)
         self._T_sensed = self.trajectory.poses(self._t_ring)
         self._tips = instrument_tips(exp.task, t, self._T_ring)
         self._T_overview = overview_camera_pose(exp.task, self.camera)

@@ -36,7 +36,7 @@ from endocam.task.config import MAX_CONTROL_POINTS
 from endocam.task.instruments import instrument_tips
 from endocam.task.layout import overview_camera_pose
 from endocam.task.touches import TouchReport, touch_events
-from endocam.task.trajectory import RingTrajectory, TrajectoryKind, make_trajectory
+from endocam.task.trajectory import RingTrajectory, TrajectoryKind, capture_times, make_trajectory
 from endocam.task.wire import Wire
 
 UNREACHABLE = "unreachable"
@@ -244,7 +244,7 @@ def run_episode(
     n = math.floor(trajectory.duration / dt + 1e-9) + 1
     t = np.arange(n, dtype=float) * dt
     T_ring = trajectory.poses(t)
-    t_ring = np.clip(t - ep.sensing_latency, 0.0, None)  # when each sensed pose was captured, s
+    t_ring = capture_times(t, ep.sensing_latency)  # when each sensed pose was captured, s
     T_sensed = trajectory.poses(t_ring)
     tips = instrument_tips(config.task, t, T_ring)
 

@@ -37,6 +37,8 @@ from endocam.study.observability import (
     OBSERVABILITY_CSV,
     OBSERVABILITY_JSON,
     TouchObservation,
+    finite_median,
+    known_share,
     observability_csv,
     observability_json,
     summarize,
@@ -182,11 +184,6 @@ def kept_seeds(study: Path) -> list[KeptSeed]:
 
 
 # ------------------------------------------------------------------------------ the document
-def _nan_median(values: Sequence[float]) -> float | None:
-    finite = [v for v in values if math.isfinite(v)]
-    return float(np.median(finite)) if finite else None
-
-
 def hypothesis_dict(
     manifest: Manifest,
     observer: dict[str, Any],
@@ -218,9 +215,9 @@ def hypothesis_dict(
             "abs_error": abs(counted[video.id] - video.true_touches),
             "precision": match.precision,
             "recall": match.recall,
-            "median_gap_before_px": _nan_median([r.gap_before_px for r in rs]),
-            "closes_visibly_share": float(np.mean([r.closes_visibly for r in rs])) if rs else None,
-            "gap_in_sight_share": _share([r.gap_in_sight for r in rs]),
+            "median_gap_before_px": finite_median([r.gap_before_px for r in rs]),
+            "closes_visibly_share": known_share([r.closes_visibly for r in rs]),
+            "gap_in_sight_share": known_share([r.gap_in_sight for r in rs]),
         }
     seeds: dict[str, Any] = {}
     for c in manifest.conditions:
@@ -239,9 +236,9 @@ def hypothesis_dict(
             "sd_abs_error": float(np.std(errors, ddof=1)) if len(errors) > 1 else None,
             "precision": tp / n_seen if n_seen else 1.0,
             "recall": tp / n_true if n_true else 1.0,
-            "median_gap_before_px": _nan_median(gaps),
-            "closes_visibly_share": float(np.mean(closes)) if closes else None,
-            "gap_in_sight_share": _share(
+            "median_gap_before_px": finite_median(gaps),
+            "closes_visibly_share": known_share(closes),
+            "gap_in_sight_share": known_share(
                 [f for r in rows for f in (r.get("gap_in_sight") or [None] * r["true_touches"])]
             ),
         }
@@ -256,12 +253,6 @@ def hypothesis_dict(
             "videos": list(extra),
         },
     }
-
-
-def _share(flags: Sequence[bool | None]) -> float | None:
-    """Share of True among the known flags (None: none known)."""
-    known = [f for f in flags if f is not None]
-    return float(np.mean(known)) if known else None
 
 
 def _fmt(value: float | None, spec: str) -> str:

@@ -403,13 +403,16 @@ class ObservabilitySummary(_Frozen):
     conditions: dict[Condition, ConditionObservability]
 
 
-def _median(values: Sequence[float]) -> float | None:
+def finite_median(values: Sequence[float]) -> float | None:
+    """Median of the finite values (None: there are none)."""
     finite = [v for v in values if math.isfinite(v)]
     return float(np.median(finite)) if finite else None
 
 
-def _share(flags: Sequence[bool]) -> float | None:
-    return float(np.mean(flags)) if flags else None
+def known_share(flags: Sequence[bool | None]) -> float | None:
+    """Share of True among the known (not None) flags (None: none is known)."""
+    known = [f for f in flags if f is not None]
+    return float(np.mean(known)) if known else None
 
 
 def summarize(records: Sequence[TouchObservation], eye: Eye = "left") -> ObservabilitySummary:
@@ -428,17 +431,17 @@ def summarize(records: Sequence[TouchObservation], eye: Eye = "left") -> Observa
         frames = sum(r.frames for r in rs)
         out[condition] = ConditionObservability(
             touches=len(rs),
-            visible_share=_share([r.visible for r in rs]),
-            in_image_share=_share([r.in_image for r in rs]),
-            unoccluded_share=_share([r.unoccluded for r in rs]),
-            median_view_angle_deg=_median([r.view_angle_deg for r in rs]),
-            median_px_per_mm=_median([r.px_per_mm for r in rs]),
-            median_gap_px_per_mm=_median([r.gap_px_per_mm for r in rs]),
+            visible_share=known_share([r.visible for r in rs]),
+            in_image_share=known_share([r.in_image for r in rs]),
+            unoccluded_share=known_share([r.unoccluded for r in rs]),
+            median_view_angle_deg=finite_median([r.view_angle_deg for r in rs]),
+            median_px_per_mm=finite_median([r.px_per_mm for r in rs]),
+            median_gap_px_per_mm=finite_median([r.gap_px_per_mm for r in rs]),
             visible_frame_share=sum(r.visible_frames for r in rs) / frames if frames else None,
             touches_without_frame=sum(1 for r in rs if r.frames == 0),
-            median_gap_before_px=_median([r.gap_before_px for r in rs]),
-            closes_visibly_share=_share([r.closes_visibly for r in rs]),
-            gap_in_sight_share=_share([r.gap_in_sight for r in rs if r.gap_in_sight is not None]),
+            median_gap_before_px=finite_median([r.gap_before_px for r in rs]),
+            closes_visibly_share=known_share([r.closes_visibly for r in rs]),
+            gap_in_sight_share=known_share([r.gap_in_sight for r in rs]),
         )
     return ObservabilitySummary(eye=eye, instant="touch onset (t_start)", conditions=out)
 

@@ -309,6 +309,16 @@ class RingTrajectory:
         return float(np.max(v + w * radius))
 
 
+def capture_times(t: ArrayLike, delay: float) -> FloatArray:
+    """When the ring poses sensed at times ``t`` (N,), s, were captured, ``delay`` (s) earlier.
+
+    Clipped at 0: before the trajectory starts the sensor sees its first pose. The sensed poses
+    are ``trajectory.poses(capture_times(t, delay))``; these are their stamps
+    (:attr:`endocam.control.types.Observation.t_ring`).
+    """
+    return np.clip(np.asarray(t, dtype=float) - delay, 0.0, None)
+
+
 def make_trajectory(
     task_cfg: TaskConfig,
     kind: TrajectoryKind,
