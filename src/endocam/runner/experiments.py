@@ -36,8 +36,8 @@ from endocam.task.study_paths import (
     DEFAULT_STUDY_SEED,
     STUDY_TRAJECTORIES,
     StudyTrajectory,
+    study_task_config,
     study_trajectory_seeds,
-    with_angle_noise,
 )
 from endocam.task.touches import TouchReport, touch_events
 from endocam.task.trajectory import TrajectoryKind, make_trajectory
@@ -269,10 +269,10 @@ class NamedEpisode:
 
 
 def study_path_config(config: ExperimentConfig, path: StudyTrajectory) -> ExperimentConfig:
-    """``config`` with a study path's noise override applied (validated again)."""
-    return PathSpec(
-        path.name, "noisy", TrajectoryKind.NOISY, path.control_points, 0, path.angle_noise
-    ).config(config)
+    """``config`` with a study path's noise (angular range, legibility) applied, validated."""
+    return PathSpec(path.name, "noisy", TrajectoryKind.NOISY, path.control_points, 0, path).config(
+        config
+    )
 
 
 EXTRA_NOISY_POINTS = 71  # count: control points of the extra noisy paths (--seeds)
@@ -292,8 +292,9 @@ class PathSpec:
     control_points : int
     seed : int
         Noise seed (0 for the ideal path).
-    angle_noise : (2,) or None
-        Angular noise range override, rad (``None``: the config's).
+    study : StudyTrajectory or None
+        The study path this is (its noise overrides apply, :func:`study_task_config`); None:
+        the config's noise.
     """
 
     name: str
@@ -301,12 +302,13 @@ class PathSpec:
     kind: TrajectoryKind
     control_points: int
     seed: int
-    angle_noise: tuple[float, float] | None = None
+    study: StudyTrajectory | None = None
 
     def config(self, config: ExperimentConfig) -> ExperimentConfig:
         """``config`` with this path's noise override applied (validated again)."""
-        task = with_angle_noise(config.task, self.angle_noise)
-        return config if task is config.task else config.model_copy(update={"task": task})
+        if self.study is None:
+            return config
+        return config.model_copy(update={"task": study_task_config(config.task, self.study)})
 
     def spec(self, policy: str) -> EpisodeSpec:
         """The episode of ``policy`` on this path."""
@@ -329,7 +331,7 @@ def paper_paths(extra_seeds: int = 0) -> list[PathSpec]:
                 TrajectoryKind.NOISY,
                 traj.control_points,
                 seed,
-                traj.angle_noise,
+                traj,
             )
         )
     for seed in range(1, extra_seeds + 1):

@@ -170,6 +170,14 @@ class TrajectoryConfig(BaseModel):
         description="Arc length kept free at each wire end (posts), m: control points span "
         "[end_margin, length − end_margin].",
     )
+    legible_band: Range | None = Field(
+        None,
+        description="(d, g), m: when set, every noisy trajectory is made legible: each local "
+        "extremum of the ring–wire clearance is a touch at least d deep (≤ −d) or a pass at "
+        "least g clear (≥ g), never in between, by the smallest move of the nearest control "
+        "point along the contact normal (offsets stay within t_p). None: the noise as drawn "
+        "(docs/world.md, 'Legible trajectories').",
+    )
     touch_sample_dt: float = Field(
         2.0e-3,
         gt=0.0,
@@ -188,6 +196,17 @@ class TrajectoryConfig(BaseModel):
     @classmethod
     def _ang_noise(cls, value: Range) -> Range:
         return _check_range(value, "angle_noise", upper=math.pi)
+
+    @field_validator("legible_band")
+    @classmethod
+    def _legible_band(cls, value: Range | None) -> Range | None:
+        if value is None:
+            return None
+        _check_finite(value, "legible_band")
+        depth, gap = value
+        if not (depth >= 0.0 and gap > 0.0):
+            raise ValueError(f"legible_band (d, g) needs d ≥ 0 and g > 0 m, got {value}")
+        return value
 
     @model_validator(mode="after")
     def _bounded(self) -> TrajectoryConfig:
@@ -407,6 +426,12 @@ class TaskConfig(BaseModel):
             raise ValueError(
                 "the ring's hole is too small for the wire: major_radius − minor_radius − "
                 f"wire.radius = {gap} m ≤ 0"
+            )
+        band = self.trajectory.legible_band
+        if band is not None and band[1] >= gap:
+            raise ValueError(
+                f"trajectory.legible_band's clear gap {band[1]} m must be below the centred "
+                f"ring's clearance major_radius − minor_radius − wire.radius = {gap} m"
             )
         if self.instruments.psm2_tip[2] <= 0.0:
             raise ValueError("instruments.psm2_tip must be above the board (z > 0)")

@@ -4,6 +4,12 @@ The paper's noisy tracking test "used the same trajectories as the user study" (
 1–3). They are defined here, in the task, so the study, ``experiment paper`` and
 ``experiment tracking`` share them. The noise seed of path ``k`` is the ``k``-th draw of
 ``numpy.random.default_rng(seed).integers(0, 2**31)``.
+
+The study's paths are **legible** (``STUDY_LEGIBLE_BAND``): every approach of the ring to the wire
+is a touch at least 0.25 mm deep or a pass at least 1 mm clear
+(:func:`endocam.task.trajectory.legible_control_points`). A participant counts touches; a
+0.05 mm graze or a 0.05 mm near miss is under a pixel in any of the study's views, so with the
+noise as drawn no video could say which it was (docs/world.md, "Legible trajectories").
 """
 
 from __future__ import annotations
@@ -17,14 +23,17 @@ from endocam.task.config import TaskConfig
 
 __all__ = [
     "DEFAULT_STUDY_SEED",
+    "STUDY_LEGIBLE_BAND",
     "STUDY_TRAJECTORIES",
     "StudyTrajectory",
     "study_task_config",
     "study_trajectory_seeds",
-    "with_angle_noise",
 ]
 
 DEFAULT_STUDY_SEED = 2024  # the study's default seed (``endocam study make --seed``)
+# (d, g), m: a touch at least d deep or a pass at least g clear. g = 1 mm is 3 px in the fixed
+# view (~3 px/mm), the observer's "clearly open" gap; d = 0.25 mm keeps a touch ≥ ~0.25 s long.
+STUDY_LEGIBLE_BAND = (0.25e-3, 1.0e-3)
 
 
 @dataclass(frozen=True)
@@ -56,18 +65,13 @@ STUDY_TRAJECTORIES = (
 )
 
 
-def with_angle_noise(task: TaskConfig, angle_noise: tuple[float, float] | None) -> TaskConfig:
-    """``task`` with the angular threshold range (rad) replaced and validated; ``None``: as is."""
-    if angle_noise is None:
-        return task
-    data = task.model_dump()
-    data["trajectory"]["angle_noise"] = angle_noise
-    return TaskConfig.model_validate(data)
-
-
 def study_task_config(task: TaskConfig, trajectory: StudyTrajectory) -> TaskConfig:
-    """``task`` with the trajectory's noise override applied (validated again)."""
-    return with_angle_noise(task, trajectory.angle_noise)
+    """``task`` with the study path's noise: its angular range (if any) and legibility."""
+    data = task.model_dump()
+    if trajectory.angle_noise is not None:
+        data["trajectory"]["angle_noise"] = trajectory.angle_noise
+    data["trajectory"]["legible_band"] = STUDY_LEGIBLE_BAND
+    return TaskConfig.model_validate(data)
 
 
 def study_trajectory_seeds(seed: int, n: int = len(STUDY_TRAJECTORIES)) -> tuple[int, ...]:

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
@@ -39,8 +40,10 @@ from scipy.optimize import elementwise, minimize_scalar
 
 from endocam.geometry import FloatArray, as_pose, as_vector3
 from endocam.task.config import RingConfig
-from endocam.task.trajectory import RingTrajectory
 from endocam.task.wire import Wire
+
+if TYPE_CHECKING:  # trajectory builds legible paths from the clearance: imports this module
+    from endocam.task.trajectory import RingTrajectory
 
 DEFAULT_TOUCH_DT = 2.0e-3  # s, base clearance sampling step (see TrajectoryConfig)
 DEPTH_TOL = 1.0e-6  # m, touches shallower than this may go unseen between samples

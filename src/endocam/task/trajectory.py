@@ -18,6 +18,12 @@ noise is drawn, so the interior points are those of the same seed, then set to z
 starts and ends centred on the wire, ``R − r − r_w`` (3 mm by default) clear of it, so every
 touch is an event with a start and an end inside the video, never one already under way when
 the video begins or still under way when it stops.
+
+Legible paths (``TrajectoryConfig.legible_band = (d, g)``, set for the study's paths): the drawn
+noise puts the ring within a fraction of a millimetre of the wire many times a minute, touching
+or not. :func:`legible_control_points` moves the control points nearest to each such ambiguous
+approach, by the least distance along the contact normal, until every local extremum of the
+clearance is a touch at least ``d`` deep or a pass at least ``g`` clear.
 """
 
 from __future__ import annotations
@@ -27,15 +33,19 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, RotationSpline
 
 from endocam.geometry import UP, FloatArray, R_from_euler_xyz, euler_xyz_from_R
-from endocam.task.config import TaskConfig, TrajectoryConfig
+from endocam.task.config import RingConfig, TaskConfig, TrajectoryConfig
+from endocam.task.touches import clearances, contact_normal
 from endocam.task.wire import Wire
 
 _EPS_DIR = 1e-9  # unitless, below this the tangent is taken as vertical
+LEGIBLE_DT = 4.0e-3  # s, clearance sampling step when looking for ambiguous extrema
+LEGIBLE_OVERSHOOT = 20.0e-6  # m, a moved extremum aims this far past the band's edge
+LEGIBLE_MAX_ROUNDS = 60  # count, rounds of moves before a path is declared illegible
 
 
 class TrajectoryKind(StrEnum):
@@ -243,6 +253,98 @@ def control_points(
     return ControlPoints(positions=positions, euler_xyz=euler, arc_length=s)
 
 
+def ambiguous_extrema(clearance: ArrayLike, band: tuple[float, float]) -> NDArray[np.intp]:
+    """Indices of the interior local extrema of ``clearance`` (N,), m, inside the band.
+
+    A minimum or maximum with ``−d < clearance < g`` (``band = (d, g)``, m) is ambiguous: a touch
+    shallower than ``d`` or a pass closer than ``g`` (or a touch that almost ends, two that
+    almost merge), which no video can tell from its opposite.
+    """
+    c = np.asarray(clearance, dtype=float)
+    i = np.arange(1, c.size - 1)
+    lower = (c[i] <= c[i - 1]) & (c[i] < c[i + 1])
+    upper = (c[i] >= c[i - 1]) & (c[i] > c[i + 1])
+    extrema = i[lower | upper]
+    depth, gap = band
+    return extrema[(c[extrema] > -depth) & (c[extrema] < gap)]
+
+
+def legible_control_points(
+    cps: ControlPoints,
+    wire: Wire,
+    ring_cfg: RingConfig,
+    duration: float,
+    band: tuple[float, float],
+) -> ControlPoints:
+    """Noisy control points moved so that every approach of the ring to the wire is legible.
+
+    Each round samples the clearance every ``LEGIBLE_DT`` and finds its ambiguous extrema
+    (:func:`ambiguous_extrema`). For each, the interior control point nearest in time moves
+    along the contact normal (:func:`endocam.task.touches.contact_normal`) by the clearance it
+    lacks: to ``−d`` (a touch ``d`` deep) if the extremum is below the band's middle, else to
+    ``g`` (a clear pass), ``LEGIBLE_OVERSHOOT`` past the edge; if that would take the point
+    farther than ``t_p`` from its ideal point, to the other edge. Rounds repeat until no
+    extremum is ambiguous. The angles, the first and last points and every point no extremum
+    needs keep their drawn values.
+
+    Parameters
+    ----------
+    cps : ControlPoints
+        Noisy control points (:func:`control_points`).
+    wire : Wire
+    ring_cfg : RingConfig
+    duration : float
+        Trajectory duration, s.
+    band : (2,)
+        ``(d, g)``, m.
+
+    Returns
+    -------
+    ControlPoints
+        The same points, some positions moved (each still within ``t_p`` of its ideal point).
+
+    Raises
+    ------
+    ValueError
+        If ambiguous extrema remain after ``LEGIBLE_MAX_ROUNDS`` rounds, or no edge of the band
+        can be reached within ``t_p``.
+    """
+    depth, gap = band
+    middle = 0.5 * (gap - depth)
+    n = len(cps)
+    ideal = wire.points(cps.arc_length)
+    positions = cps.positions.copy()
+    t = np.arange(0.0, duration, LEGIBLE_DT)
+    t_points = np.linspace(0.0, duration, n)
+    for _ in range(LEGIBLE_MAX_ROUNDS):
+        moved = ControlPoints(
+            positions, cps.euler_xyz, cps.arc_length, cps.position_threshold, cps.angle_threshold
+        )
+        T = RingTrajectory(moved, duration).poses(t)
+        c, p = clearances(T, wire, ring_cfg)
+        ambiguous = ambiguous_extrema(c, band)
+        if ambiguous.size == 0:
+            return moved
+        for j in ambiguous.tolist():
+            k = int(np.clip(np.argmin(np.abs(t_points - t[j])), 1, n - 2))
+            normal = contact_normal(p[j], T[j], ring_cfg.major_radius)
+            near, far = -depth - LEGIBLE_OVERSHOOT, gap + LEGIBLE_OVERSHOOT
+            targets = (near, far) if c[j] < middle else (far, near)
+            for target in targets:
+                candidate = positions[k] + (target - c[j]) * normal
+                if np.linalg.norm(candidate - ideal[k]) <= cps.position_threshold:
+                    positions[k] = candidate
+                    break
+            else:
+                raise ValueError(
+                    f"cannot make the path legible: control point {k} would leave the position "
+                    f"threshold {cps.position_threshold} m"
+                )
+    raise ValueError(
+        f"cannot make the path legible in {LEGIBLE_MAX_ROUNDS} rounds of moves (band {band} m)"
+    )
+
+
 class RingTrajectory:
     """Smooth ring motion through control points at evenly spaced times.
 
@@ -342,9 +444,13 @@ def make_trajectory(
     Returns
     -------
     RingTrajectory
-        Lasting ``task_cfg.trajectory.duration`` s.
+        Lasting ``task_cfg.trajectory.duration`` s; a noisy one made legible
+        (:func:`legible_control_points`) when ``task_cfg.trajectory.legible_band`` is set.
     """
     w = Wire(task_cfg.wire) if wire is None else wire
-    count = task_cfg.trajectory.control_points if n is None else n
-    cps = control_points(w, count, kind, task_cfg.trajectory, seed)
-    return RingTrajectory(cps, task_cfg.trajectory.duration)
+    cfg = task_cfg.trajectory
+    count = cfg.control_points if n is None else n
+    cps = control_points(w, count, kind, cfg, seed)
+    if TrajectoryKind(kind) is TrajectoryKind.NOISY and cfg.legible_band is not None:
+        cps = legible_control_points(cps, w, task_cfg.ring, cfg.duration, cfg.legible_band)
+    return RingTrajectory(cps, cfg.duration)
