@@ -372,6 +372,10 @@ def pose12_times(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> Pose12:
     )
 
 
+_pose12_times_kernel = njit(cache=True)(pose12_times)
+""":func:`pose12_times` compiled from the same source, for other kernels (e.g. the PSM's IK)."""
+
+
 def pose12_point(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> list[float]:
     """Translation of ``T · B`` alone (3 floats, m): :func:`pose12_times`'s last three values.
 
