@@ -204,7 +204,14 @@ class PSM(RcmArm):
 # _closed_form_kernel's constants (PSM._consts): T_tip_wristyaw's rows, the tool-tip rows,
 # the wrist length (m), the shaft offset (m), cos / sin of alpha6, then lower, upper limits
 _C_TIP_INV, _C_TIP, _C_WRIST, _C_SHAFT, _C_CA6, _C_SA6, _C_LOWER, _C_UPPER = (
-    0, 12, 24, 25, 26, 27, 28, 34
+    0,
+    12,
+    24,
+    25,
+    26,
+    27,
+    28,
+    34,
 )
 
 
