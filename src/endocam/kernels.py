@@ -16,6 +16,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from numba.extending import register_jitable
 
 __all__ = [
     "Rows",
@@ -31,6 +32,7 @@ __all__ = [
     "so3_exp",
     "so3_log",
     "tmatmul",
+    "unit_checked",
     "unit_or_none",
 ]
 
@@ -39,34 +41,49 @@ Rows = list[list[float]]
 _SMALL_ANGLE = 1e-8  # rad, below this the first-order series of log/exp is exact in floats
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def cross(a: Vec, b: Vec) -> Vec:
     """Cross product ``a × b`` of two 3-vectors."""
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def dot(a: Vec, b: Vec) -> float:
     """Dot product ``a · b``."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def norm(a: Vec) -> float:
     """Euclidean length ``|a|``."""
     return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def scaled(a: Vec, k: float) -> Vec:
     """``k a``."""
     return (a[0] * k, a[1] * k, a[2] * k)
 
 
-def unit_or_none(a: Vec, eps: float = 1e-9) -> Vec | None:
-    """``a`` normalised, or ``None`` if its length is ≤ ``eps`` (unitless) or not finite."""
+@register_jitable  # also callable from compiled kernels (the same source)
+def unit_checked(a: Vec, eps: float = 1e-9) -> tuple[bool, Vec]:
+    """``(True, a / |a|)``, or ``(False, a)`` if ``|a|`` is ≤ ``eps`` (unitless) or not finite.
+
+    :func:`unit_or_none` without the ``None`` (compiled kernels cannot index an optional).
+    """
     length = norm(a)
     if not length > eps:
-        return None
-    return scaled(a, 1.0 / length)
+        return False, a
+    return True, scaled(a, 1.0 / length)
 
 
+def unit_or_none(a: Vec, eps: float = 1e-9) -> Vec | None:
+    """``a`` normalised, or ``None`` if its length is ≤ ``eps`` (unitless) or not finite."""
+    ok, u = unit_checked(a, eps)
+    return u if ok else None
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
 def reject(a: Vec, z: Vec) -> Vec:
     """Component of ``a`` perpendicular to the unit vector ``z``."""
     k = dot(a, z)
