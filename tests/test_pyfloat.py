@@ -9,7 +9,7 @@ import numpy as np
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from endocam.pyfloat import dist3, hypot2
+from endocam.pyfloat import dist3, hypot2, remainder
 
 N_SWEEP = 1_000_000  # rows per seeded sweep: random inputs compared with the interpreter
 TINY = 5e-324  # the smallest subnormal
@@ -71,3 +71,34 @@ def test_seeded_sweep_of_a_million_inputs() -> None:
         assert [hypot2(x, y) for x, y in rows] == [math.hypot(x, y) for x, y in rows]
     near = (rng.normal(size=(N_SWEEP, 6)) * 0.05).tolist()  # m: camera-sized points
     assert [dist3(*v) for v in near] == [math.dist(v[:3], v[3:]) for v in near]
+
+
+def _remainder_or_error(f: object, x: float, y: float) -> float | str:
+    try:
+        return f(x, y)  # type: ignore[operator, no-any-return]
+    except ValueError:
+        return "ValueError"
+
+
+@settings(max_examples=3000, deadline=None)
+@given(FLOATS, FLOATS)
+@example(7.5, 2.0)
+@example(-7.5, 2.0)
+@example(5.0, 2.0)
+@example(1.0, 0.0)
+@example(math.inf, 1.0)
+@example(1.0, math.inf)
+def test_remainder_is_math_remainder(x: float, y: float) -> None:
+    """Every pair, the ties (half way: the even multiple) and the domain errors included."""
+    got, want = _remainder_or_error(remainder, x, y), _remainder_or_error(math.remainder, x, y)
+    assert got == want if isinstance(want, str) else _same(got, want)  # type: ignore[arg-type]
+
+
+def test_remainder_sweep_of_a_million_angles() -> None:
+    """10⁶ angle differences modulo 2π (the ECM's roll check), halves of 2π among them."""
+    rng = np.random.default_rng(20261126)
+    two_pi = 2.0 * math.pi
+    x = rng.normal(0.0, 20.0, N_SWEEP)
+    x[::1000] = np.round(x[::1000] / math.pi) * math.pi  # exact multiples of π: ties
+    rows = x.tolist()
+    assert [remainder(v, two_pi) for v in rows] == [math.remainder(v, two_pi) for v in rows]

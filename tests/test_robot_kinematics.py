@@ -32,6 +32,7 @@ from endocam.robot.kinematics import (
     branch_in_limits,
 )
 from endocam.robot.psm import PSM_CHAIN
+from reference_ecm import InterpretedECM
 
 EPS = np.finfo(np.float64).eps
 ATOL_M = 1e-9  # m: FK / IK agreement on positions (sub-nanometre)
@@ -330,6 +331,42 @@ def test_compiled_psm_closed_form_gives_the_interpreters_floats() -> None:
     singular = pose12_from_matrix(np.eye(4))  # the tip at the RCM
     assert PSM_ARM._closed_form(singular, np.zeros(6)) is None
     assert _closed_form_reference(singular, np.zeros(6)) is None
+
+
+N_ECM_GOALS = 6000  # count: random goals, compiled ECM IK vs the interpreter's
+
+
+def test_compiled_ecm_ik_gives_the_interpreters_floats() -> None:
+    """The compiled ECM IK: the same joints, status, errors and pose as the interpreted one.
+
+    Goals from joints inside and beyond the limits (the axis out of its limits takes the
+    nearest-position solve), off-axis goals (unreachable orientation), arbitrary rigid poses
+    and goals at the RCM, with random roll seeds.
+    """
+    ref = InterpretedECM()
+    rng = np.random.default_rng(12)
+    span = ECM_ARM.upper - ECM_ARM.lower
+    outcomes = set()
+    for i in range(N_ECM_GOALS):
+        T = ECM_ARM.forward(rng.uniform(ECM_ARM.lower - 0.3 * span, ECM_ARM.upper + 0.3 * span))
+        if i % 3 == 1:  # turned off the axis through the RCM
+            T = T @ _rot_x(float(rng.normal(0.0, 10.0 ** rng.uniform(-9, -1))))
+        elif i % 3 == 2:  # any rigid pose within 0.3 m of the RCM, a few at it
+            T[:3, :3] = Rotation.random(random_state=int(rng.integers(2**31))).as_matrix()
+            T[:3, 3] = rng.uniform(-0.3, 0.3, 3) * (0.0 if i % 97 == 2 else 1.0)
+        seed = rng.uniform(-4.0, 4.0, 4)
+        got, want = ECM_ARM.solve_unchecked(T, seed), ref.solve_unchecked(T, seed)
+        assert got.q.tolist() == want.q.tolist()
+        assert (got.status, got.position_error, got.orientation_error) == (
+            want.status,
+            want.position_error,
+            want.orientation_error,
+        )
+        assert got.T_rcm_tip.tolist() == want.T_rcm_tip.tolist()
+        goal = pose12_from_matrix(T)
+        assert ECM_ARM.exact12_unchecked(goal, seed) == ref.exact12_unchecked(goal, seed)
+        outcomes.add(got.status)
+    assert outcomes == set(IKStatus)  # every status was exercised
 
 
 def test_psm_ik_picks_branch_closest_to_seed() -> None:

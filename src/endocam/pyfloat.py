@@ -1,4 +1,4 @@
-"""CPython's ``math.hypot`` and ``math.dist``, compiled: the same floats, bit for bit.
+"""CPython's ``math.hypot``, ``math.dist`` and ``math.remainder``, compiled: the same floats.
 
 CPython 3.11 does not call the C library's ``hypot``: both functions scale the coordinates'
 absolute values by a power of two, square them exactly (Veltkamp–Dekker splitting), add the
@@ -20,7 +20,7 @@ import math
 
 from numba import njit
 
-__all__ = ["dist3", "hypot2"]
+__all__ = ["dist3", "hypot2", "remainder"]
 
 _T27 = 134217729.0  # 2**27 + 1, the Veltkamp splitting constant
 
@@ -111,3 +111,33 @@ def dist3(ax: float, ay: float, az: float, bx: float, by: float, bz: float) -> f
     if d2 > m:
         m = d2
     return _vector_norm((d0, d1, d2), m, found_nan)
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def remainder(x: float, y: float) -> float:
+    """``math.remainder(x, y)``: IEEE 754 ``x − n·y``, ``n`` the integer nearest ``x / y``.
+
+    CPython's own ``m_remainder`` (numba has no ``math.remainder``), operation for operation:
+    ``fmod`` is exact, so is the result. ``ValueError`` where CPython raises it (``y`` zero,
+    ``x`` infinite).
+    """
+    if math.isfinite(x) and math.isfinite(y):
+        if y == 0.0:
+            raise ValueError("math domain error")
+        absx, absy = abs(x), abs(y)
+        m = absx % absy  # C's fmod: the operands are ≥ 0 (numba has no math.fmod)
+        c = absy - m
+        if m < c:
+            r = m
+        elif m > c:
+            r = -c
+        else:  # half way: the even multiple
+            r = m - 2.0 * ((0.5 * (absx - m)) % absy)
+        return math.copysign(1.0, x) * r
+    if math.isnan(x):
+        return x
+    if math.isnan(y):
+        return y
+    if math.isinf(x):
+        raise ValueError("math domain error")
+    return x
