@@ -26,6 +26,7 @@ from endocam.robot.dh import (
     pose12_point,
     pose12_times,
 )
+from endocam.robot.ik import pose12_error, within_tolerance
 from endocam.robot.kinematics import (
     LIMIT_SLACK,
     ORIENTATION_WEIGHT_M_PER_RAD,
@@ -318,6 +319,7 @@ def test_compiled_psm_closed_form_gives_the_interpreters_floats() -> None:
     """
     rng = np.random.default_rng(11)
     span = PSM_ARM.upper - PSM_ARM.lower
+    found = set()
     for i in range(N_CLOSED_FORM):
         if i % 4 == 3:  # any rigid pose within 0.3 m of the RCM
             T = np.eye(4)
@@ -327,7 +329,15 @@ def test_compiled_psm_closed_form_gives_the_interpreters_floats() -> None:
             T = PSM_ARM.forward(rng.uniform(PSM_ARM.lower - 0.2 * span, PSM_ARM.upper + 0.2 * span))
         goal = pose12_from_matrix(T)
         seed = rng.uniform(-6.0, 6.0, 6)
-        assert PSM_ARM._closed_form(goal, seed) == _closed_form_reference(goal, seed)
+        want = _closed_form_reference(goal, seed)
+        assert PSM_ARM._closed_form(goal, seed) == want
+        exact = None  # exact12_unchecked as the interpreter ran it
+        if want is not None and within_tolerance(*pose12_error(goal, want[1])):
+            q_in, inside = PSM_ARM.clamp_floats(want[0])
+            exact = q_in if inside else None
+        assert PSM_ARM.exact12_unchecked(goal, seed) == exact
+        found.add(exact is not None)
+    assert found == {True, False}  # exact and not
     singular = pose12_from_matrix(np.eye(4))  # the tip at the RCM
     assert PSM_ARM._closed_form(singular, np.zeros(6)) is None
     assert _closed_form_reference(singular, np.zeros(6)) is None

@@ -42,8 +42,17 @@ from endocam.robot.dh import (
     pose12_from_matrix,
     pose12_to_matrix,
 )
-from endocam.robot.ik import IKResult, IKStatus, pose12_error, pose_error, within_tolerance
+from endocam.robot.ik import (
+    IK_ORIENTATION_TOL_RAD,
+    IK_POSITION_TOL_M,
+    IKResult,
+    IKStatus,
+    pose12_error,
+    pose_error,
+    within_tolerance,
+)
 from endocam.robot.kinematics import (
+    LIMIT_SLACK,
     NEAREST_MAX_NFEV,
     RcmArm,
     branch_in_limits,
@@ -181,12 +190,14 @@ class PSM(RcmArm):
         return self.exact12_unchecked(pose12_from_matrix(T_goal), seed)
 
     def exact12_unchecked(self, goal12: Pose12, seed: FloatArray) -> list[float] | None:
-        """:meth:`exact_unchecked` for a goal given as 12 floats (rotation row-major, then m)."""
-        sol = self._closed_form(goal12, seed)
-        if sol is None or not within_tolerance(*pose12_error(goal12, sol[1])):
-            return None
-        q, inside = self.clamp_floats(sol[0])
-        return q if inside else None
+        """:meth:`exact_unchecked` for a goal given as 12 floats (rotation row-major, then m).
+
+        One compiled call (:func:`_exact_kernel`).
+        """
+        ok, q = _exact_kernel(
+            self._chain._param_array, self._consts, goal12, float(seed[0]), float(seed[3]), 2.0
+        )
+        return list(q) if ok else None
 
     def _closed_form(self, goal: Pose12, seed: FloatArray) -> tuple[list[float], Pose12] | None:
         """Exact joint values for the goal ``T_rcm_tip`` (12 floats, m) ignoring limits.
@@ -280,3 +291,33 @@ def _closed_form_kernel(
     # forward(q), reusing the product of the first three links (unchanged since)
     T_rcm_6 = _compose_kernel(params, q, 3, 6, T_rcm_3)
     return True, q, _pose12_times_kernel(T_rcm_6, _rows(c, _C_TIP))
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _exact_kernel(
+    params: FloatArray, c: FloatArray, goal: Pose12, seed0: float, seed3: float, two: float
+) -> tuple[bool, tuple[float, ...]]:
+    """:meth:`PSM.exact12_unchecked`, compiled: ``(True, q)`` for an exact, in-limit solution.
+
+    The closed form (:func:`_closed_form_kernel`), its pose error within the IK tolerances
+    (:func:`pose12_error`; ``two``: 2.0), and ``RcmArm.clamp_floats``'s clip and limit test
+    (``LIMIT_SLACK`` tolerated, the clipped values returned).
+    """
+    found, q, T12 = _closed_form_kernel(params, c, goal, seed0, seed3)
+    if not found:
+        return False, q
+    pos_err, ang_err = pose12_error(goal, T12, two)
+    if not (pos_err <= IK_POSITION_TOL_M and ang_err <= IK_ORIENTATION_TOL_RAD):
+        return False, q
+    inside = True
+    out = [q[0], q[1], q[2], q[3], q[4], q[5]]
+    for i in range(6):
+        lo, hi = c[_C_LOWER + i], c[_C_UPPER + i]
+        v = out[i]
+        if v < lo:
+            inside = inside and v >= lo - LIMIT_SLACK
+            out[i] = lo
+        elif v > hi:
+            inside = inside and v <= hi + LIMIT_SLACK
+            out[i] = hi
+    return inside, (out[0], out[1], out[2], out[3], out[4], out[5])
