@@ -95,7 +95,7 @@ def test_nearest_surface_new_cells(benchmark, wire: Wire) -> None:
     wire.nearest_surface(points[0])  # compiled code loaded outside the timing
 
     def queries() -> list[tuple[float, int]]:
-        wire._cells.clear()
+        wire.forget_cells()
         return [wire.nearest_surface(p) for p in points]
 
     assert len(benchmark(queries)) == len(points)

@@ -9,9 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from endocam import kernels
 from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
-from endocam.control.clearance import WIRE_CLEARANCE, ClearanceGuard, _first_unbounded
+from endocam.control import clearance
+from endocam.control.clearance import WIRE_CLEARANCE, ClearanceGuard
 from endocam.control.goal import goal_pose
 from endocam.control.policies import WIRE_REASON, OrientationPolicy
 from endocam.control.types import Observation, PolicyContext, TrackingState
@@ -168,20 +170,139 @@ def test_path_check_is_the_point_by_point_check() -> None:
             path[int(rng.integers(0, n)), 0] = math.nan
         expected = all(in_turn.margin(row) >= 0.0 for row in path.tolist())
         assert at_once.all_inside(path) == expected
-        assert at_once.keep_out._refs == in_turn.keep_out._refs
+        assert at_once.keep_out.refs == in_turn.keep_out.refs
         outcomes.add(expected)
         p = path[-1] if math.isfinite(path[-1].sum()) else p
     assert outcomes == {True, False}  # both answers were exercised
 
 
-def test_first_unbounded_kernel_is_its_interpreted_form() -> None:
-    """The compiled cache check gives its interpreted form's index on random points."""
-    rng = np.random.default_rng(13)
-    for _ in range(N_PATH_CHECKS):
-        n = int(rng.integers(0, 30))
-        p = rng.normal(0.0, 0.02, (n, 3))
-        ref_p = rng.normal(0.0, 0.02, (int(rng.integers(0, 3)), 3))
-        ref_d = rng.uniform(0.0, 0.05, len(ref_p))
-        start = int(rng.integers(0, n + 1))
-        args = (p, start, n, ref_p, ref_d, WIRE_CLEARANCE)
-        assert _first_unbounded(*args) == _first_unbounded.py_func(*args)
+class _InterpretedGuard:
+    """The guard's queries as the interpreter ran them before they were compiled (reference).
+
+    ``math.dist`` for the Lipschitz bounds and the KD-tree for the nearest search point (the
+    compiled cell search is the tree's answer bit for bit, ``tests/test_task_wire.py``).
+    """
+
+    def __init__(self, wire: Wire, clearance: float) -> None:
+        self.wire, self.clearance = wire, clearance
+        self.points = wire.search_points
+        self.refs: list[tuple[list[float], float]] = []
+
+    def nearest_surface(self, p: list[float]) -> tuple[float, int]:
+        d, k = self.wire._tree.query(np.array(p, dtype=float))
+        return float(d) - self.wire.radius, int(k)
+
+    def distance(self, p: list[float]) -> float:
+        if not math.isfinite(p[0] + p[1] + p[2]):
+            return math.nan
+        for ref, d_ref in self.refs:
+            bound = d_ref - math.dist(p, ref)
+            if bound >= self.clearance + 0.0:
+                return bound
+        d, _ = self.nearest_surface(p)
+        self.refs.insert(0, (list(p), d))
+        del self.refs[2:]
+        return d
+
+    def trace(self, a: list[float], b: list[float]) -> list[float] | None:
+        seg = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
+        length = kernels.norm(seg)
+        if not math.isfinite(length) or length <= 1e-9:
+            return None
+        t, x = 0.0, [a[0], a[1], a[2]]
+        for _ in range(clearance.MAX_ESCAPE_STEPS):
+            free = self.distance(x) - self.clearance
+            if not free > clearance.DETOUR_TOL:
+                if not (free >= -clearance.DETOUR_TOL and self.leaving(x, seg)):
+                    return x
+                free = clearance.DETOUR_CREEP
+            t += free / length
+            if t >= 1.0:
+                return None
+            x = [a[0] + t * seg[0], a[1] + t * seg[1], a[2] + t * seg[2]]
+        return None
+
+    def leaving(self, x: list[float], direction: kernels.Vec) -> bool:
+        _, k = self.nearest_surface(x)
+        q = self.points[k].tolist()
+        return kernels.dot((x[0] - q[0], x[1] - q[1], x[2] - q[2]), direction) > 0.0
+
+    def lifted(self, p: list[float]) -> list[float] | None:
+        d, k = self.nearest_surface(p)
+        want = self.clearance + clearance.DETOUR_PUSH
+        if d >= want:
+            return p
+        q = self.points[k].tolist()
+        out = kernels.unit_or_none((p[0] - q[0], p[1] - q[1], p[2] - q[2]))
+        if out is None:
+            return None
+        lift = want - d
+        return [p[0] + lift * out[0], p[1] + lift * out[1], p[2] + lift * out[2]]
+
+    def detour(self, a: list[float], b: list[float]) -> kernels.Vec | None:
+        x = self.trace(a, b)
+        if x is None:
+            return None
+        _, k = self.nearest_surface(x)
+        pts = self.points
+        q = pts[k].tolist()
+        out = kernels.unit_or_none((x[0] - q[0], x[1] - q[1], x[2] - q[2]))
+        tangent = kernels.unit_or_none(
+            tuple((pts[min(k + 1, len(pts) - 1)] - pts[max(k - 1, 0)]).tolist())
+        )
+        if out is None or tangent is None:
+            return None
+        around = kernels.cross(tangent, out)
+        g = kernels.reject((b[0] - q[0], b[1] - q[1], b[2] - q[2]), tangent)
+        phi = math.atan2(kernels.dot(g, around), kernels.dot(g, out))
+        rest = (b[0] - x[0], b[1] - x[1], b[2] - x[2])
+        step = min(clearance.DETOUR_STEP, kernels.norm(rest))
+        if abs(phi) < clearance.SAME_SIDE_ANGLE:
+            move = kernels.scaled(kernels.unit_or_none(kernels.reject(rest, out)) or out, step)
+        else:
+            sign = 1.0 if phi > 0.0 else -1.0
+            if abs(phi) > math.pi - clearance.SAME_SIDE_ANGLE:
+                sign = 1.0 if around[2] >= 0.0 else -1.0
+            along = max(-step, min(step, kernels.dot(rest, tangent)))
+            move = (
+                sign * step * around[0] + along * tangent[0],
+                sign * step * around[1] + along * tangent[1],
+                sign * step * around[2] + along * tangent[2],
+            )
+        for scale in clearance.DETOUR_SCALES:
+            via = self.lifted([x[i] + scale * move[i] for i in range(3)])
+            if via is not None and self.trace(a, via) is None:
+                return (via[0], via[1], via[2])
+        lift = clearance.DETOUR_PUSH + max(0.0, self.clearance - self.distance(x))
+        return (x[0] + lift * out[0], x[1] + lift * out[1], x[2] + lift * out[2])
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_compiled_guard_is_the_interpreted_one(seed: int) -> None:
+    """Detours, distances and path checks: the compiled guard's floats and cache, bit for bit.
+
+    A random walk of the camera near a random wire, commands around and across it (a
+    property test: hypothesis draws the seed of numpy's generator).
+    """
+    rng = np.random.default_rng(seed)
+    wire = _random_wire(int(rng.integers(2**31)))
+    guard = ClearanceGuard(wire, WIRE_CLEARANCE)
+    ref = _InterpretedGuard(wire, WIRE_CLEARANCE)
+    p = wire.point(rng.uniform(0.2, 0.8) * wire.length) + rng.normal(0.0, 0.01, 3)
+    for _ in range(40):
+        cmd = wire.point(rng.uniform(0.0, 1.0) * wire.length) + rng.normal(0.0, 0.012, 3)
+        a, b = p.tolist(), cmd.tolist()
+        assert guard.detour(a, b) == ref.detour(a, b)
+        assert guard.refs == ref.refs
+        path = p + np.cumsum(rng.normal(0.0, 0.002, (int(rng.integers(1, 20)), 3)), axis=0)
+        expected = next(
+            (i for i, row in enumerate(path.tolist()) if not ref.distance(row) >= WIRE_CLEARANCE),
+            len(path),
+        )
+        assert guard.first_outside(path, len(path)) == expected
+        assert guard.refs == ref.refs
+        q = (p + rng.normal(0.0, 0.005, 3)).tolist()
+        assert guard.distance(q) == ref.distance(q)
+        p = p + rng.normal(0.0, 0.004, 3)
+    assert math.isnan(guard.distance([math.nan, 0.0, 0.0]))

@@ -10,10 +10,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from endocam.geometry import invert_pose
 from endocam.robot import ECM, PSM, IKStatus, UnreachableError
 from endocam.robot.dh import (
     DHLink,
     JointType,
+    Pose12,
     _compose_kernel,
     _points_kernel,
     chain_forward,
@@ -22,8 +24,16 @@ from endocam.robot.dh import (
     link_transform,
     pose12_from_matrix,
     pose12_point,
+    pose12_times,
 )
-from endocam.robot.kinematics import ORIENTATION_WEIGHT_M_PER_RAD
+from endocam.robot.ik import pose12_error, within_tolerance
+from endocam.robot.kinematics import (
+    LIMIT_SLACK,
+    ORIENTATION_WEIGHT_M_PER_RAD,
+    branch_in_limits,
+)
+from endocam.robot.psm import PSM_CHAIN
+from reference_ecm import InterpretedECM
 
 EPS = np.finfo(np.float64).eps
 ATOL_M = 1e-9  # m: FK / IK agreement on positions (sub-nanometre)
@@ -212,6 +222,161 @@ def test_psm_ik_round_trip_property(q_tuple: tuple[float, ...]) -> None:
     T = PSM_ARM.forward(q)
     q_sol = PSM_ARM.inverse(T, q_seed=q)
     np.testing.assert_allclose(PSM_ARM.forward(q_sol), T, atol=ATOL_M)
+
+
+def _branch_reference(angle: float, reference: float, lower: float, upper: float) -> float:
+    """``branch_in_limits`` as the interpreter ran it before it was compiled (the reference)."""
+    two_pi = 2.0 * math.pi
+    best = angle + 2.0 * math.pi * round((reference - angle) / (2.0 * math.pi))
+    if lower - LIMIT_SLACK <= best <= upper + LIMIT_SLACK:
+        return best
+    k_lo = math.ceil((lower - LIMIT_SLACK - angle) / two_pi)
+    k_hi = math.floor((upper + LIMIT_SLACK - angle) / two_pi)
+    candidates = [angle + two_pi * k for k in range(k_lo, k_hi + 1)]
+    if not candidates:
+        return best
+    return min(candidates, key=lambda a: abs(a - reference))
+
+
+ANGLES = st.floats(-40.0, 40.0) | st.sampled_from([0.0, -0.0, math.pi, -math.pi, 3 * math.pi])
+
+
+@settings(max_examples=3000, deadline=None)
+@given(ANGLES, ANGLES, ANGLES, st.floats(0.0, 20.0), st.integers(-3, 3))
+def test_compiled_branch_choice_is_the_interpreters(
+    angle: float, reference: float, lower: float, width: float, half_turns: int
+) -> None:
+    """The compiled ``branch_in_limits`` picks the interpreter's float, ties to even included.
+
+    ``half_turns`` puts the reference exactly an odd or even number of half turns away (the
+    ties of ``round``).
+    """
+    upper = lower + width
+    for ref in (reference, angle + half_turns * math.pi):
+        assert branch_in_limits(angle, ref, lower, upper) == _branch_reference(
+            angle, ref, lower, upper
+        )
+    for bad, error in ((math.nan, ValueError), (math.inf, OverflowError)):  # round()'s errors
+        with pytest.raises(error):
+            _branch_reference(bad, reference, lower, upper)
+        with pytest.raises(error):
+            branch_in_limits(bad, reference, lower, upper)
+
+
+def _closed_form_reference(goal: Pose12, seed: np.ndarray) -> tuple[list[float], Pose12] | None:
+    """``PSM._closed_form`` as the interpreter ran it before it was compiled (the reference)."""
+    links = PSM_CHAIN.links
+    rows = tuple(tuple(row) for row in invert_pose(PSM_CHAIN.T_last_tip)[:3].tolist())
+    x0, _, z0, x1, _, z1, x2, _, z2, p0, p1, p2 = pose12_times(goal, rows)
+    pz = p0 * z0 + p1 * z1 + p2 * z2
+    e0, e1, e2 = p0 - pz * z0, p1 - pz * z1, p2 - pz * z2
+    n_perp = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    L = links[5].A
+    if n_perp - L <= 1e-9:
+        return None
+    k = L / n_perp
+    w0, w1, w2 = p0 - k * e0, p1 - k * e1, p2 - k * e2
+    r = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    if r <= 1e-9:
+        return None
+    q3 = r - (links[3].D + links[2].offset)
+    q2 = -math.asin(max(-1.0, min(1.0, w1 / r)))
+    q1 = _branch_reference(math.atan2(w0, -w2), float(seed[0]), links[0].lower, links[0].upper)
+    q = [q1, q2, q3, 0.0, 0.0, 0.0]
+    T_rcm_3 = compose_links(PSM_CHAIN, q, 0, 3)
+    a00, a01, a02, a10, a11, a12, a20, a21, a22 = T_rcm_3[:9]
+    v0 = a00 * z0 + a10 * z1 + a20 * z2
+    v1 = a01 * z0 + a11 * z1 + a21 * z2
+    v2 = a02 * z0 + a12 * z1 + a22 * z2
+    theta5 = math.atan2(-math.hypot(v0, v1), -v2)
+    theta4 = math.atan2(v1, v0)
+    q[3] = _branch_reference(
+        theta4 - links[3].offset, float(seed[3]), links[3].lower, links[3].upper
+    )
+    q[4] = _branch_reference(theta5 - links[4].offset, 0.0, links[4].lower, links[4].upper)
+    b00, b01, b02, b10, b11, b12, b20, b21, b22 = compose_links(PSM_CHAIN, q, 3, 5)[:9]
+    c0 = a00 * x0 + a10 * x1 + a20 * x2
+    c1 = a01 * x0 + a11 * x1 + a21 * x2
+    c2 = a02 * x0 + a12 * x1 + a22 * x2
+    u0 = b00 * c0 + b10 * c1 + b20 * c2
+    u1 = b01 * c0 + b11 * c1 + b21 * c2
+    u2 = b02 * c0 + b12 * c1 + b22 * c2
+    ca6, sa6 = math.cos(links[5].alpha), math.sin(links[5].alpha)
+    theta6 = math.atan2(ca6 * u1 + sa6 * u2, u0)
+    q[5] = _branch_reference(theta6 - links[5].offset, 0.0, links[5].lower, links[5].upper)
+    T_rcm_6 = compose_links(PSM_CHAIN, q, 3, 6, T_rcm_3)
+    return q, pose12_times(T_rcm_6, PSM_CHAIN._tip_rows)
+
+
+N_CLOSED_FORM = 20000  # count: random goals, compiled closed form vs the interpreter's
+
+
+def test_compiled_psm_closed_form_gives_the_interpreters_floats() -> None:
+    """The compiled closed form: the same joints and pose as the interpreted one, bit for bit.
+
+    Goals from joints inside and beyond the limits, with random seeds, and arbitrary rigid
+    poses (many singular or unreachable: both sides must say None together).
+    """
+    rng = np.random.default_rng(11)
+    span = PSM_ARM.upper - PSM_ARM.lower
+    found = set()
+    for i in range(N_CLOSED_FORM):
+        if i % 4 == 3:  # any rigid pose within 0.3 m of the RCM
+            T = np.eye(4)
+            T[:3, :3] = Rotation.random(random_state=int(rng.integers(2**31))).as_matrix()
+            T[:3, 3] = rng.uniform(-0.3, 0.3, 3)
+        else:
+            T = PSM_ARM.forward(rng.uniform(PSM_ARM.lower - 0.2 * span, PSM_ARM.upper + 0.2 * span))
+        goal = pose12_from_matrix(T)
+        seed = rng.uniform(-6.0, 6.0, 6)
+        want = _closed_form_reference(goal, seed)
+        assert PSM_ARM._closed_form(goal, seed) == want
+        exact = None  # exact12_unchecked as the interpreter ran it
+        if want is not None and within_tolerance(*pose12_error(goal, want[1])):
+            q_in, inside = PSM_ARM.clamp_floats(want[0])
+            exact = q_in if inside else None
+        assert PSM_ARM.exact12_unchecked(goal, seed) == exact
+        found.add(exact is not None)
+    assert found == {True, False}  # exact and not
+    singular = pose12_from_matrix(np.eye(4))  # the tip at the RCM
+    assert PSM_ARM._closed_form(singular, np.zeros(6)) is None
+    assert _closed_form_reference(singular, np.zeros(6)) is None
+
+
+N_ECM_GOALS = 6000  # count: random goals, compiled ECM IK vs the interpreter's
+
+
+def test_compiled_ecm_ik_gives_the_interpreters_floats() -> None:
+    """The compiled ECM IK: the same joints, status, errors and pose as the interpreted one.
+
+    Goals from joints inside and beyond the limits (the axis out of its limits takes the
+    nearest-position solve), off-axis goals (unreachable orientation), arbitrary rigid poses
+    and goals at the RCM, with random roll seeds.
+    """
+    ref = InterpretedECM()
+    rng = np.random.default_rng(12)
+    span = ECM_ARM.upper - ECM_ARM.lower
+    outcomes = set()
+    for i in range(N_ECM_GOALS):
+        T = ECM_ARM.forward(rng.uniform(ECM_ARM.lower - 0.3 * span, ECM_ARM.upper + 0.3 * span))
+        if i % 3 == 1:  # turned off the axis through the RCM
+            T = T @ _rot_x(float(rng.normal(0.0, 10.0 ** rng.uniform(-9, -1))))
+        elif i % 3 == 2:  # any rigid pose within 0.3 m of the RCM, a few at it
+            T[:3, :3] = Rotation.random(random_state=int(rng.integers(2**31))).as_matrix()
+            T[:3, 3] = rng.uniform(-0.3, 0.3, 3) * (0.0 if i % 97 == 2 else 1.0)
+        seed = rng.uniform(-4.0, 4.0, 4)
+        got, want = ECM_ARM.solve_unchecked(T, seed), ref.solve_unchecked(T, seed)
+        assert got.q.tolist() == want.q.tolist()
+        assert (got.status, got.position_error, got.orientation_error) == (
+            want.status,
+            want.position_error,
+            want.orientation_error,
+        )
+        assert got.T_rcm_tip.tolist() == want.T_rcm_tip.tolist()
+        goal = pose12_from_matrix(T)
+        assert ECM_ARM.exact12_unchecked(goal, seed) == ref.exact12_unchecked(goal, seed)
+        outcomes.add(got.status)
+    assert outcomes == set(IKStatus)  # every status was exercised
 
 
 def test_psm_ik_picks_branch_closest_to_seed() -> None:

@@ -15,9 +15,11 @@ from endocam.robot.actuator import ActuatorStatus, ArmKind
 from endocam.robot.camera_arm import (
     VIEW_BISECTIONS,
     CameraArm,
+    _stop_kernel,
     natural_pose,
     view_towards_port,
 )
+from endocam.robot.dh import compose_links, pose12_to_matrix
 from endocam.robot.kinematics import LIMIT_SLACK
 from endocam.runner.episode import UNREACHABLE, EpisodeResult, EpisodeSpec, episode_arm, run_episode
 from endocam.runner.outputs import episode_columns
@@ -346,3 +348,42 @@ def test_goal_looking_at_the_port_itself_is_handled():
     out = arm.step(goal, LOOK_DISTANCE_M)
     assert not out.reachable and out.status is ActuatorStatus.NEAREST
     assert np.all(np.isfinite(out.T_world_cam)) and arm.model.within_limits(out.q)
+
+
+N_STOP_CHECKS = 3000  # count: random joint states per arm, compiled vs interpreted floats
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM], ids=["psm", "ecm"])
+def test_compiled_pose_and_stop_point_are_the_interpreters(kind: ArmKind) -> None:
+    """The camera pose and the braking's stopping point, slide, turn and lever, bit for bit.
+
+    The interpreted forms are the ones the kernels replaced: the link product from the RCM in
+    world (``compose_links``), the camera's rows (``pose12_to_matrix``), ``v·|v|/2a`` per
+    joint, ``clamp_floats``, sums from 0 and ``math.dist``.
+    """
+    cfg = ExperimentConfig()
+    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
+    arm = CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
+    chain = arm.model.chain
+    rows = tuple(tuple(r) for r in (chain.T_last_tip @ arm.T_tip_cam)[:3].tolist())
+    rng = np.random.default_rng(21)
+    span = arm.model.upper - arm.model.lower
+    for i in range(N_STOP_CHECKS):
+        q = rng.uniform(arm.model.lower - 0.1 * span, arm.model.upper + 0.1 * span)
+        qd = rng.normal(0.0, 1.0, len(q)) * (rng.random(len(q)) < 0.7)
+        if i % 50 == 0:
+            qd[:] = 0.0 if i % 100 else math.nan
+        T = pose12_to_matrix(compose_links(chain, q.tolist(), T0=arm._world_rcm12), rows)
+        assert arm._camera_pose(q.tolist()).tolist() == T.tolist()
+        delta = [v * abs(v) * h for v, h in zip(qd.tolist(), arm._half_inv_acc, strict=True)]
+        stop = arm.model.clamp_floats([x + d for x, d in zip(q.tolist(), delta, strict=True)])[0]
+        pri = arm.model.prismatic
+        slide = sum(abs(d) for d, p in zip(delta, pri, strict=True) if p)
+        turn = sum(abs(d) for d, p in zip(delta, pri, strict=True) if not p)
+        to_rcm = math.dist(T[:3, 3].tolist(), arm._p_rcm_list)
+        params, consts = chain._param_array, arm._pose_consts
+        got = _stop_kernel(params, consts, arm._stop_consts, q, qd)
+        assert np.array_equal(got[0], stop, equal_nan=True)  # NaN: a NaN velocity's stop
+        assert got[1].tolist() == T.tolist()
+        assert got[2] == any(qd.tolist())
+        assert np.array_equal(got[3:], (slide, turn, to_rcm), equal_nan=True)

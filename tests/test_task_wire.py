@@ -1,7 +1,10 @@
+import math
+
 import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from endocam.task import wire as wire_module
 from endocam.task.config import DEFAULT_KNOTS, RingConfig, TaskConfig, WireConfig
 from endocam.task.wire import Wire, _ball_kernel, _nearest_kernel
 
@@ -136,8 +139,28 @@ def test_compiled_nearest_gives_the_interpreters_floats() -> None:
         x, y, z = rng.normal(size=3).tolist()
         if n > 1 and rng.random() < 0.2:
             pts[n - 1] = pts[0]  # a tie: the first row wins, as argmin's
-        expected = _nearest_kernel.py_func(pts, x, y, z)
-        assert _nearest_kernel(pts, x, y, z) == expected
+        idx_all = rng.permutation(n).astype(np.int32)  # candidates in any order
+        start = int(rng.integers(0, n))
+        count = int(rng.integers(1, n - start + 1))
+        expected = _nearest_kernel.py_func(pts, idx_all, start, count, x, y, z)
+        assert _nearest_kernel(pts, idx_all, start, count, x, y, z) == expected
         idx, d_c = _ball_kernel(pts, x, y, z, 2e-3)
         idx_py, d_c_py = _ball_kernel.py_func(pts, x, y, z, 2e-3)
         assert d_c == d_c_py and idx.tolist() == idx_py.tolist()
+
+
+def test_cell_cache_starting_afresh_gives_the_same_answers(wire: Wire) -> None:
+    """When the cell cache is full it starts afresh: the answers (the tree's) do not change."""
+    rng = np.random.default_rng(9)
+    points = wire.points(rng.uniform(0.0, wire.length, 400)) + rng.normal(size=(400, 3)) * 0.01
+    fresh = Wire(wire.cfg)  # an empty cache
+    expected = [fresh.nearest_surface(p) for p in points.tolist()]
+    wire._meta[0] = wire_module._MAX_CELLS  # full: the next new cell empties the cache
+    assert [wire.nearest_surface(p) for p in points.tolist()] == expected
+    assert 0 < wire._meta[0] <= 400  # it started afresh, then cached cells again
+    wire.forget_cells()
+    assert [wire.nearest_surface(p) for p in points.tolist()] == expected
+    with pytest.raises(ValueError):
+        wire.nearest_surface([math.nan, 0.0, 0.0])
+    with pytest.raises(OverflowError):
+        wire.nearest_surface([0.0, math.inf, 0.0])

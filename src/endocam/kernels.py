@@ -16,6 +16,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from numba.extending import register_jitable
 
 __all__ = [
     "Rows",
@@ -31,6 +32,7 @@ __all__ = [
     "so3_exp",
     "so3_log",
     "tmatmul",
+    "unit_checked",
     "unit_or_none",
 ]
 
@@ -39,34 +41,49 @@ Rows = list[list[float]]
 _SMALL_ANGLE = 1e-8  # rad, below this the first-order series of log/exp is exact in floats
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def cross(a: Vec, b: Vec) -> Vec:
     """Cross product ``a × b`` of two 3-vectors."""
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def dot(a: Vec, b: Vec) -> float:
     """Dot product ``a · b``."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def norm(a: Vec) -> float:
     """Euclidean length ``|a|``."""
     return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def scaled(a: Vec, k: float) -> Vec:
     """``k a``."""
     return (a[0] * k, a[1] * k, a[2] * k)
 
 
-def unit_or_none(a: Vec, eps: float = 1e-9) -> Vec | None:
-    """``a`` normalised, or ``None`` if its length is ≤ ``eps`` (unitless) or not finite."""
+@register_jitable  # also callable from compiled kernels (the same source)
+def unit_checked(a: Vec, eps: float = 1e-9) -> tuple[bool, Vec]:
+    """``(True, a / |a|)``, or ``(False, a)`` if ``|a|`` is ≤ ``eps`` (unitless) or not finite.
+
+    :func:`unit_or_none` without the ``None`` (compiled kernels cannot index an optional).
+    """
     length = norm(a)
     if not length > eps:
-        return None
-    return scaled(a, 1.0 / length)
+        return False, a
+    return True, scaled(a, 1.0 / length)
 
 
+def unit_or_none(a: Vec, eps: float = 1e-9) -> Vec | None:
+    """``a`` normalised, or ``None`` if its length is ≤ ``eps`` (unitless) or not finite."""
+    ok, u = unit_checked(a, eps)
+    return u if ok else None
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
 def reject(a: Vec, z: Vec) -> Vec:
     """Component of ``a`` perpendicular to the unit vector ``z``."""
     k = dot(a, z)
@@ -138,12 +155,20 @@ def tmatmul(A: Rows, B: Rows) -> Rows:
     return matmul([[a00, a10, a20], [a01, a11, a21], [a02, a12, a22]], B)
 
 
-def rotation_angle(A: Sequence[Sequence[float]], B: Sequence[Sequence[float]]) -> float:
+@register_jitable  # also callable from compiled kernels (the same source)
+def rotation_angle(
+    A: Sequence[Sequence[float]], B: Sequence[Sequence[float]], two: float = 2.0
+) -> float:
     """Angle of the relative rotation ``A^T B`` of two rotations (rows), rad, in [0, π].
 
     ``atan2(|sin|, cos)`` from the skew and trace parts of ``M = A^T B``: accurate near 0 and π
     (``arccos`` of the trace is not). ``A`` and ``B`` may hold more columns or rows (a
     (4, 4) pose's rows); only the top-left 3×3 is read.
+
+    ``two`` is the exponent of the squares (2.0): CPython computes ``x ** 2`` with the C
+    library's ``pow``, which rounds ``x²`` differently from ``x * x`` in ~0.1 % of cases, so a
+    compiled kernel passes ``two`` in at run time (the compiler would fold a constant 2 into
+    ``x * x``) and gets libm's ``pow`` too.
     """
     a0, a1, a2, b0, b1, b2 = A[0], A[1], A[2], B[0], B[1], B[2]
     # M_ij = sum_k A_ki B_kj, written out (no call per entry: this runs several times a step)
@@ -156,7 +181,7 @@ def rotation_angle(A: Sequence[Sequence[float]], B: Sequence[Sequence[float]]) -
     m20 = a0[2] * b0[0] + a1[2] * b1[0] + a2[2] * b2[0]
     m21 = a0[2] * b0[1] + a1[2] * b1[1] + a2[2] * b2[1]
     m22 = a0[2] * b0[2] + a1[2] * b1[2] + a2[2] * b2[2]
-    s = 0.5 * math.sqrt((m21 - m12) ** 2 + (m02 - m20) ** 2 + (m10 - m01) ** 2)
+    s = 0.5 * math.sqrt((m21 - m12) ** two + (m02 - m20) ** two + (m10 - m01) ** two)
     c = 0.5 * (m00 + m11 + m22 - 1.0)
     return math.atan2(s, c)
 

@@ -51,8 +51,9 @@ from numba import njit
 
 from endocam.camera import SCOPE_RADIUS
 from endocam.geometry import FloatArray
-from endocam.kernels import Vec, cross, dot, norm, reject, scaled, unit_or_none
-from endocam.task.wire import Wire
+from endocam.kernels import Vec, cross, dot, norm, reject, scaled, unit_checked
+from endocam.pyfloat import dist3
+from endocam.task.wire import Wire, _surface_query
 from endocam.view import pose_from_columns, rotation_columns
 
 CLEARANCE_MARGIN = 2.0e-3  # m, beyond the scope's radius: the carriers' tracking deviation
@@ -76,32 +77,224 @@ _EPS = 1e-9  # unitless, shorter directions are degenerate
 Feasible = Callable[[list[float]], bool]
 
 
-# m: a cached query's bound that clears by more than this in the compiled check clears in the
-# interpreter too (their square roots of sums differ by a few ulp, ~1e-17 m here)
-SURE_BOUND_M = 1e-12
+# The guard's queries, compiled. ``state`` below is ``ClearanceGuard._state``: the wire's
+# nearest-point search (``Wire.query_state``: points (M, 3), m, and its cell cache), the tube
+# radius, m, the Lipschitz cache (``ref`` (CACHE_SIZE, 4): point, m, and surface distance, m,
+# newest first; ``nref`` (1,): rows in use) and the clearance, m. The floats are the
+# interpreter's: no fast-math, CPython's ``math.dist`` (``endocam.pyfloat.dist3``), the vector
+# helpers of ``endocam.kernels`` compiled from their own source.
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _first_unbounded(
-    p: FloatArray, start: int, count: int, ref_p: FloatArray, ref_d: FloatArray, need: float
-) -> int:
-    """The first row ``i`` in ``start..count-1`` of ``p`` (N, 3), m, no cached bound clears.
+def _remember(ref: FloatArray, nref: np.ndarray, x: float, y: float, z: float, d: float) -> None:
+    """Keep a query, point ``(x, y, z)``, m, surface distance ``d``, m: the newest first."""
+    for r in range(ref.shape[0] - 1, 0, -1):
+        for c in range(4):
+            ref[r, c] = ref[r - 1, c]
+    ref[0, 0], ref[0, 1], ref[0, 2], ref[0, 3] = x, y, z, d
+    nref[0] = min(nref[0] + 1, ref.shape[0])
 
-    A cached query at ``ref_p[r]`` (m) with surface distance ``ref_d[r]`` (m) clears a point
-    when ``ref_d[r] − |p_i − ref_p[r]| > need`` (m); a non-finite point is never cleared.
-    Returns ``count`` when every point is cleared.
-    """
-    for i in range(start, count):
-        x, y, z = p[i, 0], p[i, 1], p[i, 2]
-        cleared = False
-        for r in range(ref_p.shape[0]):
-            a, b, c = x - ref_p[r, 0], y - ref_p[r, 1], z - ref_p[r, 2]
-            if ref_d[r] - math.sqrt(a * a + b * b + c * c) > need:
-                cleared = True
-                break
-        if not cleared:
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _distance(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    x: float,
+    y: float,
+    z: float,
+    exact_below: float,
+) -> float:
+    """:meth:`ClearanceGuard.distance` of ``(x, y, z)``, m (``state`` above), m."""
+    if not math.isfinite(x + y + z):
+        return math.nan
+    for r in range(nref[0]):
+        bound = ref[r, 3] - dist3(x, y, z, ref[r, 0], ref[r, 1], ref[r, 2])
+        if bound >= clearance + exact_below:
+            return bound  # a lower bound that already clears
+    _, dist = _surface_query(pts, table, pool, meta, x, y, z)
+    d = dist - radius
+    _remember(ref, nref, x, y, z, d)
+    return d
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _first_outside(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    p: FloatArray,
+    count: int,
+) -> int:
+    """:meth:`ClearanceGuard.first_outside` of the rows ``p[:count]`` (N, 3), m."""
+    for i in range(count):
+        d = _distance(
+            pts, table, pool, meta, radius, ref, nref, clearance, p[i, 0], p[i, 1], p[i, 2], 0.0
+        )
+        if not d - clearance >= 0.0:
             return i
     return count
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _wire_point(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    x: float,
+    y: float,
+    z: float,
+) -> Vec:
+    """The search point nearest to ``(x, y, z)``, m (:meth:`Wire.nearest_surface`'s), m."""
+    k, _ = _surface_query(pts, table, pool, meta, x, y, z)
+    return (pts[k, 0], pts[k, 1], pts[k, 2])
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _trace(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    a: Vec,
+    b: Vec,
+) -> tuple[bool, Vec]:
+    """The first point of the segment ``a → b`` (m) entering the zone: ``(True, x)``, m.
+
+    ``(False, a)`` when it does not enter. Sphere tracing (module docstring); a start on the
+    zone's edge moving out (away from its nearest wire point) creeps on.
+    """
+    seg = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
+    length = norm(seg)
+    if not math.isfinite(length) or length <= _EPS:
+        return False, a
+    t = 0.0
+    x = a
+    for _ in range(MAX_ESCAPE_STEPS):
+        free = (
+            _distance(pts, table, pool, meta, radius, ref, nref, clearance, x[0], x[1], x[2], 0.0)
+            - clearance
+        )
+        if not free > DETOUR_TOL:
+            if not free >= -DETOUR_TOL:
+                return True, x
+            q = _wire_point(pts, table, pool, meta, x[0], x[1], x[2])
+            if not dot((x[0] - q[0], x[1] - q[1], x[2] - q[2]), seg) > 0.0:  # not leaving
+                return True, x
+            free = DETOUR_CREEP  # on the edge, moving out: creep on and trace again
+        t += free / length
+        if t >= 1.0:
+            return False, a
+        x = (a[0] + t * seg[0], a[1] + t * seg[1], a[2] + t * seg[2])
+    return False, a  # converging onto the edge without entering
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _lifted(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    clearance: float,
+    p: Vec,
+) -> tuple[bool, Vec]:
+    """``p`` (m) moved out to ``DETOUR_PUSH`` beyond the zone if it is closer, else ``p``.
+
+    ``(False, p)``: no way out (on the centre line).
+    """
+    k, dist = _surface_query(pts, table, pool, meta, p[0], p[1], p[2])
+    d = dist - radius
+    want = clearance + DETOUR_PUSH
+    if d >= want:
+        return True, p
+    ok, out = unit_checked((p[0] - pts[k, 0], p[1] - pts[k, 1], p[2] - pts[k, 2]))
+    if not ok:
+        return False, p
+    lift = want - d
+    return True, (p[0] + lift * out[0], p[1] + lift * out[1], p[2] + lift * out[2])
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _detour(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    a: Vec,
+    b: Vec,
+) -> tuple[bool, Vec]:
+    """:meth:`ClearanceGuard.detour` from ``a`` to ``b`` (m): ``(True, way-point)``, m.
+
+    ``(False, a)`` when the straight move keeps the clearance.
+    """
+    blocked, x = _trace(pts, table, pool, meta, radius, ref, nref, clearance, a, b)
+    if not blocked:
+        return False, a
+    k, _ = _surface_query(pts, table, pool, meta, x[0], x[1], x[2])
+    q = (pts[k, 0], pts[k, 1], pts[k, 2])
+    hi, lo = min(k + 1, pts.shape[0] - 1), max(k - 1, 0)
+    has_out, out = unit_checked((x[0] - q[0], x[1] - q[1], x[2] - q[2]))
+    has_tangent, tangent = unit_checked(
+        (pts[hi, 0] - pts[lo, 0], pts[hi, 1] - pts[lo, 1], pts[hi, 2] - pts[lo, 2])
+    )
+    if not (has_out and has_tangent):
+        return False, a
+    # Around the wire, not along it: the command's angle about the wire's axis, seen from
+    # the edge point, picks the way round (over the top when it is straight behind).
+    around = cross(tangent, out)
+    g = reject((b[0] - q[0], b[1] - q[1], b[2] - q[2]), tangent)
+    phi = math.atan2(dot(g, around), dot(g, out))
+    rest = (b[0] - x[0], b[1] - x[1], b[2] - x[2])
+    n_rest = norm(rest)
+    step = n_rest if n_rest < DETOUR_STEP else DETOUR_STEP  # Python's min(DETOUR_STEP, n_rest)
+    if abs(phi) < SAME_SIDE_ANGLE:  # the same side: straight on along the surface
+        ok, slide = unit_checked(reject(rest, out))
+        move = scaled(slide if ok else out, step)
+    else:
+        sign = 1.0 if phi > 0.0 else -1.0
+        if abs(phi) > math.pi - SAME_SIDE_ANGLE:  # straight behind: over the top
+            sign = 1.0 if around[2] >= 0.0 else -1.0
+        r_t = dot(rest, tangent)
+        inner = r_t if r_t < step else step  # Python's min(step, r_t)
+        along = inner if inner > -step else -step  # Python's max(-step, inner)
+        move = (
+            sign * step * around[0] + along * tangent[0],
+            sign * step * around[1] + along * tangent[1],
+            sign * step * around[2] + along * tangent[2],
+        )
+    for scale in DETOUR_SCALES:  # shorter steps where the zone's surface curves away
+        p = (x[0] + scale * move[0], x[1] + scale * move[1], x[2] + scale * move[2])
+        ok, via = _lifted(pts, table, pool, meta, radius, clearance, p)
+        if ok:
+            blocked, _ = _trace(pts, table, pool, meta, radius, ref, nref, clearance, a, via)
+            if not blocked:
+                return True, via
+    # no clear slide: straight out of the zone, away from the wire
+    short = clearance - _distance(
+        pts, table, pool, meta, radius, ref, nref, clearance, x[0], x[1], x[2], 0.0
+    )
+    lift = DETOUR_PUSH + (short if short > 0.0 else 0.0)  # Python's max(0.0, short)
+    return True, (x[0] + lift * out[0], x[1] + lift * out[1], x[2] + lift * out[2])
 
 
 class ClearanceGuard:
@@ -121,14 +314,16 @@ class ClearanceGuard:
         self.wire = wire
         self.clearance = float(clearance)
         self._points = wire.search_points
-        self._refs: list[tuple[list[float], float]] = []  # the last queries: (point, distance)
+        self._ref = np.zeros((CACHE_SIZE, 4))  # the last queries: point (m), distance (m)
+        self._nref = np.zeros(1, dtype=np.int64)  # rows of _ref in use, newest first
+        self._state = (*wire.query_state, wire.radius, self._ref, self._nref, self.clearance)
         self._escape: Vec | None = None  # world direction used on the last adjusted step
         self.adjusted = 0  # poses rotated this episode
         self.blocked = 0  # poses with no clear, feasible rotation this episode
 
     def reset(self) -> None:
         """Forget the cached query and the escape direction (a new episode)."""
-        self._refs = []
+        self._nref[0] = 0
         self._escape = None
         self.adjusted = 0
         self.blocked = 0
@@ -136,25 +331,21 @@ class ClearanceGuard:
     def distance(self, p_world: Sequence[float], exact_below: float = 0.0) -> float:
         """Surface distance of a camera position (3,), world, m; one nearest-point query at most.
 
-        The distance is 1-Lipschitz: while ``d_ref − ‖p − p_ref‖`` (the last query's distance
+        The distance is 1-Lipschitz: while ``d_ref − ‖p − p_ref‖`` (the last queries' distance
         less how far the point moved) is at least ``clearance + exact_below`` (m), that lower
-        bound is returned without a query. NaN for a non-finite position.
+        bound is returned without a query. NaN for a non-finite position. Compiled
+        (:func:`_distance`).
         """
-        if not math.isfinite(p_world[0] + p_world[1] + p_world[2]):
-            return math.nan
-        for ref, d_ref in self._refs:
-            bound = d_ref - math.dist(p_world, ref)
-            if bound >= self.clearance + exact_below:
-                return bound  # a lower bound that already clears
-        d, _ = self.wire.nearest_surface(p_world)
-        self._remember(list(p_world), d)
-        return d
+        return _distance(*self._state, p_world[0], p_world[1], p_world[2], exact_below)
+
+    @property
+    def refs(self) -> list[tuple[list[float], float]]:
+        """The cached queries, newest first: (point (3,), world, m; surface distance, m)."""
+        return [(row[:3], row[3]) for row in self._ref[: self._nref[0]].tolist()]
 
     def _remember(self, p_world: list[float], d: float) -> None:
         """Keep a query for the Lipschitz bound (the newest ``CACHE_SIZE``: goal and camera)."""
-        refs = self._refs
-        refs.insert(0, (p_world, d))
-        del refs[CACHE_SIZE:]
+        _remember(self._ref, self._nref, p_world[0], p_world[1], p_world[2], d)
 
     def margin(self, p_world: Sequence[float]) -> float:
         """Signed clearance of a camera position (3,), world, m: ≥ 0 clear (``Workspace``).
@@ -167,30 +358,11 @@ class ClearanceGuard:
     def first_outside(self, p_world: FloatArray, count: int) -> int:
         """The first of ``p_world[:count]`` whose :meth:`margin` is < 0 (or NaN), else ``count``.
 
-        ``p_world`` (N, 3): camera positions, world, m. The cache ends as :meth:`margin` called
-        on each in turn (up to that point) leaves it.
-
-        A point that a cached query's Lipschitz bound clears needs no query and changes no
-        cache: a compiled kernel (:func:`_first_unbounded`) skips the points the cached bounds
-        clear by more than ``SURE_BOUND_M`` (so the interpreter's ``math.dist`` clears them
-        too), and :meth:`margin` itself is called on the others, in turn.
+        ``p_world`` (N, 3): camera positions, world, m. :meth:`margin` on each in turn, in
+        one compiled call (:func:`_first_outside`): the cache ends as those calls leave it.
         """
         p = np.ascontiguousarray(p_world, dtype=float).reshape(-1, 3)
-        need = self.clearance + SURE_BOUND_M
-        refs: list[tuple[list[float], float]] = []
-        ref_p, ref_d = np.empty((0, 3)), np.empty(0)
-        i = 0
-        while True:
-            if refs != self._refs:  # the first pass, or a query changed the cache
-                refs = list(self._refs)
-                ref_p = np.array([r for r, _ in refs], dtype=float).reshape(-1, 3)
-                ref_d = np.array([d for _, d in refs], dtype=float)
-            i = _first_unbounded(p, i, count, ref_p, ref_d, need)
-            if i >= count:
-                return count
-            if not self.margin(p[i].tolist()) >= 0.0:
-                return i
-            i += 1
+        return _first_outside(*self._state, p, count)
 
     def is_clear(self, p_world: list[float]) -> bool:
         """Whether a camera position (3,), world, m, keeps the clearance (NaN: not clear)."""
@@ -256,6 +428,7 @@ class ClearanceGuard:
         clears a short move. If the trace stops at the zone's edge before the command, the
         way-point slides from there along the zone's surface: the remaining direction with its
         component into the wire removed, ``DETOUR_STEP`` long, pushed ``DETOUR_PUSH`` out.
+        One compiled call (:func:`_detour`).
 
         Returns
         -------
@@ -264,84 +437,12 @@ class ClearanceGuard:
             an end is not finite).
         """
         a, b = p_world_now, p_world_cmd
-        x = self._trace(a, b)
-        if x is None:
-            return None
-        _, k = self.wire.nearest_surface(x)
-        pts = self._points
-        q = pts[k].tolist()
-        out = unit_or_none((x[0] - q[0], x[1] - q[1], x[2] - q[2]))
-        tangent = unit_or_none(tuple((pts[min(k + 1, len(pts) - 1)] - pts[max(k - 1, 0)]).tolist()))
-        if out is None or tangent is None:
-            return None
-        # Around the wire, not along it: the command's angle about the wire's axis, seen from
-        # the edge point, picks the way round (over the top when it is straight behind).
-        around = cross(tangent, out)
-        g = reject((b[0] - q[0], b[1] - q[1], b[2] - q[2]), tangent)
-        phi = math.atan2(dot(g, around), dot(g, out))
-        rest = (b[0] - x[0], b[1] - x[1], b[2] - x[2])
-        step = min(DETOUR_STEP, norm(rest))
-        if abs(phi) < SAME_SIDE_ANGLE:  # the same side: straight on along the surface
-            move = scaled(unit_or_none(reject(rest, out)) or out, step)
-        else:
-            sign = 1.0 if phi > 0.0 else -1.0
-            if abs(phi) > math.pi - SAME_SIDE_ANGLE:  # straight behind: over the top
-                sign = 1.0 if around[2] >= 0.0 else -1.0
-            along = max(-step, min(step, dot(rest, tangent)))
-            move = (
-                sign * step * around[0] + along * tangent[0],
-                sign * step * around[1] + along * tangent[1],
-                sign * step * around[2] + along * tangent[2],
-            )
-        for scale in DETOUR_SCALES:  # shorter steps where the zone's surface curves away
-            via = self._lifted([x[i] + scale * move[i] for i in range(3)])
-            if via is not None and self._trace(a, via) is None:
-                return (via[0], via[1], via[2])
-        # no clear slide: straight out of the zone, away from the wire
-        lift = DETOUR_PUSH + max(0.0, self.clearance - self.distance(x))
-        return (x[0] + lift * out[0], x[1] + lift * out[1], x[2] + lift * out[2])
-
-    def _trace(self, a: Sequence[float], b: Sequence[float]) -> list[float] | None:
-        """The first point of the segment ``a → b`` (m) where it enters the zone, or ``None``.
-
-        Sphere tracing (module docstring); a start on the zone's edge moving out creeps on.
-        """
-        seg = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
-        length = norm(seg)
-        if not math.isfinite(length) or length <= _EPS:
-            return None
-        t = 0.0
-        x = [a[0], a[1], a[2]]
-        for _ in range(MAX_ESCAPE_STEPS):
-            free = self.distance(x) - self.clearance
-            if not free > DETOUR_TOL:
-                if not (free >= -DETOUR_TOL and self._leaving(x, seg)):
-                    return x
-                free = DETOUR_CREEP  # on the edge, moving out: creep on and trace again
-            t += free / length
-            if t >= 1.0:
-                return None
-            x = [a[0] + t * seg[0], a[1] + t * seg[1], a[2] + t * seg[2]]
-        return None  # converging onto the edge without entering
-
-    def _lifted(self, p: list[float]) -> list[float] | None:
-        """``p`` (m) moved out to ``DETOUR_PUSH`` beyond the zone if it is closer, else ``p``."""
-        d, k = self.wire.nearest_surface(p)
-        want = self.clearance + DETOUR_PUSH
-        if d >= want:
-            return p
-        q = self._points[k].tolist()
-        out = unit_or_none((p[0] - q[0], p[1] - q[1], p[2] - q[2]))
-        if out is None:
-            return None
-        lift = want - d
-        return [p[0] + lift * out[0], p[1] + lift * out[1], p[2] + lift * out[2]]
-
-    def _leaving(self, x: list[float], direction: Vec) -> bool:
-        """Whether moving from ``x`` (3,), m, along ``direction`` goes away from the wire."""
-        _, k = self.wire.nearest_surface(x)
-        q = self._points[k].tolist()
-        return dot((x[0] - q[0], x[1] - q[1], x[2] - q[2]), direction) > 0.0
+        found, via = _detour(
+            *self._state,
+            (float(a[0]), float(a[1]), float(a[2])),
+            (float(b[0]), float(b[1]), float(b[2])),
+        )
+        return via if found else None
 
     def _rotated(
         self,

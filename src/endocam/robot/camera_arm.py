@@ -34,10 +34,12 @@ import math
 
 import numpy as np
 import ruckig
+from numba import njit
 
 from endocam.camera import StereoCamera
 from endocam.geometry import UP, FloatArray, as_pose, invert_pose
 from endocam.kernels import cross, rotation_angle, so3_exp
+from endocam.pyfloat import dist3
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import (
     ECM_MAX_ACCELERATION,
@@ -47,11 +49,11 @@ from endocam.robot.arm import (
     SimulatedArm,
 )
 from endocam.robot.dh import (
+    _compose_kernel,
+    _pose12_times_kernel,
     chain_points,
-    compose_links,
     pose12_from_matrix,
     pose12_times,
-    pose12_to_matrix,
 )
 from endocam.robot.ecm import ECM
 from endocam.robot.kinematics import RcmArm
@@ -249,6 +251,10 @@ class CameraArm:
             self._last_cam_rows[1][3],
             self._last_cam_rows[2][3],
         )  # the camera's origin in the last link's frame, m
+        # _pose_kernel's constants: T_world_rcm (12 floats), T_last_cam's rows, the RCM, m
+        self._pose_consts = np.array(
+            [*self._world_rcm12, *T_last_cam[:3].ravel().tolist(), *self._p_rcm_list]
+        )
         self._arm = SimulatedArm(self.model, dt=dt, q0=natural_pose(self.model))
         self._q = self._arm.measured_js()[0]
         self._T_cam = self.camera_pose(self._q)
@@ -265,6 +271,14 @@ class CameraArm:
         # always reach the stopping point (at the full limit round-off can make it infeasible)
         self._half_inv_acc = [0.5 / (BRAKE_ACC_SHARE * a) for a in amax]  # s²/rad or s²/m
         self._prismatic = self.model.prismatic
+        self._stop_consts = np.array(  # _stop_kernel's per-joint constants (rows)
+            [
+                self._half_inv_acc,
+                [1.0 if pri else 0.0 for pri in self._prismatic],
+                self.model.lower.tolist(),
+                self.model.upper.tolist(),
+            ]
+        )
         self._dt = dt
         n = len(amax)
         # the braking path as the arm's own ruckig (same limits, synchronised) will drive it
@@ -325,10 +339,12 @@ class CameraArm:
         """Camera pose for joints ``q`` (n,): ``T_world_cam`` (4, 4), optical frame, m."""
         return self._camera_pose(self.model.check_q(q).tolist())
 
-    def _camera_pose(self, q: list[float]) -> FloatArray:
-        """``T_world_rcm · FK(q) · T_tip_cam`` on plain floats (unchecked ``q``)."""
-        T = compose_links(self.model.chain, q, T0=self._world_rcm12)
-        return pose12_to_matrix(T, self._last_cam_rows)
+    def _camera_pose(self, q: list[float] | FloatArray) -> FloatArray:
+        """``T_world_rcm · FK(q) · T_tip_cam`` (4, 4), m, on plain floats (unchecked ``q``).
+
+        One compiled call (:func:`_pose_kernel`).
+        """
+        return _pose_kernel(self.model.chain._param_array, self._pose_consts, np.asarray(q, float))
 
     def _camera_positions(self, q_rows: list[list[float]]) -> FloatArray:
         """The translations of :meth:`_camera_pose` for joint rows (m, n): (m, 3), world, m.
@@ -681,19 +697,17 @@ class CameraArm:
         ws = self.workspace
         assert ws is not None
         q, qd = self._arm.measured_js()
-        q_l, qd_l = q.tolist(), qd.tolist()
-        delta = [v * abs(v) * h for v, h in zip(qd_l, self._half_inv_acc, strict=True)]
-        stop = self.model.clamp_floats([x + d for x, d in zip(q_l, delta, strict=True)])[0]
-        T_now = self._camera_pose(q_l)
+        stop_row, T_now, moving, slide, turn, to_rcm = _stop_kernel(
+            self.model.chain._param_array, self._pose_consts, self._stop_consts, q, qd
+        )
+        stop = stop_row.tolist()
         p = T_now[:3, 3].tolist()
         margin = ws.margin(p)
         safe = margin >= 0.0
-        if safe and any(qd_l):
-            slide = sum(abs(d) for d, pri in zip(delta, self._prismatic, strict=True) if pri)
-            turn = sum(abs(d) for d, pri in zip(delta, self._prismatic, strict=True) if not pri)
-            lever = math.dist(p, self._p_rcm_list) + slide + ARM_LEVER_SLACK_M
+        if safe and moving:
+            lever = to_rcm + slide + ARM_LEVER_SLACK_M
             if not margin > slide + lever * turn:  # the braking could reach the boundary
-                safe = self._brakes_inside(q_l, qd_l, stop)
+                safe = self._brakes_inside(q.tolist(), qd.tolist(), stop)
         return stop, safe, T_now
 
     def _brakes_inside(self, q: list[float], qd: list[float], stop: list[float]) -> bool:
@@ -743,6 +757,67 @@ BRAKE_ACC_SHARE = 0.99  # unitless: share of a joint's acceleration limit its br
 # m: added to the camera's distance from the RCM to bound every revolute joint's lever arm on
 # the camera (the wrist, the jaw and the camera mount beyond the shaft are shorter than this)
 ARM_LEVER_SLACK_M = 0.05
+
+
+_POSE_T0, _POSE_TIP, _POSE_RCM = 0, 12, 24  # _pose_consts: T_world_rcm, T_last_cam, RCM
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _pose_kernel(params: FloatArray, c: FloatArray, q: FloatArray) -> FloatArray:
+    """The camera pose (4, 4), world, m, for joints ``q`` (n,), rad / m.
+
+    ``params``: the chain's (n, 7) parameter array; ``c``: ``CameraArm._pose_consts``. The
+    floats of ``pose12_to_matrix(compose_links(chain, q, T0=T_world_rcm), T_last_cam rows)``:
+    the same link product, then :func:`~endocam.robot.dh.pose12_times`'s products.
+    """
+    T0 = (c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11])
+    t = _POSE_TIP
+    rows = (
+        (c[t], c[t + 1], c[t + 2], c[t + 3]),
+        (c[t + 4], c[t + 5], c[t + 6], c[t + 7]),
+        (c[t + 8], c[t + 9], c[t + 10], c[t + 11]),
+    )
+    P = _pose12_times_kernel(_compose_kernel(params, q, 0, params.shape[0], T0), rows)
+    out = np.empty((4, 4))
+    for i in range(3):
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = P[3 * i], P[3 * i + 1], P[3 * i + 2], P[9 + i]
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
+    return out
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _stop_kernel(
+    params: FloatArray, c: FloatArray, joints: FloatArray, q: FloatArray, qd: FloatArray
+) -> tuple[FloatArray, FloatArray, bool, float, float, float]:
+    """:meth:`CameraArm._stop_point`'s floats for joints ``q`` moving at ``qd`` (n,).
+
+    ``joints`` (4, n): ``v²/2a`` factors (s²/rad or s²/m), prismatic flags (1.0), lower and
+    upper limits. Returns the stopping point (each joint braked: ``q + qd·|qd|·k``, clipped
+    into the limits as ``RcmArm.clamp_floats``), the camera pose now (4, 4), m
+    (:func:`_pose_kernel`), whether any joint moves (a NaN velocity counts), the braking's
+    total slide (m) and turn (rad), and the camera's distance to the RCM (CPython's
+    ``math.dist``), m.
+    """
+    n = q.shape[0]
+    stop = np.empty(n)
+    moving = False
+    slide = 0.0
+    turn = 0.0
+    for i in range(n):
+        v = qd[i]
+        d = v * abs(v) * joints[0, i]
+        x = q[i] + d
+        lo, hi = joints[2, i], joints[3, i]
+        stop[i] = lo if x < lo else (hi if x > hi else x)
+        moving = moving or v != 0.0
+        if joints[1, i] != 0.0:
+            slide += abs(d)
+        else:
+            turn += abs(d)
+    T_now = _pose_kernel(params, c, q)
+    r = _POSE_RCM
+    to_rcm = dist3(T_now[0, 3], T_now[1, 3], T_now[2, 3], c[r], c[r + 1], c[r + 2])
+    return stop, T_now, moving, slide, turn, to_rcm
 
 
 WRIST_JUMP_RAD = 1.0  # rad: a wrist joint target moving this far in one step has jumped

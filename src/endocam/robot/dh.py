@@ -261,9 +261,12 @@ def compose_links(
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _compose_kernel(
-    params: FloatArray, q: tuple[float, ...], start: int, stop: int, T0: Pose12
+    params: FloatArray, q: tuple[float, ...] | FloatArray, start: int, stop: int, T0: Pose12
 ) -> Pose12:
-    """:func:`compose_links` on the chain's (n, 7) parameter array (``DHChain._param_array``)."""
+    """:func:`compose_links` on the chain's (n, 7) parameter array (``DHChain._param_array``).
+
+    ``q``: the joint values (n,), a tuple or an array (the same floats either way), rad / m.
+    """
     r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = T0
     for i in range(start, stop):
         ca, sa, a_len = params[i, 0], params[i, 1], params[i, 2]
@@ -370,6 +373,10 @@ def pose12_times(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> Pose12:
         r10 * a3 + r11 * b3 + r12 * c3 + py,
         r20 * a3 + r21 * b3 + r22 * c3 + pz,
     )
+
+
+_pose12_times_kernel = njit(cache=True)(pose12_times)
+""":func:`pose12_times` compiled from the same source, for other kernels (e.g. the PSM's IK)."""
 
 
 def pose12_point(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> list[float]:

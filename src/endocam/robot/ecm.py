@@ -31,22 +31,32 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 from scipy.optimize import least_squares
 
 from endocam.geometry import FloatArray, invert_pose
 from endocam.kernels import cross, dot, norm
+from endocam.pyfloat import remainder
 from endocam.robot.dh import (
+    IDENTITY12,
     DHChain,
     DHLink,
     JointType,
     Pose12,
+    _compose_kernel,
+    _pose12_times_kernel,
     compose_links,
     pose12_from_matrix,
     pose12_point,
-    pose12_times,
     pose12_to_matrix,
 )
-from endocam.robot.ik import IKResult, IKStatus, pose12_error, within_tolerance
+from endocam.robot.ik import (
+    IK_ORIENTATION_TOL_RAD,
+    IK_POSITION_TOL_M,
+    IKResult,
+    IKStatus,
+    pose12_error,
+)
 from endocam.robot.kinematics import (
     LIMIT_SLACK,
     NEAREST_MAX_NFEV,
@@ -82,6 +92,7 @@ _EXACT_TOL_RAD = 1e-9  # rad: orientation residual counted as zero with unlimite
 _AXIS_MISS_RAD = 1e-6  # rad: an optical axis this far off the RCM's ray is not exact (≫ round-off)
 
 
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def clamp_angle_to_limits(angle: float, reference: float, lower: float, upper: float) -> float:
     """In-limit angle closest (on the circle) to ``angle``.
 
@@ -102,12 +113,207 @@ def clamp_angle_to_limits(angle: float, reference: float, lower: float, upper: f
     """
     chosen = branch_in_limits(angle, reference, lower, upper)
     if lower - LIMIT_SLACK <= chosen <= upper + LIMIT_SLACK:
-        return min(max(chosen, lower), upper)
+        inside = lower if lower > chosen else chosen  # Python's max(chosen, lower)
+        return upper if upper < inside else inside  # Python's min(inside, upper)
+    to_lower = abs(remainder(lower - angle, 2.0 * math.pi))
+    to_upper = abs(remainder(upper - angle, 2.0 * math.pi))
+    return lower if to_lower <= to_upper else upper
 
-    def circ_dist(a: float) -> float:
-        return abs(math.remainder(a - angle, 2.0 * math.pi))
 
-    return lower if circ_dist(lower) <= circ_dist(upper) else upper
+# ECM._consts, the compiled IK's constants: T_tip_last's rows, the tool-tip rows, the tool's
+# rotation (row-major), the shaft offset (m), then the lower and upper joint limits
+_C_TIP_INV, _C_TIP, _C_TOOL, _C_SHAFT, _C_LOWER, _C_UPPER = 0, 12, 24, 33, 34, 38
+# _solve_kernel's outcomes: done, or the axis is out of its limits (the caller solves the
+# nearest position, scipy, and asks again with it)
+_DONE, _NEED_NEAREST = 0, 1
+# IK statuses as _solve_kernel returns them
+_STATUSES = (IKStatus.OK, IKStatus.CLAMPED_TO_LIMITS, IKStatus.UNREACHABLE)
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _rows(c: FloatArray, i: int) -> tuple[tuple[float, ...], ...]:
+    """Three rows of four floats stored flat from ``c[i]`` (a transform's top rows, m)."""
+    return (
+        (c[i], c[i + 1], c[i + 2], c[i + 3]),
+        (c[i + 4], c[i + 5], c[i + 6], c[i + 7]),
+        (c[i + 8], c[i + 9], c[i + 10], c[i + 11]),
+    )
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _best_roll(
+    params: FloatArray, c: FloatArray, goal: Pose12, q0: float, q1: float, q2: float
+) -> tuple[float, Pose12, Pose12]:
+    """Roll angle θ4 (rad) maximising trace(R_goal^T R), and the pose's rotation it gives.
+
+    ``goal`` is the goal tip pose (12 floats); the rotation is returned in the same form
+    (translation 0), then the product of the first three links at ``q0, q1, q2`` (12 floats,
+    m). With ``M = R_tool · R_goalᵀ · R_rcm_3``, ``θ4 = atan2(M01 − M10, M00 + M11)``.
+    """
+    a = _compose_kernel(params, (q0, q1, q2, 0.0), 0, 3, IDENTITY12)
+    R3 = (a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], 0.0, 0.0, 0.0)
+    # N = R_goal^T R3 (rows of R_goal^T = columns of R_goal)
+    g00, g01, g02, g10, g11, g12, g20, g21, g22 = goal[:9]
+    a00, a01, _, a10, a11, _, a20, a21, _ = a[:9]
+    n00, n01 = g00 * a00 + g10 * a10 + g20 * a20, g00 * a01 + g10 * a11 + g20 * a21
+    n10, n11 = g01 * a00 + g11 * a10 + g21 * a20, g01 * a01 + g11 * a11 + g21 * a21
+    n20, n21 = g02 * a00 + g12 * a10 + g22 * a20, g02 * a01 + g12 * a11 + g22 * a21
+    t = _C_TOOL
+    m00 = c[t] * n00 + c[t + 1] * n10 + c[t + 2] * n20
+    m01 = c[t] * n01 + c[t + 1] * n11 + c[t + 2] * n21
+    m10 = c[t + 3] * n00 + c[t + 4] * n10 + c[t + 5] * n20
+    m11 = c[t + 3] * n01 + c[t + 4] * n11 + c[t + 5] * n21
+    theta4 = math.atan2(m01 - m10, m00 + m11)
+    cos4, sin4 = math.cos(theta4), math.sin(theta4)
+    rz = ((cos4, -sin4, 0.0, 0.0), (sin4, cos4, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0))
+    tool4 = (
+        (c[t], c[t + 1], c[t + 2], 0.0),
+        (c[t + 3], c[t + 4], c[t + 5], 0.0),
+        (c[t + 6], c[t + 7], c[t + 8], 0.0),
+    )
+    return theta4, _pose12_times_kernel(_pose12_times_kernel(R3, rz), tool4), a
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _aim(
+    params: FloatArray, c: FloatArray, goal: Pose12, two: float
+) -> tuple[tuple[float, float, float], tuple[float, float, float], float, bool, Pose12]:
+    """Joints aiming the optical axis at the goal, unclamped, and the roll that fits best.
+
+    Returns yaw, pitch, insertion (rad, rad, m; roll 0), the goal position of the last DH
+    frame (m, RCM frame), the best roll θ4 (rad), whether that roll reaches the goal's
+    orientation exactly (with unlimited joints: the axis passes through the RCM), and the
+    product of the first three links (12 floats, m). ``two``: 2.0 (:func:`pose12_error`).
+    """
+    g = _pose12_times_kernel(goal, _rows(c, _C_TIP_INV))  # last DH frame at the goal
+    p0, p1, p2 = g[9], g[10], g[11]
+    r = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+    if r > _EPS_GEOM:
+        s0, s1, s2 = p0 / r, p1 / r, p2 / r
+    else:
+        s0, s1, s2 = g[2], g[5], g[8]
+    s1_in = s1 if s1 < 1.0 else 1.0  # Python's min(1.0, s1)
+    s1_in = s1_in if s1_in > -1.0 else -1.0  # Python's max(-1.0, …)
+    q = (math.atan2(s0, -s2), -math.asin(s1_in), r - c[_C_SHAFT])
+    # reachable with unlimited joints iff the best roll on the unclamped axis is exact
+    theta4, R_free, T_rcm_3 = _best_roll(params, c, goal, q[0], q[1], q[2])
+    exact = pose12_error(goal, R_free, two)[1] <= _EXACT_TOL_RAD
+    return q, (p0, p1, p2), theta4, exact, T_rcm_3
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _axis_in_limits(c: FloatArray, q: tuple[float, float, float]) -> bool:
+    """Whether yaw, pitch and insertion ``q`` lie within their limits (± round-off)."""
+    for i in range(3):
+        if not (c[_C_LOWER + i] - LIMIT_SLACK <= q[i] <= c[_C_UPPER + i] + LIMIT_SLACK):
+            return False
+    return True
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _roll(params: FloatArray, c: FloatArray, theta4: float, seed3: float) -> tuple[float, bool]:
+    """The roll joint for θ4 (rad) within its limits, and False if it had to be clamped."""
+    offset, lower, upper = params[3, 5], c[_C_LOWER + 3], c[_C_UPPER + 3]
+    q3 = clamp_angle_to_limits(theta4 - offset, seed3, lower, upper)
+    return q3, abs(remainder(q3 + offset - theta4, 2.0 * math.pi)) <= LIMIT_SLACK
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _clip(v: float, lower: float, upper: float) -> float:
+    """``RcmArm.clamp_floats``'s clip of one joint value into its limits."""
+    if v < lower:
+        return lower
+    if v > upper:
+        return upper
+    return v
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _clamped_forward(
+    params: FloatArray,
+    c: FloatArray,
+    q: tuple[float, float, float, float],
+    q_axis: tuple[float, float, float],
+    T_rcm_3: Pose12,
+) -> tuple[tuple[float, float, float, float], Pose12]:
+    """``q`` clipped into the limits and ``forward`` of it (12 floats, m).
+
+    Reuses ``T_rcm_3``, the first three links at ``q_axis``, if the clip left those joints
+    alone: the same products in the same order as composing all four links (the roll is the
+    last), so the same floats.
+    """
+    lo, hi = _C_LOWER, _C_UPPER
+    qc = (
+        _clip(q[0], c[lo], c[hi]),
+        _clip(q[1], c[lo + 1], c[hi + 1]),
+        _clip(q[2], c[lo + 2], c[hi + 2]),
+        _clip(q[3], c[lo + 3], c[hi + 3]),
+    )
+    if qc[0] == q_axis[0] and qc[1] == q_axis[1] and qc[2] == q_axis[2]:
+        T = _compose_kernel(params, qc, 3, 4, T_rcm_3)
+    else:
+        T = _compose_kernel(params, qc, 0, 4, IDENTITY12)
+    return qc, _pose12_times_kernel(T, _rows(c, _C_TIP))
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _solve_kernel(
+    params: FloatArray,
+    c: FloatArray,
+    goal: Pose12,
+    seed3: float,
+    two: float,
+    near: tuple[float, float, float] | None,
+) -> tuple[
+    int, int, tuple[float, float, float, float], float, float, Pose12, tuple[float, float, float]
+]:
+    """:meth:`ECM.solve_unchecked` (module docstring), compiled; ``two``: 2.0.
+
+    Returns ``(outcome, status, q, position_error, orientation_error, forward(q), p_goal)``.
+    ``_NEED_NEAREST`` (axis out of its limits, ``near`` None): ``q`` is the unclamped aim and
+    ``p_goal`` the goal position of the last DH frame (m); the caller finds the nearest
+    in-limit yaw, pitch, insertion and calls again with them as ``near``.
+    """
+    q_axis, p_goal, theta4, exact, T_rcm_3 = _aim(params, c, goal, two)
+    q = (q_axis[0], q_axis[1], q_axis[2], 0.0)
+    clamped = False
+    if not _axis_in_limits(c, q_axis):
+        if near is None:
+            return _NEED_NEAREST, 0, q, 0.0, 0.0, IDENTITY12, p_goal
+        clamped = True
+        theta4 = _best_roll(params, c, goal, near[0], near[1], near[2])[0]
+        q = (near[0], near[1], near[2], 0.0)
+    q3, roll_ok = _roll(params, c, theta4, seed3)
+    clamped = clamped or not roll_ok
+    q, T12 = _clamped_forward(params, c, (q[0], q[1], q[2], q3), q_axis, T_rcm_3)
+    status = 2 if not exact else (1 if clamped else 0)
+    pos_err, ang_err = pose12_error(goal, T12, two)
+    if status == 0 and not (pos_err <= IK_POSITION_TOL_M and ang_err <= IK_ORIENTATION_TOL_RAD):
+        status = 2
+    return _DONE, status, q, pos_err, ang_err, T12, p_goal
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _exact_kernel(
+    params: FloatArray, c: FloatArray, goal: Pose12, seed3: float, two: float
+) -> tuple[bool, tuple[float, float, float, float]]:
+    """:meth:`ECM.exact12_unchecked`, compiled: ``(True, q)`` for an ``OK`` solve."""
+    none = (0.0, 0.0, 0.0, 0.0)
+    g = _pose12_times_kernel(goal, _rows(c, _C_TIP_INV))  # last DH frame at the goal
+    p = (g[9], g[10], g[11])
+    if norm(p) > _EPS_GEOM:  # else at the RCM: no shaft direction to compare with
+        z = (g[2], g[5], g[8])
+        if math.atan2(norm(cross(z, p)), dot(z, p)) > _AXIS_MISS_RAD:
+            return False, none  # the optical axis clearly misses the RCM
+    q_axis, _, theta4, exact, T_rcm_3 = _aim(params, c, goal, two)
+    if not (exact and _axis_in_limits(c, q_axis)):
+        return False, none
+    q3, roll_ok = _roll(params, c, theta4, seed3)
+    if not roll_ok:
+        return False, none
+    q, T12 = _clamped_forward(params, c, (q_axis[0], q_axis[1], q_axis[2], q3), q_axis, T_rcm_3)
+    pos_err, ang_err = pose12_error(goal, T12, two)
+    return pos_err <= IK_POSITION_TOL_M and ang_err <= IK_ORIENTATION_TOL_RAD, q
 
 
 class ECM(RcmArm):
@@ -128,13 +334,18 @@ class ECM(RcmArm):
         if len(chain.links) != 4:
             raise ValueError("chain: the ECM closed form needs 4 links")
         links = chain.links
-        self._T_tip_inv = invert_pose(chain.T_last_tip)
-        self._tip_inv_rows = tuple(tuple(row) for row in self._T_tip_inv[:3].tolist())
-        self._R_tool = chain.T_last_tip[:3, :3].copy()
-        self._tool_rows = self._R_tool.tolist()
-        rows4 = np.hstack([self._R_tool, np.zeros((3, 1))])
-        self._tool_rows4 = tuple(tuple(row) for row in rows4.tolist())
-        self._shaft_offset = links[2].offset + links[3].D  # m, tip on axis at insertion 0
+        tool = chain.T_last_tip[:3, :3]
+        self._consts = np.array(  # the compiled IK's constants (_C_* above)
+            [
+                *invert_pose(chain.T_last_tip)[:3].ravel().tolist(),
+                *chain.T_last_tip[:3].ravel().tolist(),
+                *tool.ravel().tolist(),
+                links[2].offset + links[3].D,  # m, tip on axis at insertion 0
+                *self._lower.tolist(),
+                *self._upper.tolist(),
+            ]
+        )
+        self._consts.setflags(write=False)
 
     def solve_unchecked(self, T_goal: FloatArray, seed: FloatArray) -> IKResult:
         """Position-first IK; the residual orientation error is reported, never hidden.
@@ -153,136 +364,29 @@ class ECM(RcmArm):
             ``OK`` when the goal is reached (its optical axis passes through the RCM and the
             joints are in limits); ``UNREACHABLE`` when the optical axis misses the RCM
             (residual orientation error > 0); ``CLAMPED_TO_LIMITS`` when only joint limits
-            prevent it. ``q`` is always within the limits.
+            prevent it. ``q`` is always within the limits. Compiled (:func:`_solve_kernel`)
+            but for the nearest in-limit position of an axis out of its limits (scipy).
         """
         goal = pose12_from_matrix(T_goal)
-        q, p_goal, theta4, exact_orientation, T_rcm_3 = self._aim(goal)
-        q_axis = q[:3]
-        clamped = False
-        if not self._axis_in_limits(q):
-            clamped = True
+        args = (self._chain._param_array, self._consts, goal, float(seed[3]), 2.0)
+        outcome, status, q, pos_err, ang_err, T12, p_goal = _solve_kernel(*args, None)
+        if outcome == _NEED_NEAREST:
             q_clip = self.clamp(np.array(q))[:3]
-            q[:3] = self._nearest_position(np.array(p_goal), q_clip).tolist()
-            theta4, _, _ = self._best_roll(goal, q)
-        if not self._set_roll(q, theta4, seed):
-            clamped = True
-        q, _ = self.clamp_floats(q)
-        if not exact_orientation:
-            status = IKStatus.UNREACHABLE
-        elif clamped:
-            status = IKStatus.CLAMPED_TO_LIMITS
-        else:
-            status = IKStatus.OK
-        T12 = self._forward12(q, q_axis, T_rcm_3)
-        errors = pose12_error(goal, T12)
-        if status is IKStatus.OK and not within_tolerance(*errors):
-            status = IKStatus.UNREACHABLE
-        return IKResult(np.array(q), status, errors[0], errors[1], pose12_to_matrix(T12))
+            near = self._nearest_position(np.array(p_goal), q_clip).tolist()
+            _, status, q, pos_err, ang_err, T12, _ = _solve_kernel(*args, tuple(near))
+        return IKResult(np.array(q), _STATUSES[status], pos_err, ang_err, pose12_to_matrix(T12))
 
     def exact12_unchecked(self, goal12: Pose12, seed: FloatArray) -> list[float] | None:
         """:meth:`solve_unchecked`'s joints when its status is ``OK``, else ``None``.
 
         The same steps as :meth:`solve_unchecked`, stopping at the first that rules ``OK``
-        out (an optical axis that misses the RCM, a joint limit): the control loop asks this
-        several times per step, mostly of goals the 4-DoF scope cannot reach.
+        out (an optical axis clearly off the ray from the RCM, more than ``_AXIS_MISS_RAD``,
+        far beyond ``_EXACT_TOL_RAD``; a joint limit): the control loop asks this several
+        times per step, mostly of goals the 4-DoF scope cannot reach. One compiled call
+        (:func:`_exact_kernel`).
         """
-        if self._axis_misses_rcm(goal12):
-            return None
-        q, _, theta4, exact_orientation, T_rcm_3 = self._aim(goal12)
-        if not (exact_orientation and self._axis_in_limits(q) and self._set_roll(q, theta4, seed)):
-            return None
-        q_axis = q[:3]
-        q, _ = self.clamp_floats(q)
-        T12 = self._forward12(q, q_axis, T_rcm_3)
-        return q if within_tolerance(*pose12_error(goal12, T12)) else None
-
-    def _forward12(self, q: list[float], q_axis: list[float], T_rcm_3: Pose12) -> Pose12:
-        """``forward(q)`` (12 floats), reusing ``T_rcm_3``, the first three links at ``q_axis``.
-
-        The same products in the same order as composing all four links (the roll is the
-        last), so the same floats; ``q_axis`` is the yaw, pitch and insertion ``T_rcm_3`` was
-        composed for (recomposed if ``q`` no longer has them, e.g. after clamping).
-        """
-        if q[:3] == q_axis:
-            T = compose_links(self._chain, q, 3, 4, T_rcm_3)
-        else:
-            T = compose_links(self._chain, q)
-        return pose12_times(T, self._chain._tip_rows)
-
-    def _axis_misses_rcm(self, goal: Pose12) -> bool:
-        """Whether the goal's optical axis is clearly off the ray from the RCM: no exact solve.
-
-        The scope's last DH frame always has its z on the ray from the RCM through its origin
-        (the shaft), so a goal whose z is more than ``_AXIS_MISS_RAD`` off that ray is at least
-        as far from every orientation the ECM reaches, far beyond ``_EXACT_TOL_RAD``: the
-        cheap first test of :meth:`exact12_unchecked` (most goals of a 6-DoF controller).
-        """
-        g = pose12_times(goal, self._tip_inv_rows)  # last DH frame at the goal
-        p = (g[9], g[10], g[11])
-        if not norm(p) > _EPS_GEOM:
-            return False  # at the RCM: no shaft direction to compare with
-        z = (g[2], g[5], g[8])
-        return math.atan2(norm(cross(z, p)), dot(z, p)) > _AXIS_MISS_RAD
-
-    def _aim(
-        self, goal: Pose12
-    ) -> tuple[list[float], tuple[float, float, float], float, bool, Pose12]:
-        """Joints aiming the optical axis at the goal, unclamped, and the roll that fits best.
-
-        Returns ``q`` (yaw, pitch, insertion, roll 0; rad / m), the goal position of the last
-        DH frame (m, RCM frame), the best roll θ4 (rad), whether that roll reaches the
-        goal's orientation exactly (with unlimited joints: the axis passes through the RCM),
-        and the product of the first three links at ``q`` (12 floats, m).
-        """
-        g = pose12_times(goal, self._tip_inv_rows)  # last DH frame at the goal
-        p0, p1, p2 = g[9], g[10], g[11]
-        r = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-        s0, s1, s2 = (p0 / r, p1 / r, p2 / r) if r > _EPS_GEOM else (g[2], g[5], g[8])
-        q = [math.atan2(s0, -s2), -math.asin(max(-1.0, min(1.0, s1))), r - self._shaft_offset, 0.0]
-        # reachable with unlimited joints iff the best roll on the unclamped axis is exact
-        theta4, R_free, T_rcm_3 = self._best_roll(goal, q)
-        exact = pose12_error(goal, R_free)[1] <= _EXACT_TOL_RAD
-        return q, (p0, p1, p2), theta4, exact, T_rcm_3
-
-    def _axis_in_limits(self, q: list[float]) -> bool:
-        """Whether yaw, pitch and insertion ``q[:3]`` lie within their limits (± round-off)."""
-        return all(
-            lo - LIMIT_SLACK <= v <= hi + LIMIT_SLACK
-            for v, (lo, hi) in zip(q[:3], self._limit_pairs, strict=False)
-        )
-
-    def _set_roll(self, q: list[float], theta4: float, seed: FloatArray) -> bool:
-        """Set ``q[3]`` to the roll θ4 (rad) within its limits; False if it had to be clamped."""
-        link = self._chain.links[3]
-        q[3] = clamp_angle_to_limits(theta4 - link.offset, float(seed[3]), link.lower, link.upper)
-        return abs(math.remainder(q[3] + link.offset - theta4, 2.0 * math.pi)) <= LIMIT_SLACK
-
-    def _best_roll(self, goal: Pose12, q: list[float]) -> tuple[float, Pose12, Pose12]:
-        """Roll angle θ4 (rad) maximising trace(R_goal^T R), and the pose's rotation it gives.
-
-        ``goal`` is the goal tip pose (12 floats); the rotation is returned in the same form
-        (translation 0), then the product of the first three links at ``q`` (12 floats, m).
-        With ``M = R_tool · R_goalᵀ · R_rcm_3``, ``θ4 = atan2(M01 − M10, M00 + M11)``.
-        """
-        a = compose_links(self._chain, q, 0, 3)
-        R3 = (*a[:9], 0.0, 0.0, 0.0)
-        # N = R_goal^T R3 (rows of R_goal^T = columns of R_goal)
-        g00, g01, g02, g10, g11, g12, g20, g21, g22 = goal[:9]
-        a00, a01, _, a10, a11, _, a20, a21, _ = a[:9]
-        n = [
-            [g00 * a00 + g10 * a10 + g20 * a20, g00 * a01 + g10 * a11 + g20 * a21],
-            [g01 * a00 + g11 * a10 + g21 * a20, g01 * a01 + g11 * a11 + g21 * a21],
-            [g02 * a00 + g12 * a10 + g22 * a20, g02 * a01 + g12 * a11 + g22 * a21],
-        ]
-        t = self._tool_rows
-        m = [
-            [t[i][0] * n[0][j] + t[i][1] * n[1][j] + t[i][2] * n[2][j] for j in (0, 1)]
-            for i in (0, 1)
-        ]
-        theta4 = math.atan2(m[0][1] - m[1][0], m[0][0] + m[1][1])
-        c, s = math.cos(theta4), math.sin(theta4)
-        rz = ((c, -s, 0.0, 0.0), (s, c, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0))
-        return theta4, pose12_times(pose12_times(R3, rz), self._tool_rows4), a
+        ok, q = _exact_kernel(self._chain._param_array, self._consts, goal12, float(seed[3]), 2.0)
+        return list(q) if ok else None
 
     def _nearest_position(self, p_goal: FloatArray, q0: FloatArray) -> FloatArray:
         """Yaw, pitch, insertion within limits whose tip is closest to ``p_goal`` (m)."""

@@ -6,6 +6,8 @@ import enum
 import math
 from dataclasses import dataclass
 
+from numba.extending import register_jitable
+
 from endocam.geometry import FloatArray
 from endocam.kernels import rotation_angle
 
@@ -135,7 +137,10 @@ def pose_error(T_goal: FloatArray, T: FloatArray) -> tuple[float, float]:
     return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), rotation_angle(A, B)
 
 
-def pose12_error(goal: tuple[float, ...], pose: tuple[float, ...]) -> tuple[float, float]:
+@register_jitable  # also callable from compiled kernels (the same source)
+def pose12_error(
+    goal: tuple[float, ...], pose: tuple[float, ...], two: float = 2.0
+) -> tuple[float, float]:
     """:func:`pose_error` of two 12-float poses (rotation row-major, then translation).
 
     The float form used in control loops (``endocam.robot.dh.Pose12``).
@@ -144,6 +149,8 @@ def pose12_error(goal: tuple[float, ...], pose: tuple[float, ...]) -> tuple[floa
     ----------
     goal, pose : tuple of 12 floats
         Poses in the same frame, m.
+    two : float
+        2.0, passed at run time by compiled kernels (:func:`~endocam.kernels.rotation_angle`).
 
     Returns
     -------
@@ -153,7 +160,7 @@ def pose12_error(goal: tuple[float, ...], pose: tuple[float, ...]) -> tuple[floa
         Angle between the rotations, rad.
     """
     angle = rotation_angle(
-        (goal[0:3], goal[3:6], goal[6:9]), (pose[0:3], pose[3:6], pose[6:9])
+        (goal[0:3], goal[3:6], goal[6:9]), (pose[0:3], pose[3:6], pose[6:9]), two
     )  # the rotations' rows as slices: cheaper than unpacking and re-packing twelve floats
     dx, dy, dz = goal[9] - pose[9], goal[10] - pose[10], goal[11] - pose[11]
     return math.sqrt(dx * dx + dy * dy + dz * dz), angle

@@ -11,6 +11,7 @@ import abc
 import math
 
 import numpy as np
+from numba import njit
 from scipy.optimize import least_squares
 
 from endocam.geometry import FloatArray, as_finite_array, as_pose, invert_pose, so3_log
@@ -46,15 +47,39 @@ _DLS_STEPS = 5  # polish iterations after a closed-form solution
 NEAREST_MAX_NFEV = 200  # count: default residual evaluations of the nearest-feasible solve
 
 
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _round_half_even(x: float) -> float:
+    """Python's ``round(x)`` of a finite float (ties to even), as a float."""
+    k = float(math.floor(x))
+    d = x - k  # exact: the fraction of x
+    if d > 0.5 or (d == 0.5 and k % 2.0 != 0.0):
+        k += 1.0
+    return k
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def wrap_to_nearest(angle: float, reference: float) -> float:
-    """Add a multiple of 2π to ``angle`` to bring it closest to ``reference`` (rad)."""
-    return angle + 2.0 * math.pi * round((reference - angle) / (2.0 * math.pi))
+    """Add a multiple of 2π to ``angle`` to bring it closest to ``reference`` (rad).
+
+    Compiled; the same floats as ``angle + 2π · round((reference − angle) / 2π)`` in the
+    interpreter (ties to even), and its errors: ``ValueError`` for NaN, ``OverflowError``
+    for an infinite quotient (``tests/test_robot_kinematics.py`` pins the two).
+    """
+    x = (reference - angle) / (2.0 * math.pi)
+    if math.isnan(x):
+        raise ValueError("cannot convert float NaN to integer")
+    if math.isinf(x):
+        raise OverflowError("cannot convert float infinity to integer")
+    return angle + 2.0 * math.pi * _round_half_even(x)
 
 
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def branch_in_limits(angle: float, reference: float, lower: float, upper: float) -> float:
     """The 2π-equivalent of ``angle`` inside ``[lower, upper]`` closest to ``reference``.
 
     Falls back to the equivalent closest to ``reference`` when none is inside the limits.
+    Compiled (called from the compiled PSM closed form and from Python); among equally close
+    equivalents the lowest wins.
 
     Parameters
     ----------
@@ -70,12 +95,17 @@ def branch_in_limits(angle: float, reference: float, lower: float, upper: float)
     best = wrap_to_nearest(angle, reference)
     if lower - LIMIT_SLACK <= best <= upper + LIMIT_SLACK:
         return best
-    k_lo = math.ceil((lower - LIMIT_SLACK - angle) / two_pi)
-    k_hi = math.floor((upper + LIMIT_SLACK - angle) / two_pi)
-    candidates = [angle + two_pi * k for k in range(k_lo, k_hi + 1)]
-    if not candidates:
-        return best
-    return min(candidates, key=lambda a: abs(a - reference))
+    k = float(math.ceil((lower - LIMIT_SLACK - angle) / two_pi))
+    k_hi = float(math.floor((upper + LIMIT_SLACK - angle) / two_pi))
+    chosen, error = best, math.inf
+    found = False
+    while k <= k_hi:  # the candidates from the lowest up; the first closest is kept
+        a = angle + two_pi * k
+        e = abs(a - reference)
+        if not found or e < error:
+            chosen, error, found = a, e, True
+        k += 1.0
+    return chosen
 
 
 class RcmArm(abc.ABC):

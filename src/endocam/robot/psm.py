@@ -26,21 +26,33 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from endocam.geometry import FloatArray, invert_pose
+from endocam.pyfloat import hypot2
 from endocam.robot.dh import (
+    IDENTITY12,
     DHChain,
     DHLink,
     JointType,
     Pose12,
+    _compose_kernel,
+    _pose12_times_kernel,
     chain_forward,
-    compose_links,
     pose12_from_matrix,
-    pose12_times,
     pose12_to_matrix,
 )
-from endocam.robot.ik import IKResult, IKStatus, pose12_error, pose_error, within_tolerance
+from endocam.robot.ik import (
+    IK_ORIENTATION_TOL_RAD,
+    IK_POSITION_TOL_M,
+    IKResult,
+    IKStatus,
+    pose12_error,
+    pose_error,
+    within_tolerance,
+)
 from endocam.robot.kinematics import (
+    LIMIT_SLACK,
     NEAREST_MAX_NFEV,
     RcmArm,
     branch_in_limits,
@@ -105,12 +117,20 @@ class PSM(RcmArm):
         links = chain.links
         if len(links) != 6:
             raise ValueError("chain: the PSM closed form needs 6 links")
-        self._T_tip_inv = invert_pose(chain.T_last_tip)
-        self._tip_inv_rows = tuple(tuple(row) for row in self._T_tip_inv[:3].tolist())
-        self._wrist_length = links[5].A  # m, wrist pitch → wrist yaw axis
-        self._shaft_offset = links[3].D + links[2].offset  # m, wrist point at insertion 0
-        self._cos_alpha6 = math.cos(links[5].alpha)
-        self._sin_alpha6 = math.sin(links[5].alpha)
+        T_tip_inv = invert_pose(chain.T_last_tip)
+        self._consts = np.array(  # the compiled closed form's constants (_C_* below)
+            [
+                *T_tip_inv[:3].ravel().tolist(),
+                *chain.T_last_tip[:3].ravel().tolist(),
+                links[5].A,  # m, wrist pitch → wrist yaw axis
+                links[3].D + links[2].offset,  # m, wrist point at insertion 0
+                math.cos(links[5].alpha),
+                math.sin(links[5].alpha),
+                *self._lower.tolist(),
+                *self._upper.tolist(),
+            ]
+        )
+        self._consts.setflags(write=False)
 
     def solve_unchecked(self, T_goal: FloatArray, seed: FloatArray) -> IKResult:
         """Closed-form IK verified by FK; nearest feasible configuration when needed.
@@ -170,62 +190,134 @@ class PSM(RcmArm):
         return self.exact12_unchecked(pose12_from_matrix(T_goal), seed)
 
     def exact12_unchecked(self, goal12: Pose12, seed: FloatArray) -> list[float] | None:
-        """:meth:`exact_unchecked` for a goal given as 12 floats (rotation row-major, then m)."""
-        sol = self._closed_form(goal12, seed)
-        if sol is None or not within_tolerance(*pose12_error(goal12, sol[1])):
-            return None
-        q, inside = self.clamp_floats(sol[0])
-        return q if inside else None
+        """:meth:`exact_unchecked` for a goal given as 12 floats (rotation row-major, then m).
+
+        One compiled call (:func:`_exact_kernel`).
+        """
+        ok, q = _exact_kernel(
+            self._chain._param_array, self._consts, goal12, float(seed[0]), float(seed[3]), 2.0
+        )
+        return list(q) if ok else None
 
     def _closed_form(self, goal: Pose12, seed: FloatArray) -> tuple[list[float], Pose12] | None:
-        """Exact joint values for the goal ``T_rcm_tip`` (12 floats) ignoring limits.
+        """Exact joint values for the goal ``T_rcm_tip`` (12 floats, m) ignoring limits.
 
-        Returns ``(q, forward(q))`` (12 floats), or None when the wrist geometry is singular.
-        Written on Python floats: at this size they are several times cheaper than numpy
-        3-vectors.
+        Returns ``(q, forward(q))`` (6 joint values, 12 floats), or None when the wrist
+        geometry is singular. One compiled call (:func:`_closed_form_kernel`); ``ValueError``
+        for a non-finite goal.
         """
-        links = self._chain.links
-        x0, _, z0, x1, _, z1, x2, _, z2, p0, p1, p2 = pose12_times(goal, self._tip_inv_rows)
-        # step 2: wrist-pitch point on the shaft
-        pz = p0 * z0 + p1 * z1 + p2 * z2
-        e0, e1, e2 = p0 - pz * z0, p1 - pz * z1, p2 - pz * z2
-        n_perp = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
-        L = self._wrist_length
-        if n_perp - L <= _EPS_GEOM:
-            return None
-        k = L / n_perp
-        w0, w1, w2 = p0 - k * e0, p1 - k * e1, p2 - k * e2
-        r = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-        if r <= _EPS_GEOM:
-            return None
-        # step 3: outer yaw, pitch, insertion from the shaft direction
-        q3 = r - self._shaft_offset
-        q2 = -math.asin(max(-1.0, min(1.0, w1 / r)))
-        q1 = branch_in_limits(math.atan2(w0, -w2), float(seed[0]), links[0].lower, links[0].upper)
-        q = [q1, q2, q3, 0.0, 0.0, 0.0]
-        T_rcm_3 = compose_links(self._chain, q, 0, 3)
-        a00, a01, a02, a10, a11, a12, a20, a21, a22 = T_rcm_3[:9]
-        # step 4: wrist-yaw axis in frame 3 = (-cos θ4 sin θ5, -sin θ4 sin θ5, -cos θ5)
-        v0 = a00 * z0 + a10 * z1 + a20 * z2
-        v1 = a01 * z0 + a11 * z1 + a21 * z2
-        v2 = a02 * z0 + a12 * z1 + a22 * z2
-        theta5 = math.atan2(-math.hypot(v0, v1), -v2)  # sin θ5 < 0 inside the limits
-        theta4 = math.atan2(v1, v0)
-        q[3] = branch_in_limits(
-            theta4 - links[3].offset, float(seed[3]), links[3].lower, links[3].upper
+        found, q, T = _closed_form_kernel(
+            self._chain._param_array, self._consts, goal, float(seed[0]), float(seed[3])
         )
-        q[4] = branch_in_limits(theta5 - links[4].offset, 0.0, links[4].lower, links[4].upper)
-        b00, b01, b02, b10, b11, b12, b20, b21, b22 = compose_links(self._chain, q, 3, 5)[:9]
-        # x6 in frame 3, then in frame 5; RotX(alpha6)^T of it is (cos θ6, sin θ6, 0)
-        c0 = a00 * x0 + a10 * x1 + a20 * x2
-        c1 = a01 * x0 + a11 * x1 + a21 * x2
-        c2 = a02 * x0 + a12 * x1 + a22 * x2
-        u0 = b00 * c0 + b10 * c1 + b20 * c2
-        u1 = b01 * c0 + b11 * c1 + b21 * c2
-        u2 = b02 * c0 + b12 * c1 + b22 * c2
-        ca6, sa6 = self._cos_alpha6, self._sin_alpha6
-        theta6 = math.atan2(ca6 * u1 + sa6 * u2, u0)
-        q[5] = branch_in_limits(theta6 - links[5].offset, 0.0, links[5].lower, links[5].upper)
-        # forward(q), reusing the product of the first three links (unchanged since)
-        T_rcm_6 = compose_links(self._chain, q, 3, 6, T_rcm_3)
-        return q, pose12_times(T_rcm_6, self._chain._tip_rows)
+        return (list(q), T) if found else None
+
+
+# _closed_form_kernel's constants (PSM._consts): T_tip_wristyaw's rows, the tool-tip rows,
+# the wrist length (m), the shaft offset (m), cos / sin of alpha6, then lower, upper limits
+_C_TIP_INV, _C_TIP, _C_WRIST, _C_SHAFT, _C_CA6, _C_SA6, _C_LOWER, _C_UPPER = (
+    0,
+    12,
+    24,
+    25,
+    26,
+    27,
+    28,
+    34,
+)
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _rows(c: FloatArray, i: int) -> tuple[tuple[float, ...], ...]:
+    """Three rows of four floats stored flat from ``c[i]`` (a transform's top rows, m)."""
+    return (
+        (c[i], c[i + 1], c[i + 2], c[i + 3]),
+        (c[i + 4], c[i + 5], c[i + 6], c[i + 7]),
+        (c[i + 8], c[i + 9], c[i + 10], c[i + 11]),
+    )
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _closed_form_kernel(
+    params: FloatArray, c: FloatArray, goal: Pose12, seed0: float, seed3: float
+) -> tuple[bool, tuple[float, ...], Pose12]:
+    """:meth:`PSM._closed_form` (module docstring, steps 1-4), compiled.
+
+    ``params``: the chain's (6, 7) parameter array; ``c``: ``PSM._consts``; ``goal``: the
+    tool-tip goal (rotation row-major, then m); ``seed0``, ``seed3``: the yaw and roll seeds,
+    rad. Returns ``(found, q, forward(q))``; ``found`` is False when the wrist geometry is
+    singular. The interpreter's floats: no fast-math, CPython's hypot (:func:`hypot2`).
+    """
+    lower, upper = c[_C_LOWER : _C_LOWER + 6], c[_C_UPPER : _C_UPPER + 6]
+    x0, _, z0, x1, _, z1, x2, _, z2, p0, p1, p2 = _pose12_times_kernel(goal, _rows(c, _C_TIP_INV))
+    none = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    # step 2: wrist-pitch point on the shaft
+    pz = p0 * z0 + p1 * z1 + p2 * z2
+    e0, e1, e2 = p0 - pz * z0, p1 - pz * z1, p2 - pz * z2
+    n_perp = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    L = c[_C_WRIST]
+    if n_perp - L <= _EPS_GEOM:
+        return False, none, IDENTITY12
+    k = L / n_perp
+    w0, w1, w2 = p0 - k * e0, p1 - k * e1, p2 - k * e2
+    r = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    if r <= _EPS_GEOM:
+        return False, none, IDENTITY12
+    # step 3: outer yaw, pitch, insertion from the shaft direction
+    q3 = r - c[_C_SHAFT]
+    q2 = -math.asin(max(-1.0, min(1.0, w1 / r)))
+    q1 = branch_in_limits(math.atan2(w0, -w2), seed0, lower[0], upper[0])
+    T_rcm_3 = _compose_kernel(params, (q1, q2, q3, 0.0, 0.0, 0.0), 0, 3, IDENTITY12)
+    a00, a01, a02, a10, a11, a12, a20, a21, a22 = T_rcm_3[:9]
+    # step 4: wrist-yaw axis in frame 3 = (-cos θ4 sin θ5, -sin θ4 sin θ5, -cos θ5)
+    v0 = a00 * z0 + a10 * z1 + a20 * z2
+    v1 = a01 * z0 + a11 * z1 + a21 * z2
+    v2 = a02 * z0 + a12 * z1 + a22 * z2
+    theta5 = math.atan2(-hypot2(v0, v1), -v2)  # sin θ5 < 0 inside the limits
+    theta4 = math.atan2(v1, v0)
+    q4 = branch_in_limits(theta4 - params[3, 5], seed3, lower[3], upper[3])
+    q5 = branch_in_limits(theta5 - params[4, 5], 0.0, lower[4], upper[4])
+    b = _compose_kernel(params, (q1, q2, q3, q4, q5, 0.0), 3, 5, IDENTITY12)
+    b00, b01, b02, b10, b11, b12, b20, b21, b22 = b[:9]
+    # x6 in frame 3, then in frame 5; RotX(alpha6)^T of it is (cos θ6, sin θ6, 0)
+    c0 = a00 * x0 + a10 * x1 + a20 * x2
+    c1 = a01 * x0 + a11 * x1 + a21 * x2
+    c2 = a02 * x0 + a12 * x1 + a22 * x2
+    u0 = b00 * c0 + b10 * c1 + b20 * c2
+    u1 = b01 * c0 + b11 * c1 + b21 * c2
+    u2 = b02 * c0 + b12 * c1 + b22 * c2
+    theta6 = math.atan2(c[_C_CA6] * u1 + c[_C_SA6] * u2, u0)
+    q6 = branch_in_limits(theta6 - params[5, 5], 0.0, lower[5], upper[5])
+    q = (q1, q2, q3, q4, q5, q6)
+    # forward(q), reusing the product of the first three links (unchanged since)
+    T_rcm_6 = _compose_kernel(params, q, 3, 6, T_rcm_3)
+    return True, q, _pose12_times_kernel(T_rcm_6, _rows(c, _C_TIP))
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _exact_kernel(
+    params: FloatArray, c: FloatArray, goal: Pose12, seed0: float, seed3: float, two: float
+) -> tuple[bool, tuple[float, ...]]:
+    """:meth:`PSM.exact12_unchecked`, compiled: ``(True, q)`` for an exact, in-limit solution.
+
+    The closed form (:func:`_closed_form_kernel`), its pose error within the IK tolerances
+    (:func:`pose12_error`; ``two``: 2.0), and ``RcmArm.clamp_floats``'s clip and limit test
+    (``LIMIT_SLACK`` tolerated, the clipped values returned).
+    """
+    found, q, T12 = _closed_form_kernel(params, c, goal, seed0, seed3)
+    if not found:
+        return False, q
+    pos_err, ang_err = pose12_error(goal, T12, two)
+    if not (pos_err <= IK_POSITION_TOL_M and ang_err <= IK_ORIENTATION_TOL_RAD):
+        return False, q
+    inside = True
+    out = [q[0], q[1], q[2], q[3], q[4], q[5]]
+    for i in range(6):
+        lo, hi = c[_C_LOWER + i], c[_C_UPPER + i]
+        v = out[i]
+        if v < lo:
+            inside = inside and v >= lo - LIMIT_SLACK
+            out[i] = lo
+        elif v > hi:
+            inside = inside and v <= hi + LIMIT_SLACK
+            out[i] = hi
+    return inside, (out[0], out[1], out[2], out[3], out[4], out[5])

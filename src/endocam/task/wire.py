@@ -27,27 +27,95 @@ _SEARCH_SAMPLES_PER_M = 4000  # 1/m, KD-tree sample density for nearest-point se
 _CELL = 2.0e-3  # m, grid cell of the cached nearest-point candidates (nearest_surface)
 _CELL_RANGE = 0.03  # m, cells whose centre is farther from the wire search every point
 _BALL_SLACK = 1e-9  # m, widens the candidate ball against round-off at its edge
-_MAX_CELLS = 20_000  # count, cached cells at most (a few MB)
+_MAX_CELLS = 20_000  # count, cached cells at most (then the cache starts afresh)
+_TABLE = 1 << 15  # hash-table slots of the cell cache (> _MAX_CELLS: short probes)
+_POOL = 1 << 20  # count, candidate indices the cell cache holds at most (int32: 4 MB)
+# the cell cache's table rows: the cell's key (3 ints), then where its candidates are in the
+# pool (first index, count; count -1: a far cell, start -1: an empty slot)
+_KEY, _START, _COUNT = 0, 3, 4
 ARC_TOL = 1e-9  # m, arc-length tolerance of queries just outside [0, length]
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _nearest_kernel(pts: FloatArray, x: float, y: float, z: float) -> tuple[int, float]:
-    """The nearest of the candidate points (n, 3), m, to ``(x, y, z)``, m: row and distance, m.
+def _nearest_kernel(
+    pts: FloatArray, idx: np.ndarray, start: int, count: int, x: float, y: float, z: float
+) -> tuple[int, float]:
+    """The nearest candidate to ``(x, y, z)``, m: its row of ``pts`` (M, 3), m, and distance, m.
 
-    The first row of least squared distance (as ``argmin``); the distance is summed as the
-    KD-tree sums it, ``√(a² + b² + c²)`` left to right, so the result is the tree's bit for bit
-    (no fast-math: docs/conventions.md "Compiled kernels").
+    The candidates are the rows ``idx[start:start + count]``, in that order; the first of
+    least squared distance wins (as ``argmin``). The distance is summed as the KD-tree sums
+    it, ``√(a² + b² + c²)`` left to right, so the result is the tree's bit for bit (no
+    fast-math: docs/conventions.md "Compiled kernels").
     """
-    best = 0
+    best = idx[start]
     best_d2 = math.inf
-    for i in range(pts.shape[0]):
-        a, b, c = x - pts[i, 0], y - pts[i, 1], z - pts[i, 2]
+    for i in range(start, start + count):
+        r = idx[i]
+        a, b, c = x - pts[r, 0], y - pts[r, 1], z - pts[r, 2]
         d2 = a * a + b * b + c * c
         if d2 < best_d2:
-            best, best_d2 = i, d2
+            best, best_d2 = r, d2
     a, b, c = x - pts[best, 0], y - pts[best, 1], z - pts[best, 2]
     return best, math.sqrt(a * a + b * b + c * c)
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _cell_key(v: float) -> int:
+    """``math.floor(v / _CELL)``, a grid cell's integer coordinate, with Python's errors."""
+    f = v / _CELL
+    if math.isnan(f):
+        raise ValueError("cannot convert float NaN to integer")
+    if math.isinf(f):
+        raise OverflowError("cannot convert float infinity to integer")
+    return math.floor(max(-4e18, min(4e18, f)))  # beyond: a far cell either way
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _surface_query(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    x: float,
+    y: float,
+    z: float,
+) -> tuple[int, float]:
+    """:meth:`Wire.nearest_surface`'s search: the row of ``pts`` (M, 3) nearest ``(x, y, z)``.
+
+    Returns the row and its distance to the point, m (to the centre line). The candidates of
+    the point's 2 mm grid cell (``_ball_kernel``, cached: ``table`` (``_TABLE``, 5) int64
+    rows key / start / count, ``pool`` (``_POOL``,) int32 indices whose first M are every
+    row, for far cells; ``meta``: cells cached, pool entries used). The
+    cache starts afresh when ``_MAX_CELLS`` cells or the pool are full. ``ValueError`` /
+    ``OverflowError`` for a NaN / infinite coordinate, as ``math.floor``.
+    """
+    kx, ky, kz = _cell_key(x), _cell_key(y), _cell_key(z)
+    n = pts.shape[0]
+    mask = table.shape[0] - 1
+    slot = ((kx * 73856093) ^ (ky * 19349663) ^ (kz * 83492791)) & mask
+    while table[slot, _START] >= 0 and not (
+        table[slot, 0] == kx and table[slot, 1] == ky and table[slot, 2] == kz
+    ):
+        slot = (slot + 1) & mask
+    if table[slot, _START] < 0:  # not cached: find the cell's candidates
+        if meta[0] >= _MAX_CELLS or meta[1] + n > pool.shape[0]:
+            table[:, _START] = -1  # bounded memory; cells are rebuilt on demand
+            meta[0], meta[1] = 0, n
+            slot = ((kx * 73856093) ^ (ky * 19349663) ^ (kz * 83492791)) & mask
+        h = _CELL
+        idx, d_c = _ball_kernel(pts, (kx + 0.5) * h, (ky + 0.5) * h, (kz + 0.5) * h, h)
+        table[slot, 0], table[slot, 1], table[slot, 2] = kx, ky, kz
+        if d_c > _CELL_RANGE:  # far from the wire: every search point
+            table[slot, _START], table[slot, _COUNT] = 0, -1
+        else:
+            start = meta[1]
+            pool[start : start + idx.shape[0]] = idx
+            table[slot, _START], table[slot, _COUNT] = start, idx.shape[0]
+            meta[1] = start + idx.shape[0]
+        meta[0] += 1
+    if table[slot, _COUNT] < 0:
+        return _nearest_kernel(pts, pool, 0, n, x, y, z)
+    return _nearest_kernel(pts, pool, table[slot, _START], table[slot, _COUNT], x, y, z)
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -108,7 +176,13 @@ class Wire:
         self._search_s = np.linspace(0.0, self._length, n_search)
         self._search_pts = self._spline(self._search_s)
         self._tree = cKDTree(self._search_pts)
-        self._cells: dict[tuple[int, int, int], tuple[np.ndarray | None, FloatArray]] = {}
+        # the nearest_surface cell cache (_surface_query): table, pool, meta
+        self._table = np.full((_TABLE, 5), -1, dtype=np.int64)
+        self._pool = np.empty(max(_POOL, 2 * n_search), dtype=np.int32)
+        self._pool[:n_search] = np.arange(n_search)
+        self._meta = np.array([0, n_search], dtype=np.int64)
+        self.query_state = (self._search_pts, self._table, self._pool, self._meta)
+        """The arrays compiled kernels pass to :func:`_surface_query` (read-only use)."""
 
     @property
     def length(self) -> float:
@@ -220,42 +294,21 @@ class Wire:
         The control loop's query on plain floats: ``p_world`` (3,) in world, m. Near the wire
         the candidates of its 2 mm grid cell (cached) are searched instead of the KD-tree, with
         the same answer, bit for bit (``tests/test_task_wire.py``), by compiled kernels
-        (:func:`_nearest_kernel`, :func:`_ball_kernel`; ~1 µs a query near the wire,
-        ``bench/bench_clearance.py``); far from it every search point is tried (a few µs).
-        Same resolution as :meth:`surface_distance` (≤ 0.125 mm over); the index points into
+        (:func:`_surface_query`; ~1 µs a query near the wire, ``bench/bench_clearance.py``);
+        far from it every search point is tried (a few µs). Every candidate of a cell lies
+        within ``d(c) + h√3`` of its centre ``c`` (``_ball_kernel``), so the argmin over them
+        is the tree's answer; cells farther than ``_CELL_RANGE`` from the wire search all the
+        points (their balls would hold too many). Same resolution as
+        :meth:`surface_distance` (≤ 0.125 mm over); the index points into
         :attr:`search_points`.
         """
-        h = _CELL
-        key = (math.floor(p_world[0] / h), math.floor(p_world[1] / h), math.floor(p_world[2] / h))
-        cell = self._cells.get(key)
-        if cell is None:
-            cell = self._cell(key)
-        idx, pts = cell
-        if idx is None:  # far from the wire: all the search points
-            pts = self._search_pts
-        j, dist = _nearest_kernel(pts, float(p_world[0]), float(p_world[1]), float(p_world[2]))
-        return dist - self.cfg.radius, j if idx is None else int(idx[j])
+        j, dist = _surface_query(*self.query_state, p_world[0], p_world[1], p_world[2])
+        return dist - self.cfg.radius, j
 
-    def _cell(self, key: tuple[int, int, int]) -> tuple[np.ndarray | None, FloatArray]:
-        """Candidates for the nearest search point of every point in a grid cell (cached).
-
-        Every point ``p`` of the cell lies within ``h√3/2`` of its centre ``c``, so its nearest
-        point lies within ``d(c) + h√3`` of ``c``: that ball's points are the candidates, and
-        the argmin over them is the tree's answer. Cells farther than ``_CELL_RANGE`` from
-        the wire search all the points (their balls would hold too many).
-        """
-        h = _CELL
-        idx, d_c = _ball_kernel(
-            self._search_pts, (key[0] + 0.5) * h, (key[1] + 0.5) * h, (key[2] + 0.5) * h, h
-        )
-        if d_c > _CELL_RANGE:
-            cell: tuple[np.ndarray | None, FloatArray] = (None, self._search_pts[:0])
-        else:
-            cell = (idx, self._search_pts[idx])
-        if len(self._cells) >= _MAX_CELLS:
-            self._cells.clear()  # bounded memory; cells are rebuilt on demand
-        self._cells[key] = cell
-        return cell
+    def forget_cells(self) -> None:
+        """Empty the cell cache of :meth:`nearest_surface` (benchmarks: time new cells)."""
+        self._table[:, _START] = -1
+        self._meta[:] = (0, self._search_pts.shape[0])
 
     @property
     def search_spacing(self) -> float:
