@@ -15,10 +15,12 @@ from endocam.config import ExperimentConfig
 from endocam.control import clearance
 from endocam.control.clearance import WIRE_CLEARANCE, ClearanceGuard
 from endocam.control.goal import goal_pose
-from endocam.control.policies import WIRE_REASON, OrientationPolicy
+from endocam.control.policies import DETOUR_REASON, STALL_STEPS, WIRE_REASON, OrientationPolicy
 from endocam.control.types import Observation, PolicyContext, TrackingState
 from endocam.geometry import invert_pose
+from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import EpisodeSpec, run_episode
+from endocam.runner.experiments import paper_paths
 from endocam.task.config import WireConfig
 from endocam.task.trajectory import TrajectoryKind
 from endocam.task.wire import Wire
@@ -306,3 +308,50 @@ def test_compiled_guard_is_the_interpreted_one(seed: int) -> None:
         assert guard.distance(q) == ref.distance(q)
         p = p + rng.normal(0.0, 0.004, 3)
     assert math.isnan(guard.distance([math.nan, 0.0, 0.0]))
+
+
+def test_step_out_leaves_the_zone_by_the_push() -> None:
+    wire = Wire(WireConfig())
+    guard = ClearanceGuard(wire, CAMERA_CLEARANCE_M)
+    s = 0.4 * wire.length
+    q = wire.points(np.array([s]))[0]
+    tangent = wire.tangent(s)
+    side = np.cross(tangent, [0.0, 0.0, 1.0])
+    side /= np.linalg.norm(side)
+    on_edge = q + (wire.radius + CAMERA_CLEARANCE_M) * side  # on the zone's edge
+    out = guard.step_out(on_edge.tolist())
+    assert out is not None
+    moved = np.asarray(out) - on_edge
+    assert np.linalg.norm(np.cross(moved, side)) < ROUND_M * 1e3  # straight away from the wire
+    exact = _exact_surface_distance(wire, np.asarray(out))
+    push = clearance.DETOUR_PUSH
+    assert exact == pytest.approx(CAMERA_CLEARANCE_M + push, abs=0.5 * wire.search_spacing)
+    assert guard.step_out((q + 0.05 * side).tolist()) is None  # already far out: nothing to do
+
+
+STILL_STEPS_ALLOWED = 2 * STALL_STEPS  # steps: the stall rule acts after STALL_STEPS
+
+
+def test_a_detour_never_deadlocks_on_the_zones_edge() -> None:
+    """Round 5: the free camera stood 57 s on the zone's edge on the study's legible t1 path.
+
+    At rest 2 µm from the clearance zone, the carrier refused every slide the detour asked for
+    (its braking path grazed the zone) and the policy asked again every step. Now a camera that
+    stands still while detouring first steps straight out of the zone.
+    """
+    base = ExperimentConfig()
+    t1 = next(p for p in paper_paths() if p.name == "t1-36-low")
+    config = t1.config(base)
+    config = config.model_copy(
+        update={"episode": config.episode.model_copy(update={"arm": ArmKind.FREE})}
+    )
+    result = run_episode(config, t1.spec("endocam"))
+    log = result.log
+    still = np.all(np.diff(log.T_world_cam[:, :3, 3], axis=0) == 0.0, axis=1)
+    detouring = np.asarray(log.reason[1:]) == DETOUR_REASON
+    run = longest = 0
+    for stuck in (still & detouring).tolist():
+        run = run + 1 if stuck else 0
+        longest = max(longest, run)
+    assert longest <= STILL_STEPS_ALLOWED
+    assert np.mean(log.state == TrackingState.TRACKING.value) > 0.5  # it tracks the ring

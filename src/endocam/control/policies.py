@@ -51,6 +51,8 @@ _MIN_NORMAL = 1e-9  # unitless, a ring normal shorter than this is degenerate
 GATE_REASON = "ring pose rejected by the observation gate (moved too fast); holding"
 DETOUR_REASON = "detouring around the wire's clearance zone"
 WIRE_REASON = "no view of the ring keeps the wire clearance inside the workspace; holding"
+STALL_STEPS = 10  # control steps a detouring camera may stand still before it steps out
+STALL_TOL_M = 1e-9  # m, a camera that moved less than this in a step stood still
 
 
 class FixedPolicy:
@@ -113,6 +115,8 @@ class _MovingPolicy:
         self._path = None
         self._s = 0.0
         self._gate.reset(self._cone.contains)
+        self._p_detour: Sequence[float] | None = None  # the camera at the last detour step, m
+        self._stalled = 0  # detour steps the camera has stood still
 
     @property
     def cone(self) -> ConeWorkspace:
@@ -165,8 +169,14 @@ class _MovingPolicy:
         if guard is None:
             return None
         via = guard.detour(p_world_now, T_world_cmd[:3, 3].tolist())
+        before, self._p_detour = self._p_detour, p_world_now
         if via is None:
+            self._p_detour, self._stalled = None, 0
             return None
+        still = before is not None and math.dist(before, p_world_now) <= STALL_TOL_M
+        self._stalled = self._stalled + 1 if still else 0
+        if self._stalled >= STALL_STEPS:  # refused at the zone's edge: straight out first
+            via = guard.step_out(p_world_now) or via
         T = look_at_unchecked(np.array(via), np.asarray(p_world_pivot), T_world_cmd, self._last_cmd)
         return self._clear(T, p_world_pivot, p_world_now) if self._feasible(list(via)) else None
 
