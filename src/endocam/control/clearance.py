@@ -445,11 +445,11 @@ class ClearanceGuard:
         return via if found else None
 
     def step_out(self, p_world: Sequence[float]) -> Vec | None:
-        """``p_world`` (3,), m, moved straight away from the wire to ``DETOUR_PUSH`` beyond the
-        zone; ``None`` when it already lies that far out (or the direction is undefined).
+        """``p_world`` (3,), m, moved straight away from the wire to ``DETOUR_PUSH`` past the zone.
 
-        The way out for a camera standing on the zone's edge: a carrier at rest there may
-        refuse every slide along the surface, whose braking path grazes the zone.
+        ``None`` when it already lies that far out (or the direction is undefined). The way
+        out for a camera standing on the zone's edge: a carrier at rest there may refuse every
+        slide along the surface, whose braking path grazes the zone.
         """
         p = (float(p_world[0]), float(p_world[1]), float(p_world[2]))
         pts, table, pool, meta = self.wire.query_state
