@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from endocam.config import ExperimentConfig
@@ -151,11 +151,29 @@ def fault_sections(draw: st.DrawFn) -> FaultsConfig:
     return FaultsConfig.model_validate(data)
 
 
+# Found by this test (round 5): ruckig refused a joint state of the ECM whose braking distance
+# equalled the distance to its target (robot.arm.SimulatedArm._retry).
+RUCKIG_EDGE = FaultsConfig.model_validate(
+    {
+        "seed": 368,
+        "start_after": 0.5,
+        "ring_nan": {"rate": 2.0, "burst": 0.46875},
+        "ring_outlier": {"rate": 2.0, "burst": 0.078125, "distance": 1.0, "angle": math.pi},
+        "latency_spike": {"rate": 0.5, "burst": 0.1015625, "extra_delay": 0.2},
+        "tip_dropout": {"rate": 0.5, "burst": 0.5},
+    }
+)
+
+
 @pytest.mark.parametrize("arm", [k.value for k in ArmKind])
 @settings(
-    max_examples=3, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+    max_examples=3,
+    deadline=None,
+    derandomize=True,  # the same schedules on every run (CI stays reproducible)
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
 )
 @given(faults=fault_sections())
+@example(faults=RUCKIG_EDGE)
 def test_random_fault_schedules_leave_no_violation(
     arm: str, faults: FaultsConfig, tmp_path: Path
 ) -> None:
