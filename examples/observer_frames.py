@@ -10,7 +10,7 @@ each frame, and prints per condition:
 - the touches it counts that match no true touch, by where they are (first 3 s, last 2.5 s,
   between) and the true clearance nearest them (median; share under 1.5 mm).
 
-Usage (``MUJOCO_GL=egl``; ~6 min for 69 videos on 2 workers)::
+Usage (``MUJOCO_GL=egl``; ~12 min for 69 videos on 2 loaded workers)::
 
     .venv/bin/python examples/observer_frames.py --study out/study [--workers 2]
 """
