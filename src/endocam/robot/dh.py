@@ -37,6 +37,7 @@ __all__ = [
     "chain_frames",
     "chain_points",
     "compose_links",
+    "flat_rows",
     "geometric_jacobian",
     "link_transform",
     "pose12_from_matrix",
@@ -257,6 +258,19 @@ def compose_links(
     """
     stop = len(chain._params) if stop is None else stop
     return _compose_kernel(chain._param_array, tuple(map(float, q)), start, stop, T0)
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def flat_rows(c: FloatArray, i: int) -> tuple[tuple[float, ...], ...]:
+    """Three rows of four floats stored flat from ``c[i]`` (a transform's top rows, m).
+
+    Used by the PSM's and the ECM's compiled IK (their constants live in one flat array).
+    """
+    return (
+        (c[i], c[i + 1], c[i + 2], c[i + 3]),
+        (c[i + 4], c[i + 5], c[i + 6], c[i + 7]),
+        (c[i + 8], c[i + 9], c[i + 10], c[i + 11]),
+    )
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)

@@ -46,6 +46,7 @@ from endocam.robot.dh import (
     _compose_kernel,
     _pose12_times_kernel,
     compose_links,
+    flat_rows,
     pose12_from_matrix,
     pose12_point,
     pose12_to_matrix,
@@ -131,16 +132,6 @@ _STATUSES = (IKStatus.OK, IKStatus.CLAMPED_TO_LIMITS, IKStatus.UNREACHABLE)
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _rows(c: FloatArray, i: int) -> tuple[tuple[float, ...], ...]:
-    """Three rows of four floats stored flat from ``c[i]`` (a transform's top rows, m)."""
-    return (
-        (c[i], c[i + 1], c[i + 2], c[i + 3]),
-        (c[i + 4], c[i + 5], c[i + 6], c[i + 7]),
-        (c[i + 8], c[i + 9], c[i + 10], c[i + 11]),
-    )
-
-
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _best_roll(
     params: FloatArray, c: FloatArray, goal: Pose12, q0: float, q1: float, q2: float
 ) -> tuple[float, Pose12, Pose12]:
@@ -185,7 +176,7 @@ def _aim(
     orientation exactly (with unlimited joints: the axis passes through the RCM), and the
     product of the first three links (12 floats, m). ``two``: 2.0 (:func:`pose12_error`).
     """
-    g = _pose12_times_kernel(goal, _rows(c, _C_TIP_INV))  # last DH frame at the goal
+    g = _pose12_times_kernel(goal, flat_rows(c, _C_TIP_INV))  # last DH frame at the goal
     p0, p1, p2 = g[9], g[10], g[11]
     r = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
     if r > _EPS_GEOM:
@@ -253,7 +244,7 @@ def _clamped_forward(
         T = _compose_kernel(params, qc, 3, 4, T_rcm_3)
     else:
         T = _compose_kernel(params, qc, 0, 4, IDENTITY12)
-    return qc, _pose12_times_kernel(T, _rows(c, _C_TIP))
+    return qc, _pose12_times_kernel(T, flat_rows(c, _C_TIP))
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -299,7 +290,7 @@ def _exact_kernel(
 ) -> tuple[bool, tuple[float, float, float, float]]:
     """:meth:`ECM.exact12_unchecked`, compiled: ``(True, q)`` for an ``OK`` solve."""
     none = (0.0, 0.0, 0.0, 0.0)
-    g = _pose12_times_kernel(goal, _rows(c, _C_TIP_INV))  # last DH frame at the goal
+    g = _pose12_times_kernel(goal, flat_rows(c, _C_TIP_INV))  # last DH frame at the goal
     p = (g[9], g[10], g[11])
     if norm(p) > _EPS_GEOM:  # else at the RCM: no shaft direction to compare with
         z = (g[2], g[5], g[8])

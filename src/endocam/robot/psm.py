@@ -39,6 +39,7 @@ from endocam.robot.dh import (
     _compose_kernel,
     _pose12_times_kernel,
     chain_forward,
+    flat_rows,
     pose12_from_matrix,
     pose12_to_matrix,
 )
@@ -227,16 +228,6 @@ _C_TIP_INV, _C_TIP, _C_WRIST, _C_SHAFT, _C_CA6, _C_SA6, _C_LOWER, _C_UPPER = (
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _rows(c: FloatArray, i: int) -> tuple[tuple[float, ...], ...]:
-    """Three rows of four floats stored flat from ``c[i]`` (a transform's top rows, m)."""
-    return (
-        (c[i], c[i + 1], c[i + 2], c[i + 3]),
-        (c[i + 4], c[i + 5], c[i + 6], c[i + 7]),
-        (c[i + 8], c[i + 9], c[i + 10], c[i + 11]),
-    )
-
-
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _closed_form_kernel(
     params: FloatArray, c: FloatArray, goal: Pose12, seed0: float, seed3: float
 ) -> tuple[bool, tuple[float, ...], Pose12]:
@@ -248,7 +239,9 @@ def _closed_form_kernel(
     singular. The interpreter's floats: no fast-math, CPython's hypot (:func:`hypot2`).
     """
     lower, upper = c[_C_LOWER : _C_LOWER + 6], c[_C_UPPER : _C_UPPER + 6]
-    x0, _, z0, x1, _, z1, x2, _, z2, p0, p1, p2 = _pose12_times_kernel(goal, _rows(c, _C_TIP_INV))
+    x0, _, z0, x1, _, z1, x2, _, z2, p0, p1, p2 = _pose12_times_kernel(
+        goal, flat_rows(c, _C_TIP_INV)
+    )
     none = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     # step 2: wrist-pitch point on the shaft
     pz = p0 * z0 + p1 * z1 + p2 * z2
@@ -290,7 +283,7 @@ def _closed_form_kernel(
     q = (q1, q2, q3, q4, q5, q6)
     # forward(q), reusing the product of the first three links (unchanged since)
     T_rcm_6 = _compose_kernel(params, q, 3, 6, T_rcm_3)
-    return True, q, _pose12_times_kernel(T_rcm_6, _rows(c, _C_TIP))
+    return True, q, _pose12_times_kernel(T_rcm_6, flat_rows(c, _C_TIP))
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
