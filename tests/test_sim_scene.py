@@ -160,6 +160,11 @@ def test_ray_visible(scene: WireChaserScene) -> None:
     direction = (p_wire - eye) / np.linalg.norm(p_wire - eye)
     assert scene.ray_visible(p_wire, T_cam)
     assert not scene.ray_visible(p_wire + 0.01 * direction, T_cam)
+    # and the occluder is named: the wire in front of the point, the board above the other
+    assert scene.occluder(p_wire, T_cam) is None
+    assert scene.occluder(p_wire + 0.01 * direction, T_cam) == "wire"
+    assert scene.occluder(below_board, T_cam) == "board"
+    assert scene.occluder(below_board, T_cam, exclude_groups=[GROUP_BOARD]) is None
     with pytest.raises(ValueError, match="exclude_groups"):
         scene.ray_visible(on_board, T_cam, exclude_groups=[9])
 

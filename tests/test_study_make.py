@@ -434,7 +434,7 @@ def test_sigterm_during_the_extra_seeds_leaves_no_folder_and_no_worker(
         assert state == "Z", f"process {p} outlived the command"
 
 
-def test_gap_in_sight_is_recorded_for_every_touch_and_seed(study: Path) -> None:
+def test_gap_in_sight_and_what_hides_it_are_recorded_for_every_touch_and_seed(study: Path) -> None:
     records = json.loads((study / OBSERVABILITY_JSON).read_text())["touches"]
     assert records and all(isinstance(r["gap_in_sight"], bool) for r in records)
     (s,) = extra_seed_values(SEED, 1)
@@ -442,6 +442,10 @@ def test_gap_in_sight_is_recorded_for_every_touch_and_seed(study: Path) -> None:
     assert set(truth["gap_in_sight"]) == {c.value for c in Condition}
     for flags in truth["gap_in_sight"].values():
         assert len(flags) == len(truth["true_events"])
+    # what hides a gap is named exactly when the gap is not in sight
+    assert all((r["gap_hidden_by"] == "") == r["gap_in_sight"] for r in records)
+    for c, hiders in truth["gap_hidden_by"].items():
+        assert [h is None for h in hiders] == truth["gap_in_sight"][c]
     hypothesis = json.loads((study / HYPOTHESIS_JSON).read_text())
     for c in Condition:
         rows = [r for r in records if r["video_id"] == hypothesis["study"][c.value]["video"]]
@@ -450,6 +454,10 @@ def test_gap_in_sight_is_recorded_for_every_touch_and_seed(study: Path) -> None:
             assert share == pytest.approx(sum(r["gap_in_sight"] for r in rows) / len(rows))
         else:
             assert share is None
+        counts = hypothesis["study"][c.value]["gap_hidden_by"]
+        assert sum(counts.values()) == sum(not r["gap_in_sight"] for r in rows)
+        seed_counts = hypothesis["extra_seeds"]["conditions"][c.value]["gap_hidden_by"]
+        assert sum(seed_counts.values()) == truth["gap_in_sight"][c.value].count(False)
 
 
 def test_study_observe_replays_the_episodes_for_a_missing_gap_in_sight(
@@ -463,12 +471,13 @@ def test_study_observe_replays_the_episodes_for_a_missing_gap_in_sight(
     truth = json.loads(truth_path.read_text())
     old = json.loads(json.dumps(observability))
     for r in old["touches"]:
-        del r["gap_in_sight"]
+        del r["gap_in_sight"], r["gap_hidden_by"]
     (copy / OBSERVABILITY_JSON).write_text(json.dumps(old))
-    truth_path.write_text(json.dumps({k: v for k, v in truth.items() if k != "gap_in_sight"}))
+    columns = ("gap_in_sight", "gap_hidden_by")
+    truth_path.write_text(json.dumps({k: v for k, v in truth.items() if k not in columns}))
     assert main(["study", "observe", "--study", str(copy), "--workers", "1"]) == 0
     assert json.loads((copy / OBSERVABILITY_JSON).read_text()) == observability
-    assert json.loads(truth_path.read_text())["gap_in_sight"] == truth["gap_in_sight"]
+    assert json.loads(truth_path.read_text()) == truth
     assert json.loads((copy / HYPOTHESIS_JSON).read_text()) == json.loads(
         (study / HYPOTHESIS_JSON).read_text()
     )

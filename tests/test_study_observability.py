@@ -217,11 +217,14 @@ def test_json_round_trip_csv_and_bad_files(tmp_path: Path) -> None:
 
 
 def test_gap_in_sight_is_false_for_a_camera_looking_away() -> None:
-    """The flag needs the closing gap in the image: a camera turned round never has it."""
+    """The flag needs the closing gap in the image: a camera turned round never has it.
+
+    And what hides it is named: the image's edge for that camera, the box's wall for one outside.
+    """
     from endocam.config import ExperimentConfig
     from endocam.runner.episode import EpisodeSpec, run_episode
     from endocam.sim.render import WireChaserScene
-    from endocam.study.observability import gap_in_sight
+    from endocam.study.observability import OUTSIDE_IMAGE, gap_hidden_by, gap_in_sight
     from endocam.task.trajectory import TrajectoryKind
 
     data = ExperimentConfig().model_dump(mode="json")
@@ -236,4 +239,19 @@ def test_gap_in_sight_is_false_for_a_camera_looking_away() -> None:
         turned[:, :3, :3] = turned[:, :3, :3] @ np.diag([-1.0, 1.0, -1.0])  # look backwards
         away = dataclasses.replace(result, log=dataclasses.replace(result.log, T_world_cam=turned))
         assert not any(gap_in_sight(away, scene, e.t_start) for e in result.touches.events)
+        assert {gap_hidden_by(away, scene, e.t_start) for e in result.touches.events} == {
+            OUTSIDE_IMAGE
+        }
+        # outside the training box, level with the ring, looking at it through the front wall
+        behind = result.log.T_world_cam.copy()
+        behind[:, :3, :3] = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # z: +y
+        wall_y = -0.5 * cfg.task.scene.board_size[1]  # m, the front wall's inner face
+        for k in range(len(behind)):
+            p_ring = result.trajectory.pose(k / cfg.episode.control_rate)[:3, 3]
+            behind[k, :3, 3] = (p_ring[0], wall_y - 0.05, p_ring[2])  # 5 cm beyond the wall
+        walled = dataclasses.replace(
+            result, log=dataclasses.replace(result.log, T_world_cam=behind)
+        )
+        hidden = {gap_hidden_by(walled, scene, e.t_start) for e in result.touches.events}
+        assert hidden == {"wall_front"}
     assert any(facing)  # the tracking camera sees some of its gaps close

@@ -254,12 +254,25 @@ class WireChaserScene:
     ) -> bool:
         """Whether ``p_world`` is unoccluded from ``eye`` (geometry only, not the frustum).
 
+        True when :meth:`occluder` finds nothing in front of the point (same parameters).
+        """
+        return self.occluder(p_world, T_world_cam, eye, exclude_groups, tolerance) is None
+
+    def occluder(
+        self,
+        p_world: ArrayLike,
+        T_world_cam: ArrayLike,
+        eye: Eye = "left",
+        exclude_groups: Sequence[int] = (),
+        tolerance: float = DEFAULT_RAY_TOLERANCE,
+    ) -> str | None:
+        """Name of the geom that hides ``p_world`` from ``eye``; ``None`` if nothing does.
+
         A ray is cast (``mj_ray``) from the eye's optical centre towards the point through every
         geom of the current scene except those in ``exclude_groups`` (geom groups, e.g. the
-        target's own group, ``GROUP_*`` in :mod:`endocam.sim.scene`). The point is visible if
-        nothing is hit, or the first hit lies no more than ``tolerance`` before the point: a
-        point on a surface (e.g. a ring–wire contact point between two 1 mm tubes) is not hidden
-        by the surface it sits on.
+        target's own group, ``GROUP_*`` in :mod:`endocam.sim.scene`). The point is hidden by the
+        first geom hit more than ``tolerance`` before it: a point on a surface (e.g. a ring–wire
+        contact point between two 1 mm tubes) is not hidden by the surface it sits on.
 
         Parameters
         ----------
@@ -275,7 +288,8 @@ class WireChaserScene:
 
         Returns
         -------
-        bool
+        str or None
+            The hiding geom's name (e.g. ``"wire"``, ``"ring_torus"``), or None.
         """
         p = as_vector3(p_world, "p_world")
         T = as_pose(T_world_cam, "T_world_cam")
@@ -290,10 +304,12 @@ class WireChaserScene:
         vec = p - p_eye
         dist = float(np.linalg.norm(vec))
         if dist <= tolerance:
-            return True
+            return None
         geomid = np.full(1, -1, dtype=np.int32)
         hit = mujoco.mj_ray(self.model, self.data, p_eye, vec / dist, groups, 1, -1, geomid)
-        return bool(hit < 0.0 or hit >= dist - tolerance)
+        if hit < 0.0 or hit >= dist - tolerance:
+            return None
+        return self.geom_name(int(geomid[0])) or f"geom {int(geomid[0])}"
 
     def geom_name(self, geom_id: int) -> str:
         """Name of geom ``geom_id`` (for diagnostics)."""

@@ -38,6 +38,7 @@ from endocam.study.observability import (
     OBSERVABILITY_JSON,
     TouchObservation,
     finite_median,
+    hidden_counts,
     known_share,
     observability_csv,
     observability_json,
@@ -61,6 +62,7 @@ SEEDS_DIR = "seeds"  # kept extra-seed videos: seeds/<noise seed>/<condition>.mp
 TRUTH_JSON = "truth.json"  # per kept seed: the simulator's touch intervals
 
 Interval = tuple[float, float]  # (t_start, t_end), s
+Hidden = dict[str, list[str | None]]  # per condition, per touch: what hides its gap (None: nothing)
 _FLOAT = ("float", float)  # a dataclass field's type, as a string under postponed annotations
 
 
@@ -102,15 +104,16 @@ def seed_rows(
     seed: int,
     true_events: Sequence[Interval],
     keys: ColourKeys,
-    in_sight: dict[str, list[bool]] | None = None,
+    hidden: Hidden | None = None,
 ) -> list[dict[str, Any]]:
     """Observe one extra seed's three videos (``folder/<condition>.mp4``), one row per condition.
 
     Each row: ``seed``, ``condition``, ``true_touches``, ``counted_touches``,
     ``matched_touches`` (seen touches overlapping a true one within a frame, one to one:
     :func:`~endocam.study.observer.match_events`), and per true touch ``gap_before_px``,
-    ``closes_visibly`` and ``gap_in_sight`` (from the simulator, ``in_sight[condition]``;
-    None when not known).
+    ``closes_visibly``, and from the simulator (``hidden[condition]``, what hides each touch's
+    gap: :func:`~endocam.study.observability.gap_hidden_by`) ``gap_hidden_by`` and
+    ``gap_in_sight``; both None when not known.
     """
     rows: list[dict[str, Any]] = []
     for c in STUDY_CONDITIONS:
@@ -128,7 +131,8 @@ def seed_rows(
                 "matched_touches": match.true_positives,
                 "gap_before_px": [v.gap_before_px for v in views],
                 "closes_visibly": [v.closes_visibly for v in views],
-                "gap_in_sight": None if in_sight is None else in_sight[c.value],
+                "gap_in_sight": None if hidden is None else [h is None for h in hidden[c.value]],
+                "gap_hidden_by": None if hidden is None else hidden[c.value],
             }
         )
     return rows
@@ -139,23 +143,32 @@ def write_truth(
     seed: int,
     fps: float,
     true_events: Sequence[Interval],
-    in_sight: dict[str, list[bool]] | None,
+    hidden: Hidden | None,
 ) -> None:
-    """Write a kept seed's ``truth.json`` (atomically); ``in_sight``: per condition, per touch."""
+    """Write a kept seed's ``truth.json`` (atomically); ``hidden``: per condition, per touch.
+
+    ``gap_hidden_by`` is what hides each touch's closing gap (None: it is in sight), and
+    ``gap_in_sight`` the same as flags.
+    """
     doc = {
         "seed": seed,
         "fps": fps,
         "true_events": [list(e) for e in true_events],
-        "gap_in_sight": in_sight,
+        "gap_in_sight": None
+        if hidden is None
+        else {c: [h is None for h in hs] for c, hs in hidden.items()},
+        "gap_hidden_by": hidden,
     }
     write_atomic(folder / TRUTH_JSON, lambda p: p.write_text(json.dumps(doc) + "\n", "utf-8"))
 
 
-KeptSeed = tuple[int, list[Interval], dict[str, list[bool]] | None]
+KeptSeed = tuple[int, list[Interval], Hidden | None]
 
 
 def kept_seeds(study: Path) -> list[KeptSeed]:
-    """``(seed, true touch intervals, gap in sight)`` of every extra seed the study kept.
+    """``(seed, true touch intervals, what hides each gap)`` of every extra seed the study kept.
+
+    The last is None when the seed's ``truth.json`` predates ``gap_hidden_by``.
 
     Raises
     ------
@@ -173,13 +186,13 @@ def kept_seeds(study: Path) -> list[KeptSeed]:
             doc = json.loads((folder / TRUTH_JSON).read_text("utf-8"))
             events = [(float(a), float(b)) for a, b in doc["true_events"]]
             seed = int(doc["seed"])
-            in_sight = doc.get("gap_in_sight")
+            hidden = doc.get("gap_hidden_by")
         except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{folder}: no valid {TRUTH_JSON}: {exc}") from None
         missing = [c.value for c in STUDY_CONDITIONS if not (folder / f"{c.value}.mp4").is_file()]
         if missing:
             raise ValueError(f"{folder}: missing video(s) {', '.join(missing)}")
-        out.append((seed, events, in_sight))
+        out.append((seed, events, hidden))
     return out
 
 
@@ -218,6 +231,7 @@ def hypothesis_dict(
             "median_gap_before_px": finite_median([r.gap_before_px for r in rs]),
             "closes_visibly_share": known_share([r.closes_visibly for r in rs]),
             "gap_in_sight_share": known_share([r.gap_in_sight for r in rs]),
+            "gap_hidden_by": hidden_counts([r.gap_hidden_by for r in rs]),
         }
     seeds: dict[str, Any] = {}
     for c in manifest.conditions:
@@ -241,6 +255,7 @@ def hypothesis_dict(
             "gap_in_sight_share": known_share(
                 [f for r in rows for f in (r.get("gap_in_sight") or [None] * r["true_touches"])]
             ),
+            "gap_hidden_by": hidden_counts([h for r in rows for h in r.get("gap_hidden_by") or []]),
         }
     return {
         "trajectory": trajectory,
@@ -387,13 +402,13 @@ def _earlier_rows(path: Path) -> list[dict[str, Any]]:
 
 # ------------------------------------------------------------------------------ replay
 def replay_gap_in_sight(study: Path, workers: int = DEFAULT_WORKERS) -> int:
-    """Fill in ``gap_in_sight`` where a study folder lacks it, by replaying its episodes.
+    """Fill in ``gap_in_sight`` and ``gap_hidden_by`` where a study folder lacks them.
 
-    Folders made before the column existed: the episodes are deterministic, so each is run
+    Folders made before the columns existed: the episodes are deterministic, so each is run
     again (no rendering) from its logged config (``logs/<id>/scene.json``), its condition's
     policy and its trajectory's noise seed (``design.json``; a kept seed's ``truth.json``), and
-    the column is computed as ``study make`` computes it
-    (:func:`endocam.study.observability.gap_in_sight`). ``observability.json`` and the kept
+    the columns are computed as ``study make`` computes them
+    (:func:`endocam.study.observability.gap_hidden_by`). ``observability.json`` and the kept
     seeds' ``truth.json`` are rewritten atomically.
 
     Returns
@@ -408,8 +423,14 @@ def replay_gap_in_sight(study: Path, workers: int = DEFAULT_WORKERS) -> int:
         by other code or another config).
     """
     records = load_records(study / OBSERVABILITY_JSON)
-    videos = sorted({r.video_id for r in records if r.gap_in_sight is None})
-    seeds = [(s, ev) for s, ev, sight in kept_seeds(study) if sight is None]
+    videos = sorted(
+        {
+            r.video_id
+            for r in records
+            if r.gap_in_sight is None or not (r.gap_in_sight or r.gap_hidden_by)
+        }
+    )
+    seeds = [(s, ev) for s, ev, hidden in kept_seeds(study) if hidden is None]
     if not videos and not seeds:
         return 0
     design = json.loads((study / "design.json").read_text("utf-8"))
@@ -444,17 +465,20 @@ def replay_gap_in_sight(study: Path, workers: int = DEFAULT_WORKERS) -> int:
                 fut = pool.submit(_replay, cfg, cp, s, conditions, [a for a, _ in ev])
                 jobs[fut] = ("seed", s)
         results = {key: fut.result() for fut, key in jobs.items()}
-    for (kind, key), sight in results.items():
+    for (kind, key), hidden in results.items():
         if kind == "seed":
             folder = study / SEEDS_DIR / str(key)
             doc = json.loads((folder / TRUTH_JSON).read_text("utf-8"))
-            doc["gap_in_sight"] = sight
-            _write_text(folder / TRUTH_JSON, json.dumps(doc) + "\n")
+            write_truth(folder, int(doc["seed"]), float(doc["fps"]), doc["true_events"], hidden)
     filled = {vid: iter(results[("video", vid)][by_id[vid].condition.value]) for vid in videos}
-    records = [
-        dataclasses.replace(r, gap_in_sight=next(filled[r.video_id])) if r.video_id in filled else r
-        for r in records
-    ]
+
+    def refilled(r: TouchObservation) -> TouchObservation:
+        if r.video_id not in filled:
+            return r
+        h = next(filled[r.video_id])
+        return dataclasses.replace(r, gap_in_sight=h is None, gap_hidden_by=h or "")
+
+    records = [refilled(r) for r in records]
     _write_text(study / OBSERVABILITY_JSON, observability_json(summarize(records), records))
     _write_text(study / OBSERVABILITY_CSV, observability_csv(records))
     return len(videos) + len(STUDY_CONDITIONS) * len(seeds)
@@ -466,13 +490,13 @@ def _replay(
     seed: int,
     conditions: Sequence[Condition],
     t_starts: Sequence[float],
-) -> dict[str, list[bool]]:
-    """Run one trajectory's episodes again; per condition, ``gap_in_sight`` of each touch."""
+) -> Hidden:
+    """Run one trajectory's episodes again; per condition, what hides each touch's gap."""
     from endocam.config import ExperimentConfig
     from endocam.runner.episode import EpisodeSpec, run_episode
     from endocam.runner.experiments import CONDITION_POLICY, ground_truth
     from endocam.sim.render import WireChaserScene
-    from endocam.study.observability import gap_in_sight
+    from endocam.study.observability import gap_hidden_by
     from endocam.task.trajectory import TrajectoryKind
 
     cfg = ExperimentConfig.model_validate(config)
@@ -483,10 +507,10 @@ def _replay(
             f"replaying noise seed {seed} gives other touches than the study recorded: "
             "the folder was made by other code or another config"
         )
-    out: dict[str, list[bool]] = {}
+    out: Hidden = {}
     for c in conditions:
         spec = EpisodeSpec(CONDITION_POLICY[c.value], kind, control_points, seed)
         result = run_episode(cfg, spec, touches=touches)
         with WireChaserScene(cfg.task, result.camera) as scene:
-            out[c.value] = [gap_in_sight(result, scene, t) for t in t_starts]
+            out[c.value] = [gap_hidden_by(result, scene, t) for t in t_starts]
     return out

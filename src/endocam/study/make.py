@@ -82,7 +82,7 @@ from endocam.study.observability import (
     OBSERVABILITY_CSV,
     OBSERVABILITY_JSON,
     TouchObservation,
-    gap_in_sight,
+    gap_hidden_by,
     observability_csv,
     observability_json,
     observe_episode,
@@ -420,17 +420,17 @@ def _extra_seed_rows(
     ]
     events = [(e.t_start, e.t_end) for e in touches.events]
     with WireChaserScene(cfg.task, results[0].camera) as scene:
-        in_sight = {
-            c.value: [gap_in_sight(r, scene, e.t_start) for e in touches.events]
+        hidden = {
+            c.value: [gap_hidden_by(r, scene, e.t_start) for e in touches.events]
             for c, r in zip(STUDY_CONDITIONS, results, strict=True)
         }
     folder = work_dir / SEEDS_DIR / str(s)
     folder.mkdir(parents=True, exist_ok=True)
     try:
         render_conditions(results, [folder / f"{c.value}.mp4" for c in STUDY_CONDITIONS])
-        rows = seed_rows(folder, s, events, keys, in_sight)
+        rows = seed_rows(folder, s, events, keys, hidden)
         if keep_videos:
-            write_truth(folder, s, cfg.episode.video_fps, events, in_sight)
+            write_truth(folder, s, cfg.episode.video_fps, events, hidden)
     except BaseException:
         shutil.rmtree(folder, ignore_errors=True)
         raise

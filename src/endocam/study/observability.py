@@ -233,6 +233,9 @@ class TouchObservation:
         instant before the onset when the gap is still ``GAP_SEEN`` open, is in the image and
         unoccluded from the eye. An observer-independent upper bound on what any assessor can
         see close. ``None``: not computed (files written before the column existed).
+    gap_hidden_by : str
+        What hides that gap (:func:`gap_hidden_by`): ``OUTSIDE_IMAGE`` or a geom's name; empty
+        when it is in sight or not computed.
     """
 
     video_id: str
@@ -253,6 +256,7 @@ class TouchObservation:
     gap_min_px: float = math.nan
     closes_visibly: bool = False
     gap_in_sight: bool | None = None
+    gap_hidden_by: str = ""
 
 
 def _step(result: EpisodeResult, t: float) -> int:
@@ -261,10 +265,13 @@ def _step(result: EpisodeResult, t: float) -> int:
     return int(np.clip(round(t * rate), 0, len(result.log.t) - 1))
 
 
-def gap_in_sight(
+OUTSIDE_IMAGE = "outside the image"  # what hides a gap outside the eye's frustum
+
+
+def gap_hidden_by(
     result: EpisodeResult, scene: WireChaserScene, t_start: float, eye: Eye = "left"
-) -> bool:
-    """Whether the gap that closes at a touch's onset ``t_start`` (s) can be seen from ``eye``.
+) -> str | None:
+    """What hides the gap that closes at a touch's onset ``t_start`` (s) from ``eye``.
 
     The instant: the first one in the ``PRE_TOUCH_S`` (the observer's "just before") before the
     onset at which the exact clearance (``task.touches.clearances``, sampled every
@@ -274,6 +281,13 @@ def gap_in_sight(
     every geom: the wire's near part, the rim, the handle, an instrument), with the logged
     camera pose and PSM2 tip of the nearest control step: the test every validation clip's view
     passes (:func:`endocam.study.observer_clips.gap_visible`).
+
+    Returns
+    -------
+    str or None
+        None when the gap is in sight; ``OUTSIDE_IMAGE``; or the name of the first geom in front
+        of it (:meth:`~endocam.sim.render.WireChaserScene.occluder`, e.g. ``"wire"``: the wire's
+        own near part, ``"ring_torus"``: the rim).
     """
     from endocam.task.touches import clearances
 
@@ -288,7 +302,25 @@ def gap_in_sight(
     scene.set_psm2_tip(result.log.p_world_tips[k, 1])
     scene.set_ring_pose(T_rings[i])
     scene.set_camera_pose(T_cam)
-    return bool(in_image(scene.camera, T_cam, p[i], eye) and scene.ray_visible(p[i], T_cam, eye))
+    if not in_image(scene.camera, T_cam, p[i], eye):
+        return OUTSIDE_IMAGE
+    return scene.occluder(p[i], T_cam, eye)
+
+
+def gap_in_sight(
+    result: EpisodeResult, scene: WireChaserScene, t_start: float, eye: Eye = "left"
+) -> bool:
+    """Whether the gap that closes at ``t_start`` (s) can be seen: :func:`gap_hidden_by` is None."""
+    return gap_hidden_by(result, scene, t_start, eye) is None
+
+
+def hidden_counts(hiders: Sequence[str | None]) -> dict[str, int]:
+    """How many gaps each thing hides, most first (``None``, in sight, is not counted)."""
+    counts: dict[str, int] = {}
+    for h in hiders:
+        if h:
+            counts[h] = counts.get(h, 0) + 1
+    return dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
 
 
 def observe_episode(
@@ -348,6 +380,7 @@ def observe_episode(
                 scene.set_camera_pose(T_cam)
                 if in_image(scene.camera, T_cam, p, eye) and scene.ray_visible(p, T_cam, eye):
                     seen += 1
+        hider = gap_hidden_by(result, scene, float(ev.t_start), eye)
         records.append(
             TouchObservation(
                 video_id=video_id,
@@ -364,7 +397,8 @@ def observe_episode(
                 gap_px_per_mm=view.gap_px_per_mm,
                 frames=int(inside.size),
                 visible_frames=seen,
-                gap_in_sight=gap_in_sight(result, scene, float(ev.t_start), eye),
+                gap_in_sight=hider is None,
+                gap_hidden_by=hider or "",
             )
         )
     return records
@@ -393,6 +427,7 @@ class ConditionObservability(_Frozen):
     median_gap_before_px: float | None = None
     closes_visibly_share: float | None = None
     gap_in_sight_share: float | None = None
+    gap_hidden_by: dict[str, int] = Field(default_factory=dict)
 
 
 class ObservabilitySummary(_Frozen):
@@ -442,6 +477,7 @@ def summarize(records: Sequence[TouchObservation], eye: Eye = "left") -> Observa
             median_gap_before_px=finite_median([r.gap_before_px for r in rs]),
             closes_visibly_share=known_share([r.closes_visibly for r in rs]),
             gap_in_sight_share=known_share([r.gap_in_sight for r in rs]),
+            gap_hidden_by=hidden_counts([r.gap_hidden_by for r in rs]),
         )
     return ObservabilitySummary(eye=eye, instant="touch onset (t_start)", conditions=out)
 
