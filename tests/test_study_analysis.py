@@ -14,7 +14,7 @@ from endocam.study.analysis import (
     outlier_mask,
 )
 from endocam.study.manifest import parse_manifest
-from endocam.study.report import write_outputs
+from endocam.study.report import hidden_by_text, write_outputs
 from endocam.study.responses import ResponseRow, rows_from_csv, rows_to_csv
 from study_helpers import manifest_dict
 
@@ -210,3 +210,21 @@ def test_csv_round_trip_and_errors() -> None:
         rows_from_csv(bad)
     with pytest.raises(ValueError, match="attention_passed"):
         rows_from_csv(bad.replace("-3,true", "3,maybe"))
+
+
+def test_hidden_by_text_words_and_sums_the_geoms() -> None:
+    """The report names kinds of things, summed over their geoms, most first; unknown names stay."""
+    counts = {
+        "ring_torus": 3,
+        "psm1_jaw_b": 1,
+        "wire": 20,
+        "psm1_shaft": 2,
+        "ring_handle": 1,
+        "outside the image": 4,
+        "wall_front": 1,
+    }
+    assert hidden_by_text(counts) == (
+        "the wire 20, outside the image 4, an instrument 3, the ring 3, the box 1, "
+        "the ring's handle 1"
+    )
+    assert hidden_by_text({}) == "–"

@@ -24,6 +24,7 @@ from endocam.study.make import (
 from endocam.study.manifest import Condition, load_manifest
 from endocam.study.observability import OBSERVABILITY_CSV, OBSERVABILITY_JSON, load_summary
 from endocam.study.observer import OBSERVER_HTML, OBSERVER_JSON, ColourKeys
+from endocam.study.report import hidden_by_text
 from endocam.study.responses import ResponseRow, rows_to_csv
 from endocam.task.trajectory import TrajectoryKind
 
@@ -238,6 +239,13 @@ def test_analyze_report_shows_observability(study: Path, tmp_path: Path) -> None
     assert main([*args, str(study / "manifest.json"), "--out", str(out)]) == 0
     html = (out / "report.html").read_text()
     assert "Objective touch observability" in html
+    # the report's rows carry what hides each condition's gaps, as observability.json counts them
+    summary = json.loads((study / OBSERVABILITY_JSON).read_text())["conditions"]
+    for c in Condition:
+        share = summary[c.value]["gap_in_sight_share"]
+        hidden = hidden_by_text(summary[c.value]["gap_hidden_by"])
+        cell = "–" if share is None else f"{100 * share:.0f} %"
+        assert f'<td>{cell}</td><td style="text-align: left">{hidden}</td>' in html
     out2 = tmp_path / "results2"
     assert main([*args, str(study), "--out", str(out2), "--outliers", "none"]) == 0
     assert "Objective touch observability" in (out2 / "report.html").read_text()

@@ -25,6 +25,29 @@ REPORT_HTML = "report.html"
 _TEMPLATES = Path(__file__).parent / "templates"
 _LABELS = {"fixed": "Fixed", "centering": "Centering", "orientation": "Orientation"}
 BOXPLOT_DPI = 150  # dots per inch of the PNG
+# What hides a gap, by the scene's geom names (endocam.sim.scene), as the report words it.
+_HIDER_LABELS = (  # (geom-name prefix, label); first match wins
+    ("wire", "the wire"),
+    ("ring_handle", "the ring's handle"),
+    ("ring", "the ring"),
+    ("psm", "an instrument"),
+    ("board", "the board"),
+    ("wall", "the box"),
+)
+
+
+def hidden_by_text(counts: dict[str, int]) -> str:
+    """``gap_hidden_by`` counts in words, most first: ``"the wire 20, the ring 2"`` (``–``: none).
+
+    Geoms of one kind are summed (an instrument's jaws and shaft); names not in the table
+    (e.g. ``"outside the image"``) are kept as they are.
+    """
+    out: dict[str, int] = {}
+    for name, n in counts.items():
+        label = next((lab for pre, lab in _HIDER_LABELS if name.startswith(pre)), name)
+        out[label] = out.get(label, 0) + n
+    ranked = sorted(out.items(), key=lambda kv: (-kv[1], kv[0]))
+    return ", ".join(f"{label} {n}" for label, n in ranked) or "–"
 
 
 def plot_errors(result: AnalysisResult, path: Path) -> None:
@@ -87,6 +110,7 @@ def render_report(result: AnalysisResult, observability: ObservabilitySummary | 
         version=__version__,
         fmt=lambda x, digits=2: "–" if x is None else f"{x:.{digits}f}",
         pct=lambda x: "–" if x is None else f"{100 * x:.0f} %",
+        hidden_by=hidden_by_text,
     )
 
 
