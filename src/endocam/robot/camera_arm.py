@@ -48,10 +48,12 @@ from endocam.robot.arm import (
     PSM_MAX_VELOCITY,
     SimulatedArm,
 )
+from endocam.robot.braking import path_positions, profile_rows
 from endocam.robot.dh import (
+    Pose12,
     _compose_kernel,
+    _points_kernel,
     _pose12_times_kernel,
-    chain_points,
     pose12_from_matrix,
     pose12_times,
 )
@@ -345,13 +347,6 @@ class CameraArm:
         One compiled call (:func:`_pose_kernel`).
         """
         return _pose_kernel(self.model.chain._param_array, self._pose_consts, np.asarray(q, float))
-
-    def _camera_positions(self, q_rows: list[list[float]]) -> FloatArray:
-        """The translations of :meth:`_camera_pose` for joint rows (m, n): (m, 3), world, m.
-
-        The same floats (:func:`~endocam.robot.dh.chain_points`).
-        """
-        return chain_points(self.model.chain, q_rows, self._world_rcm12, self._last_cam_point)
 
     def camera_poses(self, q: FloatArray) -> FloatArray:
         """:meth:`camera_pose` for joint rows ``q`` (N, n): ``T_world_cam`` (N, 4, 4), m."""
@@ -732,9 +727,17 @@ class CameraArm:
         traj, dt = self._brake_traj, self._dt
         duration = traj.duration
         steps = math.ceil(duration / dt - 1e-9)
-        path = [traj.at_time(min(i * dt, duration))[0] for i in range(1, steps + 1)]
-        path.append(stop)  # every control step of the path, then where it stops
-        return ws.all_inside(self._camera_positions(path))
+        points = _braking_points_kernel(  # every control step of the path, then where it stops
+            self.model.chain._param_array,
+            profile_rows(traj),
+            duration,
+            dt,
+            steps,
+            np.array(stop),
+            self._world_rcm12,
+            self._last_cam_point,
+        )
+        return ws.all_inside(points)
 
     def _keep_inside(self, q_before: FloatArray, qd_before: FloatArray) -> FloatArray | None:
         """Undo a joint step that could take the camera out; brake along a checked one.
@@ -818,6 +821,30 @@ def _stop_kernel(
     r = _POSE_RCM
     to_rcm = dist3(T_now[0, 3], T_now[1, 3], T_now[2, 3], c[r], c[r + 1], c[r + 2])
     return stop, T_now, moving, slide, turn, to_rcm
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _braking_points_kernel(
+    params: FloatArray,
+    rows: FloatArray,
+    duration: float,
+    dt: float,
+    steps: int,
+    stop: FloatArray,
+    T0: Pose12,
+    point: tuple[float, float, float],
+) -> FloatArray:
+    """The camera's positions along a braking path: (steps + 1, 3), world, m.
+
+    The joints at every control step of the ruckig trajectory ``rows`` (n, 8, 8) of duration
+    ``duration`` (s, control period ``dt``; :func:`~endocam.robot.braking.path_positions`),
+    then at ``stop`` (n,), rad / m; each through :func:`~endocam.robot.dh.chain_points`'s
+    product (``T0``: the RCM in world, ``point``: the camera in the last link's frame, m).
+    """
+    q_rows = np.empty((steps + 1, stop.shape[0]))
+    q_rows[:steps] = path_positions(rows, duration, dt, steps)
+    q_rows[steps] = stop
+    return _points_kernel(params, q_rows, T0, point[0], point[1], point[2])
 
 
 WRIST_JUMP_RAD = 1.0  # rad: a wrist joint target moving this far in one step has jumped
