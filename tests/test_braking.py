@@ -24,7 +24,17 @@ from endocam.robot.arm import (
     PSM_MAX_ACCELERATION,
     PSM_MAX_VELOCITY,
 )
-from endocam.robot.braking import path_positions, profile_extrema, profile_rows
+from endocam.robot.braking import (
+    _A,
+    _BRAKE,
+    _P,
+    _T,
+    _V,
+    ROW_LENGTH,
+    path_positions,
+    profile_extrema,
+    profile_rows,
+)
 from endocam.robot.camera_arm import CameraArm, _braking_points_kernel, natural_pose
 from endocam.robot.cartesian import _box_corners
 from endocam.robot.dh import chain_points
@@ -109,7 +119,7 @@ def _camera_trajectories(seed: int) -> Any:
 
 
 def _brakes(rows: np.ndarray) -> bool:
-    return bool((rows[:, 7, 0] > 0.0).any())
+    return bool((rows[:, _BRAKE] > 0.0).any())
 
 
 # ------------------------------------------------------------------ tests
@@ -148,11 +158,11 @@ def test_camera_stop_path_and_box_are_the_replaced_floats() -> None:
 
 
 def test_roots_cover_lines_and_no_roots() -> None:
-    rows = np.zeros((1, 8, 8))
-    rows[0, 1, 0], rows[0, 4, 0] = 1.0, 2.0  # v = 1, a = j = 0: a line without a turn
-    rows[0, 0, 1] = 2.0
+    rows = np.zeros((1, ROW_LENGTH))
+    rows[0, _V], rows[0, _T] = 1.0, 2.0  # v = 1, a = j = 0: a line without a turn
+    rows[0, _P + 1] = 2.0
     assert profile_extrema(rows, 0) == (0.0, 2.0)
-    rows[0, 2, 0] = -1.0  # a = −1: the velocity 1 − s reaches 0 at s = 1 inside [0, 2]
+    rows[0, _A] = -1.0  # a = −1: the velocity 1 − s reaches 0 at s = 1 inside [0, 2]
     assert profile_extrema(rows, 0) == (0.0, 2.0)  # 0.5 at s = 1 lies inside the ends
 
 

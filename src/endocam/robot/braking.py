@@ -9,12 +9,11 @@ arithmetic (``Trajectory::at_time`` and ``integrate`` of ruckig 0.19, compiled w
 contraction), so the positions are the same floats. :func:`profile_extrema` is the lowest and
 highest position of one profile (the free camera's braking box).
 
-Each profile is a block (8, 8) of floats, SI units of its DoF (m or rad, and per second): the
-section start positions ``p`` (8), velocities ``v`` (8), accelerations ``a`` (8), then the
-section jerks ``j`` (7), durations ``t`` (7, s) and their running sums ``t_sum`` (7, s); then
-the brake pre-trajectory (a state beyond the limits): its two parts' start positions, velocities,
-accelerations and jerks (``p0 p1 v0 v1 a0 a1 j0 j1``), and its duration and parts' durations
-(s); rows padded with 0.
+Each profile is a row of 49 floats, SI units of its DoF (m or rad, and per second): the section
+start positions ``p`` (8), velocities ``v`` (8), accelerations ``a`` (8), the section jerks ``j``
+(7) and durations ``t`` (7, s); then the brake pre-trajectory (a state beyond the limits): its
+duration (s), its two parts' durations (s), start positions, velocities, accelerations and
+jerks (2 each; all 0 without a brake).
 """
 
 from __future__ import annotations
@@ -29,46 +28,45 @@ from endocam.geometry import FloatArray
 
 __all__ = ["path_positions", "profile_extrema", "profile_rows"]
 
-_P, _V, _A, _J, _T, _TSUM, _BRAKE, _BRAKE_T = 0, 1, 2, 3, 4, 5, 6, 7  # rows of a profile block
+# offsets in a profile row (module docstring)
+_P, _V, _A, _J, _T = 0, 8, 16, 24, 31
+_BRAKE, _BRAKE_T, _BRAKE_P, _BRAKE_V, _BRAKE_A, _BRAKE_J = 38, 39, 41, 43, 45, 47
+ROW_LENGTH = 49  # floats per profile row
+_NO_BRAKE = [0.0] * (ROW_LENGTH - _BRAKE)
 
 
 def profile_rows(trajectory: object) -> FloatArray:
-    """The profiles of a one-section ruckig ``Trajectory`` (n DoFs) as (n, 8, 8) floats.
+    """The profiles of a one-section ruckig ``Trajectory`` (n DoFs) as (n, 49) floats.
 
-    Block layout in the module docstring; ``t_sum`` is summed as ruckig's ``Profile::check``
-    sums it (``t_sum[i] = t_sum[i − 1] + t[i]``).
+    Row layout in the module docstring: each profile's lists as the binding returns them, read
+    once (one ``Trajectory.at_time`` costs about as much as reading a profile).
     """
     traj: Any = trajectory
-    profiles = traj.profiles[0]
-    out = np.zeros((len(profiles), 8, 8))
-    for k, pr in enumerate(profiles):
+    flat: list[float] = []
+    for pr in traj.profiles[0]:
         brake = pr.brake
-        duration = brake.duration
-        if duration > 0.0:
-            out[k, _BRAKE, 0:2] = brake.p
-            out[k, _BRAKE, 2:4] = brake.v
-            out[k, _BRAKE, 4:6] = brake.a
-            out[k, _BRAKE, 6:8] = brake.j
-            out[k, _BRAKE_T, 1:3] = brake.t
-        out[k, _BRAKE_T, 0] = duration
-        out[k, _P] = pr.p
-        out[k, _V] = pr.v
-        out[k, _A] = pr.a
-        out[k, _J, :7] = pr.j
-        out[k, _T, :7] = pr.t
-    _fill_t_sum(out)
-    return out
+        flat += pr.p + pr.v + pr.a + pr.j + pr.t
+        if brake.duration > 0.0:
+            flat += [brake.duration, *brake.t, *brake.p, *brake.v, *brake.a, *brake.j]
+        else:
+            flat += _NO_BRAKE
+    return np.array(flat).reshape(-1, ROW_LENGTH)
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _fill_t_sum(rows: FloatArray) -> None:
-    """Write each profile's running sum of its section durations, s (as ruckig sums them)."""
+def _t_sums(rows: FloatArray) -> FloatArray:
+    """Each profile's running sums of its section durations (n, 7), s.
+
+    Summed as ruckig's ``Profile::check`` sums them: ``t_sum[i] = t_sum[i − 1] + t[i]``.
+    """
+    out = np.empty((rows.shape[0], 7))
     for k in range(rows.shape[0]):
-        total = rows[k, _T, 0]
-        rows[k, _TSUM, 0] = total
+        total = rows[k, _T]
+        out[k, 0] = total
         for i in range(1, 7):
-            total = total + rows[k, _T, i]
-            rows[k, _TSUM, i] = total
+            total = total + rows[k, _T + i]
+            out[k, i] = total
+    return out
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -78,32 +76,33 @@ def _integrate_position(t: float, p0: float, v0: float, a0: float, j: float) -> 
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _position_at(rows: FloatArray, k: int, time: float, duration: float) -> float:
-    """``Trajectory.at_time(time)[0][k]`` of a one-section trajectory (ruckig's steps)."""
-    t_end = rows[k, _TSUM, 6]
-    t_brake = rows[k, _BRAKE_T, 0]
+def _position_at(
+    rows: FloatArray, t_sum: FloatArray, k: int, time: float, duration: float
+) -> float:
+    """``Trajectory.at_time(time)[0][k]`` of a one-section trajectory (ruckig's steps).
+
+    ``t_sum``: :func:`_t_sums` of ``rows``; ``time``, ``duration``: s.
+    """
+    r = rows[k]
+    t_end = t_sum[k, 6]
+    t_brake = r[_BRAKE]
     if time >= duration:  # past the end: ruckig keeps the last acceleration
-        return _integrate_position(
-            time - (t_brake + t_end), rows[k, _P, 7], rows[k, _V, 7], rows[k, _A, 7], 0.0
-        )
+        return _integrate_position(time - (t_brake + t_end), r[_P + 7], r[_V + 7], r[_A + 7], 0.0)
     if t_brake > 0.0:
         if time < t_brake:  # on the brake pre-trajectory
-            b = rows[k, _BRAKE]
-            part = 0 if time < rows[k, _BRAKE_T, 1] else 1
-            t = time - rows[k, _BRAKE_T, 1] if part > 0 else time
-            return _integrate_position(t, b[part], b[2 + part], b[4 + part], b[6 + part])
+            part = 0 if time < r[_BRAKE_T] else 1
+            t = time - r[_BRAKE_T] if part > 0 else time
+            return _integrate_position(
+                t, r[_BRAKE_P + part], r[_BRAKE_V + part], r[_BRAKE_A + part], r[_BRAKE_J + part]
+            )
         time = time - t_brake
     if time >= t_end:
-        return _integrate_position(
-            time - t_end, rows[k, _P, 7], rows[k, _V, 7], rows[k, _A, 7], 0.0
-        )
+        return _integrate_position(time - t_end, r[_P + 7], r[_V + 7], r[_A + 7], 0.0)
     index = 0  # std::upper_bound: the first section whose running sum exceeds time
-    while index < 7 and not time < rows[k, _TSUM, index]:
+    while index < 7 and not time < t_sum[k, index]:
         index += 1
-    t = time - rows[k, _TSUM, index - 1] if index > 0 else time
-    return _integrate_position(
-        t, rows[k, _P, index], rows[k, _V, index], rows[k, _A, index], rows[k, _J, index]
-    )
+    t = time - t_sum[k, index - 1] if index > 0 else time
+    return _integrate_position(t, r[_P + index], r[_V + index], r[_A + index], r[_J + index])
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -115,36 +114,38 @@ def path_positions(rows: FloatArray, duration: float, dt: float, steps: int) -> 
     ``duration``: its ``duration``, s; ``dt``: the control period, s.
     """
     n = rows.shape[0]
+    t_sum = _t_sums(rows)
     out = np.empty((steps, n))
     for i in range(1, steps + 1):
         t = i * dt
         time = duration if duration < t else t  # Python's min(i * dt, duration)
         for k in range(n):
-            out[i - 1, k] = _position_at(rows, k, time, duration)
+            out[i - 1, k] = _position_at(rows, t_sum, k, time, duration)
     return out
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def profile_extrema(rows: FloatArray, k: int) -> tuple[float, float]:
-    """Lowest and highest position of profile ``k`` of ``rows`` (its brake part is empty).
+    """Lowest and highest position of profile ``k`` of ``rows`` (its brake part not counted).
 
     Each section is a cubic in time; its extremes lie at its ends or where its velocity, a
     quadratic, crosses zero inside it. Python's ``min``/``max`` order of comparisons.
     """
-    p, v, a, j, t = rows[k, _P], rows[k, _V], rows[k, _A], rows[k, _J], rows[k, _T]
-    lo = hi = p[0]
+    r = rows[k]
+    lo = hi = r[_P]
     for i in range(7):
-        x = p[i + 1]
+        x = r[_P + i + 1]
         lo = x if x < lo else lo
         hi = x if x > hi else hi
-        T = t[i]
+        T = r[_T + i]
         if not T > 0.0:
             continue
-        count, r0, r1 = _roots(0.5 * j[i], a[i], v[i])
+        p, v, a, j = r[_P + i], r[_V + i], r[_A + i], r[_J + i]
+        count, r0, r1 = _roots(0.5 * j, a, v)
         for m in range(count):
             s = r0 if m == 0 else r1
             if 0.0 < s < T:
-                x = p[i] + s * (v[i] + s * (0.5 * a[i] + s * j[i] / 6.0))
+                x = p + s * (v + s * (0.5 * a + s * j / 6.0))
                 lo = x if x < lo else lo
                 hi = x if x > hi else hi
     return lo, hi

@@ -54,8 +54,8 @@ from endocam.robot.dh import (
     _compose_kernel,
     _points_kernel,
     _pose12_times_kernel,
+    chain_points,
     pose12_from_matrix,
-    pose12_times,
 )
 from endocam.robot.ecm import ECM
 from endocam.robot.kinematics import RcmArm
@@ -365,9 +365,10 @@ class CameraArm:
         return self._T_rcm_world @ T_world_cam @ self._T_cam_tip
 
     def _exact(self, T_world_cam: FloatArray) -> list[float] | None:
-        rows = tuple(map(tuple, T_world_cam[:3].tolist()))
-        goal12 = pose12_times(pose12_times(self._rcm_world12, rows), self._cam_tip_rows)
-        return self.model.exact12_unchecked(goal12, self._q)
+        """The exact joints (rad / m) of a camera pose (4, 4), world, m; ``None`` if none."""
+        return self.model.exact_between_unchecked(
+            self._rcm_world12, T_world_cam, self._cam_tip_rows, self._q
+        )
 
     def target(
         self, T_world_goal: FloatArray, look_distance: float
@@ -616,8 +617,7 @@ class CameraArm:
         command more than ``MAX_COMMAND_RANGE_M`` from the port, or one no solver can digest,
         is treated like a non-finite one: the arm brakes where it is.
         """
-        finite = bool(np.isfinite(T_world_cmd).all())
-        if finite and np.abs(T_world_cmd[:3, 3] - self._p_world_rcm).max() <= MAX_COMMAND_RANGE_M:
+        if _is_camera_command(T_world_cmd, self._p_world_rcm, MAX_COMMAND_RANGE_M):
             T_goal = T_world_cmd
         else:  # not a camera command: brake where the arm is
             T_goal = self._T_cam
@@ -727,16 +727,22 @@ class CameraArm:
         traj, dt = self._brake_traj, self._dt
         duration = traj.duration
         steps = math.ceil(duration / dt - 1e-9)
-        points = _braking_points_kernel(  # every control step of the path, then where it stops
-            self.model.chain._param_array,
-            profile_rows(traj),
-            duration,
-            dt,
-            steps,
-            np.array(stop),
-            self._world_rcm12,
-            self._last_cam_point,
-        )
+        # every control step of the path, then where it stops; the same floats either way
+        if steps > PROFILE_READ_STEPS * len(q):  # read the profiles once, sample compiled
+            points = _braking_points_kernel(
+                self.model.chain._param_array,
+                profile_rows(traj),
+                duration,
+                dt,
+                steps,
+                np.array(stop),
+                self._world_rcm12,
+                self._last_cam_point,
+            )
+        else:  # a short path: fewer calls of ruckig's own sampler than reading the profiles
+            path = [traj.at_time(min(i * dt, duration))[0] for i in range(1, steps + 1)]
+            path.append(stop)
+            points = chain_points(self.model.chain, path, self._world_rcm12, self._last_cam_point)
         return ws.all_inside(points)
 
     def _keep_inside(self, q_before: FloatArray, qd_before: FloatArray) -> FloatArray | None:
@@ -754,6 +760,11 @@ class CameraArm:
         self._safe, self._stop = safe, stop
         return T_now
 
+
+# count per joint: a braking path longer than this many control steps per joint is sampled
+# from its profiles (robot.braking: reading them costs about as much as 4 at_time calls per
+# joint), a shorter one by ruckig's at_time at each step
+PROFILE_READ_STEPS = 4
 
 BRAKE_ACC_SHARE = 0.99  # unitless: share of a joint's acceleration limit its braking plans for
 
@@ -836,7 +847,7 @@ def _braking_points_kernel(
 ) -> FloatArray:
     """The camera's positions along a braking path: (steps + 1, 3), world, m.
 
-    The joints at every control step of the ruckig trajectory ``rows`` (n, 8, 8) of duration
+    The joints at every control step of the ruckig trajectory ``rows`` (n, 49) of duration
     ``duration`` (s, control period ``dt``; :func:`~endocam.robot.braking.path_positions`),
     then at ``stop`` (n,), rad / m; each through :func:`~endocam.robot.dh.chain_points`'s
     product (``T0``: the RCM in world, ``point``: the camera in the last link's frame, m).
@@ -845,6 +856,23 @@ def _braking_points_kernel(
     q_rows[:steps] = path_positions(rows, duration, dt, steps)
     q_rows[steps] = stop
     return _points_kernel(params, q_rows, T0, point[0], point[1], point[2])
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _is_camera_command(T: FloatArray, p_rcm: FloatArray, reach: float) -> bool:
+    """Whether a command (4, 4) is finite with its camera within ``reach`` (m) of ``p_rcm``.
+
+    ``p_rcm`` (3,): the port, world, m; the distance is the largest of the three coordinate
+    differences (``np.abs(T[:3, 3] − p_rcm).max() <= reach``).
+    """
+    for i in range(T.shape[0]):
+        for j in range(T.shape[1]):
+            if not math.isfinite(T[i, j]):
+                return False
+    for i in range(3):
+        if not abs(T[i, 3] - p_rcm[i]) <= reach:
+            return False
+    return True
 
 
 WRIST_JUMP_RAD = 1.0  # rad: a wrist joint target moving this far in one step has jumped

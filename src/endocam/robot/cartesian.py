@@ -95,7 +95,7 @@ def _snap(values: list[float], tol: float) -> list[float]:
 def _box_corners(rows: FloatArray) -> FloatArray:
     """The eight corners (8, 3), m, of the box a 3-DoF braking path spans.
 
-    ``rows``: the path's :func:`~endocam.robot.braking.profile_rows` (3, 8, 8); per axis its
+    ``rows``: the path's :func:`~endocam.robot.braking.profile_rows` (3, 49); per axis its
     lowest and highest position (:func:`~endocam.robot.braking.profile_extrema`, brake part
     not counted), corners in the order ``[[x, y, z] for x in xs for y in ys for z in zs]``.
     """
@@ -107,6 +107,25 @@ def _box_corners(rows: FloatArray) -> FloatArray:
                 row = 4 * i + 2 * j + k
                 out[row, 0], out[row, 1], out[row, 2] = xs[i], ys[j], zs[k]
     return out
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _stop_bound(
+    v0: float, v1: float, v2: float, a0: float, a1: float, a2: float, V: float, A: float, J: float
+) -> float:
+    """An upper bound of the braking distance from velocity ``v`` and acceleration ``a``, m.
+
+    ``v`` (m/s), ``a`` (m/s²): world, per axis. Per axis (limits ``V``, ``A``, ``J``: m/s,
+    m/s², m/s³): the speed peaks below ``s = |v| + a²/2J`` (≤ V) and braking lasts under
+    ``|a|/J + s/A + A/J``, so the axis travels less than their product.
+    """
+    total = 0.0
+    for vi, ai in ((v0, a0), (v1, a1), (v2, a2)):
+        x = abs(vi) + ai * ai / (2.0 * J)
+        s = x if x < V else V  # Python's min(V, x)
+        d = s * (abs(ai) / J + s / A + A / J)
+        total += d * d
+    return math.sqrt(total)
 
 
 class CartesianLimiter:
@@ -145,6 +164,7 @@ class CartesianLimiter:
         self._inp.max_acceleration = [a, a, a, al, al, al]
         j, jr = limits.max_linear_jerk / _SQRT3, limits.max_angular_jerk / _SQRT3
         self._inp.max_jerk = [j, j, j, jr, jr, jr]  # jerk-limited: smooth for the viewer
+        self._stop_limits = (v, a, j)  # the position DoFs' limits, m/s, m/s², m/s³
         # Each DoF is limited on its own (no time synchronisation): the target moves every step,
         # so synchronised arrival buys nothing, and it halves ruckig's cost.
         self._inp.synchronization = Synchronization.No
@@ -185,7 +205,8 @@ class CartesianLimiter:
         margin = ws.margin(p)
         if not any(v) and not any(a):
             return margin >= 0.0
-        if margin > self._stop_bound(v, a):
+        bound = _stop_bound(v[0], v[1], v[2], a[0], a[1], a[2], *self._stop_limits)
+        if margin > bound:
             return True  # farther inside than any braking from this state can carry it
         inp = self._stop_inp
         inp.current_position = p
@@ -199,27 +220,12 @@ class CartesianLimiter:
             return False
         if ws.convex:
             return True  # a convex region holding the path's box's corners holds the path
-        if ws.keep_out_margin(p) > self._stop_bound(v, a):
+        if ws.keep_out_margin(p) > bound:
             return True  # farther from the keep-out zone than the braking can carry it
         # a keep-out zone (the wire's): the braking path itself, at every control step
         duration, dt = self._stop_traj.duration, self.dt
         steps = math.ceil(duration / dt - 1e-9)
         return ws.all_inside(path_positions(rows, duration, dt, steps))
-
-    def _stop_bound(self, v: list[float], a: list[float]) -> float:
-        """An upper bound of the braking distance from velocity ``v`` and acceleration ``a``, m.
-
-        Per axis (limits ``V``, ``A``, ``J``): the speed peaks below ``s = |v| + a²/2J`` (≤ V)
-        and braking lasts under ``|a|/J + s/A + A/J``, so the axis travels less than their
-        product.
-        """
-        V, A, J = self._inp.max_velocity[0], self._inp.max_acceleration[0], self._inp.max_jerk[0]
-        total = 0.0
-        for vi, ai in zip(v, a, strict=True):
-            s = min(V, abs(vi) + ai * ai / (2.0 * J))
-            d = s * (abs(ai) / J + s / A + A / J)
-            total += d * d
-        return math.sqrt(total)
 
     def _brake(self) -> FloatArray:
         """One step along the braking path of the current state (checked the step before)."""

@@ -1,0 +1,109 @@
+"""The carriers' compiled shortcuts give the floats and decisions of the code they replaced.
+
+Each reference below is the interpreted code a shortcut replaced, kept here; each comparison
+runs on seeded random inputs (reachable and unreachable goals, commands in and out of range).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from endocam.config import ExperimentConfig
+from endocam.geometry import make_pose
+from endocam.robot.actuator import ArmKind
+from endocam.robot.camera_arm import CameraArm, _is_camera_command, natural_pose
+from endocam.robot.cartesian import CartesianLimiter, MotionLimits, _stop_bound
+from endocam.robot.dh import pose12_between, pose12_times
+
+N_GOALS = 400  # count: random goals per carrier
+
+
+def _arm(kind: ArmKind) -> CameraArm:
+    cfg = ExperimentConfig()
+    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
+    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
+
+
+def _goals(arm: CameraArm, seed: int) -> list[np.ndarray]:
+    """Camera poses (4, 4), world, m: reachable ones, and ones turned or moved off them."""
+    rng = np.random.default_rng(seed)
+    model = arm.model
+    out = []
+    for i in range(N_GOALS):
+        q = model.clamp(natural_pose(model) + rng.uniform(-0.6, 0.6, model.n_joints))
+        T = arm.camera_pose(q)
+        if i % 2:  # off the reachable set (mostly): turned and moved
+            R = Rotation.from_rotvec(rng.normal(0.0, 0.2, 3)).as_matrix()
+            T = make_pose(R @ T[:3, :3], T[:3, 3] + rng.normal(0.0, 0.01, 3))
+        out.append(T)
+    return out
+
+
+def _exact_reference(arm: CameraArm, T_world_cam: np.ndarray) -> list[float] | None:
+    """``CameraArm._exact`` as it was: the goal's products on Python floats, then the IK."""
+    rows = tuple(map(tuple, T_world_cam[:3].tolist()))
+    goal12 = pose12_times(pose12_times(arm._rcm_world12, rows), arm._cam_tip_rows)
+    return arm.model.exact12_unchecked(goal12, arm._q)
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_exact_between_is_the_interpreted_goal_then_ik(kind: ArmKind) -> None:
+    arm = _arm(kind)
+    found = 0
+    for T in _goals(arm, 21 if kind is ArmKind.PSM else 22):
+        rows = tuple(map(tuple, T[:3].tolist()))
+        expected12 = pose12_times(pose12_times(arm._rcm_world12, rows), arm._cam_tip_rows)
+        assert pose12_between(arm._rcm_world12, T, arm._cam_tip_rows) == expected12
+        expected = _exact_reference(arm, T)
+        assert arm._exact(T) == expected
+        found += expected is not None
+    assert 0 < found < N_GOALS  # both outcomes exercised
+
+
+def _is_camera_command_reference(T: np.ndarray, p_rcm: np.ndarray, reach: float) -> bool:
+    """``CameraArm.step``'s test of a command as it was (numpy)."""
+    finite = bool(np.isfinite(T).all())
+    return bool(finite and np.abs(T[:3, 3] - p_rcm).max() <= reach)
+
+
+def test_camera_command_test_is_the_numpy_one() -> None:
+    rng = np.random.default_rng(23)
+    p_rcm = rng.normal(0.0, 0.1, 3)
+    for _ in range(2000):
+        T = make_pose(Rotation.random(random_state=rng).as_matrix(), p_rcm)
+        T[:3, 3] += rng.normal(0.0, 1.0, 3) * rng.choice([0.1, 1.0, 10.0, 100.0])
+        if rng.random() < 0.2:
+            T[rng.integers(4), rng.integers(4)] = rng.choice([np.nan, np.inf, -np.inf])
+        for reach in (10.0, float(np.abs(T[:3, 3] - p_rcm).max())):  # also exactly at the reach
+            assert _is_camera_command(T, p_rcm, reach) == _is_camera_command_reference(
+                T, p_rcm, reach
+            )
+
+
+def _stop_bound_reference(v: list[float], a: list[float], V: float, A: float, J: float) -> float:
+    """``CartesianLimiter._stop_bound`` as it was (interpreted)."""
+    total = 0.0
+    for vi, ai in zip(v, a, strict=True):
+        s = min(V, abs(vi) + ai * ai / (2.0 * J))
+        d = s * (abs(ai) / J + s / A + A / J)
+        total += d * d
+    return math.sqrt(total)
+
+
+def test_stop_bound_is_the_interpreted_one() -> None:
+    limiter = CartesianLimiter(MotionLimits(), 0.01)
+    V, A, J = limiter._stop_limits
+    assert (V, A, J) == (
+        limiter._inp.max_velocity[0],
+        limiter._inp.max_acceleration[0],
+        limiter._inp.max_jerk[0],
+    )
+    rng = np.random.default_rng(24)
+    for _ in range(20000):
+        v = (rng.normal(0.0, V, 3) * rng.choice([0.0, 1e-6, 1.0, 3.0], 3)).tolist()
+        a = (rng.normal(0.0, A, 3) * rng.choice([0.0, 1e-6, 1.0, 3.0], 3)).tolist()
+        assert _stop_bound(*v, *a, V, A, J) == _stop_bound_reference(v, a, V, A, J)
