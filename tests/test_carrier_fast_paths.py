@@ -15,7 +15,16 @@ from scipy.spatial.transform import Rotation
 from endocam.config import ExperimentConfig
 from endocam.geometry import make_pose
 from endocam.robot.actuator import ArmKind
-from endocam.robot.camera_arm import CameraArm, _is_camera_command, natural_pose
+from endocam.robot.camera_arm import (
+    _EPS_AXIS,
+    PATH_ENGAGE_AIM_RAD,
+    PATH_ENGAGE_M,
+    PATH_LEAD_M,
+    CameraArm,
+    _is_camera_command,
+    _path_engage_kernel,
+    natural_pose,
+)
 from endocam.robot.cartesian import CartesianLimiter, MotionLimits, _stop_bound
 from endocam.robot.dh import pose12_between, pose12_times
 
@@ -107,3 +116,51 @@ def test_stop_bound_is_the_interpreted_one() -> None:
         v = (rng.normal(0.0, V, 3) * rng.choice([0.0, 1e-6, 1.0, 3.0], 3)).tolist()
         a = (rng.normal(0.0, A, 3) * rng.choice([0.0, 1e-6, 1.0, 3.0], 3)).tolist()
         assert _stop_bound(*v, *a, V, A, J) == _stop_bound_reference(v, a, V, A, J)
+
+
+def _path_engage_reference(
+    T_cam: np.ndarray, T_target: np.ndarray, look_distance: float
+) -> tuple[float, float, list[float], list[float]] | None:
+    """``CameraArm._path_target``'s first half as it was: ``None`` or ``(r_cur, alpha, u, c)``."""
+    a, b = T_cam.tolist(), T_target.tolist()
+    z_t = [b[0][2], b[1][2], b[2][2]]
+    c = [b[i][3] + look_distance * z_t[i] for i in range(3)]
+    v = [a[i][3] - c[i] for i in range(3)]
+    r_cur = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    if not r_cur > _EPS_AXIS:
+        return None
+    u = [x / r_cur for x in v]
+    cos_aim = -(u[0] * a[0][2] + u[1] * a[1][2] + u[2] * a[2][2])
+    aim = math.acos(max(-1.0, min(1.0, cos_aim)))
+    cos_t = -(u[0] * z_t[0] + u[1] * z_t[1] + u[2] * z_t[2])
+    ang = math.acos(max(-1.0, min(1.0, cos_t)))
+    travel = math.hypot(look_distance - r_cur, 0.5 * (r_cur + look_distance) * ang)
+    if travel <= PATH_ENGAGE_M and aim <= PATH_ENGAGE_AIM_RAD:
+        return None
+    alpha = min(1.0, PATH_LEAD_M / travel) if travel > 0.0 else 1.0
+    if alpha >= 1.0 and aim <= PATH_ENGAGE_AIM_RAD:
+        return None
+    return r_cur, alpha, u, c
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_path_engage_is_the_interpreted_test(kind: ArmKind) -> None:
+    arm = _arm(kind)
+    rng = np.random.default_rng(25 if kind is ArmKind.PSM else 26)
+    goals = _goals(arm, 27)
+    engaged = 0
+    for T_target in goals:
+        T_cam = goals[rng.integers(len(goals))]
+        if rng.random() < 0.3:  # near the target: the path is not taken
+            T_cam = T_target.copy()
+            T_cam[:3, 3] += rng.normal(0.0, 0.005, 3)
+        for look in (0.05, float(rng.uniform(0.001, 0.2))):
+            expected = _path_engage_reference(T_cam, T_target, look)
+            engage, r_cur, alpha, u0, u1, u2, c0, c1, c2 = _path_engage_kernel(
+                T_cam, T_target, look
+            )
+            assert engage == (expected is not None)
+            if expected is not None:
+                engaged += 1
+                assert (r_cur, alpha, [u0, u1, u2], [c0, c1, c2]) == expected
+    assert 0 < engaged < 2 * N_GOALS

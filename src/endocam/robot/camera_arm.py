@@ -39,7 +39,7 @@ from numba import njit
 from endocam.camera import StereoCamera
 from endocam.geometry import UP, FloatArray, as_pose, invert_pose
 from endocam.kernels import cross, rotation_angle, so3_exp
-from endocam.pyfloat import dist3
+from endocam.pyfloat import dist3, hypot2
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import (
     ECM_MAX_ACCELERATION,
@@ -499,24 +499,13 @@ class CameraArm:
         move towards it for one step, so a far target is reached along the path instead of the
         straight joint-space line (whose view swings away from ``c``).
         """
-        a, b = self._T_cam.tolist(), T_target.tolist()  # plain floats: this runs every step
-        z_t = [b[0][2], b[1][2], b[2][2]]
-        c = [b[i][3] + look_distance * z_t[i] for i in range(3)]
-        v = [a[i][3] - c[i] for i in range(3)]
-        r_cur = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-        if not r_cur > _EPS_AXIS:
+        engage, r_cur, alpha, u0, u1, u2, c0, c1, c2 = _path_engage_kernel(
+            self._T_cam, T_target, look_distance
+        )
+        if not engage:
             return None
-        u = [x / r_cur for x in v]
-        cos_aim = -(u[0] * a[0][2] + u[1] * a[1][2] + u[2] * a[2][2])
-        aim = math.acos(max(-1.0, min(1.0, cos_aim)))
-        cos_t = -(u[0] * z_t[0] + u[1] * z_t[1] + u[2] * z_t[2])
-        ang = math.acos(max(-1.0, min(1.0, cos_t)))  # coarse: only compared with the thresholds
-        travel = math.hypot(look_distance - r_cur, 0.5 * (r_cur + look_distance) * ang)
-        if travel <= PATH_ENGAGE_M and aim <= PATH_ENGAGE_AIM_RAD:
-            return None
-        alpha = min(1.0, PATH_LEAD_M / travel) if travel > 0.0 else 1.0
-        if alpha >= 1.0 and aim <= PATH_ENGAGE_AIM_RAD:
-            return None
+        u, c = [u0, u1, u2], [c0, c1, c2]
+        z_t = [float(T_target[0, 2]), float(T_target[1, 2]), float(T_target[2, 2])]
         c_arr = np.array(c)
         u_cur = np.array(u)
         u_goal = -np.array(z_t)
@@ -856,6 +845,50 @@ def _braking_points_kernel(
     q_rows[:steps] = path_positions(rows, duration, dt, steps)
     q_rows[steps] = stop
     return _points_kernel(params, q_rows, T0, point[0], point[1], point[2])
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _path_engage_kernel(
+    T_cam: FloatArray, T_target: FloatArray, look_distance: float
+) -> tuple[bool, float, float, float, float, float, float, float, float]:
+    """Whether :meth:`CameraArm._path_target` takes the camera-space path, and its start.
+
+    ``T_cam``, ``T_target`` (4, 4): the camera and its target, world, m; ``look_distance``:
+    m. Returns ``(engage, r_cur, alpha, u, c)``: the camera's distance to the target's look-at
+    point ``c`` (m, world), the share ``alpha`` of the path to the next pose, and the unit
+    direction ``u`` from ``c`` to the camera (each 3 floats); only ``engage`` when False.
+    The interpreter's floats (libm's ``acos``, CPython's ``hypot``: :func:`hypot2`).
+    """
+    z0, z1, z2 = T_target[0, 2], T_target[1, 2], T_target[2, 2]
+    c0 = T_target[0, 3] + look_distance * z0
+    c1 = T_target[1, 3] + look_distance * z1
+    c2 = T_target[2, 3] + look_distance * z2
+    v0, v1, v2 = T_cam[0, 3] - c0, T_cam[1, 3] - c1, T_cam[2, 3] - c2
+    r_cur = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    if not r_cur > _EPS_AXIS:
+        return False, r_cur, 0.0, 0.0, 0.0, 0.0, c0, c1, c2
+    u0, u1, u2 = v0 / r_cur, v1 / r_cur, v2 / r_cur
+    cos_aim = -(u0 * T_cam[0, 2] + u1 * T_cam[1, 2] + u2 * T_cam[2, 2])
+    aim = math.acos(_unit_clip(cos_aim))
+    cos_t = -(u0 * z0 + u1 * z1 + u2 * z2)
+    ang = math.acos(_unit_clip(cos_t))  # coarse: only compared with the thresholds
+    travel = hypot2(look_distance - r_cur, 0.5 * (r_cur + look_distance) * ang)
+    if travel <= PATH_ENGAGE_M and aim <= PATH_ENGAGE_AIM_RAD:
+        return False, r_cur, 0.0, u0, u1, u2, c0, c1, c2
+    alpha = 1.0
+    if travel > 0.0:
+        lead = PATH_LEAD_M / travel
+        alpha = lead if lead < 1.0 else 1.0  # Python's min(1.0, lead)
+    if alpha >= 1.0 and aim <= PATH_ENGAGE_AIM_RAD:
+        return False, r_cur, alpha, u0, u1, u2, c0, c1, c2
+    return True, r_cur, alpha, u0, u1, u2, c0, c1, c2
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _unit_clip(x: float) -> float:
+    """Python's ``max(-1.0, min(1.0, x))`` (a NaN gives 1.0, as there)."""
+    y = x if x < 1.0 else 1.0
+    return y if y > -1.0 else -1.0
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
