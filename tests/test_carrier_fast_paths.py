@@ -14,19 +14,24 @@ from scipy.spatial.transform import Rotation
 
 from endocam.config import ExperimentConfig
 from endocam.geometry import make_pose
+from endocam.kernels import so3_exp
 from endocam.robot.actuator import ArmKind
 from endocam.robot.camera_arm import (
     _EPS_AXIS,
     PATH_ENGAGE_AIM_RAD,
     PATH_ENGAGE_M,
     PATH_LEAD_M,
+    VIEW_STEPS,
     CameraArm,
     _is_camera_command,
     _path_engage_kernel,
+    _port_rotvec,
+    _turned,
     natural_pose,
 )
 from endocam.robot.cartesian import CartesianLimiter, MotionLimits, _stop_bound
 from endocam.robot.dh import pose12_between, pose12_times
+from endocam.view import look_at_unchecked
 
 N_GOALS = 400  # count: random goals per carrier
 
@@ -164,3 +169,32 @@ def test_path_engage_is_the_interpreted_test(kind: ArmKind) -> None:
                 engaged += 1
                 assert (r_cur, alpha, [u0, u1, u2], [c0, c1, c2]) == expected
     assert 0 < engaged < 2 * N_GOALS
+
+
+def _turned_reference(
+    T: np.ndarray, look_distance: float, rotvec: np.ndarray, fraction: float
+) -> np.ndarray:
+    """``camera_arm._turned`` as it was (numpy element-wise)."""
+    R_turn = so3_exp((fraction * rotvec).tolist())
+    z = T[:3, 2].tolist()
+    z_t = [R_turn[i][0] * z[0] + R_turn[i][1] * z[1] + R_turn[i][2] * z[2] for i in range(3)]
+    c = T[:3, 3] + look_distance * T[:3, 2]
+    p_t = c - look_distance * np.array(z_t)
+    return look_at_unchecked(p_t, c, T, T)
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_turned_view_is_the_numpy_one(kind: ArmKind) -> None:
+    arm = _arm(kind)
+    rng = np.random.default_rng(28)
+    turned = 0
+    for T in _goals(arm, 29):
+        look = float(rng.uniform(0.001, 0.2))
+        rotvec = _port_rotvec(T, look, arm._p_world_rcm)
+        if rotvec is None:
+            continue
+        for fraction in (1.0, float(rng.integers(0, VIEW_STEPS + 1)) / VIEW_STEPS):
+            got = _turned(T, look, rotvec, fraction)
+            assert got.tobytes() == _turned_reference(T, look, rotvec, fraction).tobytes()
+            turned += 1
+    assert turned > N_GOALS

@@ -55,6 +55,7 @@ from endocam.robot.dh import (
     _points_kernel,
     _pose12_times_kernel,
     chain_points,
+    pose12_between,
     pose12_from_matrix,
 )
 from endocam.robot.ecm import ECM
@@ -189,12 +190,13 @@ def _cross(a: list[float], b: list[float]) -> FloatArray:
 
 def _turned(T: FloatArray, look_distance: float, rotvec: FloatArray, fraction: float) -> FloatArray:
     """``T`` moved about its look-at point by ``fraction`` of ``rotvec``, horizon re-levelled."""
-    R_turn = so3_exp((fraction * rotvec).tolist())
-    z = T[:3, 2].tolist()
+    R_turn = so3_exp([fraction * x for x in rotvec.tolist()])
+    t = T.tolist()  # plain floats: numpy's element-wise products and sums, the same floats
+    z = [t[0][2], t[1][2], t[2][2]]
     z_t = [R_turn[i][0] * z[0] + R_turn[i][1] * z[1] + R_turn[i][2] * z[2] for i in range(3)]
-    c = T[:3, 3] + look_distance * T[:3, 2]
-    p_t = c - look_distance * np.array(z_t)
-    return look_at_unchecked(p_t, c, T, T)
+    c = [t[i][3] + look_distance * z[i] for i in range(3)]
+    p_t = [c[i] - look_distance * z_t[i] for i in range(3)]
+    return look_at_unchecked(np.array(p_t), np.array(c), T, T)
 
 
 class CameraArm:
@@ -366,9 +368,8 @@ class CameraArm:
 
     def _exact(self, T_world_cam: FloatArray) -> list[float] | None:
         """The exact joints (rad / m) of a camera pose (4, 4), world, m; ``None`` if none."""
-        return self.model.exact_between_unchecked(
-            self._rcm_world12, T_world_cam, self._cam_tip_rows, self._q
-        )
+        goal12 = pose12_between(self._rcm_world12, T_world_cam, self._cam_tip_rows)
+        return self.model.exact12_unchecked(goal12, self._q)
 
     def target(
         self, T_world_goal: FloatArray, look_distance: float

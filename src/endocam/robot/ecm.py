@@ -47,7 +47,6 @@ from endocam.robot.dh import (
     _pose12_times_kernel,
     compose_links,
     flat_rows,
-    pose12_between,
     pose12_from_matrix,
     pose12_point,
     pose12_to_matrix,
@@ -308,23 +307,6 @@ def _exact_kernel(
     return pos_err <= IK_POSITION_TOL_M and ang_err <= IK_ORIENTATION_TOL_RAD, q
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _exact_between_kernel(
-    params: FloatArray,
-    c: FloatArray,
-    pre: Pose12,
-    T: FloatArray,
-    post: tuple[tuple[float, ...], ...],
-    seed3: float,
-    two: float,
-) -> tuple[bool, tuple[float, float, float, float]]:
-    """:func:`_exact_kernel` of the goal :func:`~endocam.robot.dh.pose12_between` gives.
-
-    ``two``: 2.0, passed at run time (a constant exponent would be folded into a product).
-    """
-    return _exact_kernel(params, c, pose12_between(pre, T, post), seed3, two)
-
-
 class ECM(RcmArm):
     """dVRK Classic ECM (4 DoF) with a straight scope.
 
@@ -395,15 +377,6 @@ class ECM(RcmArm):
         (:func:`_exact_kernel`).
         """
         ok, q = _exact_kernel(self._chain._param_array, self._consts, goal12, float(seed[3]), 2.0)
-        return list(q) if ok else None
-
-    def exact_between_unchecked(
-        self, pre: Pose12, T: FloatArray, post: tuple[tuple[float, ...], ...], seed: FloatArray
-    ) -> list[float] | None:
-        """:meth:`exact12_unchecked` of ``pre · T · post``: one compiled call, the same floats."""
-        ok, q = _exact_between_kernel(
-            self._chain._param_array, self._consts, pre, T, post, float(seed[3]), 2.0
-        )
         return list(q) if ok else None
 
     def _nearest_position(self, p_goal: FloatArray, q0: FloatArray) -> FloatArray:

@@ -23,7 +23,6 @@ from endocam.robot.dh import (
     chain_forward,
     chain_frames,
     geometric_jacobian,
-    pose12_between,
     pose12_to_matrix,
 )
 from endocam.robot.ik import (
@@ -328,16 +327,6 @@ class RcmArm(abc.ABC):
     def exact12_unchecked(self, goal12: Pose12, seed: FloatArray) -> list[float] | None:
         """:meth:`exact_unchecked` for a goal given as 12 floats (rotation row-major, then m)."""
         return self.exact_unchecked(pose12_to_matrix(goal12), seed)
-
-    def exact_between_unchecked(
-        self, pre: Pose12, T: FloatArray, post: tuple[tuple[float, ...], ...], seed: FloatArray
-    ) -> list[float] | None:
-        """:meth:`exact12_unchecked` of the goal ``pre · T · post`` (:func:`pose12_between`).
-
-        ``T`` (4, 4), m: e.g. a camera goal in world, with ``pre`` the world in the RCM frame
-        (12 floats) and ``post`` the tool tip in the camera frame (top 3 rows), m.
-        """
-        return self.exact12_unchecked(pose12_between(pre, T, post), seed)
 
     def inverse(self, T_rcm_tip: object, q_seed: object | None = None) -> FloatArray:
         """Inverse kinematics that raises when the pose cannot be reached exactly.

@@ -40,7 +40,6 @@ from endocam.robot.dh import (
     _pose12_times_kernel,
     chain_forward,
     flat_rows,
-    pose12_between,
     pose12_from_matrix,
     pose12_to_matrix,
 )
@@ -201,22 +200,6 @@ class PSM(RcmArm):
         )
         return list(q) if ok else None
 
-    def exact_between_unchecked(
-        self, pre: Pose12, T: FloatArray, post: tuple[tuple[float, ...], ...], seed: FloatArray
-    ) -> list[float] | None:
-        """:meth:`exact12_unchecked` of ``pre · T · post``: one compiled call, the same floats."""
-        ok, q = _exact_between_kernel(
-            self._chain._param_array,
-            self._consts,
-            pre,
-            T,
-            post,
-            float(seed[0]),
-            float(seed[3]),
-            2.0,
-        )
-        return list(q) if ok else None
-
     def _closed_form(self, goal: Pose12, seed: FloatArray) -> tuple[list[float], Pose12] | None:
         """Exact joint values for the goal ``T_rcm_tip`` (12 floats, m) ignoring limits.
 
@@ -331,21 +314,3 @@ def _exact_kernel(
             inside = inside and v <= hi + LIMIT_SLACK
             out[i] = hi
     return inside, (out[0], out[1], out[2], out[3], out[4], out[5])
-
-
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _exact_between_kernel(
-    params: FloatArray,
-    c: FloatArray,
-    pre: Pose12,
-    T: FloatArray,
-    post: tuple[tuple[float, ...], ...],
-    seed0: float,
-    seed3: float,
-    two: float,
-) -> tuple[bool, tuple[float, ...]]:
-    """:func:`_exact_kernel` of the goal :func:`~endocam.robot.dh.pose12_between` gives.
-
-    ``two``: 2.0, passed at run time (a constant exponent would be folded into a product).
-    """
-    return _exact_kernel(params, c, pose12_between(pre, T, post), seed0, seed3, two)
