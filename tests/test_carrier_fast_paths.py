@@ -10,12 +10,14 @@ import math
 
 import numpy as np
 import pytest
+import ruckig
 from scipy.spatial.transform import Rotation
 
 from endocam.config import ExperimentConfig
 from endocam.geometry import make_pose
 from endocam.kernels import so3_exp
 from endocam.robot.actuator import ArmKind
+from endocam.robot.arm import MotionStatus, SimulatedArm
 from endocam.robot.camera_arm import (
     _EPS_AXIS,
     PATH_ENGAGE_AIM_RAD,
@@ -27,10 +29,12 @@ from endocam.robot.camera_arm import (
     _path_engage_kernel,
     _port_rotvec,
     _turned,
+    arm_model,
     natural_pose,
 )
 from endocam.robot.cartesian import CartesianLimiter, MotionLimits, _stop_bound
 from endocam.robot.dh import pose12_between, pose12_times
+from endocam.robot.kinematics import LIMIT_SLACK
 from endocam.view import look_at_unchecked
 
 N_GOALS = 400  # count: random goals per carrier
@@ -198,3 +202,78 @@ def test_turned_view_is_the_numpy_one(kind: ArmKind) -> None:
             assert got.tobytes() == _turned_reference(T, look, rotvec, fraction).tobytes()
             turned += 1
     assert turned > N_GOALS
+
+
+class _ReferenceArm(SimulatedArm):
+    """``SimulatedArm`` with its control cycle as it was (the limit loop on every cycle)."""
+
+    def _cycle(self) -> bool:
+        inp, out = self._inp, self._out
+        try:
+            result = self._otg.update(inp, out)
+        except ruckig.RuckigError:
+            result = self._retry(inp, out)
+        if result not in (ruckig.Result.Working, ruckig.Result.Finished):
+            raise RuntimeError(f"ruckig failed: {result}")
+        pos = list(out.new_position)
+        vel = list(out.new_velocity)
+        acc = list(out.new_acceleration)
+        hit = False
+        rounded = False
+        for i, (lo, hi) in enumerate(zip(self._lower, self._upper, strict=True)):
+            if pos[i] < lo or pos[i] > hi:
+                overshoot = lo - pos[i] if pos[i] < lo else pos[i] - hi
+                pos[i] = lo if pos[i] < lo else hi
+                if overshoot <= LIMIT_SLACK:
+                    rounded = True
+                    continue
+                vel[i] = 0.0
+                acc[i] = 0.0
+                hit = True
+        if hit or rounded:
+            inp.current_position = pos
+            inp.current_velocity = vel
+            inp.current_acceleration = acc
+        else:
+            out.pass_to_input(inp)
+        self._q = np.array(pos)
+        self._qd = np.array(vel)
+        self._qdd = np.array(acc)
+        self._time += self._dt
+        if hit:
+            self._motion_status = MotionStatus.LIMIT_STOP
+        elif result == ruckig.Result.Finished:
+            self._motion_status = MotionStatus.FINISHED
+        else:
+            self._motion_status = MotionStatus.MOVING
+        return hit
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_arm_cycle_is_the_interpreted_one(kind: ArmKind) -> None:
+    model = arm_model(kind)
+    arm, ref = SimulatedArm(model, dt=0.01), _ReferenceArm(model, dt=0.01)
+    rng = np.random.default_rng(30)
+    stops = 0
+    for step in range(3000):
+        if step % 40 == 0:  # a new set point: inside, at a limit, or beyond one
+            q = rng.uniform(model.lower, model.upper)
+            at_limit = rng.random(model.n_joints) < 0.3
+            side = np.where(rng.random(model.n_joints) < 0.5, model.lower, model.upper)
+            q[at_limit] = side[at_limit]
+            arm.servo_jp(q)
+            ref.servo_jp(q)
+        if step % 500 == 250:  # a state moving into a limit: a hard stop
+            q0 = model.lower + 1e-4
+            qd0 = -np.ones(model.n_joints) * 0.05
+            arm.reset(q0, qd0)
+            ref.reset(q0, qd0)
+            arm.servo_jp(model.lower)
+            ref.servo_jp(model.lower)
+        status, status_ref = arm.step(), ref.step()
+        assert status is status_ref
+        stops += status is MotionStatus.LIMIT_STOP
+        for got, want in zip(arm.measured_js(), ref.measured_js(), strict=True):
+            assert got.tobytes() == want.tobytes()
+        assert arm.measured_ja().tobytes() == ref.measured_ja().tobytes()
+    assert stops > 0

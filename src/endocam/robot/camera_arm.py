@@ -916,7 +916,9 @@ def _wrist_jump(kind: ArmKind, q_before: list[float], q_after: list[float]) -> b
     """Whether a PSM's wrist (roll, pitch, yaw) target moved more than ``WRIST_JUMP_RAD``."""
     if kind is not ArmKind.PSM:
         return False
-    return max(abs(a - b) for a, b in zip(q_before[3:], q_after[3:], strict=True)) > WRIST_JUMP_RAD
+    return (
+        max([abs(a - b) for a, b in zip(q_before[3:], q_after[3:], strict=True)]) > WRIST_JUMP_RAD
+    )
 
 
 # m: the start view keeps the camera at least this far beyond the port (the RCM, in the body
