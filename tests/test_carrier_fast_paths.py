@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from endocam.config import ExperimentConfig
 from endocam.geometry import make_pose
-from endocam.kernels import so3_exp
+from endocam.kernels import rotation_angle, so3_exp
 from endocam.robot.actuator import ArmKind
 from endocam.robot.arm import MotionStatus, SimulatedArm
 from endocam.robot.camera_arm import (
@@ -28,6 +28,7 @@ from endocam.robot.camera_arm import (
     _is_camera_command,
     _path_engage_kernel,
     _port_rotvec,
+    _pose_angle_kernel,
     _turned,
     arm_model,
     natural_pose,
@@ -277,3 +278,14 @@ def test_arm_cycle_is_the_interpreted_one(kind: ArmKind) -> None:
             assert got.tobytes() == want.tobytes()
         assert arm.measured_ja().tobytes() == ref.measured_ja().tobytes()
     assert stops > 0
+
+
+def test_pose_angle_is_the_interpreted_rotation_angle() -> None:
+    rng = np.random.default_rng(31)
+    for _ in range(5000):
+        A = make_pose(Rotation.random(random_state=rng).as_matrix(), rng.normal(0.0, 0.1, 3))
+        turn = rng.normal(0.0, 1.0, 3) * rng.choice([1e-9, 1e-4, 0.1, 3.0])
+        B = make_pose(Rotation.from_rotvec(turn).as_matrix() @ A[:3, :3], A[:3, 3])
+        expected = rotation_angle(A[:3, :3].tolist(), B[:3, :3].tolist())
+        assert _pose_angle_kernel(A, B, 2.0) == expected
+        assert _pose_angle_kernel(B, B, 2.0) == rotation_angle(B.tolist(), B.tolist())

@@ -636,7 +636,7 @@ class CameraArm:
             pos_err = ang_err = 0.0
         else:
             pos_err = _norm(T_target[:3, 3] - T_goal[:3, 3])
-            ang_err = rotation_angle(T_target[:3, :3].tolist(), T_goal[:3, :3].tolist())
+            ang_err = _pose_angle_kernel(T_target, T_goal, 2.0)
         reachable = approach is ActuatorStatus.EXACT or (
             self.kind is ArmKind.ECM and approach is ActuatorStatus.VIEW
         )
@@ -890,6 +890,25 @@ def _unit_clip(x: float) -> float:
     """Python's ``max(-1.0, min(1.0, x))`` (a NaN gives 1.0, as there)."""
     y = x if x < 1.0 else 1.0
     return y if y > -1.0 else -1.0
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _pose_angle_kernel(T_a: FloatArray, T_b: FloatArray, two: float) -> float:
+    """:func:`~endocam.kernels.rotation_angle` of two poses (4, 4), rad, compiled.
+
+    ``two``: 2.0, passed at run time (a constant exponent would be folded into a product).
+    """
+    return rotation_angle(_rotation_rows(T_a), _rotation_rows(T_b), two)
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _rotation_rows(T: FloatArray) -> tuple[tuple[float, float, float], ...]:
+    """The rotation rows of a pose (4, 4) as three 3-tuples of floats."""
+    return (
+        (T[0, 0], T[0, 1], T[0, 2]),
+        (T[1, 0], T[1, 1], T[1, 2]),
+        (T[2, 0], T[2, 1], T[2, 2]),
+    )
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
