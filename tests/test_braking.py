@@ -17,6 +17,7 @@ import pytest
 import ruckig
 
 from endocam.config import ExperimentConfig
+from endocam.robot import camera_arm
 from endocam.robot.actuator import ArmKind
 from endocam.robot.arm import (
     ECM_MAX_ACCELERATION,
@@ -199,3 +200,41 @@ def test_arm_braking_points_are_chain_points_of_the_path(kind: ArmKind) -> None:
             arm._last_cam_point,
         )
         assert got.tobytes() == expected.tobytes()
+
+
+class _Recorder:
+    """A workspace stub that records the camera positions a braking check asks about."""
+
+    def __init__(self) -> None:
+        self.points: list[np.ndarray] = []
+
+    def all_inside(self, p_world: np.ndarray) -> bool:
+        self.points.append(np.array(p_world))
+        return True
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_brakes_inside_asks_the_same_points_either_way(
+    kind: ArmKind, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cfg = ExperimentConfig()
+    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
+    arm = CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
+    model = arm.model
+    vmax = np.array(PSM_MAX_VELOCITY if kind is ArmKind.PSM else ECM_MAX_VELOCITY)
+    rng = np.random.default_rng(15)
+    asked: dict[float, _Recorder] = {}
+    states = []
+    for _ in range(200):
+        q = model.clamp(natural_pose(model) + rng.uniform(-0.3, 0.3, model.n_joints))
+        qd = rng.uniform(-1.0, 1.0, model.n_joints) * vmax * rng.uniform(0.0, 1.0)
+        stop = model.clamp(q + qd * np.abs(qd) * np.array(arm._half_inv_acc)).tolist()
+        states.append((q.tolist(), qd.tolist(), stop))
+    for read_steps in (0.0, 1e9):  # always from the profiles / always by at_time
+        monkeypatch.setattr(camera_arm, "PROFILE_READ_STEPS", read_steps)
+        arm.workspace = asked[read_steps] = _Recorder()  # type: ignore[assignment]
+        for q, qd, stop in states:
+            assert arm._brakes_inside(q, qd, stop)
+    for a, b in zip(asked[0.0].points, asked[1e9].points, strict=True):
+        assert a.tobytes() == b.tobytes()
+    assert len(asked[0.0].points) == len(states)

@@ -50,7 +50,7 @@ def profile_rows(trajectory: object) -> FloatArray:
             flat += [brake.duration, *brake.t, *brake.p, *brake.v, *brake.a, *brake.j]
         else:
             flat += _NO_BRAKE
-    return np.array(flat).reshape(-1, ROW_LENGTH)
+    return np.fromiter(flat, np.float64, len(flat)).reshape(-1, ROW_LENGTH)
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)

@@ -752,9 +752,9 @@ class CameraArm:
 
 
 # count per joint: a braking path longer than this many control steps per joint is sampled
-# from its profiles (robot.braking: reading them costs about as much as 4 at_time calls per
-# joint), a shorter one by ruckig's at_time at each step
-PROFILE_READ_STEPS = 4
+# from its profiles (robot.braking: reading them costs about as much as 3.5 at_time calls per
+# joint, measured on the PSM's paths), a shorter one by ruckig's at_time at each step
+PROFILE_READ_STEPS = 3.5
 
 BRAKE_ACC_SHARE = 0.99  # unitless: share of a joint's acceleration limit its braking plans for
 
