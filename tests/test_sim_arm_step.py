@@ -11,7 +11,13 @@ from endocam.geometry import make_pose
 from endocam.robot.actuator import ActuatorStatus, ArmKind
 from endocam.robot.arm import MotionStatus
 from endocam.robot.camera_arm import CameraArm, natural_pose
-from endocam.robot.dh import pose12_from_matrix, pose12_point, pose12_times, pose12_to_matrix
+from endocam.robot.dh import (
+    chain_points,
+    pose12_from_matrix,
+    pose12_point,
+    pose12_times,
+    pose12_to_matrix,
+)
 from endocam.robot.ik import pose12_error, pose_error
 
 ATOL_M = 1e-12  # m: float kernels vs numpy products, round-off only
@@ -58,7 +64,8 @@ def test_camera_pose_fast_path_is_fk(kind: ArmKind):
         expected = arm.T_world_rcm @ arm.model.forward(q) @ arm.T_tip_cam
         np.testing.assert_allclose(arm.camera_pose(q), expected, atol=ATOL_M)
         # the workspace guard's braking check sees exactly the logged camera position
-        assert arm._camera_positions([q.tolist()])[0].tolist() == arm.camera_pose(q)[:3, 3].tolist()
+        points = chain_points(arm.model.chain, [q.tolist()], arm._world_rcm12, arm._last_cam_point)
+        assert points[0].tolist() == arm.camera_pose(q)[:3, 3].tolist()
 
 
 @pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])

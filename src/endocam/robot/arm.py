@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import enum
 import math
+import operator
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -407,21 +408,23 @@ class SimulatedArm:
             result = self._retry(inp, out)
         if result not in (ruckig.Result.Working, ruckig.Result.Finished):
             raise RuntimeError(f"ruckig failed: {result}")
-        pos = list(out.new_position)
-        vel = list(out.new_velocity)
-        acc = list(out.new_acceleration)
+        pos = out.new_position  # (the binding returns a new list each time)
+        vel = out.new_velocity
+        acc = out.new_acceleration
         hit = False
         rounded = False
-        for i, (lo, hi) in enumerate(zip(self._lower, self._upper, strict=True)):
-            if pos[i] < lo or pos[i] > hi:
-                overshoot = lo - pos[i] if pos[i] < lo else pos[i] - hi
-                pos[i] = lo if pos[i] < lo else hi
-                if overshoot <= LIMIT_SLACK:  # ruckig round-off when arriving at a limit
-                    rounded = True
-                    continue
-                vel[i] = 0.0
-                acc[i] = 0.0
-                hit = True
+        within = all(map(operator.le, self._lower, pos)) and all(map(operator.le, pos, self._upper))
+        if not within:  # (within the limits, the usual case, there is nothing to clip)
+            for i, (lo, hi) in enumerate(zip(self._lower, self._upper, strict=True)):
+                if pos[i] < lo or pos[i] > hi:
+                    overshoot = lo - pos[i] if pos[i] < lo else pos[i] - hi
+                    pos[i] = lo if pos[i] < lo else hi
+                    if overshoot <= LIMIT_SLACK:  # ruckig round-off when arriving at a limit
+                        rounded = True
+                        continue
+                    vel[i] = 0.0
+                    acc[i] = 0.0
+                    hit = True
         if hit or rounded:
             inp.current_position = pos
             inp.current_velocity = vel

@@ -39,7 +39,7 @@ from numba import njit
 from endocam.camera import StereoCamera
 from endocam.geometry import UP, FloatArray, as_pose, invert_pose
 from endocam.kernels import cross, rotation_angle, so3_exp
-from endocam.pyfloat import dist3
+from endocam.pyfloat import dist3, hypot2
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import (
     ECM_MAX_ACCELERATION,
@@ -48,12 +48,15 @@ from endocam.robot.arm import (
     PSM_MAX_VELOCITY,
     SimulatedArm,
 )
+from endocam.robot.braking import path_positions, profile_rows
 from endocam.robot.dh import (
+    Pose12,
     _compose_kernel,
+    _points_kernel,
     _pose12_times_kernel,
     chain_points,
+    pose12_between,
     pose12_from_matrix,
-    pose12_times,
 )
 from endocam.robot.ecm import ECM
 from endocam.robot.kinematics import RcmArm
@@ -187,12 +190,13 @@ def _cross(a: list[float], b: list[float]) -> FloatArray:
 
 def _turned(T: FloatArray, look_distance: float, rotvec: FloatArray, fraction: float) -> FloatArray:
     """``T`` moved about its look-at point by ``fraction`` of ``rotvec``, horizon re-levelled."""
-    R_turn = so3_exp((fraction * rotvec).tolist())
-    z = T[:3, 2].tolist()
+    R_turn = so3_exp([fraction * x for x in rotvec.tolist()])
+    t = T.tolist()  # plain floats: numpy's element-wise products and sums, the same floats
+    z = [t[0][2], t[1][2], t[2][2]]
     z_t = [R_turn[i][0] * z[0] + R_turn[i][1] * z[1] + R_turn[i][2] * z[2] for i in range(3)]
-    c = T[:3, 3] + look_distance * T[:3, 2]
-    p_t = c - look_distance * np.array(z_t)
-    return look_at_unchecked(p_t, c, T, T)
+    c = [t[i][3] + look_distance * z[i] for i in range(3)]
+    p_t = [c[i] - look_distance * z_t[i] for i in range(3)]
+    return look_at_unchecked(np.array(p_t), np.array(c), T, T)
 
 
 class CameraArm:
@@ -346,13 +350,6 @@ class CameraArm:
         """
         return _pose_kernel(self.model.chain._param_array, self._pose_consts, np.asarray(q, float))
 
-    def _camera_positions(self, q_rows: list[list[float]]) -> FloatArray:
-        """The translations of :meth:`_camera_pose` for joint rows (m, n): (m, 3), world, m.
-
-        The same floats (:func:`~endocam.robot.dh.chain_points`).
-        """
-        return chain_points(self.model.chain, q_rows, self._world_rcm12, self._last_cam_point)
-
     def camera_poses(self, q: FloatArray) -> FloatArray:
         """:meth:`camera_pose` for joint rows ``q`` (N, n): ``T_world_cam`` (N, 4, 4), m."""
         return np.array([self.camera_pose(row) for row in np.asarray(q, dtype=float)])
@@ -370,8 +367,8 @@ class CameraArm:
         return self._T_rcm_world @ T_world_cam @ self._T_cam_tip
 
     def _exact(self, T_world_cam: FloatArray) -> list[float] | None:
-        rows = tuple(map(tuple, T_world_cam[:3].tolist()))
-        goal12 = pose12_times(pose12_times(self._rcm_world12, rows), self._cam_tip_rows)
+        """The exact joints (rad / m) of a camera pose (4, 4), world, m; ``None`` if none."""
+        goal12 = pose12_between(self._rcm_world12, T_world_cam, self._cam_tip_rows)
         return self.model.exact12_unchecked(goal12, self._q)
 
     def target(
@@ -503,24 +500,13 @@ class CameraArm:
         move towards it for one step, so a far target is reached along the path instead of the
         straight joint-space line (whose view swings away from ``c``).
         """
-        a, b = self._T_cam.tolist(), T_target.tolist()  # plain floats: this runs every step
-        z_t = [b[0][2], b[1][2], b[2][2]]
-        c = [b[i][3] + look_distance * z_t[i] for i in range(3)]
-        v = [a[i][3] - c[i] for i in range(3)]
-        r_cur = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-        if not r_cur > _EPS_AXIS:
+        engage, r_cur, alpha, u0, u1, u2, c0, c1, c2 = _path_engage_kernel(
+            self._T_cam, T_target, look_distance
+        )
+        if not engage:
             return None
-        u = [x / r_cur for x in v]
-        cos_aim = -(u[0] * a[0][2] + u[1] * a[1][2] + u[2] * a[2][2])
-        aim = math.acos(max(-1.0, min(1.0, cos_aim)))
-        cos_t = -(u[0] * z_t[0] + u[1] * z_t[1] + u[2] * z_t[2])
-        ang = math.acos(max(-1.0, min(1.0, cos_t)))  # coarse: only compared with the thresholds
-        travel = math.hypot(look_distance - r_cur, 0.5 * (r_cur + look_distance) * ang)
-        if travel <= PATH_ENGAGE_M and aim <= PATH_ENGAGE_AIM_RAD:
-            return None
-        alpha = min(1.0, PATH_LEAD_M / travel) if travel > 0.0 else 1.0
-        if alpha >= 1.0 and aim <= PATH_ENGAGE_AIM_RAD:
-            return None
+        u, c = [u0, u1, u2], [c0, c1, c2]
+        z_t = [float(T_target[0, 2]), float(T_target[1, 2]), float(T_target[2, 2])]
         c_arr = np.array(c)
         u_cur = np.array(u)
         u_goal = -np.array(z_t)
@@ -621,8 +607,7 @@ class CameraArm:
         command more than ``MAX_COMMAND_RANGE_M`` from the port, or one no solver can digest,
         is treated like a non-finite one: the arm brakes where it is.
         """
-        finite = bool(np.isfinite(T_world_cmd).all())
-        if finite and np.abs(T_world_cmd[:3, 3] - self._p_world_rcm).max() <= MAX_COMMAND_RANGE_M:
+        if _is_camera_command(T_world_cmd, self._p_world_rcm, MAX_COMMAND_RANGE_M):
             T_goal = T_world_cmd
         else:  # not a camera command: brake where the arm is
             T_goal = self._T_cam
@@ -651,7 +636,7 @@ class CameraArm:
             pos_err = ang_err = 0.0
         else:
             pos_err = _norm(T_target[:3, 3] - T_goal[:3, 3])
-            ang_err = rotation_angle(T_target[:3, :3].tolist(), T_goal[:3, :3].tolist())
+            ang_err = _pose_angle_kernel(T_target, T_goal, 2.0)
         reachable = approach is ActuatorStatus.EXACT or (
             self.kind is ArmKind.ECM and approach is ActuatorStatus.VIEW
         )
@@ -732,9 +717,23 @@ class CameraArm:
         traj, dt = self._brake_traj, self._dt
         duration = traj.duration
         steps = math.ceil(duration / dt - 1e-9)
-        path = [traj.at_time(min(i * dt, duration))[0] for i in range(1, steps + 1)]
-        path.append(stop)  # every control step of the path, then where it stops
-        return ws.all_inside(self._camera_positions(path))
+        # every control step of the path, then where it stops; the same floats either way
+        if steps > PROFILE_READ_STEPS * len(q):  # read the profiles once, sample compiled
+            points = _braking_points_kernel(
+                self.model.chain._param_array,
+                profile_rows(traj),
+                duration,
+                dt,
+                steps,
+                np.array(stop),
+                self._world_rcm12,
+                self._last_cam_point,
+            )
+        else:  # a short path: fewer calls of ruckig's own sampler than reading the profiles
+            path = [traj.at_time(min(i * dt, duration))[0] for i in range(1, steps + 1)]
+            path.append(stop)
+            points = chain_points(self.model.chain, path, self._world_rcm12, self._last_cam_point)
+        return ws.all_inside(points)
 
     def _keep_inside(self, q_before: FloatArray, qd_before: FloatArray) -> FloatArray | None:
         """Undo a joint step that could take the camera out; brake along a checked one.
@@ -751,6 +750,11 @@ class CameraArm:
         self._safe, self._stop = safe, stop
         return T_now
 
+
+# count per joint: a braking path longer than this many control steps per joint is sampled
+# from its profiles (robot.braking: reading them costs about as much as 3.5 at_time calls per
+# joint, measured on the PSM's paths), a shorter one by ruckig's at_time at each step
+PROFILE_READ_STEPS = 3.5
 
 BRAKE_ACC_SHARE = 0.99  # unitless: share of a joint's acceleration limit its braking plans for
 
@@ -820,6 +824,110 @@ def _stop_kernel(
     return stop, T_now, moving, slide, turn, to_rcm
 
 
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _braking_points_kernel(
+    params: FloatArray,
+    rows: FloatArray,
+    duration: float,
+    dt: float,
+    steps: int,
+    stop: FloatArray,
+    T0: Pose12,
+    point: tuple[float, float, float],
+) -> FloatArray:
+    """The camera's positions along a braking path: (steps + 1, 3), world, m.
+
+    The joints at every control step of the ruckig trajectory ``rows`` (n, 49) of duration
+    ``duration`` (s, control period ``dt``; :func:`~endocam.robot.braking.path_positions`),
+    then at ``stop`` (n,), rad / m; each through :func:`~endocam.robot.dh.chain_points`'s
+    product (``T0``: the RCM in world, ``point``: the camera in the last link's frame, m).
+    """
+    q_rows = np.empty((steps + 1, stop.shape[0]))
+    q_rows[:steps] = path_positions(rows, duration, dt, steps)
+    q_rows[steps] = stop
+    return _points_kernel(params, q_rows, T0, point[0], point[1], point[2])
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _path_engage_kernel(
+    T_cam: FloatArray, T_target: FloatArray, look_distance: float
+) -> tuple[bool, float, float, float, float, float, float, float, float]:
+    """Whether :meth:`CameraArm._path_target` takes the camera-space path, and its start.
+
+    ``T_cam``, ``T_target`` (4, 4): the camera and its target, world, m; ``look_distance``:
+    m. Returns ``(engage, r_cur, alpha, u, c)``: the camera's distance to the target's look-at
+    point ``c`` (m, world), the share ``alpha`` of the path to the next pose, and the unit
+    direction ``u`` from ``c`` to the camera (each 3 floats); only ``engage`` when False.
+    The interpreter's floats (libm's ``acos``, CPython's ``hypot``: :func:`hypot2`).
+    """
+    z0, z1, z2 = T_target[0, 2], T_target[1, 2], T_target[2, 2]
+    c0 = T_target[0, 3] + look_distance * z0
+    c1 = T_target[1, 3] + look_distance * z1
+    c2 = T_target[2, 3] + look_distance * z2
+    v0, v1, v2 = T_cam[0, 3] - c0, T_cam[1, 3] - c1, T_cam[2, 3] - c2
+    r_cur = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    if not r_cur > _EPS_AXIS:
+        return False, r_cur, 0.0, 0.0, 0.0, 0.0, c0, c1, c2
+    u0, u1, u2 = v0 / r_cur, v1 / r_cur, v2 / r_cur
+    cos_aim = -(u0 * T_cam[0, 2] + u1 * T_cam[1, 2] + u2 * T_cam[2, 2])
+    aim = math.acos(_unit_clip(cos_aim))
+    cos_t = -(u0 * z0 + u1 * z1 + u2 * z2)
+    ang = math.acos(_unit_clip(cos_t))  # coarse: only compared with the thresholds
+    travel = hypot2(look_distance - r_cur, 0.5 * (r_cur + look_distance) * ang)
+    if travel <= PATH_ENGAGE_M and aim <= PATH_ENGAGE_AIM_RAD:
+        return False, r_cur, 0.0, u0, u1, u2, c0, c1, c2
+    alpha = 1.0
+    if travel > 0.0:
+        lead = PATH_LEAD_M / travel
+        alpha = lead if lead < 1.0 else 1.0  # Python's min(1.0, lead)
+    if alpha >= 1.0 and aim <= PATH_ENGAGE_AIM_RAD:
+        return False, r_cur, alpha, u0, u1, u2, c0, c1, c2
+    return True, r_cur, alpha, u0, u1, u2, c0, c1, c2
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _unit_clip(x: float) -> float:
+    """Python's ``max(-1.0, min(1.0, x))`` (a NaN gives 1.0, as there)."""
+    y = x if x < 1.0 else 1.0
+    return y if y > -1.0 else -1.0
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _pose_angle_kernel(T_a: FloatArray, T_b: FloatArray, two: float) -> float:
+    """:func:`~endocam.kernels.rotation_angle` of two poses (4, 4), rad, compiled.
+
+    ``two``: 2.0, passed at run time (a constant exponent would be folded into a product).
+    """
+    return rotation_angle(_rotation_rows(T_a), _rotation_rows(T_b), two)
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _rotation_rows(T: FloatArray) -> tuple[tuple[float, float, float], ...]:
+    """The rotation rows of a pose (4, 4) as three 3-tuples of floats."""
+    return (
+        (T[0, 0], T[0, 1], T[0, 2]),
+        (T[1, 0], T[1, 1], T[1, 2]),
+        (T[2, 0], T[2, 1], T[2, 2]),
+    )
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _is_camera_command(T: FloatArray, p_rcm: FloatArray, reach: float) -> bool:
+    """Whether a command (4, 4) is finite with its camera within ``reach`` (m) of ``p_rcm``.
+
+    ``p_rcm`` (3,): the port, world, m; the distance is the largest of the three coordinate
+    differences (``np.abs(T[:3, 3] − p_rcm).max() <= reach``).
+    """
+    for i in range(T.shape[0]):
+        for j in range(T.shape[1]):
+            if not math.isfinite(T[i, j]):
+                return False
+    for i in range(3):
+        if not abs(T[i, 3] - p_rcm[i]) <= reach:
+            return False
+    return True
+
+
 WRIST_JUMP_RAD = 1.0  # rad: a wrist joint target moving this far in one step has jumped
 
 
@@ -827,7 +935,9 @@ def _wrist_jump(kind: ArmKind, q_before: list[float], q_after: list[float]) -> b
     """Whether a PSM's wrist (roll, pitch, yaw) target moved more than ``WRIST_JUMP_RAD``."""
     if kind is not ArmKind.PSM:
         return False
-    return max(abs(a - b) for a, b in zip(q_before[3:], q_after[3:], strict=True)) > WRIST_JUMP_RAD
+    return (
+        max([abs(a - b) for a, b in zip(q_before[3:], q_after[3:], strict=True)]) > WRIST_JUMP_RAD
+    )
 
 
 # m: the start view keeps the camera at least this far beyond the port (the RCM, in the body

@@ -12,9 +12,9 @@ the limiter steps once per control period (100 Hz by default, ``EpisodeConfig.co
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
+from numba import njit
 from pydantic import BaseModel, ConfigDict, Field
 from ruckig import (
     ControlInterface,
@@ -32,6 +32,7 @@ from endocam.geometry import FloatArray, as_pose
 from endocam.kernels import Rows, matmul, so3_exp, so3_log, tmatmul
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import MotionStatus
+from endocam.robot.braking import path_positions, profile_extrema, profile_rows
 from endocam.task.config import TaskConfig
 from endocam.task.layout import overview_camera_pose, task_centre
 
@@ -90,35 +91,41 @@ def _snap(values: list[float], tol: float) -> list[float]:
     return [0.0 if abs(v) < tol else v for v in values]
 
 
-def _extrema(profile: object) -> tuple[float, float]:
-    """Lowest and highest position of a ruckig jerk-limited profile (its brake part is empty).
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _box_corners(rows: FloatArray) -> FloatArray:
+    """The eight corners (8, 3), m, of the box a 3-DoF braking path spans.
 
-    Each section is a cubic in time; its extremes lie at its ends or where its velocity, a
-    quadratic, crosses zero inside it.
+    ``rows``: the path's :func:`~endocam.robot.braking.profile_rows` (3, 49); per axis its
+    lowest and highest position (:func:`~endocam.robot.braking.profile_extrema`, brake part
+    not counted), corners in the order ``[[x, y, z] for x in xs for y in ys for z in zs]``.
     """
-    pr: Any = profile
-    p, v, a, j, t = pr.p, pr.v, pr.a, pr.j, pr.t
-    lo = hi = p[0]
-    for i, T in enumerate(t):
-        lo, hi = min(lo, p[i + 1]), max(hi, p[i + 1])
-        if not T > 0.0:
-            continue
-        for s in _roots(0.5 * j[i], a[i], v[i]):
-            if 0.0 < s < T:
-                x = p[i] + s * (v[i] + s * (0.5 * a[i] + s * j[i] / 6.0))
-                lo, hi = min(lo, x), max(hi, x)
-    return lo, hi
+    xs, ys, zs = profile_extrema(rows, 0), profile_extrema(rows, 1), profile_extrema(rows, 2)
+    out = np.empty((8, 3))
+    for i in range(2):
+        for j in range(2):
+            for k in range(2):
+                row = 4 * i + 2 * j + k
+                out[row, 0], out[row, 1], out[row, 2] = xs[i], ys[j], zs[k]
+    return out
 
 
-def _roots(c2: float, c1: float, c0: float) -> list[float]:
-    """Real roots of ``c2 s² + c1 s + c0`` (a line when ``c2`` is 0)."""
-    if c2 == 0.0:
-        return [-c0 / c1] if c1 != 0.0 else []
-    disc = c1 * c1 - 4.0 * c2 * c0
-    if disc < 0.0:
-        return []
-    r = math.sqrt(disc)
-    return [(-c1 - r) / (2.0 * c2), (-c1 + r) / (2.0 * c2)]
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _stop_bound(
+    v0: float, v1: float, v2: float, a0: float, a1: float, a2: float, V: float, A: float, J: float
+) -> float:
+    """An upper bound of the braking distance from velocity ``v`` and acceleration ``a``, m.
+
+    ``v`` (m/s), ``a`` (m/s²): world, per axis. Per axis (limits ``V``, ``A``, ``J``: m/s,
+    m/s², m/s³): the speed peaks below ``s = |v| + a²/2J`` (≤ V) and braking lasts under
+    ``|a|/J + s/A + A/J``, so the axis travels less than their product.
+    """
+    total = 0.0
+    for vi, ai in ((v0, a0), (v1, a1), (v2, a2)):
+        x = abs(vi) + ai * ai / (2.0 * J)
+        s = x if x < V else V  # Python's min(V, x)
+        d = s * (abs(ai) / J + s / A + A / J)
+        total += d * d
+    return math.sqrt(total)
 
 
 class CartesianLimiter:
@@ -157,6 +164,7 @@ class CartesianLimiter:
         self._inp.max_acceleration = [a, a, a, al, al, al]
         j, jr = limits.max_linear_jerk / _SQRT3, limits.max_angular_jerk / _SQRT3
         self._inp.max_jerk = [j, j, j, jr, jr, jr]  # jerk-limited: smooth for the viewer
+        self._stop_limits = (v, a, j)  # the position DoFs' limits, m/s, m/s², m/s³
         # Each DoF is limited on its own (no time synchronisation): the target moves every step,
         # so synchronised arrival buys nothing, and it halves ruckig's cost.
         self._inp.synchronization = Synchronization.No
@@ -197,7 +205,8 @@ class CartesianLimiter:
         margin = ws.margin(p)
         if not any(v) and not any(a):
             return margin >= 0.0
-        if margin > self._stop_bound(v, a):
+        bound = _stop_bound(v[0], v[1], v[2], a[0], a[1], a[2], *self._stop_limits)
+        if margin > bound:
             return True  # farther inside than any braking from this state can carry it
         inp = self._stop_inp
         inp.current_position = p
@@ -206,35 +215,17 @@ class CartesianLimiter:
         if self._stop_otg.calculate(inp, self._stop_traj) not in (Result.Working, Result.Finished):
             return False
         # (ruckig's position_extrema counts the target position 0 under velocity control)
-        xs, ys, zs = (_extrema(pr) for pr in self._stop_traj.profiles[0])
-        if not ws.all_inside(np.array([[x, y, z] for x in xs for y in ys for z in zs])):
+        rows = profile_rows(self._stop_traj)
+        if not ws.all_inside(_box_corners(rows)):
             return False
         if ws.convex:
             return True  # a convex region holding the path's box's corners holds the path
-        if ws.keep_out_margin(p) > self._stop_bound(v, a):
+        if ws.keep_out_margin(p) > bound:
             return True  # farther from the keep-out zone than the braking can carry it
         # a keep-out zone (the wire's): the braking path itself, at every control step
-        traj, dt = self._stop_traj, self.dt
-        duration = traj.duration
+        duration, dt = self._stop_traj.duration, self.dt
         steps = math.ceil(duration / dt - 1e-9)
-        return ws.all_inside(
-            np.array([traj.at_time(min(i * dt, duration))[0] for i in range(1, steps + 1)])
-        )
-
-    def _stop_bound(self, v: list[float], a: list[float]) -> float:
-        """An upper bound of the braking distance from velocity ``v`` and acceleration ``a``, m.
-
-        Per axis (limits ``V``, ``A``, ``J``): the speed peaks below ``s = |v| + a²/2J`` (≤ V)
-        and braking lasts under ``|a|/J + s/A + A/J``, so the axis travels less than their
-        product.
-        """
-        V, A, J = self._inp.max_velocity[0], self._inp.max_acceleration[0], self._inp.max_jerk[0]
-        total = 0.0
-        for vi, ai in zip(v, a, strict=True):
-            s = min(V, abs(vi) + ai * ai / (2.0 * J))
-            d = s * (abs(ai) / J + s / A + A / J)
-            total += d * d
-        return math.sqrt(total)
+        return ws.all_inside(path_positions(rows, duration, dt, steps))
 
     def _brake(self) -> FloatArray:
         """One step along the braking path of the current state (checked the step before)."""

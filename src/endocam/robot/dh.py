@@ -40,6 +40,7 @@ __all__ = [
     "flat_rows",
     "geometric_jacobian",
     "link_transform",
+    "pose12_between",
     "pose12_from_matrix",
     "pose12_point",
     "pose12_times",
@@ -391,6 +392,22 @@ def pose12_times(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> Pose12:
 
 _pose12_times_kernel = njit(cache=True)(pose12_times)
 """:func:`pose12_times` compiled from the same source, for other kernels (e.g. the PSM's IK)."""
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def pose12_between(pre: Pose12, T: FloatArray, post: tuple[tuple[float, ...], ...]) -> Pose12:
+    """``pre · T · post`` as 12 floats (rotation row-major, then translation), m.
+
+    ``T`` (4, 4): a pose, m; ``pre``: 12 floats; ``post``: the top 3 rows of a transform. The
+    floats of ``pose12_times(pose12_times(pre, T's top rows), post)``, in one compiled call
+    (e.g. a camera goal in world to its tool-tip goal in the RCM frame).
+    """
+    rows = (
+        (T[0, 0], T[0, 1], T[0, 2], T[0, 3]),
+        (T[1, 0], T[1, 1], T[1, 2], T[1, 3]),
+        (T[2, 0], T[2, 1], T[2, 2], T[2, 3]),
+    )
+    return _pose12_times_kernel(_pose12_times_kernel(pre, rows), post)
 
 
 def pose12_point(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> list[float]:

@@ -1,0 +1,291 @@
+"""The carriers' compiled shortcuts give the floats and decisions of the code they replaced.
+
+Each reference below is the interpreted code a shortcut replaced, kept here; each comparison
+runs on seeded random inputs (reachable and unreachable goals, commands in and out of range).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import ruckig
+from scipy.spatial.transform import Rotation
+
+from endocam.config import ExperimentConfig
+from endocam.geometry import make_pose
+from endocam.kernels import rotation_angle, so3_exp
+from endocam.robot.actuator import ArmKind
+from endocam.robot.arm import MotionStatus, SimulatedArm
+from endocam.robot.camera_arm import (
+    _EPS_AXIS,
+    PATH_ENGAGE_AIM_RAD,
+    PATH_ENGAGE_M,
+    PATH_LEAD_M,
+    VIEW_STEPS,
+    CameraArm,
+    _is_camera_command,
+    _path_engage_kernel,
+    _port_rotvec,
+    _pose_angle_kernel,
+    _turned,
+    arm_model,
+    natural_pose,
+)
+from endocam.robot.cartesian import CartesianLimiter, MotionLimits, _stop_bound
+from endocam.robot.dh import pose12_between, pose12_times
+from endocam.robot.kinematics import LIMIT_SLACK
+from endocam.view import look_at_unchecked
+
+N_GOALS = 400  # count: random goals per carrier
+
+
+def _arm(kind: ArmKind) -> CameraArm:
+    cfg = ExperimentConfig()
+    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
+    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
+
+
+def _goals(arm: CameraArm, seed: int) -> list[np.ndarray]:
+    """Camera poses (4, 4), world, m: reachable ones, and ones turned or moved off them."""
+    rng = np.random.default_rng(seed)
+    model = arm.model
+    out = []
+    for i in range(N_GOALS):
+        q = model.clamp(natural_pose(model) + rng.uniform(-0.6, 0.6, model.n_joints))
+        T = arm.camera_pose(q)
+        if i % 2:  # off the reachable set (mostly): turned and moved
+            R = Rotation.from_rotvec(rng.normal(0.0, 0.2, 3)).as_matrix()
+            T = make_pose(R @ T[:3, :3], T[:3, 3] + rng.normal(0.0, 0.01, 3))
+        out.append(T)
+    return out
+
+
+def _exact_reference(arm: CameraArm, T_world_cam: np.ndarray) -> list[float] | None:
+    """``CameraArm._exact`` as it was: the goal's products on Python floats, then the IK."""
+    rows = tuple(map(tuple, T_world_cam[:3].tolist()))
+    goal12 = pose12_times(pose12_times(arm._rcm_world12, rows), arm._cam_tip_rows)
+    return arm.model.exact12_unchecked(goal12, arm._q)
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_exact_between_is_the_interpreted_goal_then_ik(kind: ArmKind) -> None:
+    arm = _arm(kind)
+    found = 0
+    for T in _goals(arm, 21 if kind is ArmKind.PSM else 22):
+        rows = tuple(map(tuple, T[:3].tolist()))
+        expected12 = pose12_times(pose12_times(arm._rcm_world12, rows), arm._cam_tip_rows)
+        assert pose12_between(arm._rcm_world12, T, arm._cam_tip_rows) == expected12
+        expected = _exact_reference(arm, T)
+        assert arm._exact(T) == expected
+        found += expected is not None
+    assert 0 < found < N_GOALS  # both outcomes exercised
+
+
+def _is_camera_command_reference(T: np.ndarray, p_rcm: np.ndarray, reach: float) -> bool:
+    """``CameraArm.step``'s test of a command as it was (numpy)."""
+    finite = bool(np.isfinite(T).all())
+    return bool(finite and np.abs(T[:3, 3] - p_rcm).max() <= reach)
+
+
+def test_camera_command_test_is_the_numpy_one() -> None:
+    rng = np.random.default_rng(23)
+    p_rcm = rng.normal(0.0, 0.1, 3)
+    for _ in range(2000):
+        T = make_pose(Rotation.random(random_state=rng).as_matrix(), p_rcm)
+        T[:3, 3] += rng.normal(0.0, 1.0, 3) * rng.choice([0.1, 1.0, 10.0, 100.0])
+        if rng.random() < 0.2:
+            T[rng.integers(4), rng.integers(4)] = rng.choice([np.nan, np.inf, -np.inf])
+        for reach in (10.0, float(np.abs(T[:3, 3] - p_rcm).max())):  # also exactly at the reach
+            assert _is_camera_command(T, p_rcm, reach) == _is_camera_command_reference(
+                T, p_rcm, reach
+            )
+
+
+def _stop_bound_reference(v: list[float], a: list[float], V: float, A: float, J: float) -> float:
+    """``CartesianLimiter._stop_bound`` as it was (interpreted)."""
+    total = 0.0
+    for vi, ai in zip(v, a, strict=True):
+        s = min(V, abs(vi) + ai * ai / (2.0 * J))
+        d = s * (abs(ai) / J + s / A + A / J)
+        total += d * d
+    return math.sqrt(total)
+
+
+def test_stop_bound_is_the_interpreted_one() -> None:
+    limiter = CartesianLimiter(MotionLimits(), 0.01)
+    V, A, J = limiter._stop_limits
+    assert (V, A, J) == (
+        limiter._inp.max_velocity[0],
+        limiter._inp.max_acceleration[0],
+        limiter._inp.max_jerk[0],
+    )
+    rng = np.random.default_rng(24)
+    for _ in range(20000):
+        v = (rng.normal(0.0, V, 3) * rng.choice([0.0, 1e-6, 1.0, 3.0], 3)).tolist()
+        a = (rng.normal(0.0, A, 3) * rng.choice([0.0, 1e-6, 1.0, 3.0], 3)).tolist()
+        assert _stop_bound(*v, *a, V, A, J) == _stop_bound_reference(v, a, V, A, J)
+
+
+def _path_engage_reference(
+    T_cam: np.ndarray, T_target: np.ndarray, look_distance: float
+) -> tuple[float, float, list[float], list[float]] | None:
+    """``CameraArm._path_target``'s first half as it was: ``None`` or ``(r_cur, alpha, u, c)``."""
+    a, b = T_cam.tolist(), T_target.tolist()
+    z_t = [b[0][2], b[1][2], b[2][2]]
+    c = [b[i][3] + look_distance * z_t[i] for i in range(3)]
+    v = [a[i][3] - c[i] for i in range(3)]
+    r_cur = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    if not r_cur > _EPS_AXIS:
+        return None
+    u = [x / r_cur for x in v]
+    cos_aim = -(u[0] * a[0][2] + u[1] * a[1][2] + u[2] * a[2][2])
+    aim = math.acos(max(-1.0, min(1.0, cos_aim)))
+    cos_t = -(u[0] * z_t[0] + u[1] * z_t[1] + u[2] * z_t[2])
+    ang = math.acos(max(-1.0, min(1.0, cos_t)))
+    travel = math.hypot(look_distance - r_cur, 0.5 * (r_cur + look_distance) * ang)
+    if travel <= PATH_ENGAGE_M and aim <= PATH_ENGAGE_AIM_RAD:
+        return None
+    alpha = min(1.0, PATH_LEAD_M / travel) if travel > 0.0 else 1.0
+    if alpha >= 1.0 and aim <= PATH_ENGAGE_AIM_RAD:
+        return None
+    return r_cur, alpha, u, c
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_path_engage_is_the_interpreted_test(kind: ArmKind) -> None:
+    arm = _arm(kind)
+    rng = np.random.default_rng(25 if kind is ArmKind.PSM else 26)
+    goals = _goals(arm, 27)
+    engaged = 0
+    for T_target in goals:
+        T_cam = goals[rng.integers(len(goals))]
+        if rng.random() < 0.3:  # near the target: the path is not taken
+            T_cam = T_target.copy()
+            T_cam[:3, 3] += rng.normal(0.0, 0.005, 3)
+        for look in (0.05, float(rng.uniform(0.001, 0.2))):
+            expected = _path_engage_reference(T_cam, T_target, look)
+            engage, r_cur, alpha, u0, u1, u2, c0, c1, c2 = _path_engage_kernel(
+                T_cam, T_target, look
+            )
+            assert engage == (expected is not None)
+            if expected is not None:
+                engaged += 1
+                assert (r_cur, alpha, [u0, u1, u2], [c0, c1, c2]) == expected
+    assert 0 < engaged < 2 * N_GOALS
+
+
+def _turned_reference(
+    T: np.ndarray, look_distance: float, rotvec: np.ndarray, fraction: float
+) -> np.ndarray:
+    """``camera_arm._turned`` as it was (numpy element-wise)."""
+    R_turn = so3_exp((fraction * rotvec).tolist())
+    z = T[:3, 2].tolist()
+    z_t = [R_turn[i][0] * z[0] + R_turn[i][1] * z[1] + R_turn[i][2] * z[2] for i in range(3)]
+    c = T[:3, 3] + look_distance * T[:3, 2]
+    p_t = c - look_distance * np.array(z_t)
+    return look_at_unchecked(p_t, c, T, T)
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_turned_view_is_the_numpy_one(kind: ArmKind) -> None:
+    arm = _arm(kind)
+    rng = np.random.default_rng(28)
+    turned = 0
+    for T in _goals(arm, 29):
+        look = float(rng.uniform(0.001, 0.2))
+        rotvec = _port_rotvec(T, look, arm._p_world_rcm)
+        if rotvec is None:
+            continue
+        for fraction in (1.0, float(rng.integers(0, VIEW_STEPS + 1)) / VIEW_STEPS):
+            got = _turned(T, look, rotvec, fraction)
+            assert got.tobytes() == _turned_reference(T, look, rotvec, fraction).tobytes()
+            turned += 1
+    assert turned > N_GOALS
+
+
+class _ReferenceArm(SimulatedArm):
+    """``SimulatedArm`` with its control cycle as it was (the limit loop on every cycle)."""
+
+    def _cycle(self) -> bool:
+        inp, out = self._inp, self._out
+        try:
+            result = self._otg.update(inp, out)
+        except ruckig.RuckigError:
+            result = self._retry(inp, out)
+        if result not in (ruckig.Result.Working, ruckig.Result.Finished):
+            raise RuntimeError(f"ruckig failed: {result}")
+        pos = list(out.new_position)
+        vel = list(out.new_velocity)
+        acc = list(out.new_acceleration)
+        hit = False
+        rounded = False
+        for i, (lo, hi) in enumerate(zip(self._lower, self._upper, strict=True)):
+            if pos[i] < lo or pos[i] > hi:
+                overshoot = lo - pos[i] if pos[i] < lo else pos[i] - hi
+                pos[i] = lo if pos[i] < lo else hi
+                if overshoot <= LIMIT_SLACK:
+                    rounded = True
+                    continue
+                vel[i] = 0.0
+                acc[i] = 0.0
+                hit = True
+        if hit or rounded:
+            inp.current_position = pos
+            inp.current_velocity = vel
+            inp.current_acceleration = acc
+        else:
+            out.pass_to_input(inp)
+        self._q = np.array(pos)
+        self._qd = np.array(vel)
+        self._qdd = np.array(acc)
+        self._time += self._dt
+        if hit:
+            self._motion_status = MotionStatus.LIMIT_STOP
+        elif result == ruckig.Result.Finished:
+            self._motion_status = MotionStatus.FINISHED
+        else:
+            self._motion_status = MotionStatus.MOVING
+        return hit
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_arm_cycle_is_the_interpreted_one(kind: ArmKind) -> None:
+    model = arm_model(kind)
+    arm, ref = SimulatedArm(model, dt=0.01), _ReferenceArm(model, dt=0.01)
+    rng = np.random.default_rng(30)
+    stops = 0
+    for step in range(3000):
+        if step % 40 == 0:  # a new set point: inside, at a limit, or beyond one
+            q = rng.uniform(model.lower, model.upper)
+            at_limit = rng.random(model.n_joints) < 0.3
+            side = np.where(rng.random(model.n_joints) < 0.5, model.lower, model.upper)
+            q[at_limit] = side[at_limit]
+            arm.servo_jp(q)
+            ref.servo_jp(q)
+        if step % 500 == 250:  # a state moving into a limit: a hard stop
+            q0 = model.lower + 1e-4
+            qd0 = -np.ones(model.n_joints) * 0.05
+            arm.reset(q0, qd0)
+            ref.reset(q0, qd0)
+            arm.servo_jp(model.lower)
+            ref.servo_jp(model.lower)
+        status, status_ref = arm.step(), ref.step()
+        assert status is status_ref
+        stops += status is MotionStatus.LIMIT_STOP
+        for got, want in zip(arm.measured_js(), ref.measured_js(), strict=True):
+            assert got.tobytes() == want.tobytes()
+        assert arm.measured_ja().tobytes() == ref.measured_ja().tobytes()
+    assert stops > 0
+
+
+def test_pose_angle_is_the_interpreted_rotation_angle() -> None:
+    rng = np.random.default_rng(31)
+    for _ in range(5000):
+        A = make_pose(Rotation.random(random_state=rng).as_matrix(), rng.normal(0.0, 0.1, 3))
+        turn = rng.normal(0.0, 1.0, 3) * rng.choice([1e-9, 1e-4, 0.1, 3.0])
+        B = make_pose(Rotation.from_rotvec(turn).as_matrix() @ A[:3, :3], A[:3, 3])
+        expected = rotation_angle(A[:3, :3].tolist(), B[:3, :3].tolist())
+        assert _pose_angle_kernel(A, B, 2.0) == expected
+        assert _pose_angle_kernel(B, B, 2.0) == rotation_angle(B.tolist(), B.tolist())
