@@ -1,12 +1,15 @@
-"""The ``endocam`` tracker's step as the interpreter ran it before it was compiled (reference).
+"""The control steps as the interpreter ran them before they were compiled (tests' reference).
 
 Copies of main before r6-ctrl: ``endocam.control.tracker`` (``RingPredictor`` and
-``EndocamPolicy``, renamed ``InterpretedRingPredictor`` and ``InterpretedEndocamPolicy``), the
-oracle's overrides (``OraclePolicy`` → ``InterpretedOraclePolicy``) and the plain-float maths
-they called (``view.rotation_columns``, ``control.goal.choose_side`` / ``goal_pose_unchecked``,
-``control.safety.window_status_rows`` / ``adjust_working_distance`` and
-``ConeWorkspace.margin``). ``tests/test_tracker_kernel.py`` pins the compiled step
-(``endocam.control.tracker._plan_kernel`` and the functions it compiles) to it bit for bit.
+``EndocamPolicy``, renamed ``InterpretedRingPredictor`` and ``InterpretedEndocamPolicy``); the
+oracle's overrides (``OraclePolicy`` as ``InterpretedOraclePolicy``); the moving policies' step
+and goals (``_MovingPolicy.step``, ``CenteringPolicy``'s and ``OrientationPolicy``'s, as
+``InterpretedCenteringPolicy`` and ``InterpretedOrientationPolicy``); and the plain-float maths
+they called (``view.rotation_columns``, ``control.goal.choose_side`` and
+``goal_pose_unchecked``, ``control.safety.window_status_rows``, ``adjust_working_distance`` and
+``ConeWorkspace.margin``). ``tests/test_tracker_kernel.py`` pins the compiled steps
+(``endocam.control.tracker._plan_kernel``, ``control.policies._step_kernel`` and the functions
+they compile) to it bit for bit.
 """
 
 # mypy: ignore-errors
@@ -30,17 +33,20 @@ from endocam.control.oracle import (
 )
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.policies import (
+    _MIN_NORMAL,
     _UP,
     DETOUR_REASON,
     FREEZE_RELEASE_MARGIN,
     GATE_REASON,
     WIRE_REASON,
+    CenteringPolicy,
+    OrientationPolicy,
     _MovingPolicy,
 )
 from endocam.control.safety import D_F_STEP, STALE_REASON, WindowGeometry, WindowStatus, is_stale
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
 from endocam.geometry import UP, FloatArray
-from endocam.kernels import Vec, cross, dot, finite_rows, norm, reject, scaled, unit_or_none
+from endocam.kernels import Rows, Vec, cross, dot, finite_rows, norm, reject, scaled, unit_or_none
 from endocam.view import look_at_unchecked, pose_from_columns
 
 _SIN_HOLD = math.sin(math.radians(2.0))
@@ -816,3 +822,176 @@ class InterpretedOraclePolicy(InterpretedEndocamPolicy):
             raise RuntimeError("call reset() before step()")
         T_true = future.poses[future.index(obs.t)]
         return super().step(obs._replace(T_world_ring=T_true, t_ring=obs.t))
+
+
+# -- the moving policies (condition II, III) as they were: their step and goals ---------------
+
+
+class _InterpretedMoving:
+    """``_MovingPolicy.step`` as it was (the rest of the class is unchanged)."""
+
+    def step(self, obs: Observation) -> CameraCommand:
+        """Input checks, working distance, goal, cone freeze, way-points — in that order."""
+        ctx = self._ctx
+        if ctx is None:
+            raise RuntimeError("call reset() before step()")
+        cfg = self.config
+        cam_rows = finite_rows(obs.T_world_cam)
+        if cam_rows is None:
+            return self._hold(TrackingState.LOST_TRACKING, "camera pose not finite; holding")
+        T_cam = np.asarray(obs.T_world_cam, dtype=float)
+        ring_rows = finite_rows(obs.T_world_ring)
+        if ring_rows is None:
+            self._last_goal = None
+            self._path = None
+            return self._hold(TrackingState.LOST_TRACKING, "ring pose missing or not finite")
+        if is_stale(obs.t, obs.t_ring, cfg.ring_max_age):
+            self._last_goal = None
+            self._path = None
+            return self._hold(TrackingState.LOST_TRACKING, STALE_REASON)
+        if not self._gated(obs.t, ring_rows):
+            self._last_goal = None
+            self._path = None
+            return self._hold(TrackingState.LOST_TRACKING, GATE_REASON)
+        T_ring = np.asarray(obs.T_world_ring, dtype=float)
+
+        tips = obs.p_world_tips
+        tip_rows = tips.tolist() if isinstance(tips, np.ndarray) else list(tips)
+        geometry = self._window_geometry
+        assert geometry is not None  # set by reset()
+        status = window_status_rows(geometry, cam_rows, tip_rows)
+        d_f_before = self.d_f
+        self.d_f = adjust_working_distance(self.d_f, status, cfg.d_min, cfg.d_max, cfg.d_f_step)
+
+        goal = self._goal(ring_rows, T_cam)
+        if goal is None:
+            self.d_f = d_f_before
+            self._last_goal = None
+            self._path = None
+            return self._hold(TrackingState.LOST_TRACKING, "ring pose degenerate (zero normal)")
+        p_ring = [ring_rows[0][3], ring_rows[1][3], ring_rows[2][3]]
+        p_now = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
+        goal = self._clear(goal, p_ring, p_now)
+        if goal is None:  # the last command passed the guard: hold it, as a freeze does
+            self.d_f = d_f_before
+            self._last_goal = None
+            self._path = None
+            return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
+        goal_rows = goal.tolist()
+        p_goal = [goal_rows[0][3], goal_rows[1][3], goal_rows[2][3]]
+        margin = self.cone.margin(p_goal)
+        # Freeze when the goal leaves the cone; release only once it is FREEZE_RELEASE_MARGIN
+        # inside, so a goal grazing the surface does not toggle the camera every step.
+        release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0
+        if not margin >= release:
+            if self._frozen_T is None:
+                self._frozen_T = T_cam
+            self.d_f = d_f_before  # the working distance holds with the camera
+            self._last_cmd = self._frozen_T
+            self._path = None
+            self._last_goal = None  # on recovery, a far goal is planned from the camera
+            where = "outside" if margin < 0 else "not yet back inside"
+            return self._hold(
+                TrackingState.FROZEN_OUTSIDE_CONE,
+                f"goal {abs(margin) * 1e3:.1f} mm {where} the cone workspace; holding",
+            )
+        self._frozen_T = None
+
+        if self._last_goal is not None:
+            ref_p = self._last_goal_p
+        else:
+            ref_p = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
+        jumped = math.dist(p_goal, ref_p) > cfg.jump_threshold
+        self._last_goal = goal
+        self._last_goal_p = p_goal
+        if jumped and self._path is None:
+            p_cam = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
+            self._path = WaypointPath(
+                intermediate_waypoints(
+                    T_cam[:3, 3], np.array(p_goal), UP, self._lift(p_cam), self._lift(p_goal)
+                )
+            )
+            self._s = 0.0
+        state, reason = TrackingState.TRACKING, ""
+        cmd = goal
+        if self._path is not None:
+            self._path = self._path.with_goal(np.array(p_goal), UP, self._lift(p_goal))
+            p_progress = T_cam[:3, 3]
+            offset = obs.p_world_reach_offset
+            if offset is not None and all(map(math.isfinite, offset)):
+                p_progress = p_progress - np.asarray(offset, dtype=float)
+            self._s = advance(
+                self._path, self._s, p_progress, cfg.planner_speed * ctx.dt, cfg.planner_lookahead
+            )
+            if self._s >= self._path.length - 1e-9:
+                self._path = None  # arrived: back to plain tracking
+            else:
+                p = self._path.point_at(self._s)
+                wp = self._clear(self._waypoint_pose(p, T_ring, goal), p_ring, p_now)
+                if wp is None:
+                    self._path = None
+                    self._last_goal = None
+                    return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
+                cmd = wp
+                state, reason = TrackingState.PLANNING, "following intermediate way-points"
+        via = self._detoured(cmd, p_ring, p_now)
+        if via is not None:
+            cmd = via
+            state, reason = TrackingState.PLANNING, DETOUR_REASON
+        self._last_cmd = cmd
+        return CameraCommand(cmd, state, self.d_f, reason)
+
+
+class InterpretedCenteringPolicy(_InterpretedMoving, CenteringPolicy):
+    """``CenteringPolicy`` as it was."""
+
+    def reset(self, context: PolicyContext) -> None:
+        """Also fix the orientation it keeps and the offset of the eye it centres."""
+        super().reset(context)
+        R0 = np.asarray(context.T_world_cam, dtype=float)[:3, :3]
+        self._T0 = np.eye(4)
+        self._T0[:3, :3] = R0
+        half_b = 0.5 * context.camera.baseline if self.config.centre_left_eye else 0.0
+        # camera = ring − d z0 + (b/2) x0: the left eye, b/2 along −x, on the ring's line
+        self._z0 = R0[:, 2].tolist()
+        self._shift = (half_b * R0[:, 0]).tolist()
+
+    def _goal(self, ring_rows: Rows, T_world_cam: FloatArray) -> FloatArray:
+        T = self._T0.copy()
+        d, z0, sh = self.d_f, self._z0, self._shift
+        for i in range(3):
+            T[i, 3] = ring_rows[i][3] - d * z0[i] + sh[i]
+        return T
+
+
+class InterpretedOrientationPolicy(_InterpretedMoving, OrientationPolicy):
+    """``OrientationPolicy`` as it was."""
+
+    def _goal(self, ring_rows: Rows, T_world_cam: FloatArray) -> FloatArray | None:
+        previous = self._last_goal if self._last_goal is not None else T_world_cam
+        T = ring_rows
+        n = (T[0][2], T[1][2], T[2][2])
+        norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        if not norm > _MIN_NORMAL:
+            return None
+        n = (n[0] / norm, n[1] / norm, n[2] / norm)
+        cfg = self.config
+        p_c = (T[0][3], T[1][3], T[2][3])
+        toward = None
+        if cfg.side_rule is SideRule.PORT:
+            assert self._ctx is not None
+            r = self._ctx.p_world_rcm
+            d = (float(r[0]) - p_c[0], float(r[1]) - p_c[1], float(r[2]) - p_c[2])
+            norm_d = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+            if norm_d > _MIN_NORMAL:  # a ring at the port itself keeps the paper's rule
+                toward = (d[0] / norm_d, d[1] / norm_d, d[2] / norm_d)
+        return goal_pose_unchecked(
+            p_c,
+            n,
+            self.d_f,
+            _UP,
+            previous,
+            cfg.side_hysteresis,
+            cfg.min_camera_height,
+            toward,
+        )
