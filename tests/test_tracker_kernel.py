@@ -23,6 +23,7 @@ from numba import njit
 
 import reference_control as ref
 from endocam.config import CameraConfig
+from endocam.control import tracker
 from endocam.control.config import ControllerConfig, SideRule, TrackerConfig, Transfer
 from endocam.control.goal import goal_pose_unchecked
 from endocam.control.oracle import OraclePolicy
@@ -203,10 +204,11 @@ def test_random_episodes_match_the_interpreted_moving_policies(name: str, wire: 
 
 
 def test_the_random_episodes_reach_every_branch() -> None:
-    """The episodes above change side, orbit, shorten, hold and see every window status."""
+    """The episodes above change side, orbit, detour, see every window status, and the kernel
+    checks the guard itself (a clear view, with and without a detour) or leaves it to Python."""
     cfg = ControllerConfig(ring_max_speed=10.0, ring_max_rate=1000.0)
     policy = EndocamPolicy(cfg)
-    reasons, statuses, distances = set(), set(), set()
+    reasons, statuses, distances, guarded = set(), set(), set(), set()
     geometry = WindowGeometry.of(CAMERA, cfg.windows)
     for seed in range(3):
         obs_seq = random_observations(seed, wire=True)
@@ -218,11 +220,14 @@ def test_the_random_episodes_reach_every_branch() -> None:
             statuses.add(window_status_rows(geometry, T_cam.tolist(), tips.tolist()))
             cmd = policy.step(Observation(t, T_ring, T_cam, tips))
             reasons.add(cmd.reason.split(" ")[0])
+            out = policy._out  # the kernel's own guard check and trace (the plain path)
+            guarded.add((out[tracker._OUT_CLEARED], out[tracker._OUT_DETOUR]))
             distances.add(round(cmd.d_f, 6))
             T_cam = cmd.T_world_cam
     assert statuses == set(WindowStatus)
     assert {"", "orbiting", "detouring"} <= reasons
     assert len(distances) > 10
+    assert guarded == {(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)}
 
 
 def oracle_context() -> PolicyContext:

@@ -419,6 +419,25 @@ class ClearanceGuard:
         self.adjusted += 1
         return found
 
+    @property
+    def kernel_state(self) -> tuple[object, ...]:
+        """The arguments compiled callers pass to :func:`_distance` / :func:`_detour` first.
+
+        ``Wire.query_state``'s arrays, the tube radius (m), the Lipschitz cache (``ref``
+        (CACHE_SIZE, 4), ``nref`` (1,)) and the clearance (m); the cache is shared, so a
+        caller's queries are this guard's.
+        """
+        return self._state
+
+    def passed(self, T_world_cam: FloatArray) -> FloatArray:
+        """:meth:`apply`'s answer for a pose found clear by a compiled caller: the pose itself.
+
+        The caller made :meth:`apply`'s finite check and query (:func:`_distance`, the same
+        cache); this records the pass (no escape direction is remembered).
+        """
+        self._escape = None
+        return T_world_cam
+
     def detour(self, p_world_now: Sequence[float], p_world_cmd: Sequence[float]) -> Vec | None:
         """A way-point around the wire when the straight move to the command would cross it.
 

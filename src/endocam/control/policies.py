@@ -275,7 +275,11 @@ class _MovingPolicy:
         return guard.apply(T_world_cam, pivot, self._feasible, now, back_off)
 
     def _detoured(
-        self, T_world_cmd: FloatArray, p_world_pivot: Sequence[float], p_world_now: Sequence[float]
+        self,
+        T_world_cmd: FloatArray,
+        p_world_pivot: Sequence[float],
+        p_world_now: Sequence[float],
+        traced: tuple[bool, Vec] | None = None,
     ) -> FloatArray | None:
         """A way-point pose around the wire if the straight move to the command crosses it.
 
@@ -283,11 +287,17 @@ class _MovingPolicy:
         (4, 4) keeps the clearance (or there is no wire model). The way-point pose looks at
         ``p_world_pivot`` (3,), the ring centre, world, m, with a level horizon, and passes the
         clearance guard itself.
+
+        ``traced``: ``ClearanceGuard.detour``'s answer for this move, (found, way-point), when
+        a compiled step asked it already.
         """
         guard = self.guard
         if guard is None:
             return None
-        via = guard.detour(p_world_now, T_world_cmd[:3, 3].tolist())
+        if traced is None:
+            via = guard.detour(p_world_now, T_world_cmd[:3, 3].tolist())
+        else:
+            via = traced[1] if traced[0] else None
         before, self._p_detour = self._p_detour, p_world_now
         if via is None:
             self._p_detour, self._stalled = None, 0

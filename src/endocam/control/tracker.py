@@ -48,6 +48,7 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
+from endocam.control.clearance import CACHE_SIZE, _detour, _distance
 from endocam.control.config import ControllerConfig, SideRule, Transfer
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
@@ -68,7 +69,7 @@ from endocam.control.safety import (
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
 from endocam.geometry import UP, FloatArray
 from endocam.kernels import Vec, cross, dot, finite_rows, norm, unit_checked, unit_or_none
-from endocam.pyfloat import hypot2
+from endocam.pyfloat import dist3, hypot2
 from endocam.view import look_at_unchecked, pose_from_columns
 
 _EPS = 1e-9  # unitless: shorter directions are degenerate
@@ -296,11 +297,25 @@ _NO_PREDICTIONS = np.zeros(0)  # _plan_kernel predicts itself
 ) = range(12)
 _CONE = _WINDOW + 9  # apex (3), axis (3), tan_half, cos_half, height
 _RCM = _CONE + 9  # m, the camera arm's RCM (3)
-_N_PARAMS = _RCM + 3
+_JUMP = _RCM + 3  # m, jump_threshold
+_N_PARAMS = _JUMP + 1
 # _plan_kernel's scalar results (``out``), by index
 _OUT_D, _OUT_FOUND, _OUT_SIDE, _OUT_MARGIN, _OUT_TWIST = range(5)
 _OUT_P, _OUT_N, _OUT_U = 5, 8, 11  # ring centre (m), normal, view direction: 3 each
-_N_OUT = 14
+_OUT_CLEARED, _OUT_DETOUR, _OUT_VIA = 14, 15, 16  # the guard's answers on the plain path
+_N_OUT = 19
+# _plan_kernel's guard arguments without a wire model (unread): the types of a wire's
+# ``ClearanceGuard._state`` (``Wire.query_state``, radius, Lipschitz cache, clearance)
+_NO_GUARD = (
+    np.zeros((1, 3)),
+    np.full((2, 5), -1, dtype=np.int64),
+    np.zeros(1, dtype=np.int32),
+    np.array([0, 1], dtype=np.int64),
+    0.0,
+    np.zeros((CACHE_SIZE, 4)),
+    np.zeros(1, dtype=np.int64),
+    0.0,
+)
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -420,10 +435,22 @@ def _plan_kernel(
     feedforward: bool,
     given: FloatArray,
     d_f: float,
+    fresh: bool,
     side: float,
     planned: float,
     params: FloatArray,
     out: FloatArray,
+    plain: bool,
+    release: float,
+    has_guard: bool,
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
 ) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
     """:meth:`EndocamPolicy.step` from the working distance to the view and its twist.
 
@@ -439,11 +466,19 @@ def _plan_kernel(
     else (0,)). ``d_f`` m; ``side`` the kept side (0: none yet); ``planned`` a side to take
     while feasible (0: none); ``params`` (``_N_PARAMS``,) the policy's constants.
 
+    On the step's plain path (``plain``: no transfer under way; the view's margin at least
+    ``release``, m; no side change; not a far first goal, ``fresh``: no goal before) it also
+    asks the wire's guard (``has_guard``; ``pts`` … ``clearance``: ``ClearanceGuard._state``)
+    what the interpreter would ask next: whether the view is clear (``ClearanceGuard.apply``'s
+    query) and, if so, whether the move from the camera to it needs a detour
+    (``ClearanceGuard.detour``). A view not clear leaves the guard's cache as it was.
+
     Fills ``out`` (``_N_OUT``,): the new working distance (m), whether a view was found,
     its side, its pose's cone margin (m), whether a twist was computed, the predicted ring
-    centre (m) and normal, and the view direction. Returns the view's pose (4, 4) and the
-    goal's twist from the view to the next step's (6,): m/s, rad/s, world (meaningful when
-    found, and when computed).
+    centre (m) and normal, the view direction, whether the guard found the view clear,
+    whether the move needs a detour and its way-point (m). Returns the view's pose (4, 4)
+    and the goal's twist from the view to the next step's (6,): m/s, rad/s, world
+    (meaningful when found, and when computed).
     """
     prm = params
     w = _WINDOW
@@ -507,7 +542,7 @@ def _plan_kernel(
     out[_OUT_D] = d
     out[_OUT_FOUND] = 1.0 if found else 0.0
     out[_OUT_SIDE] = s
-    out[_OUT_TWIST] = 0.0
+    out[_OUT_TWIST] = out[_OUT_CLEARED] = out[_OUT_DETOUR] = 0.0
     for i in range(3):
         out[_OUT_P + i], out[_OUT_N + i], out[_OUT_U + i] = p_c[i], n[i], u[i]
     twist = np.zeros(6)
@@ -515,7 +550,35 @@ def _plan_kernel(
         return np.eye(4), twist
     x, y, z, p = _pose_of(p_c, u, d, True, z_prev, x_prev, half_b)
     view = _rows_of(x, y, z, p)
-    out[_OUT_MARGIN] = cone_margin(p[0], p[1], p[2], cone[0], cone[1], cone[2], cone[3], cone[4])
+    out[_OUT_MARGIN] = margin = cone_margin(
+        p[0], p[1], p[2], cone[0], cone[1], cone[2], cone[3], cone[4]
+    )
+    p_cam = (T_cam[0, 3], T_cam[1, 3], T_cam[2, 3])
+    if (
+        has_guard
+        and plain
+        and margin >= release
+        and not (side != 0.0 and s != side)
+        and not (fresh and dist3(p[0], p[1], p[2], p_cam[0], p_cam[1], p_cam[2]) > prm[_JUMP])
+        and math.isfinite(p[0] + p[1] + p[2] + (p_c[0] + p_c[1] + p_c[2]))
+    ):
+        # The step's plain path (no transfer under way or starting, no freeze): the view is
+        # the command unless the guard turns it. ``ClearanceGuard.apply``'s check, then (if
+        # clear) ``detour``'s trace from the camera; not clear: the cache is put back, the
+        # interpreter asks again.
+        saved, n_saved = ref.copy(), nref[0]
+        surface = _distance(
+            pts, table, pool, meta, radius, ref, nref, clearance, p[0], p[1], p[2], 0.0
+        )
+        if surface >= clearance:
+            out[_OUT_CLEARED] = 1.0
+            found_via, via = _detour(pts, table, pool, meta, radius, ref, nref, clearance, p_cam, p)
+            out[_OUT_DETOUR] = 1.0 if found_via else 0.0
+            for i in range(3):
+                out[_OUT_VIA + i] = via[i]
+        else:
+            ref[:, :] = saved
+            nref[0] = n_saved
     if not feedforward:
         return view, twist
     if given.shape[0] == 0:
@@ -583,6 +646,7 @@ class EndocamPolicy(_MovingPolicy):
         apex, axis, tan_half, cos_half, height = self._cone_constants()
         params[_CONE : _CONE + 9] = [*apex, *axis, tan_half, cos_half, height]
         params[_RCM : _RCM + 3] = np.asarray(context.p_world_rcm, dtype=float).tolist()
+        params[_JUMP] = cfg.jump_threshold
         self._params = np.array(params)
 
     # -- the goal (the maths: the compiled functions above) ---------------------------------
@@ -661,10 +725,15 @@ class EndocamPolicy(_MovingPolicy):
             feedforward,
             given,
             self.d_f,
+            self._last_goal is None,
             self._side,
             self._preferred_side(),
             self._params,
             self._out,
+            self._transfer is None,
+            FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0,
+            self.guard is not None,
+            *(_NO_GUARD if self.guard is None else self.guard.kernel_state),  # type: ignore[arg-type]
         )
         return self._out.tolist(), view, twist
 
@@ -721,7 +790,11 @@ class EndocamPolicy(_MovingPolicy):
         if out[_OUT_FOUND]:
             s = out[_OUT_SIDE]
             u = (out[_OUT_U], out[_OUT_U + 1], out[_OUT_U + 2])
-            goal = self._clear(view, p_c, p_cam)
+            if out[_OUT_CLEARED]:  # the kernel made the guard's check: the view is clear
+                assert self.guard is not None
+                goal = self.guard.passed(view)
+            else:
+                goal = self._clear(view, p_c, p_cam)
             if goal is None:
                 self._path = None
                 self._transfer = None
@@ -780,7 +853,11 @@ class EndocamPolicy(_MovingPolicy):
                 self.d_f = d_before
                 return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
             cmd = cleared
-        via = self._detoured(cmd, p_c, p_cam)
+        traced = None  # the kernel's trace of the move to the view, when it made it
+        if out[_OUT_CLEARED]:
+            assert cmd is goal  # the plain path: no transfer, no freeze
+            traced = (bool(out[_OUT_DETOUR]), (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2]))
+        via = self._detoured(cmd, p_c, p_cam, traced)
         if via is not None:
             cmd, twist = via, None
             state, reason = TrackingState.PLANNING, DETOUR_REASON
