@@ -23,7 +23,7 @@ from numba import njit
 
 import reference_control as ref
 from endocam.config import CameraConfig
-from endocam.control import tracker
+from endocam.control import policies, tracker
 from endocam.control.config import ControllerConfig, SideRule, TrackerConfig, Transfer
 from endocam.control.goal import goal_pose_unchecked
 from endocam.control.oracle import OraclePolicy
@@ -228,6 +228,21 @@ def test_the_random_episodes_reach_every_branch() -> None:
     assert {"", "orbiting", "detouring"} <= reasons
     assert len(distances) > 10
     assert guarded == {(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)}
+    both: set[tuple[float, float]] = set()
+    for moving in (CenteringPolicy(cfg), OrientationPolicy(cfg)):  # their kernel's guard path
+        guarded = set()
+        for seed in range(4):
+            obs_seq = random_observations(seed, wire=True)
+            T0 = obs_seq[0][1]
+            T_cam = look_at_pose(T0[:3, 3] + [0.03, 0.01, 0.04], T0[:3, 3])
+            moving.reset(PolicyContext(CAMERA, T_cam, T0, P_RCM, DT, LATENCY, wire=WIRE))
+            for t, T_ring, tips in obs_seq:
+                T_cam = moving.step(Observation(t, T_ring, T_cam, tips)).T_world_cam
+                out = moving._step_out
+                guarded.add((out[policies._OUT_CLEARED], out[policies._OUT_DETOUR]))
+        assert (1.0, 0.0) in guarded, type(moving).__name__
+        both |= guarded
+    assert (1.0, 1.0) in both  # a detour traced by the kernel
 
 
 def oracle_context() -> PolicyContext:

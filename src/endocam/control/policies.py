@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
-from endocam.control.clearance import ClearanceGuard
+from endocam.control.clearance import CACHE_SIZE, ClearanceGuard, _detour, _distance
 from endocam.control.config import ControllerConfig, SideRule
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
@@ -33,6 +33,7 @@ from endocam.control.safety import (
     WindowGeometry,
     Workspace,
     adjusted_distance,
+    cone_margin,
     is_stale,
     window_code,
 )
@@ -44,6 +45,7 @@ from endocam.control.types import (
 )
 from endocam.geometry import UP, FloatArray
 from endocam.kernels import Rows, Vec, finite_rows
+from endocam.pyfloat import dist3
 from endocam.view import look_at_unchecked
 
 _UP = (0.0, 0.0, 1.0)  # world up as plain floats
@@ -65,7 +67,25 @@ _HYSTERESIS, _MIN_HEIGHT = 13, 14  # rad, m: side_hysteresis, min_camera_height
 _PORT_RULE = 15  # 1.0: SideRule.PORT
 _RCM = 16  # m, the camera arm's RCM (3)
 _Z0, _SHIFT = 19, 22  # the centering goal's optical axis (3) and left-eye shift (3), m
-_N_PARAMS = 25
+_CONE = 25  # the cone: apex (3), m; axis (3); tan and cos of the half-angle; height, m
+_JUMP = 34  # m, jump_threshold
+_N_PARAMS = 35
+# _step_kernel's results (``_MovingPolicy._out``): the guard's answers on the plain path
+_OUT_CLEARED, _OUT_DETOUR, _OUT_VIA = 0, 1, 2  # clear, detour, its way-point (3), m
+_N_OUT = 5
+# _step_kernel's and the tracker's guard arguments without a wire model (unread): the types
+# of a wire's ``ClearanceGuard.kernel_state`` (``Wire.query_state``, radius, the Lipschitz
+# cache, clearance)
+NO_GUARD = (
+    np.zeros((1, 3)),
+    np.full((2, 5), -1, dtype=np.int64),
+    np.zeros(1, dtype=np.int32),
+    np.array([0, 1], dtype=np.int64),
+    0.0,
+    np.zeros((CACHE_SIZE, 4)),
+    np.zeros(1, dtype=np.int64),
+    0.0,
+)
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -117,6 +137,18 @@ def _step_kernel(
     T0: FloatArray,
     d_f: float,
     params: FloatArray,
+    out: FloatArray,
+    plain: bool,
+    release: float,
+    has_guard: bool,
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
 ) -> tuple[float, bool, FloatArray]:  # pragma: no cover - compiled
     """The moving policies' working distance and goal: (new ``d_f`` m, found, goal (4, 4)).
 
@@ -127,6 +159,15 @@ def _step_kernel(
     the new distance: the centering one (the ring centre on the initial optical axis) or the
     orientation one (:func:`orientation_goal`; not found: a degenerate normal). The
     interpreter's operations in its order (docs/conventions.md, "Compiled kernels").
+
+    On the step's plain path (``plain``: no way-point path; the goal's cone margin at least
+    ``release``, m; the goal within ``jump_threshold`` of ``previous``) it also asks the
+    wire's guard (``has_guard``; ``pts`` … ``clearance``: ``ClearanceGuard.kernel_state``)
+    what the interpreter would ask next: whether the goal is clear (``ClearanceGuard.apply``'s
+    query; the ring centre its pivot) and, if so, whether the move from the camera to it needs
+    a detour (``ClearanceGuard.detour``); a goal not clear leaves the guard's cache as it was.
+    ``out`` (``_N_OUT``,): whether the guard found the goal clear, whether the move needs a
+    detour, and its way-point (m).
     """
     prm = params
     w = _WINDOW
@@ -145,14 +186,49 @@ def _step_kernel(
     )
     d = adjusted_distance(d_f, code, prm[_D_MIN], prm[_D_MAX], prm[_D_STEP])
     T = T0.copy()
+    found = True
     if prm[_KIND] == 0.0:  # camera = ring − d z0 + (b/2) x0
         for i in range(3):
             T[i, 3] = T_ring[i, 3] - d * prm[_Z0 + i] + prm[_SHIFT + i]
-        return d, True, T
-    found, (x, y, z, p) = orientation_goal(T_ring, previous, d, prm)
-    for i in range(3):
-        T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
-    T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
+    else:
+        found, (x, y, z, p) = orientation_goal(T_ring, previous, d, prm)
+        for i in range(3):
+            T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
+        T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
+    out[_OUT_CLEARED] = out[_OUT_DETOUR] = 0.0
+    if not (found and has_guard and plain):
+        return d, found, T
+    g = (T[0, 3], T[1, 3], T[2, 3])
+    c = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])  # the guard's pivot: the ring centre
+    margin = cone_margin(
+        g[0],
+        g[1],
+        g[2],
+        (prm[_CONE], prm[_CONE + 1], prm[_CONE + 2]),
+        (prm[_CONE + 3], prm[_CONE + 4], prm[_CONE + 5]),
+        prm[_CONE + 6],
+        prm[_CONE + 7],
+        prm[_CONE + 8],
+    )
+    if (
+        margin >= release
+        and not dist3(g[0], g[1], g[2], previous[0, 3], previous[1, 3], previous[2, 3]) > prm[_JUMP]
+        and math.isfinite(g[0] + g[1] + g[2] + (c[0] + c[1] + c[2]))
+    ):
+        saved, n_saved = ref.copy(), nref[0]
+        surface = _distance(
+            pts, table, pool, meta, radius, ref, nref, clearance, g[0], g[1], g[2], 0.0
+        )
+        if surface >= clearance:
+            out[_OUT_CLEARED] = 1.0
+            now = (T_cam[0, 3], T_cam[1, 3], T_cam[2, 3])
+            found_via, via = _detour(pts, table, pool, meta, radius, ref, nref, clearance, now, g)
+            out[_OUT_DETOUR] = 1.0 if found_via else 0.0
+            for i in range(3):
+                out[_OUT_VIA + i] = via[i]
+        else:  # not clear: the interpreter asks again
+            ref[:, :] = saved
+            nref[0] = n_saved
     return d, found, T
 
 
@@ -225,7 +301,11 @@ class _MovingPolicy:
         params[_HYSTERESIS], params[_MIN_HEIGHT] = cfg.side_hysteresis, cfg.min_camera_height
         params[_PORT_RULE] = 1.0 if cfg.side_rule is SideRule.PORT else 0.0
         params[_RCM : _RCM + 3] = np.asarray(context.p_world_rcm, dtype=float).tolist()
+        c = self._cone
+        params[_CONE : _CONE + 9] = [*c._apex, *c._axis, c._tan_half, c._cos_half, c.height]
+        params[_JUMP] = cfg.jump_threshold
         self._params = np.array(params)  # _step_kernel's constants
+        self._step_out = np.zeros(_N_OUT)  # _step_kernel's results
         self._T0 = np.eye(4)  # the centering goal's orientation
 
     @property
@@ -246,8 +326,20 @@ class _MovingPolicy:
         if not (isinstance(tips, np.ndarray) and tips.ndim == 2):
             tips = np.asarray(tips, dtype=float).reshape(-1, 3)
         previous = self._last_goal if self._last_goal is not None else T_cam
+        guard = self.guard
         self.d_f, found, goal = _step_kernel(
-            T_cam, T_ring, tips, previous, self._T0, self.d_f, self._params
+            T_cam,
+            T_ring,
+            tips,
+            previous,
+            self._T0,
+            self.d_f,
+            self._params,
+            self._step_out,
+            self._path is None,
+            FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0,
+            guard is not None,
+            *(NO_GUARD if guard is None else guard.kernel_state),  # type: ignore[arg-type]
         )
         return goal if found else None
 
@@ -358,7 +450,12 @@ class _MovingPolicy:
             return self._hold(TrackingState.LOST_TRACKING, "ring pose degenerate (zero normal)")
         p_ring = [ring_rows[0][3], ring_rows[1][3], ring_rows[2][3]]
         p_now = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
-        goal = self._clear(goal, p_ring, p_now)
+        cleared = self._step_out[_OUT_CLEARED] != 0.0  # by the kernel, with its trace to the goal
+        if cleared:
+            assert self.guard is not None
+            goal = self.guard.passed(goal)
+        else:
+            goal = self._clear(goal, p_ring, p_now)
         if goal is None:  # the last command passed the guard: hold it, as a freeze does
             self.d_f = d_f_before
             self._last_goal = None
@@ -421,7 +518,12 @@ class _MovingPolicy:
                     return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
                 cmd = wp
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
-        via = self._detoured(cmd, p_ring, p_now)
+        traced = None
+        if cleared:
+            assert cmd is goal  # the plain path: no way-points
+            out = self._step_out.tolist()
+            traced = (bool(out[_OUT_DETOUR]), (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2]))
+        via = self._detoured(cmd, p_ring, p_now, traced)
         if via is not None:
             cmd = via
             state, reason = TrackingState.PLANNING, DETOUR_REASON

@@ -48,7 +48,7 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
-from endocam.control.clearance import CACHE_SIZE, _detour, _distance
+from endocam.control.clearance import _detour, _distance
 from endocam.control.config import ControllerConfig, SideRule, Transfer
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
@@ -56,6 +56,7 @@ from endocam.control.policies import (
     DETOUR_REASON,
     FREEZE_RELEASE_MARGIN,
     GATE_REASON,
+    NO_GUARD,
     WIRE_REASON,
     _MovingPolicy,
 )
@@ -304,18 +305,6 @@ _OUT_D, _OUT_FOUND, _OUT_SIDE, _OUT_MARGIN, _OUT_TWIST = range(5)
 _OUT_P, _OUT_N, _OUT_U = 5, 8, 11  # ring centre (m), normal, view direction: 3 each
 _OUT_CLEARED, _OUT_DETOUR, _OUT_VIA = 14, 15, 16  # the guard's answers on the plain path
 _N_OUT = 19
-# _plan_kernel's guard arguments without a wire model (unread): the types of a wire's
-# ``ClearanceGuard._state`` (``Wire.query_state``, radius, Lipschitz cache, clearance)
-_NO_GUARD = (
-    np.zeros((1, 3)),
-    np.full((2, 5), -1, dtype=np.int64),
-    np.zeros(1, dtype=np.int32),
-    np.array([0, 1], dtype=np.int64),
-    0.0,
-    np.zeros((CACHE_SIZE, 4)),
-    np.zeros(1, dtype=np.int64),
-    0.0,
-)
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -733,7 +722,7 @@ class EndocamPolicy(_MovingPolicy):
             self._transfer is None,
             FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0,
             self.guard is not None,
-            *(_NO_GUARD if self.guard is None else self.guard.kernel_state),  # type: ignore[arg-type]
+            *(NO_GUARD if self.guard is None else self.guard.kernel_state),  # type: ignore[arg-type]
         )
         return self._out.tolist(), view, twist
 
