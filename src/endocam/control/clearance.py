@@ -297,6 +297,39 @@ def _detour(
     return True, (x[0] + lift * out[0], x[1] + lift * out[1], x[2] + lift * out[2])
 
 
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _cleared_move(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    p: Vec,
+    pivot: Vec,
+    now: Vec,
+) -> tuple[bool, bool, Vec]:
+    """:meth:`ClearanceGuard.apply`'s check of a pose at ``p`` and :meth:`~ClearanceGuard.detour`.
+
+    For a compiled step whose command is that pose: ``(True, found, via)`` when ``p`` (m)
+    keeps the clearance (``apply`` would return the pose itself; its finite check includes
+    the ``pivot``, m) with ``detour``'s answer for the move from ``now`` (m) to it; else
+    ``(False, False, now)``, the cache left as it was (the caller asks ``apply`` itself).
+    """
+    if not math.isfinite(p[0] + p[1] + p[2] + (pivot[0] + pivot[1] + pivot[2])):
+        return False, False, now
+    saved, n_saved = ref.copy(), nref[0]
+    surface = _distance(pts, table, pool, meta, radius, ref, nref, clearance, p[0], p[1], p[2], 0.0)
+    if not surface >= clearance:
+        ref[:, :] = saved
+        nref[0] = n_saved
+        return False, False, now
+    found, via = _detour(pts, table, pool, meta, radius, ref, nref, clearance, now, p)
+    return True, found, via
+
+
 class ClearanceGuard:
     """Keeps commanded camera positions ``clearance`` from the wire's surface (module docstring).
 

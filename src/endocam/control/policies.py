@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
-from endocam.control.clearance import CACHE_SIZE, ClearanceGuard, _detour, _distance
+from endocam.control.clearance import CACHE_SIZE, ClearanceGuard, _cleared_move
 from endocam.control.config import ControllerConfig, SideRule
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
@@ -33,9 +33,10 @@ from endocam.control.safety import (
     WindowGeometry,
     Workspace,
     adjusted_distance,
+    cone_at,
     cone_margin,
     is_stale,
-    window_code,
+    window_code_of,
 )
 from endocam.control.types import (
     CameraCommand,
@@ -170,20 +171,7 @@ def _step_kernel(
     detour, and its way-point (m).
     """
     prm = params
-    w = _WINDOW
-    code = window_code(
-        T_cam,
-        tips,
-        prm[w],
-        prm[w + 1],
-        prm[w + 2],
-        prm[w + 3],
-        prm[w + 4],
-        prm[w + 5],
-        prm[w + 6],
-        prm[w + 7],
-        prm[w + 8],
-    )
+    code = window_code_of(T_cam, tips, prm[_WINDOW : _WINDOW + 9])
     d = adjusted_distance(d_f, code, prm[_D_MIN], prm[_D_MAX], prm[_D_STEP])
     T = T0.copy()
     found = True
@@ -200,35 +188,19 @@ def _step_kernel(
         return d, found, T
     g = (T[0, 3], T[1, 3], T[2, 3])
     c = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])  # the guard's pivot: the ring centre
-    margin = cone_margin(
-        g[0],
-        g[1],
-        g[2],
-        (prm[_CONE], prm[_CONE + 1], prm[_CONE + 2]),
-        (prm[_CONE + 3], prm[_CONE + 4], prm[_CONE + 5]),
-        prm[_CONE + 6],
-        prm[_CONE + 7],
-        prm[_CONE + 8],
-    )
-    if (
-        margin >= release
-        and not dist3(g[0], g[1], g[2], previous[0, 3], previous[1, 3], previous[2, 3]) > prm[_JUMP]
-        and math.isfinite(g[0] + g[1] + g[2] + (c[0] + c[1] + c[2]))
+    cone = cone_at(prm, _CONE)
+    margin = cone_margin(g[0], g[1], g[2], cone[0], cone[1], cone[2], cone[3], cone[4])
+    if margin >= release and not (
+        dist3(g[0], g[1], g[2], previous[0, 3], previous[1, 3], previous[2, 3]) > prm[_JUMP]
     ):
-        saved, n_saved = ref.copy(), nref[0]
-        surface = _distance(
-            pts, table, pool, meta, radius, ref, nref, clearance, g[0], g[1], g[2], 0.0
+        now = (T_cam[0, 3], T_cam[1, 3], T_cam[2, 3])
+        cleared, found_via, via = _cleared_move(
+            pts, table, pool, meta, radius, ref, nref, clearance, g, c, now
         )
-        if surface >= clearance:
-            out[_OUT_CLEARED] = 1.0
-            now = (T_cam[0, 3], T_cam[1, 3], T_cam[2, 3])
-            found_via, via = _detour(pts, table, pool, meta, radius, ref, nref, clearance, now, g)
-            out[_OUT_DETOUR] = 1.0 if found_via else 0.0
-            for i in range(3):
-                out[_OUT_VIA + i] = via[i]
-        else:  # not clear: the interpreter asks again
-            ref[:, :] = saved
-            nref[0] = n_saved
+        out[_OUT_CLEARED] = 1.0 if cleared else 0.0
+        out[_OUT_DETOUR] = 1.0 if found_via else 0.0
+        for i in range(3):
+            out[_OUT_VIA + i] = via[i]
     return d, found, T
 
 
@@ -301,8 +273,7 @@ class _MovingPolicy:
         params[_HYSTERESIS], params[_MIN_HEIGHT] = cfg.side_hysteresis, cfg.min_camera_height
         params[_PORT_RULE] = 1.0 if cfg.side_rule is SideRule.PORT else 0.0
         params[_RCM : _RCM + 3] = np.asarray(context.p_world_rcm, dtype=float).tolist()
-        c = self._cone
-        params[_CONE : _CONE + 9] = [*c._apex, *c._axis, c._tan_half, c._cos_half, c.height]
+        params[_CONE : _CONE + 9] = self._cone.constants
         params[_JUMP] = cfg.jump_threshold
         self._params = np.array(params)  # _step_kernel's constants
         self._step_out = np.zeros(_N_OUT)  # _step_kernel's results

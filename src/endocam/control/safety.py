@@ -87,6 +87,19 @@ def cone_margin(
     return py_min(py_min(lateral, height - h), h)  # Python's min(lateral, height - h, h)
 
 
+Cone = tuple[tuple[float, float, float], tuple[float, float, float], float, float, float]
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def cone_at(values: Sequence[float] | FloatArray, i: int) -> Cone:
+    """The cone's constants stored from ``values[i]`` (:attr:`ConeWorkspace.constants`).
+
+    Apex (3,), world, m; unit axis (3,); tan and cos of the half-angle; height, m.
+    """
+    v = values
+    return (v[i], v[i + 1], v[i + 2]), (v[i + 3], v[i + 4], v[i + 5]), v[i + 6], v[i + 7], v[i + 8]
+
+
 @dataclass(frozen=True)
 class ConeWorkspace:
     """A solid cone: tip at the RCM, fixed axis, height and base radius (paper Sec. III-C).
@@ -164,6 +177,14 @@ class ConeWorkspace:
         return cone_margin(
             p[0], p[1], p[2], self._apex, self._axis, self._tan_half, self._cos_half, self.height
         )
+
+    @property
+    def constants(self) -> list[float]:
+        """Apex (3,), world, m; unit axis (3,); tan and cos of the half-angle; height, m.
+
+        The order :func:`cone_at` reads (compiled kernels keep them in a parameter array).
+        """
+        return [*self._apex, *self._axis, self._tan_half, self._cos_half, self.height]
 
     def first_outside(self, p_world: FloatArray, floor: float = -math.inf) -> int:
         """The first point of ``p_world`` (N, 3), world, m, outside the cone or below ``floor``.
@@ -513,12 +534,22 @@ def window_code(
     return 2 if all_inner else 1
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
+def window_code_of(
+    T: Sequence[Sequence[float]] | FloatArray,
+    tips: Sequence[Sequence[float]] | FloatArray,
+    constants: Sequence[float] | FloatArray,
+) -> int:
+    """:func:`window_code` with its nine constants in a sequence (``WindowGeometry.constants``)."""
+    c = constants
+    return window_code(T, tips, c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8])
+
+
 def window_status_rows(
     g: WindowGeometry, T_world_cam: list[list[float]], p_world_tips: list[list[float]]
 ) -> WindowStatus:
     """:func:`window_status` on plain lists (rows of ``T_world_cam``, tip rows), for the loop."""
-    code = window_code(T_world_cam, p_world_tips, *g.constants)
-    return _STATUSES[code]
+    return _STATUSES[window_code_of(T_world_cam, p_world_tips, g.constants)]
 
 
 @register_jitable  # also callable from compiled kernels (the same source)

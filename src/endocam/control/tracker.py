@@ -48,7 +48,7 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
-from endocam.control.clearance import _detour, _distance
+from endocam.control.clearance import _cleared_move
 from endocam.control.config import ControllerConfig, SideRule, Transfer
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
@@ -62,10 +62,12 @@ from endocam.control.policies import (
 )
 from endocam.control.safety import (
     STALE_REASON,
+    Cone,
     adjusted_distance,
+    cone_at,
     cone_margin,
     is_stale,
-    window_code,
+    window_code_of,
 )
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
 from endocam.geometry import UP, FloatArray
@@ -196,7 +198,6 @@ class RingPredictor:
 # compiled inside ``_plan_kernel``. ``cone`` is the cone workspace's constants: apex (3,),
 # world, m; unit axis (3,); tan and cos of the half-angle; height, m (``ConeWorkspace``).
 
-Cone = tuple[tuple[float, ...], tuple[float, ...], float, float, float]
 Grid = Sequence[Sequence[float]] | FloatArray  # rows of a matrix: lists, tuples or an array
 
 
@@ -392,20 +393,7 @@ def _shortened_of(
         (x[1], y[1], z[1], p[1]),
         (x[2], y[2], z[2], p[2]),
     )
-    w = _WINDOW
-    code = window_code(
-        goal,
-        tips,
-        prm[w],
-        prm[w + 1],
-        prm[w + 2],
-        prm[w + 3],
-        prm[w + 4],
-        prm[w + 5],
-        prm[w + 6],
-        prm[w + 7],
-        prm[w + 8],
-    )
+    code = window_code_of(goal, tips, prm[_WINDOW : _WINDOW + 9])
     return d if code == 0 else d_next
 
 
@@ -470,20 +458,7 @@ def _plan_kernel(
     (meaningful when found, and when computed).
     """
     prm = params
-    w = _WINDOW
-    code = window_code(
-        T_cam,
-        tips,
-        prm[w],
-        prm[w + 1],
-        prm[w + 2],
-        prm[w + 3],
-        prm[w + 4],
-        prm[w + 5],
-        prm[w + 6],
-        prm[w + 7],
-        prm[w + 8],
-    )
+    code = window_code_of(T_cam, tips, prm[_WINDOW : _WINDOW + 9])
     d_f = adjusted_distance(d_f, code, prm[_D_MIN], prm[_D_MAX], prm[_D_STEP])
     if given.shape[0] == 0:
         _, n_obs = unit_checked((T_ring[0, 2], T_ring[1, 2], T_ring[2, 2]))
@@ -492,13 +467,7 @@ def _plan_kernel(
     else:
         p_c, n = (given[0], given[1], given[2]), (given[3], given[4], given[5])
     aim_floor, half_b = prm[_AIM_FLOOR], prm[_HALF_B]
-    cone = (
-        (prm[_CONE], prm[_CONE + 1], prm[_CONE + 2]),
-        (prm[_CONE + 3], prm[_CONE + 4], prm[_CONE + 5]),
-        prm[_CONE + 6],
-        prm[_CONE + 7],
-        prm[_CONE + 8],
-    )
+    cone = cone_at(prm, _CONE)
     keep_side = prm[_KEEP_SIDE] != 0.0
     if code == 1 and keep_side and prm[_SHORTEN] != 0.0:
         d_f = _shortened_of(p_c, n, d_f, side, previous, tips, prm, cone)
@@ -549,25 +518,18 @@ def _plan_kernel(
         and margin >= release
         and not (side != 0.0 and s != side)
         and not (fresh and dist3(p[0], p[1], p[2], p_cam[0], p_cam[1], p_cam[2]) > prm[_JUMP])
-        and math.isfinite(p[0] + p[1] + p[2] + (p_c[0] + p_c[1] + p_c[2]))
     ):
         # The step's plain path (no transfer under way or starting, no freeze): the view is
         # the command unless the guard turns it. ``ClearanceGuard.apply``'s check, then (if
         # clear) ``detour``'s trace from the camera; not clear: the cache is put back, the
         # interpreter asks again.
-        saved, n_saved = ref.copy(), nref[0]
-        surface = _distance(
-            pts, table, pool, meta, radius, ref, nref, clearance, p[0], p[1], p[2], 0.0
+        cleared, found_via, via = _cleared_move(
+            pts, table, pool, meta, radius, ref, nref, clearance, p, p_c, p_cam
         )
-        if surface >= clearance:
-            out[_OUT_CLEARED] = 1.0
-            found_via, via = _detour(pts, table, pool, meta, radius, ref, nref, clearance, p_cam, p)
-            out[_OUT_DETOUR] = 1.0 if found_via else 0.0
-            for i in range(3):
-                out[_OUT_VIA + i] = via[i]
-        else:
-            ref[:, :] = saved
-            nref[0] = n_saved
+        out[_OUT_CLEARED] = 1.0 if cleared else 0.0
+        out[_OUT_DETOUR] = 1.0 if found_via else 0.0
+        for i in range(3):
+            out[_OUT_VIA + i] = via[i]
     if not feedforward:
         return view, twist
     if given.shape[0] == 0:
@@ -632,8 +594,7 @@ class EndocamPolicy(_MovingPolicy):
         params[_SHORTEN] = 1.0 if tc.shorten_when_low else 0.0
         params[_PORT_RULE] = 1.0 if cfg.side_rule is SideRule.PORT else 0.0
         params[_WINDOW : _WINDOW + 9] = geometry.constants
-        apex, axis, tan_half, cos_half, height = self._cone_constants()
-        params[_CONE : _CONE + 9] = [*apex, *axis, tan_half, cos_half, height]
+        params[_CONE : _CONE + 9] = self.cone.constants
         params[_RCM : _RCM + 3] = np.asarray(context.p_world_rcm, dtype=float).tolist()
         params[_JUMP] = cfg.jump_threshold
         self._params = np.array(params)
@@ -641,8 +602,7 @@ class EndocamPolicy(_MovingPolicy):
     # -- the goal (the maths: the compiled functions above) ---------------------------------
 
     def _cone_constants(self) -> Cone:
-        c = self.cone
-        return c._apex, c._axis, c._tan_half, c._cos_half, c.height
+        return cone_at(self.cone.constants, 0)
 
     def _view(self, p_c: Vec, n: Vec, s: float, d: float) -> tuple[Vec, float, float] | None:
         """Feasible viewing direction on side ``s``: (unit ``u``, angle to ``s n`` rad, margin m).
