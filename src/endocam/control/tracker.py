@@ -810,7 +810,8 @@ class EndocamPolicy(_MovingPolicy):
         if via is not None:
             cmd, twist = via, None
             state, reason = TrackingState.PLANNING, DETOUR_REASON
-        if not self._in_workspace(cmd):  # last gate: never command outside the workspace
+        # last gate: never command outside the workspace
+        if not self._in_workspace(cmd, out[_OUT_MARGIN] if cmd is view else None):
             self._side = side_before
             return self._freeze(
                 d_before, "command would leave the cone workspace or go below the floor"
@@ -894,10 +895,15 @@ class EndocamPolicy(_MovingPolicy):
         self._u_orbit = u
         return T
 
-    def _in_workspace(self, T_world_cmd: FloatArray) -> bool:
-        """Whether a commanded pose (4, 4) is inside the cone and above the floor."""
+    def _in_workspace(self, T_world_cmd: FloatArray, margin: float | None = None) -> bool:
+        """Whether a commanded pose (4, 4) is inside the cone and above the floor.
+
+        ``margin``: its cone margin (m), when known (the kernel's, for the view).
+        """
         p = T_world_cmd[:3, 3].tolist()
-        return self.cone.margin(p) >= 0.0 and p[2] >= self.config.min_camera_height - FLOOR_TOL_M
+        if margin is None:
+            margin = self.cone.margin(p)
+        return margin >= 0.0 and p[2] >= self.config.min_camera_height - FLOOR_TOL_M
 
     @property
     def _ctx_dt(self) -> float:
