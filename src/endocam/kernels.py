@@ -26,6 +26,8 @@ __all__ = [
     "finite_rows",
     "matmul",
     "norm",
+    "py_max",
+    "py_min",
     "reject",
     "rotation_angle",
     "scaled",
@@ -81,6 +83,21 @@ def unit_or_none(a: Vec, eps: float = 1e-9) -> Vec | None:
     """``a`` normalised, or ``None`` if its length is ≤ ``eps`` (unitless) or not finite."""
     ok, u = unit_checked(a, eps)
     return u if ok else None
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def py_min(a: float, b: float) -> float:
+    """Python's ``min(a, b)`` of two floats: ``b`` only if ``b < a`` (ties and NaN: ``a``).
+
+    Numba's ``min`` may answer a tie of signed zeros or a NaN otherwise.
+    """
+    return b if b < a else a
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def py_max(a: float, b: float) -> float:
+    """Python's ``max(a, b)`` of two floats: ``b`` only if ``b > a`` (ties and NaN: ``a``)."""
+    return b if b > a else a
 
 
 @register_jitable  # also callable from compiled kernels (the same source)

@@ -21,10 +21,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba.extending import register_jitable
 from numpy.typing import ArrayLike
 
 from endocam.geometry import UP, FloatArray, as_vector3, unit_vector
-from endocam.kernels import Vec, cross, dot, norm, reject, scaled
+from endocam.kernels import Vec, cross, dot, norm, py_max, py_min, reject, scaled
 
 __all__ = [
     "ROLL_HOLD_ANGLE",
@@ -44,6 +45,7 @@ _SIN_LEVEL = math.sin(ROLL_LEVEL_ANGLE)
 _EPS = 1e-9  # unitless, a projected direction shorter than this is degenerate
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def _smoothstep(x: float) -> float:
     """Cubic smoothstep on [0, 1]: 0 below 0, 1 above 1, C¹ in between."""
     if x <= 0.0:
@@ -53,6 +55,7 @@ def _smoothstep(x: float) -> float:
     return x * x * (3.0 - 2.0 * x)
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def _default_roll_reference(z: Vec) -> Vec:
     """Documented default roll when there is no ``previous``: world x projected, else world y."""
     for ref in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)):
@@ -63,16 +66,25 @@ def _default_roll_reference(z: Vec) -> Vec:
     raise AssertionError("unreachable: world x and y cannot both be parallel to z")
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def rotation_columns(z: Vec, up: Vec, x_prev: Vec | None) -> tuple[Vec, Vec, Vec]:
-    """Columns (x, y, z) of ``R_world_cam`` for the unit optical axis ``z``; see the module doc."""
+    """Columns (x, y, z) of ``R_world_cam`` for the unit optical axis ``z``; see the module doc.
+
+    ``z``, ``up`` (unit) and ``x_prev`` (the previous pose's x axis, or ``None``) in world.
+    Compiled kernels call it with ``x_prev`` either a 3-tuple or ``None`` (each its own
+    specialisation: the ``is None`` branch is resolved at compile time).
+    """
     x_level = cross(z, up)
     c = norm(x_level)
-    x_ref: Vec | None = None
+    has_ref = False  # a reference roll to keep (``x_ref`` is then its unit x axis)
+    x_ref = x_level
     if x_prev is not None:
         x_ref = reject(x_prev, z)
         n_ref = norm(x_ref)
-        x_ref = scaled(x_ref, 1.0 / n_ref) if n_ref > _EPS else None
-    if x_ref is None:
+        if n_ref > _EPS:
+            x_ref = scaled(x_ref, 1.0 / n_ref)
+            has_ref = True
+    if not has_ref:
         if c > _EPS:  # nothing to keep: the level, upright horizon
             return scaled(x_level, 1.0 / c), cross(z, scaled(x_level, 1.0 / c)), z
         x_ref = _default_roll_reference(z)
@@ -86,7 +98,7 @@ def rotation_columns(z: Vec, up: Vec, x_prev: Vec | None) -> tuple[Vec, Vec, Vec
         # Signed roll φ from the level horizon to the reference, about z.
         phi = math.atan2(dot(cross(x_level, x_ref), z), dot(x_level, x_ref))
         phi_max = math.pi * (1.0 - _smoothstep((c - _SIN_HOLD) / (_SIN_LEVEL - _SIN_HOLD)))
-        phi = min(max(phi, -phi_max), phi_max)
+        phi = py_min(py_max(phi, -phi_max), phi_max)
         y_level = cross(z, x_level)
         cp, sp = math.cos(phi), math.sin(phi)
         x = (

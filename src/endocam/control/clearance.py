@@ -297,6 +297,39 @@ def _detour(
     return True, (x[0] + lift * out[0], x[1] + lift * out[1], x[2] + lift * out[2])
 
 
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _cleared_move(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    p: Vec,
+    pivot: Vec,
+    now: Vec,
+) -> tuple[bool, bool, Vec]:
+    """:meth:`ClearanceGuard.apply`'s check of a pose at ``p`` and :meth:`~ClearanceGuard.detour`.
+
+    For a compiled step whose command is that pose: ``(True, found, via)`` when ``p`` (m)
+    keeps the clearance (``apply`` would return the pose itself; its finite check includes
+    the ``pivot``, m) with ``detour``'s answer for the move from ``now`` (m) to it; else
+    ``(False, False, now)``, the cache left as it was (the caller asks ``apply`` itself).
+    """
+    if not math.isfinite(p[0] + p[1] + p[2] + (pivot[0] + pivot[1] + pivot[2])):
+        return False, False, now
+    saved, n_saved = ref.copy(), nref[0]
+    surface = _distance(pts, table, pool, meta, radius, ref, nref, clearance, p[0], p[1], p[2], 0.0)
+    if not surface >= clearance:
+        ref[:, :] = saved
+        nref[0] = n_saved
+        return False, False, now
+    found, via = _detour(pts, table, pool, meta, radius, ref, nref, clearance, now, p)
+    return True, found, via
+
+
 class ClearanceGuard:
     """Keeps commanded camera positions ``clearance`` from the wire's surface (module docstring).
 
@@ -418,6 +451,25 @@ class ClearanceGuard:
             return None
         self.adjusted += 1
         return found
+
+    @property
+    def kernel_state(self) -> tuple[object, ...]:
+        """The arguments compiled callers pass to :func:`_distance` / :func:`_detour` first.
+
+        ``Wire.query_state``'s arrays, the tube radius (m), the Lipschitz cache (``ref``
+        (CACHE_SIZE, 4), ``nref`` (1,)) and the clearance (m); the cache is shared, so a
+        caller's queries are this guard's.
+        """
+        return self._state
+
+    def passed(self, T_world_cam: FloatArray) -> FloatArray:
+        """:meth:`apply`'s answer for a pose found clear by a compiled caller: the pose itself.
+
+        The caller made :meth:`apply`'s finite check and query (:func:`_distance`, the same
+        cache); this records the pass (no escape direction is remembered).
+        """
+        self._escape = None
+        return T_world_cam
 
     def detour(self, p_world_now: Sequence[float], p_world_cmd: Sequence[float]) -> Vec | None:
         """A way-point around the wire when the straight move to the command would cross it.

@@ -36,10 +36,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba.extending import register_jitable
 from numpy.typing import ArrayLike
 
 from endocam.geometry import UP, FloatArray, as_vector3, unit_vector
-from endocam.kernels import Vec, dot, scaled
+from endocam.kernels import Vec, dot, py_max, py_min, scaled
 from endocam.view import pose_from_columns, rotation_columns, vec
 
 SIDE_HYSTERESIS = math.radians(25.0)  # rad, tip below horizontal before a side change
@@ -47,6 +48,7 @@ _SIN_SIDE = math.sin(SIDE_HYSTERESIS)
 _EPS = 1e-9  # unitless, a projected direction shorter than this is degenerate
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def choose_side(n: Vec, up: Vec, z_prev: Vec | None, sin_hysteresis: float = _SIN_SIDE) -> float:
     """Sign ``s`` (±1) so the camera at ``p_c + s d_f n`` faces the reference side, with hysteresis.
 
@@ -77,6 +79,49 @@ def choose_side(n: Vec, up: Vec, z_prev: Vec | None, sin_hysteresis: float = _SI
     return default
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
+def goal_columns(
+    p_c: Vec,
+    n: Vec,
+    d_f: float,
+    up: Vec,
+    has_previous: bool,
+    z_prev: Vec,
+    x_prev: Vec,
+    side_hysteresis: float,
+    min_height: float,
+    has_toward: bool,
+    toward: Vec,
+) -> tuple[Vec, Vec, Vec, Vec]:
+    """:func:`goal_pose_unchecked` as rotation columns ``x, y, z`` and position ``p`` (m).
+
+    ``z_prev``, ``x_prev``: the previous pose's optical and x axes in world (read only if
+    ``has_previous``); ``toward``: the unit direction to the port (read only if
+    ``has_toward``). Flags rather than ``None``, so compiled kernels call it too.
+    """
+    ref = toward if has_toward else up
+    sin_h = math.sin(side_hysteresis)
+    if min_height > -math.inf and not has_toward:
+        # Keeping the previous side may not take the camera below ``min_height``.
+        sin_h = py_max(0.0, py_min(sin_h, (dot(p_c, up) - min_height) / d_f))
+    if has_previous:
+        s = choose_side(n, ref, z_prev, sin_h)
+    else:
+        s = choose_side(n, ref, None)
+    if has_toward and min_height > -math.inf:
+        # the port side may never put the camera below ``min_height`` when the other side is higher
+        h_c, n_up = dot(p_c, up), dot(n, up)
+        if h_c + s * d_f * n_up < min_height and s * n_up < 0.0:
+            s = -s
+    z = scaled(n, -s)
+    if has_previous:
+        x, y, zz = rotation_columns(z, up, x_prev)
+    else:
+        x, y, zz = rotation_columns(z, up, None)
+    p = (p_c[0] - d_f * z[0], p_c[1] - d_f * z[1], p_c[2] - d_f * z[2])
+    return x, y, zz, p
+
+
 def goal_pose_unchecked(
     p_c: Vec,
     n: Vec,
@@ -91,27 +136,25 @@ def goal_pose_unchecked(
 
     ``toward`` is the unit direction from ``p_c`` to the port (``None``: the paper's side rule).
     """
-    ref = up if toward is None else toward
-    sin_h = math.sin(side_hysteresis)
-    if min_height > -math.inf and toward is None:
-        # Keeping the previous side may not take the camera below ``min_height``.
-        sin_h = max(0.0, min(sin_h, (dot(p_c, up) - min_height) / d_f))
-    if previous is None:
-        s = choose_side(n, ref, None)
-        x_prev = None
-    else:
+    z_prev = x_prev = up  # unread without a previous pose
+    if previous is not None:
         R = previous[:3, :3].tolist()
-        s = choose_side(n, ref, (R[0][2], R[1][2], R[2][2]), sin_h)
+        z_prev = (R[0][2], R[1][2], R[2][2])
         x_prev = (R[0][0], R[1][0], R[2][0])
-    if toward is not None and min_height > -math.inf:
-        # the port side may never put the camera below ``min_height`` when the other side is higher
-        h_c, n_up = dot(p_c, up), dot(n, up)
-        if h_c + s * d_f * n_up < min_height and s * n_up < 0.0:
-            s = -s
-    z = scaled(n, -s)
-    x, y, zz = rotation_columns(z, up, x_prev)
-    p = (p_c[0] - d_f * z[0], p_c[1] - d_f * z[1], p_c[2] - d_f * z[2])
-    return pose_from_columns(x, y, zz, p)
+    x, y, z, p = goal_columns(
+        p_c,
+        n,
+        d_f,
+        up,
+        previous is not None,
+        z_prev,
+        x_prev,
+        side_hysteresis,
+        min_height,
+        toward is not None,
+        up if toward is None else toward,
+    )
+    return pose_from_columns(x, y, z, p)
 
 
 def goal_pose(

@@ -250,28 +250,20 @@ class OraclePolicy(EndocamPolicy):
                 cost[j, i] = (err + (TIE_BREAK if below else 0.0)) * dt
         return plan_sides(cost, self.oracle.switch_cost)
 
-    def _planned_side(self) -> float | None:
-        """The plan's side ``switch_lead`` s from now (``None`` without a plan)."""
+    def _preferred_side(self) -> float:
+        """The plan's side ``switch_lead`` s from now, taken while feasible (0.0: no plan)."""
         if not self._plan:
-            return None
+            return 0.0
         t = self._predictor.t + self.oracle.switch_lead  # type: ignore[attr-defined]
         j = min(max(round(t / self.oracle.plan_dt), 0), len(self._plan) - 1)
         return self._plan[j]
 
-    def _choose(self, p_c: Vec, n: Vec, d: float) -> tuple[float, Vec] | None:
-        """The planned side while its view is feasible; else the tracker's side keeping."""
-        s = self._planned_side()
-        if s is not None:
-            view = self._view(p_c, n, s, d)
-            if view is not None and view[2] >= 0.0:
-                return s, view[0]
-        return super()._choose(p_c, n, d)
-
-    def _twist(self, T1: FloatArray, T2: FloatArray, delta: float) -> FloatArray:  # type: ignore[override]
+    def _feedforward_twist(self, goal: FloatArray, twist: FloatArray) -> FloatArray:
         """(6,) the goal's mean velocity over ``velocity_window`` centred on ``lead`` from now.
 
-        Linear (m/s) then angular (rad/s), world; ``T1`` and ``T2`` (the tracker's one-period
-        difference) are replaced by the goals at the window's ends on the current side.
+        Linear (m/s) then angular (rad/s), world; the tracker's one-period ``twist`` of
+        ``goal`` (4, 4) is replaced by the goals' difference at the window's ends on the
+        current side (kept where either end has no feasible view).
         """
         w = self.oracle.velocity_window
         t = self._horizon
@@ -280,8 +272,8 @@ class OraclePolicy(EndocamPolicy):
             p_c, n = self._predictor.predict(h)
             view = self._view(p_c, n, self._side, self.d_f)
             if view is None:
-                return EndocamPolicy._twist(T1, T2, delta)
-            poses.append(self._pose(p_c, view[0], self.d_f, T1))
+                return twist
+            poses.append(self._pose(p_c, view[0], self.d_f, goal))
         return EndocamPolicy._twist(poses[0], poses[1], w)
 
     def step(self, obs: Observation) -> CameraCommand:

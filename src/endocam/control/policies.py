@@ -20,19 +20,23 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from numba import njit
+from numba.extending import register_jitable
 
-from endocam.control.clearance import ClearanceGuard
+from endocam.control.clearance import CACHE_SIZE, ClearanceGuard, _cleared_move
 from endocam.control.config import ControllerConfig, SideRule
-from endocam.control.goal import goal_pose_unchecked
+from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.safety import (
     STALE_REASON,
     ConeWorkspace,
     WindowGeometry,
     Workspace,
-    adjust_working_distance,
+    adjusted_distance,
+    cone_at,
+    cone_margin,
     is_stale,
-    window_status_rows,
+    window_code_of,
 )
 from endocam.control.types import (
     CameraCommand,
@@ -41,7 +45,8 @@ from endocam.control.types import (
     TrackingState,
 )
 from endocam.geometry import UP, FloatArray
-from endocam.kernels import Rows, finite_rows
+from endocam.kernels import Rows, Vec, finite_rows
+from endocam.pyfloat import dist3
 from endocam.view import look_at_unchecked
 
 _UP = (0.0, 0.0, 1.0)  # world up as plain floats
@@ -53,6 +58,150 @@ DETOUR_REASON = "detouring around the wire's clearance zone"
 WIRE_REASON = "no view of the ring keeps the wire clearance inside the workspace; holding"
 STALL_STEPS = 10  # control steps a detouring camera may stand still before it steps out
 STALL_TOL_M = 1e-9  # m, a camera that moved less than this in a step stood still
+
+
+# _step_kernel's parameters (``_MovingPolicy._params``), by index
+_WINDOW = 0  # the 9 constants of window_code
+_D_MIN, _D_MAX, _D_STEP = 9, 10, 11  # m, the working distance's range and step
+_KIND = 12  # 0.0: the centering goal, 1.0: the orientation goal
+_HYSTERESIS, _MIN_HEIGHT = 13, 14  # rad, m: side_hysteresis, min_camera_height
+_PORT_RULE = 15  # 1.0: SideRule.PORT
+_RCM = 16  # m, the camera arm's RCM (3)
+_Z0, _SHIFT = 19, 22  # the centering goal's optical axis (3) and left-eye shift (3), m
+_CONE = 25  # the cone: apex (3), m; axis (3); tan and cos of the half-angle; height, m
+_JUMP = 34  # m, jump_threshold
+_N_PARAMS = 35
+# _step_kernel's results (``_MovingPolicy._out``): the guard's answers on the plain path
+_OUT_CLEARED, _OUT_DETOUR, _OUT_VIA = 0, 1, 2  # clear, detour, its way-point (3), m
+_N_OUT = 5
+# _step_kernel's and the tracker's guard arguments without a wire model (unread): the types
+# of a wire's ``ClearanceGuard.kernel_state`` (``Wire.query_state``, radius, the Lipschitz
+# cache, clearance)
+NO_GUARD = (
+    np.zeros((1, 3)),
+    np.full((2, 5), -1, dtype=np.int64),
+    np.zeros(1, dtype=np.int32),
+    np.array([0, 1], dtype=np.int64),
+    0.0,
+    np.zeros((CACHE_SIZE, 4)),
+    np.zeros(1, dtype=np.int64),
+    0.0,
+)
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def orientation_goal(
+    T_ring: FloatArray, previous: FloatArray, d_f: float, params: FloatArray
+) -> tuple[bool, tuple[Vec, Vec, Vec, Vec]]:
+    """Condition III's goal: (found, its rotation columns x, y, z and position, world, m).
+
+    ``T_ring`` (4, 4) the ring pose, world, m; ``previous`` (4, 4) the last goal (or the
+    camera); ``d_f`` the working distance, m; ``params`` :func:`_step_kernel`'s. Not found:
+    a degenerate ring normal.
+    """
+    n = (T_ring[0, 2], T_ring[1, 2], T_ring[2, 2])
+    norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+    up = (0.0, 0.0, 1.0)
+    if not norm > _MIN_NORMAL:
+        return False, (up, up, up, up)
+    n = (n[0] / norm, n[1] / norm, n[2] / norm)
+    p_c = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])
+    has_toward, toward = False, up
+    if params[_PORT_RULE] != 0.0:
+        r = (params[_RCM], params[_RCM + 1], params[_RCM + 2])
+        d = (r[0] - p_c[0], r[1] - p_c[1], r[2] - p_c[2])
+        norm_d = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        if norm_d > _MIN_NORMAL:  # a ring at the port itself keeps the paper's rule
+            has_toward, toward = True, (d[0] / norm_d, d[1] / norm_d, d[2] / norm_d)
+    columns = goal_columns(
+        p_c,
+        n,
+        d_f,
+        up,
+        True,
+        (previous[0, 2], previous[1, 2], previous[2, 2]),
+        (previous[0, 0], previous[1, 0], previous[2, 0]),
+        params[_HYSTERESIS],
+        params[_MIN_HEIGHT],
+        has_toward,
+        toward,
+    )
+    return True, columns
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _step_kernel(
+    T_cam: FloatArray,
+    T_ring: FloatArray,
+    tips: FloatArray,
+    previous: FloatArray,
+    T0: FloatArray,
+    d_f: float,
+    params: FloatArray,
+    out: FloatArray,
+    plain: bool,
+    release: float,
+    has_guard: bool,
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+) -> tuple[float, bool, FloatArray]:  # pragma: no cover - compiled
+    """The moving policies' working distance and goal: (new ``d_f`` m, found, goal (4, 4)).
+
+    ``T_cam``, ``T_ring`` (4, 4) the camera and (checked) ring poses, world, m; ``tips``
+    (K, 3) world, m; ``previous`` (4, 4) the last goal or the camera; ``T0`` (4, 4) the
+    centering goal's orientation; ``d_f`` m; ``params`` (``_N_PARAMS``,) the policy's
+    constants. The windows' rule (``window_code``, ``adjusted_distance``), then the goal at
+    the new distance: the centering one (the ring centre on the initial optical axis) or the
+    orientation one (:func:`orientation_goal`; not found: a degenerate normal). The
+    interpreter's operations in its order (docs/conventions.md, "Compiled kernels").
+
+    On the step's plain path (``plain``: no way-point path; the goal's cone margin at least
+    ``release``, m; the goal within ``jump_threshold`` of ``previous``) it also asks the
+    wire's guard (``has_guard``; ``pts`` … ``clearance``: ``ClearanceGuard.kernel_state``)
+    what the interpreter would ask next: whether the goal is clear (``ClearanceGuard.apply``'s
+    query; the ring centre its pivot) and, if so, whether the move from the camera to it needs
+    a detour (``ClearanceGuard.detour``); a goal not clear leaves the guard's cache as it was.
+    ``out`` (``_N_OUT``,): whether the guard found the goal clear, whether the move needs a
+    detour, and its way-point (m).
+    """
+    prm = params
+    code = window_code_of(T_cam, tips, prm[_WINDOW : _WINDOW + 9])
+    d = adjusted_distance(d_f, code, prm[_D_MIN], prm[_D_MAX], prm[_D_STEP])
+    T = T0.copy()
+    found = True
+    if prm[_KIND] == 0.0:  # camera = ring − d z0 + (b/2) x0
+        for i in range(3):
+            T[i, 3] = T_ring[i, 3] - d * prm[_Z0 + i] + prm[_SHIFT + i]
+    else:
+        found, (x, y, z, p) = orientation_goal(T_ring, previous, d, prm)
+        for i in range(3):
+            T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
+        T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
+    out[_OUT_CLEARED] = out[_OUT_DETOUR] = 0.0
+    if not (found and has_guard and plain):
+        return d, found, T
+    g = (T[0, 3], T[1, 3], T[2, 3])
+    c = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])  # the guard's pivot: the ring centre
+    cone = cone_at(prm, _CONE)
+    margin = cone_margin(g[0], g[1], g[2], cone[0], cone[1], cone[2], cone[3], cone[4])
+    if margin >= release and not (
+        dist3(g[0], g[1], g[2], previous[0, 3], previous[1, 3], previous[2, 3]) > prm[_JUMP]
+    ):
+        now = (T_cam[0, 3], T_cam[1, 3], T_cam[2, 3])
+        cleared, found_via, via = _cleared_move(
+            pts, table, pool, meta, radius, ref, nref, clearance, g, c, now
+        )
+        out[_OUT_CLEARED] = 1.0 if cleared else 0.0
+        out[_OUT_DETOUR] = 1.0 if found_via else 0.0
+        for i in range(3):
+            out[_OUT_VIA + i] = via[i]
+    return d, found, T
 
 
 class FixedPolicy:
@@ -117,6 +266,18 @@ class _MovingPolicy:
         self._gate.reset(self._cone.contains)
         self._p_detour: Sequence[float] | None = None  # the camera at the last detour step, m
         self._stalled = 0  # detour steps the camera has stood still
+        cfg = self.config
+        params = [0.0] * _N_PARAMS
+        params[_WINDOW : _WINDOW + 9] = self._window_geometry.constants
+        params[_D_MIN], params[_D_MAX], params[_D_STEP] = cfg.d_min, cfg.d_max, cfg.d_f_step
+        params[_HYSTERESIS], params[_MIN_HEIGHT] = cfg.side_hysteresis, cfg.min_camera_height
+        params[_PORT_RULE] = 1.0 if cfg.side_rule is SideRule.PORT else 0.0
+        params[_RCM : _RCM + 3] = np.asarray(context.p_world_rcm, dtype=float).tolist()
+        params[_CONE : _CONE + 9] = self._cone.constants
+        params[_JUMP] = cfg.jump_threshold
+        self._params = np.array(params)  # _step_kernel's constants
+        self._step_out = np.zeros(_N_OUT)  # _step_kernel's results
+        self._T0 = np.eye(4)  # the centering goal's orientation
 
     @property
     def cone(self) -> ConeWorkspace:
@@ -125,12 +286,33 @@ class _MovingPolicy:
             raise RuntimeError("call reset() before using the policy")
         return self._cone
 
-    def _goal(self, ring_rows: Rows, T_world_cam: FloatArray) -> FloatArray | None:
-        """The goal ``T_world_cam`` (4, 4) for the ring pose (rows of floats), or ``None``.
+    def _goal(self, obs: Observation, T_cam: FloatArray, T_ring: FloatArray) -> FloatArray | None:
+        """Set the working distance for ``obs``'s tips, then give the goal (4, 4) or ``None``.
 
-        ``None``: the ring pose gives no goal (a degenerate normal).
+        ``T_cam``, ``T_ring`` (4, 4): the observed camera and (checked) ring poses, world, m.
+        ``None``: the ring pose gives no goal (a degenerate normal). One compiled call
+        (:func:`_step_kernel`, with the subclass's ``_params``).
         """
-        raise NotImplementedError
+        tips = obs.p_world_tips
+        if not (isinstance(tips, np.ndarray) and tips.ndim == 2):
+            tips = np.asarray(tips, dtype=float).reshape(-1, 3)
+        previous = self._last_goal if self._last_goal is not None else T_cam
+        guard = self.guard
+        self.d_f, found, goal = _step_kernel(
+            T_cam,
+            T_ring,
+            tips,
+            previous,
+            self._T0,
+            self.d_f,
+            self._params,
+            self._step_out,
+            self._path is None,
+            FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0,
+            guard is not None,
+            *(NO_GUARD if guard is None else guard.kernel_state),  # type: ignore[arg-type]
+        )
+        return goal if found else None
 
     def _feasible(self, p_world: list[float]) -> bool:
         """Whether a camera position (3,), world, m, is inside the workspace (cone and floor)."""
@@ -156,7 +338,11 @@ class _MovingPolicy:
         return guard.apply(T_world_cam, pivot, self._feasible, now, back_off)
 
     def _detoured(
-        self, T_world_cmd: FloatArray, p_world_pivot: Sequence[float], p_world_now: Sequence[float]
+        self,
+        T_world_cmd: FloatArray,
+        p_world_pivot: Sequence[float],
+        p_world_now: Sequence[float],
+        traced: tuple[bool, Vec] | None = None,
     ) -> FloatArray | None:
         """A way-point pose around the wire if the straight move to the command crosses it.
 
@@ -164,11 +350,17 @@ class _MovingPolicy:
         (4, 4) keeps the clearance (or there is no wire model). The way-point pose looks at
         ``p_world_pivot`` (3,), the ring centre, world, m, with a level horizon, and passes the
         clearance guard itself.
+
+        ``traced``: ``ClearanceGuard.detour``'s answer for this move, (found, way-point), when
+        a compiled step asked it already.
         """
         guard = self.guard
         if guard is None:
             return None
-        via = guard.detour(p_world_now, T_world_cmd[:3, 3].tolist())
+        if traced is None:
+            via = guard.detour(p_world_now, T_world_cmd[:3, 3].tolist())
+        else:
+            via = traced[1] if traced[0] else None
         before, self._p_detour = self._p_detour, p_world_now
         if via is None:
             self._p_detour, self._stalled = None, 0
@@ -220,15 +412,8 @@ class _MovingPolicy:
             return self._hold(TrackingState.LOST_TRACKING, GATE_REASON)
         T_ring = np.asarray(obs.T_world_ring, dtype=float)
 
-        tips = obs.p_world_tips
-        tip_rows = tips.tolist() if isinstance(tips, np.ndarray) else list(tips)
-        geometry = self._window_geometry
-        assert geometry is not None  # set by reset()
-        status = window_status_rows(geometry, cam_rows, tip_rows)
         d_f_before = self.d_f
-        self.d_f = adjust_working_distance(self.d_f, status, cfg.d_min, cfg.d_max, cfg.d_f_step)
-
-        goal = self._goal(ring_rows, T_cam)
+        goal = self._goal(obs, T_cam, T_ring)  # the working distance, then the goal
         if goal is None:
             self.d_f = d_f_before
             self._last_goal = None
@@ -236,7 +421,12 @@ class _MovingPolicy:
             return self._hold(TrackingState.LOST_TRACKING, "ring pose degenerate (zero normal)")
         p_ring = [ring_rows[0][3], ring_rows[1][3], ring_rows[2][3]]
         p_now = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
-        goal = self._clear(goal, p_ring, p_now)
+        cleared = self._step_out[_OUT_CLEARED] != 0.0  # by the kernel, with its trace to the goal
+        if cleared:
+            assert self.guard is not None
+            goal = self.guard.passed(goal)
+        else:
+            goal = self._clear(goal, p_ring, p_now)
         if goal is None:  # the last command passed the guard: hold it, as a freeze does
             self.d_f = d_f_before
             self._last_goal = None
@@ -299,7 +489,12 @@ class _MovingPolicy:
                     return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
                 cmd = wp
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
-        via = self._detoured(cmd, p_ring, p_now)
+        traced = None
+        if cleared:
+            assert cmd is goal  # the plain path: no way-points
+            out = self._step_out.tolist()
+            traced = (bool(out[_OUT_DETOUR]), (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2]))
+        via = self._detoured(cmd, p_ring, p_now, traced)
         if via is not None:
             cmd = via
             state, reason = TrackingState.PLANNING, DETOUR_REASON
@@ -347,15 +542,9 @@ class CenteringPolicy(_MovingPolicy):
         self._T0[:3, :3] = R0
         half_b = 0.5 * context.camera.baseline if self.config.centre_left_eye else 0.0
         # camera = ring − d z0 + (b/2) x0: the left eye, b/2 along −x, on the ring's line
-        self._z0 = R0[:, 2].tolist()
-        self._shift = (half_b * R0[:, 0]).tolist()
-
-    def _goal(self, ring_rows: Rows, T_world_cam: FloatArray) -> FloatArray:
-        T = self._T0.copy()
-        d, z0, sh = self.d_f, self._z0, self._shift
-        for i in range(3):
-            T[i, 3] = ring_rows[i][3] - d * z0[i] + sh[i]
-        return T
+        self._params[_KIND] = 0.0
+        self._params[_Z0 : _Z0 + 3] = R0[:, 2]
+        self._params[_SHIFT : _SHIFT + 3] = half_b * R0[:, 0]
 
     def _waypoint_pose(self, p: FloatArray, T_ring: FloatArray, goal: FloatArray) -> FloatArray:
         T = goal.copy()  # orientation stays fixed on the way too
@@ -368,34 +557,10 @@ class OrientationPolicy(_MovingPolicy):
 
     name = "orientation"
 
-    def _goal(self, ring_rows: Rows, T_world_cam: FloatArray) -> FloatArray | None:
-        previous = self._last_goal if self._last_goal is not None else T_world_cam
-        T = ring_rows
-        n = (T[0][2], T[1][2], T[2][2])
-        norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
-        if not norm > _MIN_NORMAL:
-            return None
-        n = (n[0] / norm, n[1] / norm, n[2] / norm)
-        cfg = self.config
-        p_c = (T[0][3], T[1][3], T[2][3])
-        toward = None
-        if cfg.side_rule is SideRule.PORT:
-            assert self._ctx is not None
-            r = self._ctx.p_world_rcm
-            d = (float(r[0]) - p_c[0], float(r[1]) - p_c[1], float(r[2]) - p_c[2])
-            norm_d = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-            if norm_d > _MIN_NORMAL:  # a ring at the port itself keeps the paper's rule
-                toward = (d[0] / norm_d, d[1] / norm_d, d[2] / norm_d)
-        return goal_pose_unchecked(
-            p_c,
-            n,
-            self.d_f,
-            _UP,
-            previous,
-            cfg.side_hysteresis,
-            cfg.min_camera_height,
-            toward,
-        )
+    def reset(self, context: PolicyContext) -> None:
+        """Also select the orientation goal (:func:`orientation_goal`)."""
+        super().reset(context)
+        self._params[_KIND] = 1.0
 
 
 class OrientationEcmPolicy(OrientationPolicy):

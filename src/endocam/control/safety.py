@@ -13,14 +13,17 @@ import enum
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Protocol
 
 import numpy as np
 from numba import njit
+from numba.extending import register_jitable
 from numpy.typing import ArrayLike
 
 from endocam.camera import MIN_DEPTH, StereoCamera
 from endocam.geometry import FloatArray, as_vector3, unit_vector
+from endocam.kernels import py_max, py_min
 
 CONE_HEIGHT = 0.30  # m, the PSM-held camera's reach, slightly under the instrument (paper III-C)
 CONE_BASE_RADIUS = 0.25  # m; the paper chose 0.10 m for its farther port (docs/world.md)
@@ -54,6 +57,47 @@ def _first_outside_kernel(
         if not min(min(lateral, height - h, h), p[i, 2] - floor) >= 0.0:
             return i
     return p.shape[0]
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def cone_margin(
+    x: float,
+    y: float,
+    z: float,
+    apex: tuple[float, ...],
+    axis: tuple[float, ...],
+    tan_half: float,
+    cos_half: float,
+    height: float,
+) -> float:
+    """:meth:`ConeWorkspace.margin` of the point ``(x, y, z)``, world, m: > 0 inside, m.
+
+    ``apex`` (3,) world, m; ``axis`` (3,) unit, world; ``tan_half``, ``cos_half``: of the
+    half-angle; ``height`` m. NaN for a non-finite point.
+    """
+    a = apex
+    k = axis
+    d0, d1, d2 = x - a[0], y - a[1], z - a[2]
+    h = d0 * k[0] + d1 * k[1] + d2 * k[2]
+    r0, r1, r2 = d0 - h * k[0], d1 - h * k[1], d2 - h * k[2]
+    radial = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    lateral = (h * tan_half - radial) * cos_half
+    if not math.isfinite(h + radial):
+        return math.nan
+    return py_min(py_min(lateral, height - h), h)  # Python's min(lateral, height - h, h)
+
+
+Cone = tuple[tuple[float, float, float], tuple[float, float, float], float, float, float]
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def cone_at(values: Sequence[float] | FloatArray, i: int) -> Cone:
+    """The cone's constants stored from ``values[i]`` (:attr:`ConeWorkspace.constants`).
+
+    Apex (3,), world, m; unit axis (3,); tan and cos of the half-angle; height, m.
+    """
+    v = values
+    return (v[i], v[i + 1], v[i + 2]), (v[i + 3], v[i + 4], v[i + 5]), v[i + 6], v[i + 7], v[i + 8]
 
 
 @dataclass(frozen=True)
@@ -130,16 +174,17 @@ class ConeWorkspace:
             Point in world, m.
         """
         p = p_world.tolist() if isinstance(p_world, np.ndarray) else p_world
-        a = self._apex
-        k = self._axis
-        d0, d1, d2 = p[0] - a[0], p[1] - a[1], p[2] - a[2]
-        h = d0 * k[0] + d1 * k[1] + d2 * k[2]
-        r0, r1, r2 = d0 - h * k[0], d1 - h * k[1], d2 - h * k[2]
-        radial = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-        lateral = (h * self._tan_half - radial) * self._cos_half
-        if not math.isfinite(h + radial):
-            return math.nan
-        return min(lateral, self.height - h, h)
+        return cone_margin(
+            p[0], p[1], p[2], self._apex, self._axis, self._tan_half, self._cos_half, self.height
+        )
+
+    @property
+    def constants(self) -> list[float]:
+        """Apex (3,), world, m; unit axis (3,); tan and cos of the half-angle; height, m.
+
+        The order :func:`cone_at` reads (compiled kernels keep them in a parameter array).
+        """
+        return [*self._apex, *self._axis, self._tan_half, self._cos_half, self.height]
 
     def first_outside(self, p_world: FloatArray, floor: float = -math.inf) -> int:
         """The first point of ``p_world`` (N, 3), world, m, outside the cone or below ``floor``.
@@ -392,6 +437,22 @@ class WindowGeometry:
             (windows.inner_frac * w, windows.inner_frac * h),
         )
 
+    @cached_property
+    def constants(self) -> tuple[float, ...]:
+        """:func:`window_code`'s constants: ``fx, fy, cx − u0, cy − v0, b/2`` and the windows'.
+
+        px, px, px, px, m, then the outer and inner half widths and heights, px.
+        """
+        return (
+            self.fx,
+            self.fy,
+            self.cx - self.u0,
+            self.cy - self.v0,
+            self.half_baseline,
+            *self.outer,
+            *self.inner,
+        )
+
 
 def window_status(
     camera: StereoCamera,
@@ -421,19 +482,36 @@ def window_status(
     )
 
 
-def window_status_rows(
-    g: WindowGeometry, T_world_cam: list[list[float]], p_world_tips: list[list[float]]
-) -> WindowStatus:
-    """:func:`window_status` on plain lists (rows of ``T_world_cam``, tip rows), for the loop."""
-    T = T_world_cam
+_STATUSES = (WindowStatus.OUTSIDE_OUTER, WindowStatus.BETWEEN, WindowStatus.INSIDE_INNER)
+_STATUS_CODES = {status: code for code, status in enumerate(_STATUSES)}
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def window_code(
+    T: Sequence[Sequence[float]] | FloatArray,
+    tips: Sequence[Sequence[float]] | FloatArray,
+    fx: float,
+    fy: float,
+    du0: float,
+    dv0: float,
+    half_b: float,
+    hw_out: float,
+    hh_out: float,
+    hw_in: float,
+    hh_in: float,
+) -> int:
+    """:func:`window_status_rows` as a code: 0 ``OUTSIDE_OUTER``, 1 ``BETWEEN``, 2 ``INSIDE_INNER``.
+
+    ``T`` (4, 4) rows of ``T_world_cam`` (m), ``tips`` (K, 3) world, m, rows; ``fx``, ``fy``
+    px; ``du0``, ``dv0``: principal point less the image centre, px; ``half_b`` m; the
+    windows' half widths and heights, px.
+    """
     R0, R1, R2 = T[0], T[1], T[2]
     t0, t1, t2 = R0[3], R1[3], R2[3]
-    hw_out, hh_out = g.outer
-    hw_in, hh_in = g.inner
-    fx, fy, du0, dv0, half_b = g.fx, g.fy, g.cx - g.u0, g.cy - g.v0, g.half_baseline
     all_inner = True
     usable = False
-    for p in p_world_tips:
+    for i in range(len(tips)):
+        p = tips[i]
         if not math.isfinite(p[0] + p[1] + p[2]):
             continue
         usable = True
@@ -443,17 +521,45 @@ def window_status_rows(
         y = R0[1] * d0 + R1[1] * d1 + R2[1] * d2
         z = R0[2] * d0 + R1[2] * d1 + R2[2] * d2
         if not z > MIN_DEPTH:  # also catches NaN
-            return WindowStatus.OUTSIDE_OUTER
+            return 0
         dv = abs(fy * y / z + dv0)
         for x_eye in (x + half_b, x - half_b):  # left eye at −b/2, right eye at +b/2
             du = abs(fx * x_eye / z + du0)
             if not (du <= hw_out and dv <= hh_out):
-                return WindowStatus.OUTSIDE_OUTER
+                return 0
             if not (du <= hw_in and dv <= hh_in):
                 all_inner = False
     if not usable:
-        return WindowStatus.BETWEEN  # no tool position known: hold d_f, never zoom in blind
-    return WindowStatus.INSIDE_INNER if all_inner else WindowStatus.BETWEEN
+        return 1  # no tool position known: hold d_f, never zoom in blind
+    return 2 if all_inner else 1
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def window_code_of(
+    T: Sequence[Sequence[float]] | FloatArray,
+    tips: Sequence[Sequence[float]] | FloatArray,
+    constants: Sequence[float] | FloatArray,
+) -> int:
+    """:func:`window_code` with its nine constants in a sequence (``WindowGeometry.constants``)."""
+    c = constants
+    return window_code(T, tips, c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8])
+
+
+def window_status_rows(
+    g: WindowGeometry, T_world_cam: list[list[float]], p_world_tips: list[list[float]]
+) -> WindowStatus:
+    """:func:`window_status` on plain lists (rows of ``T_world_cam``, tip rows), for the loop."""
+    return _STATUSES[window_code_of(T_world_cam, p_world_tips, g.constants)]
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def adjusted_distance(d_f: float, code: int, d_min: float, d_max: float, step: float) -> float:
+    """:func:`adjust_working_distance` for a :func:`window_code` ``code``, m."""
+    if code == 0:
+        d_f += step
+    elif code == 2:
+        d_f -= step
+    return py_min(py_max(d_f, d_min), d_max)
 
 
 def adjust_working_distance(
@@ -472,8 +578,4 @@ def adjust_working_distance(
     step : float
         Change per control step, m (paper: 1 mm).
     """
-    if status is WindowStatus.OUTSIDE_OUTER:
-        d_f += step
-    elif status is WindowStatus.INSIDE_INNER:
-        d_f -= step
-    return min(max(d_f, d_min), d_max)
+    return adjusted_distance(d_f, _STATUS_CODES[status], d_min, d_max, step)

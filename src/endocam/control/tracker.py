@@ -34,47 +34,113 @@ ingredient has a switch in :class:`~endocam.control.config.TrackerConfig`:
    step, down to ``d_min`` and only while every tip stays inside the outer window of the
    shortened goal. A tip outside the outer window still lengthens ``d_f`` (safety first).
 
-The step runs on plain floats (no scipy) to stay well under 100 µs.
+The step runs on plain floats (no scipy); its maths from the working distance to the view and
+its twist is one compiled call (:func:`_plan_kernel`, docs/conventions.md "Compiled kernels"),
+the interpreter's floats bit for bit (``tests/test_tracker_kernel.py``).
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
+from collections.abc import Sequence
 
 import numpy as np
+from numba import njit
+from numba.extending import register_jitable
 
+from endocam.control.clearance import _cleared_move
 from endocam.control.config import ControllerConfig, SideRule, Transfer
-from endocam.control.goal import goal_pose_unchecked
+from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.policies import (
-    _UP,
     DETOUR_REASON,
     FREEZE_RELEASE_MARGIN,
     GATE_REASON,
+    NO_GUARD,
     WIRE_REASON,
     _MovingPolicy,
 )
 from endocam.control.safety import (
     STALE_REASON,
-    WindowStatus,
-    adjust_working_distance,
+    Cone,
+    adjusted_distance,
+    cone_at,
+    cone_margin,
     is_stale,
-    window_status_rows,
+    window_code_of,
 )
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
 from endocam.geometry import UP, FloatArray
-from endocam.kernels import Vec, cross, dot, finite_rows, norm, unit_or_none
-from endocam.view import look_at_unchecked
+from endocam.kernels import Vec, cross, dot, finite_rows, norm, unit_checked, unit_or_none
+from endocam.pyfloat import dist3, hypot2
+from endocam.view import look_at_unchecked, pose_from_columns
 
 _EPS = 1e-9  # unitless: shorter directions are degenerate
 ORBIT_DONE_ANGLE = math.radians(1.0)  # rad: an orbit this close to its goal direction ends
 FLOOR_TOL_M = 1e-9  # m: round-off allowed on the floor height of a built pose
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def _angle(a: Vec, b: Vec) -> float:
     """Angle between two unit vectors, rad (atan2 form: accurate near 0 and π)."""
     return math.atan2(norm(cross(a, b)), dot(a, b))
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _ring_push(
+    buf: FloatArray, count: np.ndarray, t: float, p: Vec, n: Vec
+) -> None:  # pragma: no cover - compiled
+    """Append a sample to ``buf`` (L, 7): time (s), centre (3,) world m, unit normal (3,).
+
+    ``count`` (1,): rows in use, oldest first; a full buffer drops its oldest row (a deque
+    of length L).
+    """
+    rows = buf.shape[0]
+    if count[0] == rows:
+        for r in range(rows - 1):
+            for c in range(7):
+                buf[r, c] = buf[r + 1, c]
+        row = rows - 1
+    else:
+        row = count[0]
+        count[0] += 1
+    buf[row, 0] = t
+    buf[row, 1], buf[row, 2], buf[row, 3] = p[0], p[1], p[2]
+    buf[row, 4], buf[row, 5], buf[row, 6] = n[0], n[1], n[2]
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _ring_predict(buf: FloatArray, count: np.ndarray, m: int, h: float) -> tuple[Vec, Vec]:
+    """:meth:`RingPredictor.predict` from its samples ``buf`` (L, 7) and ``count`` (1,).
+
+    Ring centre (m) and unit normal in world, ``h`` s after the newest sample; ``m`` the
+    spacing. The interpreter's floats: the same operations in the same order.
+    """
+    k = count[0] - 1
+    t_k = buf[k, 0]
+    x = np.empty(6)
+    for i in range(6):
+        x[i] = buf[k, i + 1]
+    if count[0] > m and h != 0.0:
+        tau = t_k - buf[k - m, 0]
+        if not tau > 0.0:
+            pass
+        elif count[0] > 2 * m:
+            inv = 1.0 / tau
+            for i in range(6):
+                a0, a1, a2 = buf[k, i + 1], buf[k - m, i + 1], buf[k - 2 * m, i + 1]
+                v = (a0 - a1) * inv
+                acc = (a0 - 2.0 * a1 + a2) * inv * inv
+                x[i] = a0 + (v + 0.5 * acc * tau) * h + 0.5 * acc * h * h
+        else:
+            f = h / tau
+            for i in range(6):
+                a0, a1 = buf[k, i + 1], buf[k - m, i + 1]
+                x[i] = a0 + (a0 - a1) * f
+    ok, n = unit_checked((x[3], x[4], x[5]))
+    if not ok:
+        n = (buf[k, 4], buf[k, 5], buf[k, 6])
+    return (x[0], x[1], x[2]), n
 
 
 class RingPredictor:
@@ -89,7 +155,9 @@ class RingPredictor:
         \quad x(t_k + h) \approx x_k + (v_b + a\tau/2)\,h + a h^2/2
 
     (``v_b`` is the velocity at ``t_k − τ/2``). The normal is extrapolated the same way and
-    renormalised. With fewer samples it falls back to lower orders.
+    renormalised. With fewer samples it falls back to lower orders. Compiled
+    (:func:`_ring_push`, :func:`_ring_predict`; the tracker's step calls them inside its own
+    kernel).
 
     Parameters
     ----------
@@ -101,40 +169,385 @@ class RingPredictor:
         if spacing < 1:
             raise ValueError(f"spacing must be ≥ 1, got {spacing}")
         self.spacing = spacing
-        self._buf: deque[tuple[float, list[float]]] = deque(maxlen=2 * spacing + 1)
+        self.buf = np.zeros((2 * spacing + 1, 7))  # (t s, centre m, normal), oldest first
+        self.count = np.zeros(1, dtype=np.int64)  # rows of buf in use
 
     def reset(self) -> None:
         """Forget every sample (after lost tracking: no differencing across a gap)."""
-        self._buf.clear()
+        self.count[0] = 0
 
     def push(self, t: float, p_world: Vec, n_world: Vec) -> None:
         """Add a sample: time ``t`` (s), ring centre (3,) in world (m), unit normal (3,)."""
-        self._buf.append((t, [*p_world, *n_world]))
+        p, n = p_world, n_world
+        _ring_push(
+            self.buf,
+            self.count,
+            float(t),
+            (float(p[0]), float(p[1]), float(p[2])),
+            (float(n[0]), float(n[1]), float(n[2])),
+        )
 
     def predict(self, h: float) -> tuple[Vec, Vec]:
         """Ring centre (m) and unit normal in world, ``h`` seconds after the newest sample."""
-        buf, m = self._buf, self.spacing
-        t_k, x_k = buf[-1]
-        if len(buf) <= m or h == 0.0:
-            x = x_k
-        else:
-            t_m, x_m = buf[-1 - m]
-            tau = t_k - t_m
-            if not tau > 0.0:
-                x = x_k
-            elif len(buf) > 2 * m:
-                _, x_2m = buf[-1 - 2 * m]
-                inv = 1.0 / tau
-                x = []
-                for a0, a1, a2 in zip(x_k, x_m, x_2m, strict=True):
-                    v = (a0 - a1) * inv
-                    acc = (a0 - 2.0 * a1 + a2) * inv * inv
-                    x.append(a0 + (v + 0.5 * acc * tau) * h + 0.5 * acc * h * h)
-            else:
-                k = h / tau
-                x = [a0 + (a0 - a1) * k for a0, a1 in zip(x_k, x_m, strict=True)]
-        n = unit_or_none((x[3], x[4], x[5])) or (x_k[3], x_k[4], x_k[5])
-        return (x[0], x[1], x[2]), n
+        if not self.count[0]:
+            raise IndexError("no sample to predict from")
+        return _ring_predict(self.buf, self.count, self.spacing, float(h))
+
+
+# The goal, view and twist of one step (EndocamPolicy's maths), callable from Python and
+# compiled inside ``_plan_kernel``. ``cone`` is the cone workspace's constants: apex (3,),
+# world, m; unit axis (3,); tan and cos of the half-angle; height, m (``ConeWorkspace``).
+
+Grid = Sequence[Sequence[float]] | FloatArray  # rows of a matrix: lists, tuples or an array
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _view_of(
+    p_c: Vec, n: Vec, s: float, d: float, aim_floor: float, cone: Cone
+) -> tuple[bool, Vec, float, float]:
+    """Feasible viewing direction on side ``s``: (found, unit ``u``, angle to ``s n``, margin).
+
+    The angle in rad, the margin in m.
+
+    ``p_c`` ring centre, world, m; ``n`` unit normal; ``d`` look distance, m; ``aim_floor``
+    the lowest camera height aimed at, m. ``u`` points from the ring centre to the camera;
+    not found if no direction keeps the camera ``aim_floor`` high. The margin is the
+    camera's to the cone, m.
+    """
+    u: Vec = (s * n[0], s * n[1], s * n[2])
+    c = (aim_floor - p_c[2]) / d
+    err = 0.0
+    if u[2] < c:
+        if c > 1.0:
+            return False, u, err, 0.0
+        horiz = hypot2(u[0], u[1])
+        if not horiz > _EPS:
+            return False, u, err, 0.0
+        k = math.sqrt(1.0 - c * c) / horiz
+        u_c = (u[0] * k, u[1] * k, c)
+        err = _angle(u, u_c)
+        u = u_c
+    a, axis, tan_half, cos_half, height = cone
+    margin = cone_margin(
+        p_c[0] + d * u[0], p_c[1] + d * u[1], p_c[2] + d * u[2], a, axis, tan_half, cos_half, height
+    )
+    return True, u, err, margin
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _pose_of(
+    p_c: Vec, u: Vec, r: float, has_previous: bool, z_prev: Vec, x_prev: Vec, half_b: float
+) -> tuple[Vec, Vec, Vec, Vec]:
+    """Look at ``p_c`` from ``p_c + r u`` with a level horizon: columns x, y, z and position.
+
+    ``p_c`` world, m; ``u`` unit; ``r`` m; ``z_prev``, ``x_prev``: the previous pose's axes
+    (read if ``has_previous``), for the roll near the vertical; the left eye, ``half_b`` (m)
+    left of the centre, on the axis when it is non-zero.
+    """
+    # ``toward = u`` makes the goal take the side of ``u`` itself: position p_c + r u,
+    # optical axis −u, roll from the previous pose near the vertical.
+    x, y, z, p = goal_columns(
+        p_c, u, r, (0.0, 0.0, 1.0), has_previous, z_prev, x_prev, 0.0, -math.inf, True, u
+    )
+    if half_b:
+        p = (p[0] + half_b * x[0], p[1] + half_b * x[1], p[2] + half_b * x[2])
+    return x, y, z, p
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _twist_of(a: Grid, b: Grid, delta: float) -> tuple[float, float, float, float, float, float]:
+    """Velocity from pose ``a`` to ``b`` (rows, (4, 4)) over ``delta`` s: linear m/s, angular rad/s.
+
+    World frame. ``R_b R_a^T ≈ I + [ω δ]×``: its skew part gives ω (small angle over one
+    control period).
+    """
+    inv = 1.0 / delta
+    # m_ij = R_b[i] · R_a[j]; ``0.0 +`` first, as ``sum`` starts (the same float, signed zeros too)
+    b0, b1, b2, a0, a1, a2 = b[0], b[1], b[2], a[0], a[1], a[2]
+    m21 = 0.0 + b2[0] * a1[0] + b2[1] * a1[1] + b2[2] * a1[2]
+    m12 = 0.0 + b1[0] * a2[0] + b1[1] * a2[1] + b1[2] * a2[2]
+    m02 = 0.0 + b0[0] * a2[0] + b0[1] * a2[1] + b0[2] * a2[2]
+    m20 = 0.0 + b2[0] * a0[0] + b2[1] * a0[1] + b2[2] * a0[2]
+    m10 = 0.0 + b1[0] * a0[0] + b1[1] * a0[1] + b1[2] * a0[2]
+    m01 = 0.0 + b0[0] * a1[0] + b0[1] * a1[1] + b0[2] * a1[2]
+    return (
+        (b0[3] - a0[3]) * inv,
+        (b1[3] - a1[3]) * inv,
+        (b2[3] - a2[3]) * inv,
+        0.5 * (m21 - m12) * inv,
+        0.5 * (m02 - m20) * inv,
+        0.5 * (m10 - m01) * inv,
+    )
+
+
+_NO_PREDICTIONS = np.zeros(0)  # _plan_kernel predicts itself
+
+# _plan_kernel's parameters (``EndocamPolicy._params``), by index
+(
+    _AIM_FLOOR,  # m, goals keep the camera this high
+    _HALF_B,  # m, the left eye's offset (0: centred)
+    _D_MIN,
+    _D_MAX,
+    _D_STEP,  # m, the working distance's range and step
+    _SIDE_ANGLE,  # rad, side_change_angle
+    _MIN_HEIGHT,  # m, min_camera_height
+    _HYSTERESIS,  # rad, side_hysteresis
+    _KEEP_SIDE,
+    _SHORTEN,
+    _PORT_RULE,  # 1.0 / 0.0 flags: keep_side, shorten_when_low, SideRule.PORT
+    _WINDOW,  # 9 constants of window_code
+) = range(12)
+_CONE = _WINDOW + 9  # apex (3), axis (3), tan_half, cos_half, height
+_RCM = _CONE + 9  # m, the camera arm's RCM (3)
+_JUMP = _RCM + 3  # m, jump_threshold
+_N_PARAMS = _JUMP + 1
+# _plan_kernel's scalar results (``out``), by index
+_OUT_D, _OUT_FOUND, _OUT_SIDE, _OUT_MARGIN, _OUT_TWIST = range(5)
+_OUT_P, _OUT_N, _OUT_U = 5, 8, 11  # ring centre (m), normal, view direction: 3 each
+_OUT_CLEARED, _OUT_DETOUR, _OUT_VIA = 14, 15, 16  # the guard's answers on the plain path
+_N_OUT = 19
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _rows_of(x: Vec, y: Vec, z: Vec, p: Vec) -> FloatArray:
+    """``pose_from_columns`` in a compiled kernel: (4, 4) from columns and position."""
+    T = np.empty((4, 4))
+    for i in range(3):
+        T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
+    T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
+    return T
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _choose_of(
+    p_c: Vec,
+    n: Vec,
+    d: float,
+    side: float,
+    planned: float,
+    limit: float,
+    aim_floor: float,
+    cone: Cone,
+) -> tuple[bool, float, Vec]:
+    """Side and viewing direction (keep the side while feasible): (found, ``s``, unit ``u``).
+
+    ``side`` the kept side (0: none yet: the paper's, above the feature); ``planned`` a side
+    taken first while its view is feasible (0: none; the oracle's plan); ``limit``
+    ``side_change_angle``, rad; the rest as :func:`_view_of`'s. Not found: no feasible view.
+    """
+    if planned != 0.0:
+        ok, u, _, margin = _view_of(p_c, n, planned, d, aim_floor, cone)
+        if ok and margin >= 0.0:
+            return True, planned, u
+    s = side if side != 0.0 else (1.0 if n[2] >= 0.0 else -1.0)  # Python's ``side or …``
+    ok, u, err, margin = _view_of(p_c, n, s, d, aim_floor, cone)
+    if ok and margin >= 0.0 and (err <= limit or side == 0.0):
+        return True, s, u
+    ok_o, u_o, err_o, margin_o = _view_of(p_c, n, -s, d, aim_floor, cone)
+    if ok_o and margin_o >= 0.0:
+        if not ok or margin < 0.0 or err_o < err:
+            return True, -s, u_o
+    if ok and margin >= 0.0:
+        return True, s, u  # over the angle, but the other side is no better
+    return False, s, u
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _shortened_of(
+    p_c: Vec,
+    n: Vec,
+    d: float,
+    side: float,
+    previous: Grid,
+    tips: Grid,
+    params: Sequence[float] | FloatArray,
+    cone: Cone,
+) -> float:
+    """Look distance one ``d_f_step`` shorter if the kept view is height-limited, else ``d`` (m).
+
+    Height-limited: the camera on side ``s`` at ``d`` would sit below ``min_camera_height``
+    (``s n·up < (h_min − p_c·up) / d``), so it is turned off the normal. A shorter look
+    distance lowers the camera's drop below ``p_c`` and lets it turn back. The step is
+    taken only if every tip (``tips`` (K, 3), world, m) stays inside the outer window of the
+    shortened goal (the window rule keeps priority: the caller shortens only while every tip
+    is between the windows). ``previous`` (4, 4) rows: the last goal or command;
+    ``params``: :func:`_plan_kernel`'s.
+    """
+    prm = params
+    aim_floor = prm[_AIM_FLOOR]
+    s = side if side != 0.0 else (1.0 if n[2] >= 0.0 else -1.0)  # Python's ``side or …``
+    if not s * n[2] * d < aim_floor - p_c[2]:
+        return d
+    d_next = d - prm[_D_STEP]
+    if d_next < prm[_D_MIN]:
+        return d
+    ok, u, err, _ = _view_of(p_c, n, s, d_next, aim_floor, cone)
+    ok_now, _, err_now, _ = _view_of(p_c, n, s, d, aim_floor, cone)
+    if not ok or (ok_now and not err < err_now):
+        return d  # shorter only where it turns the view towards the normal
+    z_prev = (previous[0][2], previous[1][2], previous[2][2])
+    x_prev = (previous[0][0], previous[1][0], previous[2][0])
+    x, y, z, p = _pose_of(p_c, u, d_next, True, z_prev, x_prev, prm[_HALF_B])
+    goal = (
+        (x[0], y[0], z[0], p[0]),
+        (x[1], y[1], z[1], p[1]),
+        (x[2], y[2], z[2], p[2]),
+    )
+    code = window_code_of(goal, tips, prm[_WINDOW : _WINDOW + 9])
+    return d if code == 0 else d_next
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _plan_kernel(
+    T_cam: FloatArray,
+    T_ring: FloatArray,
+    tips: FloatArray,
+    previous: FloatArray,
+    buf: FloatArray,
+    count: np.ndarray,
+    spacing: int,
+    t: float,
+    horizon: float,
+    dt: float,
+    feedforward: bool,
+    given: FloatArray,
+    d_f: float,
+    fresh: bool,
+    side: float,
+    planned: float,
+    params: FloatArray,
+    out: FloatArray,
+    plain: bool,
+    release: float,
+    has_guard: bool,
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """:meth:`EndocamPolicy.step` from the working distance to the view and its twist.
+
+    Working distance (the windows), prediction, shortening, side and view, the view's pose
+    and (speculatively) its feed-forward twist, with the interpreter's operations in its
+    order (docs/conventions.md, "Compiled kernels").
+
+    ``T_cam``, ``T_ring`` (4, 4): camera and (checked) ring poses, world, m; ``tips`` (K, 3)
+    world, m; ``previous`` (4, 4) the last goal or command. ``buf`` (L, 7), ``count`` (1,),
+    ``spacing``: the :class:`RingPredictor`, which gets the ring pose at ``t`` (s) and
+    predicts ``horizon`` s ahead (and ``horizon + dt`` for the twist, if ``feedforward``) —
+    unless ``given`` (12,) holds those two predictions (centre m, normal; the oracle's;
+    else (0,)). ``d_f`` m; ``side`` the kept side (0: none yet); ``planned`` a side to take
+    while feasible (0: none); ``params`` (``_N_PARAMS``,) the policy's constants.
+
+    On the step's plain path (``plain``: no transfer under way; the view's margin at least
+    ``release``, m; no side change; not a far first goal, ``fresh``: no goal before) it also
+    asks the wire's guard (``has_guard``; ``pts`` … ``clearance``: ``ClearanceGuard._state``)
+    what the interpreter would ask next: whether the view is clear (``ClearanceGuard.apply``'s
+    query) and, if so, whether the move from the camera to it needs a detour
+    (``ClearanceGuard.detour``). A view not clear leaves the guard's cache as it was.
+
+    Fills ``out`` (``_N_OUT``,): the new working distance (m), whether a view was found,
+    its side, its pose's cone margin (m), whether a twist was computed, the predicted ring
+    centre (m) and normal, the view direction, whether the guard found the view clear,
+    whether the move needs a detour and its way-point (m). Returns the view's pose (4, 4)
+    and the goal's twist from the view to the next step's (6,): m/s, rad/s, world
+    (meaningful when found, and when computed).
+    """
+    prm = params
+    code = window_code_of(T_cam, tips, prm[_WINDOW : _WINDOW + 9])
+    d_f = adjusted_distance(d_f, code, prm[_D_MIN], prm[_D_MAX], prm[_D_STEP])
+    if given.shape[0] == 0:
+        _, n_obs = unit_checked((T_ring[0, 2], T_ring[1, 2], T_ring[2, 2]))
+        _ring_push(buf, count, t, (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3]), n_obs)
+        p_c, n = _ring_predict(buf, count, spacing, horizon)
+    else:
+        p_c, n = (given[0], given[1], given[2]), (given[3], given[4], given[5])
+    aim_floor, half_b = prm[_AIM_FLOOR], prm[_HALF_B]
+    cone = cone_at(prm, _CONE)
+    keep_side = prm[_KEEP_SIDE] != 0.0
+    if code == 1 and keep_side and prm[_SHORTEN] != 0.0:
+        d_f = _shortened_of(p_c, n, d_f, side, previous, tips, prm, cone)
+    d = d_f
+    z_prev = (previous[0, 2], previous[1, 2], previous[2, 2])
+    x_prev = (previous[0, 0], previous[1, 0], previous[2, 0])
+    if keep_side:
+        found, s, u = _choose_of(p_c, n, d, side, planned, prm[_SIDE_ANGLE], aim_floor, cone)
+    else:  # the orientation policy's side rule
+        has_toward, toward = False, n
+        if prm[_PORT_RULE] != 0.0:
+            has_toward, toward = unit_checked(
+                (prm[_RCM] - p_c[0], prm[_RCM + 1] - p_c[1], prm[_RCM + 2] - p_c[2])
+            )
+        _, _, zz, _ = goal_columns(
+            p_c,
+            n,
+            d,
+            (0.0, 0.0, 1.0),
+            True,
+            z_prev,
+            x_prev,
+            prm[_HYSTERESIS],
+            prm[_MIN_HEIGHT],
+            has_toward,
+            toward,
+        )
+        s = -1.0 if dot(zz, n) > 0.0 else 1.0
+        found, u = True, (s * n[0], s * n[1], s * n[2])
+    out[_OUT_D] = d
+    out[_OUT_FOUND] = 1.0 if found else 0.0
+    out[_OUT_SIDE] = s
+    out[_OUT_TWIST] = out[_OUT_CLEARED] = out[_OUT_DETOUR] = 0.0
+    for i in range(3):
+        out[_OUT_P + i], out[_OUT_N + i], out[_OUT_U + i] = p_c[i], n[i], u[i]
+    twist = np.zeros(6)
+    if not found:
+        return np.eye(4), twist
+    x, y, z, p = _pose_of(p_c, u, d, True, z_prev, x_prev, half_b)
+    view = _rows_of(x, y, z, p)
+    out[_OUT_MARGIN] = margin = cone_margin(
+        p[0], p[1], p[2], cone[0], cone[1], cone[2], cone[3], cone[4]
+    )
+    p_cam = (T_cam[0, 3], T_cam[1, 3], T_cam[2, 3])
+    if (
+        has_guard
+        and plain
+        and margin >= release
+        and not (side != 0.0 and s != side)
+        and not (fresh and dist3(p[0], p[1], p[2], p_cam[0], p_cam[1], p_cam[2]) > prm[_JUMP])
+    ):
+        # The step's plain path (no transfer under way or starting, no freeze): the view is
+        # the command unless the guard turns it. ``ClearanceGuard.apply``'s check, then (if
+        # clear) ``detour``'s trace from the camera; not clear: the cache is put back, the
+        # interpreter asks again.
+        cleared, found_via, via = _cleared_move(
+            pts, table, pool, meta, radius, ref, nref, clearance, p, p_c, p_cam
+        )
+        out[_OUT_CLEARED] = 1.0 if cleared else 0.0
+        out[_OUT_DETOUR] = 1.0 if found_via else 0.0
+        for i in range(3):
+            out[_OUT_VIA + i] = via[i]
+    if not feedforward:
+        return view, twist
+    if given.shape[0] == 0:
+        p2, n2 = _ring_predict(buf, count, spacing, horizon + dt)
+    else:
+        p2, n2 = (given[6], given[7], given[8]), (given[9], given[10], given[11])
+    if keep_side:
+        has_u2, u2, _, _ = _view_of(p2, n2, s, d, aim_floor, cone)
+    else:
+        k = 1.0 if dot(u, n) >= 0.0 else -1.0  # ``n2`` signed like ``u`` is relative to ``n``
+        has_u2, u2 = True, (k * n2[0], k * n2[1], k * n2[2])
+    if has_u2:  # the next goal, its roll from this one
+        x2, y2, z2, p2_cam = _pose_of(p2, u2, d, True, z, x, half_b)
+        v = _twist_of(view, _rows_of(x2, y2, z2, p2_cam), dt)
+        for i in range(6):
+            twist[i] = v[i]
+        out[_OUT_TWIST] = 1.0
+    return view, twist
 
 
 class EndocamPolicy(_MovingPolicy):
@@ -149,6 +562,9 @@ class EndocamPolicy(_MovingPolicy):
         super().__init__(config)
         self.tracker = self.config.tracker
         self._predictor = RingPredictor(1)
+        self._ring = self._predictor  # passed (unused) when the predictor is not a RingPredictor
+        self._params = np.zeros(_N_PARAMS)  # _plan_kernel's constants, set by reset()
+        self._out = np.zeros(_N_OUT)  # _plan_kernel's scalar results
         self._side = 0.0  # ±1 once chosen
         self._transfer: Transfer | None = None
         self._u_orbit: Vec = (0.0, 0.0, 1.0)
@@ -167,126 +583,108 @@ class EndocamPolicy(_MovingPolicy):
         self._aim_floor = self.config.min_camera_height + tc.floor_clearance  # m, goals aim here
         self._horizon = context.sensing_latency + tc.carrier_lead if tc.predict else 0.0
         self.transfers = 0
+        cfg, geometry = self.config, self._window_geometry
+        assert geometry is not None  # set by super().reset()
+        params = [0.0] * _N_PARAMS
+        params[_AIM_FLOOR], params[_HALF_B] = self._aim_floor, self._half_b
+        params[_D_MIN], params[_D_MAX], params[_D_STEP] = cfg.d_min, cfg.d_max, cfg.d_f_step
+        params[_SIDE_ANGLE] = tc.side_change_angle
+        params[_MIN_HEIGHT], params[_HYSTERESIS] = cfg.min_camera_height, cfg.side_hysteresis
+        params[_KEEP_SIDE] = 1.0 if tc.keep_side else 0.0
+        params[_SHORTEN] = 1.0 if tc.shorten_when_low else 0.0
+        params[_PORT_RULE] = 1.0 if cfg.side_rule is SideRule.PORT else 0.0
+        params[_WINDOW : _WINDOW + 9] = geometry.constants
+        params[_CONE : _CONE + 9] = self.cone.constants
+        params[_RCM : _RCM + 3] = np.asarray(context.p_world_rcm, dtype=float).tolist()
+        params[_JUMP] = cfg.jump_threshold
+        self._params = np.array(params)
 
-    # -- the goal -------------------------------------------------------------------------
+    # -- the goal (the maths: the compiled functions above) ---------------------------------
+
+    def _cone_constants(self) -> Cone:
+        return cone_at(self.cone.constants, 0)
 
     def _view(self, p_c: Vec, n: Vec, s: float, d: float) -> tuple[Vec, float, float] | None:
         """Feasible viewing direction on side ``s``: (unit ``u``, angle to ``s n`` rad, margin m).
 
         ``u`` points from the ring centre to the camera; ``None`` if no direction keeps the
         camera ``min_camera_height`` above the board. The margin is the camera's to the cone.
+        (:func:`_view_of`.)
         """
-        u: Vec = (s * n[0], s * n[1], s * n[2])
-        c = (self._aim_floor - p_c[2]) / d
-        err = 0.0
-        if u[2] < c:
-            if c > 1.0:
-                return None
-            horiz = math.hypot(u[0], u[1])
-            if not horiz > _EPS:
-                return None
-            k = math.sqrt(1.0 - c * c) / horiz
-            u_c = (u[0] * k, u[1] * k, c)
-            err = _angle(u, u_c)
-            u = u_c
-        margin = self.cone.margin([p_c[0] + d * u[0], p_c[1] + d * u[1], p_c[2] + d * u[2]])
-        return u, err, margin
-
-    def _shortened(
-        self, p_c: Vec, n: Vec, d: float, previous: FloatArray, tip_rows: list[list[float]]
-    ) -> float:
-        """Look distance one ``d_f_step`` shorter if the kept view is height-limited, else ``d``.
-
-        Height-limited: the camera on side ``s`` at ``d`` would sit below ``min_camera_height``
-        (``s n·up < (h_min − p_c·up) / d``), so it is turned off the normal. A shorter look
-        distance lowers the camera's drop below ``p_c`` and lets it turn back. The step is
-        taken only if every tip stays inside the outer window of the shortened goal (the
-        window rule keeps priority: the caller shortens only while every tip is between the
-        windows).
-        """
-        cfg = self.config
-        s = self._side or (1.0 if n[2] >= 0.0 else -1.0)
-        if not s * n[2] * d < self._aim_floor - p_c[2]:
-            return d
-        d_next = d - cfg.d_f_step
-        if d_next < cfg.d_min:
-            return d
-        view = self._view(p_c, n, s, d_next)
-        now = self._view(p_c, n, s, d)
-        if view is None or (now is not None and not view[1] < now[1]):
-            return d  # shorter only where it turns the view towards the normal
-        goal = self._pose(p_c, view[0], d_next, previous).tolist()
-        assert self._window_geometry is not None  # set by reset()
-        status = window_status_rows(self._window_geometry, goal, tip_rows)
-        return d if status is WindowStatus.OUTSIDE_OUTER else d_next
-
-    def _choose(self, p_c: Vec, n: Vec, d: float) -> tuple[float, Vec] | None:
-        """Side and viewing direction (keep the side while feasible); ``None``: no feasible view."""
-        limit = self.tracker.side_change_angle
-        s = self._side or (1.0 if n[2] >= 0.0 else -1.0)  # first side: above the feature
-        view = self._view(p_c, n, s, d)
-        if view is not None and view[2] >= 0.0 and (view[1] <= limit or not self._side):
-            return s, view[0]
-        other = self._view(p_c, n, -s, d)
-        if other is not None and other[2] >= 0.0:
-            if view is None or view[2] < 0.0 or other[1] < view[1]:
-                return -s, other[0]
-        if view is not None and view[2] >= 0.0:
-            return s, view[0]  # over the angle, but the other side is no better
-        return None
-
-    def _paper_view(self, p_c: Vec, n: Vec, d: float, previous: FloatArray) -> tuple[float, Vec]:
-        """Side and direction by the orientation policy's rule (``keep_side`` off)."""
-        cfg = self.config
-        toward = None
-        if cfg.side_rule is SideRule.PORT:
-            assert self._ctx is not None
-            r = self._ctx.p_world_rcm.tolist()
-            toward = unit_or_none((r[0] - p_c[0], r[1] - p_c[1], r[2] - p_c[2]))
-        T = goal_pose_unchecked(
-            p_c,
-            n,
-            d,
-            _UP,
-            previous,
-            cfg.side_hysteresis,
-            cfg.min_camera_height,
-            toward,
-        ).tolist()
-        z = (T[0][2], T[1][2], T[2][2])
-        s = -1.0 if dot(z, n) > 0.0 else 1.0
-        return s, (s * n[0], s * n[1], s * n[2])
+        ok, u, err, margin = _view_of(p_c, n, s, d, self._aim_floor, self._cone_constants())
+        return (u, err, margin) if ok else None
 
     def _pose(self, p_c: Vec, u: Vec, r: float, previous: FloatArray | None) -> FloatArray:
-        """Look at ``p_c`` from ``p_c + r u`` with a level horizon; left eye on the axis if set."""
-        # ``toward = u`` makes the kernel take the side of ``u`` itself: position p_c + r u,
-        # optical axis −u, roll from ``previous`` near the vertical.
-        T = goal_pose_unchecked(p_c, u, r, _UP, previous, 0.0, -math.inf, u)
-        hb = self._half_b
-        if hb:
-            T[0, 3] += hb * T[0, 0]
-            T[1, 3] += hb * T[1, 0]
-            T[2, 3] += hb * T[2, 0]
-        return T
+        """Look at ``p_c`` from ``p_c + r u`` with a level horizon; left eye on the axis if set.
+
+        (:func:`_pose_of`; ``previous`` (4, 4) or ``None``: its roll is kept near the vertical.)
+        """
+        z_prev = x_prev = (0.0, 0.0, 1.0)  # unread without a previous pose
+        if previous is not None:
+            R = previous[:3, :3].tolist()
+            z_prev, x_prev = (R[0][2], R[1][2], R[2][2]), (R[0][0], R[1][0], R[2][0])
+        x, y, z, p = _pose_of(p_c, u, r, previous is not None, z_prev, x_prev, self._half_b)
+        return pose_from_columns(x, y, z, p)
 
     @staticmethod
     def _twist(T1: FloatArray, T2: FloatArray, delta: float) -> FloatArray:
         """(6,) velocity from pose ``T1`` to ``T2`` over ``delta`` s: linear, angular in world."""
-        a, b = T1.tolist(), T2.tolist()
-        inv = 1.0 / delta
-        # R2 R1^T ≈ I + [ω δ]×: its skew part gives ω (small angle over one control period).
-        # ``0.0 +`` first, as ``sum`` starts (an int 0, the same float result, signed zeros too)
-        m = [[0.0 + bi[0] * aj[0] + bi[1] * aj[1] + bi[2] * aj[2] for aj in a[:3]] for bi in b[:3]]
-        return np.array(
-            [
-                (b[0][3] - a[0][3]) * inv,
-                (b[1][3] - a[1][3]) * inv,
-                (b[2][3] - a[2][3]) * inv,
-                0.5 * (m[2][1] - m[1][2]) * inv,
-                0.5 * (m[0][2] - m[2][0]) * inv,
-                0.5 * (m[1][0] - m[0][1]) * inv,
-            ]
+        return np.array(_twist_of(T1.tolist(), T2.tolist(), delta))
+
+    def _preferred_side(self) -> float:
+        """A side (±1) to take first while its view is feasible; 0.0: none (the oracle's plan)."""
+        return 0.0
+
+    def _feedforward_twist(self, goal: FloatArray, twist: FloatArray) -> FloatArray:
+        """The twist (6,) to command with ``goal`` (4, 4): ``twist``, the goal's one-step one."""
+        return twist
+
+    def _plan_view(
+        self, obs: Observation, p_obs: Vec, n_obs: Vec, previous: FloatArray
+    ) -> tuple[list[float], FloatArray, FloatArray]:
+        """:func:`_plan_kernel` for an accepted observation (ring centre ``p_obs``, m, normal).
+
+        Returns its scalar results (``_OUT_*``), the view's pose (4, 4) and its twist (6,).
+        """
+        ctx = self._ctx
+        assert ctx is not None  # set by reset()
+        pred = self._predictor
+        feedforward = self.tracker.feedforward and self._horizon > 0.0 and ctx.follows_twist
+        given = _NO_PREDICTIONS
+        if not isinstance(pred, RingPredictor):  # the oracle's: the true future
+            pred.push(obs.t, p_obs, n_obs)
+            p1, n1 = pred.predict(self._horizon)
+            p2, n2 = pred.predict(self._horizon + ctx.dt)
+            given = np.array([*p1, *n1, *p2, *n2])
+            pred = self._ring  # unused
+        tips = obs.p_world_tips
+        if not (isinstance(tips, np.ndarray) and tips.ndim == 2):
+            tips = np.asarray(tips, dtype=float).reshape(-1, 3)
+        view, twist = _plan_kernel(
+            np.asarray(obs.T_world_cam, dtype=float),
+            np.asarray(obs.T_world_ring, dtype=float),
+            tips,
+            previous,
+            pred.buf,
+            pred.count,
+            pred.spacing,
+            obs.t,
+            self._horizon,
+            ctx.dt,
+            feedforward,
+            given,
+            self.d_f,
+            self._last_goal is None,
+            self._side,
+            self._preferred_side(),
+            self._params,
+            self._out,
+            self._transfer is None,
+            FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0,
+            self.guard is not None,
+            *(NO_GUARD if self.guard is None else self.guard.kernel_state),  # type: ignore[arg-type]
         )
+        return self._out.tolist(), view, twist
 
     # -- the step --------------------------------------------------------------------------
 
@@ -328,32 +726,24 @@ class EndocamPolicy(_MovingPolicy):
             return self._lose(GATE_REASON)
         p_cam = (cam_rows[0][3], cam_rows[1][3], cam_rows[2][3])
 
-        geometry = self._window_geometry
-        assert geometry is not None  # set by reset()
-        tips = obs.p_world_tips
-        tip_rows = tips.tolist() if isinstance(tips, np.ndarray) else list(tips)
-        status = window_status_rows(geometry, cam_rows, tip_rows)
-        d_before = self.d_f
-        self.d_f = adjust_working_distance(self.d_f, status, cfg.d_min, cfg.d_max, cfg.d_f_step)
-
-        self._predictor.push(obs.t, p_obs, n_obs)
-        p_c, n = self._predictor.predict(self._horizon)
         previous = self._last_goal if self._last_goal is not None else self._last_cmd
         assert previous is not None  # set by reset()
-        if status is WindowStatus.BETWEEN and tc.keep_side and tc.shorten_when_low:
-            self.d_f = self._shortened(p_c, n, self.d_f, previous, tip_rows)
-        d = self.d_f
-        if tc.keep_side:
-            chosen = self._choose(p_c, n, d)
-        else:
-            chosen = self._paper_view(p_c, n, d, previous)
+        d_before = self.d_f
+        # the working distance, prediction, side, view and its twist: one compiled call
+        out, view, view_twist = self._plan_view(obs, p_obs, n_obs, previous)
+        self.d_f = d = out[_OUT_D]
+        p_c = (out[_OUT_P], out[_OUT_P + 1], out[_OUT_P + 2])
         margin = -math.inf
         goal = None
         adjusted = False  # the goal was turned off the view for the wire clearance
-        if chosen is not None:
-            s, u = chosen
-            view = self._pose(p_c, u, d, previous)
-            goal = self._clear(view, p_c, p_cam)
+        if out[_OUT_FOUND]:
+            s = out[_OUT_SIDE]
+            u = (out[_OUT_U], out[_OUT_U + 1], out[_OUT_U + 2])
+            if out[_OUT_CLEARED]:  # the kernel made the guard's check: the view is clear
+                assert self.guard is not None
+                goal = self.guard.passed(view)
+            else:
+                goal = self._clear(view, p_c, p_cam)
             if goal is None:
                 self._path = None
                 self._transfer = None
@@ -361,7 +751,7 @@ class EndocamPolicy(_MovingPolicy):
                 self.d_f = d_before
                 return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
             adjusted = goal is not view
-            margin = self.cone.margin(goal[:3, 3])
+            margin = self.cone.margin(goal[:3, 3]) if adjusted else out[_OUT_MARGIN]
         release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0
         if goal is None or not margin >= release:
             if self._frozen_T is None:
@@ -392,14 +782,9 @@ class EndocamPolicy(_MovingPolicy):
             if wp is not None:
                 cmd = wp
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
-        feedforward = tc.feedforward and self._horizon > 0.0 and ctx.follows_twist
-        if state is TrackingState.TRACKING and feedforward:
-            p2, n2 = self._predictor.predict(self._horizon + ctx.dt)
-            u2 = self._view(p2, n2, s, d) if tc.keep_side else None
-            if u2 is not None:
-                twist = self._twist(goal, self._pose(p2, u2[0], d, goal), ctx.dt)
-            elif not tc.keep_side:
-                twist = self._twist(goal, self._pose(p2, _flip(n2, u, n), d, goal), ctx.dt)
+        if state is TrackingState.TRACKING and out[_OUT_TWIST]:
+            # the view's twist (the kernel's); unused below when the goal is not the view
+            twist = self._feedforward_twist(goal, view_twist)
         near_edge = goal[2, 3] <= self._aim_floor + FLOOR_TOL_M or margin < tc.floor_clearance
         if twist is not None and not near_edge and not adjusted:
             g_lin, g_ang = tc.feedforward_gain
@@ -417,11 +802,16 @@ class EndocamPolicy(_MovingPolicy):
                 self.d_f = d_before
                 return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
             cmd = cleared
-        via = self._detoured(cmd, p_c, p_cam)
+        traced = None  # the kernel's trace of the move to the view, when it made it
+        if out[_OUT_CLEARED]:
+            assert cmd is goal  # the plain path: no transfer, no freeze
+            traced = (bool(out[_OUT_DETOUR]), (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2]))
+        via = self._detoured(cmd, p_c, p_cam, traced)
         if via is not None:
             cmd, twist = via, None
             state, reason = TrackingState.PLANNING, DETOUR_REASON
-        if not self._in_workspace(cmd):  # last gate: never command outside the workspace
+        # last gate: never command outside the workspace
+        if not self._in_workspace(cmd, out[_OUT_MARGIN] if cmd is view else None):
             self._side = side_before
             return self._freeze(
                 d_before, "command would leave the cone workspace or go below the floor"
@@ -505,10 +895,15 @@ class EndocamPolicy(_MovingPolicy):
         self._u_orbit = u
         return T
 
-    def _in_workspace(self, T_world_cmd: FloatArray) -> bool:
-        """Whether a commanded pose (4, 4) is inside the cone and above the floor."""
+    def _in_workspace(self, T_world_cmd: FloatArray, margin: float | None = None) -> bool:
+        """Whether a commanded pose (4, 4) is inside the cone and above the floor.
+
+        ``margin``: its cone margin (m), when known (the kernel's, for the view).
+        """
         p = T_world_cmd[:3, 3].tolist()
-        return self.cone.margin(p) >= 0.0 and p[2] >= self.config.min_camera_height - FLOOR_TOL_M
+        if margin is None:
+            margin = self.cone.margin(p)
+        return margin >= 0.0 and p[2] >= self.config.min_camera_height - FLOOR_TOL_M
 
     @property
     def _ctx_dt(self) -> float:
@@ -537,12 +932,6 @@ class EndocamPolicy(_MovingPolicy):
         assert self._path is not None
         p = self._path.point_at(self._s)
         return look_at_unchecked(p, np.array(p_c), goal, self._last_cmd)
-
-
-def _flip(n2: Vec, u: Vec, n: Vec) -> Vec:
-    """``n2`` signed like ``u`` is relative to ``n`` (the side kept for the twist)."""
-    s = 1.0 if dot(u, n) >= 0.0 else -1.0
-    return (s * n2[0], s * n2[1], s * n2[2])
 
 
 __all__ = ["EndocamPolicy", "RingPredictor"]
