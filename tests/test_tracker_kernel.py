@@ -388,3 +388,41 @@ def test_ring_predictor_matches_the_reference() -> None:
             want.push(t, p, n)
             for h in (0.0, 0.01, float(rng.uniform(0.0, 0.2))):
                 assert got.predict(h) == want.predict(h), (spacing, k, h)
+
+
+class _GoalNearTheWire(CenteringPolicy):
+    """A subclass that moves the compiled step's goal to 2 mm from the wire's surface."""
+
+    NEAR_M = 0.002  # m, well inside the keep-out zone
+
+    def _goal(self, obs: Observation, T_cam: np.ndarray, T_ring: np.ndarray) -> np.ndarray | None:
+        goal = super()._goal(obs, T_cam, T_ring)
+        if goal is None:
+            return None
+        assert self.guard is not None
+        goal = goal.copy()
+        d, i = self.guard.wire.nearest_surface(goal[:3, 3].tolist())
+        toward = self.guard.wire.search_points[i] - goal[:3, 3]
+        goal[:3, 3] += toward / np.linalg.norm(toward) * max(d - self.NEAR_M, 0.0)
+        return goal
+
+
+def test_a_subclass_changing_the_goal_does_not_skip_the_wire_guard() -> None:
+    """The kernel's "cleared" answer is for the pose it checked; a changed goal is checked again.
+
+    Found in review: before the fix half of these commands were inside the keep-out zone.
+    """
+    cfg = ControllerConfig(ring_max_speed=10.0, ring_max_rate=1000.0, jump_threshold=0.2)
+    observations = random_observations(0, wire=False)
+    T0 = observations[0][1]
+    T_cam = look_at_pose(T0[:3, 3] + [0.03, 0.01, 0.04], T0[:3, 3])
+    policy = _GoalNearTheWire(cfg)
+    policy.reset(PolicyContext(CAMERA, T_cam, T0, P_RCM, DT, LATENCY, wire=WIRE))
+    assert policy.guard is not None
+    inside = 0
+    for t, T_ring, tips in observations:
+        cmd = policy.step(Observation(t, T_ring, T_cam, tips))
+        d, _ = policy.guard.wire.nearest_surface(cmd.T_world_cam[:3, 3].tolist())
+        inside += d < policy.guard.clearance
+        T_cam = cmd.T_world_cam
+    assert inside == 0

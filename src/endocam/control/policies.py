@@ -277,6 +277,8 @@ class _MovingPolicy:
         params[_JUMP] = cfg.jump_threshold
         self._params = np.array(params)  # _step_kernel's constants
         self._step_out = np.zeros(_N_OUT)  # _step_kernel's results
+        self._kernel_goal: FloatArray | None = None  # the goal _step_kernel last gave
+        self._kernel_p: list[float] = []  # its position, m, as the kernel checked it
         self._T0 = np.eye(4)  # the centering goal's orientation
 
     @property
@@ -312,7 +314,10 @@ class _MovingPolicy:
             guard is not None,
             *(NO_GUARD if guard is None else guard.kernel_state),  # type: ignore[arg-type]
         )
-        return goal if found else None
+        if not found:
+            return None
+        self._kernel_goal, self._kernel_p = goal, goal[:3, 3].tolist()
+        return goal
 
     def _feasible(self, p_world: list[float]) -> bool:
         """Whether a camera position (3,), world, m, is inside the workspace (cone and floor)."""
@@ -421,7 +426,13 @@ class _MovingPolicy:
             return self._hold(TrackingState.LOST_TRACKING, "ring pose degenerate (zero normal)")
         p_ring = [ring_rows[0][3], ring_rows[1][3], ring_rows[2][3]]
         p_now = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
-        cleared = self._step_out[_OUT_CLEARED] != 0.0  # by the kernel, with its trace to the goal
+        # cleared by the kernel, with its trace to the goal: only for the very pose it checked
+        # (a subclass's ``_goal`` may change it; then the guard checks it here)
+        cleared = (
+            self._step_out[_OUT_CLEARED] != 0.0
+            and goal is self._kernel_goal
+            and goal[:3, 3].tolist() == self._kernel_p
+        )
         if cleared:
             assert self.guard is not None
             goal = self.guard.passed(goal)
@@ -490,8 +501,7 @@ class _MovingPolicy:
                 cmd = wp
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
         traced = None
-        if cleared:
-            assert cmd is goal  # the plain path: no way-points
+        if cleared and cmd is goal:  # the plain path: no way-points
             out = self._step_out.tolist()
             traced = (bool(out[_OUT_DETOUR]), (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2]))
         via = self._detoured(cmd, p_ring, p_now, traced)

@@ -569,6 +569,7 @@ class EndocamPolicy(_MovingPolicy):
         self._transfer: Transfer | None = None
         self._u_orbit: Vec = (0.0, 0.0, 1.0)
         self._half_b = 0.0
+        self._cleared_view: FloatArray | None = None  # this step's view, cleared by the kernel
         self._horizon = 0.0
         self.transfers = 0  # transfers started this episode (side changes and approaches)
 
@@ -742,6 +743,7 @@ class EndocamPolicy(_MovingPolicy):
             if out[_OUT_CLEARED]:  # the kernel made the guard's check: the view is clear
                 assert self.guard is not None
                 goal = self.guard.passed(view)
+                self._cleared_view = goal  # the pose the kernel's check and trace are for
             else:
                 goal = self._clear(view, p_c, p_cam)
             if goal is None:
@@ -803,15 +805,15 @@ class EndocamPolicy(_MovingPolicy):
                 return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
             cmd = cleared
         traced = None  # the kernel's trace of the move to the view, when it made it
-        if out[_OUT_CLEARED]:
-            assert cmd is goal  # the plain path: no transfer, no freeze
+        if out[_OUT_CLEARED] and cmd is goal and goal is self._cleared_view:
+            # the plain path (no transfer, no freeze): the kernel traced the move to this pose
             traced = (bool(out[_OUT_DETOUR]), (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2]))
         via = self._detoured(cmd, p_c, p_cam, traced)
         if via is not None:
             cmd, twist = via, None
             state, reason = TrackingState.PLANNING, DETOUR_REASON
         # last gate: never command outside the workspace
-        if not self._in_workspace(cmd, out[_OUT_MARGIN] if cmd is view else None):
+        if not self._in_workspace(cmd):
             self._side = side_before
             return self._freeze(
                 d_before, "command would leave the cone workspace or go below the floor"
@@ -895,15 +897,13 @@ class EndocamPolicy(_MovingPolicy):
         self._u_orbit = u
         return T
 
-    def _in_workspace(self, T_world_cmd: FloatArray, margin: float | None = None) -> bool:
+    def _in_workspace(self, T_world_cmd: FloatArray) -> bool:
         """Whether a commanded pose (4, 4) is inside the cone and above the floor.
 
-        ``margin``: its cone margin (m), when known (the kernel's, for the view).
+        The last gate: computed here, independently of the compiled step's own margin.
         """
         p = T_world_cmd[:3, 3].tolist()
-        if margin is None:
-            margin = self.cone.margin(p)
-        return margin >= 0.0 and p[2] >= self.config.min_camera_height - FLOOR_TOL_M
+        return self.cone.margin(p) >= 0.0 and p[2] >= self.config.min_camera_height - FLOOR_TOL_M
 
     @property
     def _ctx_dt(self) -> float:
