@@ -8,6 +8,9 @@ video-based skill-assessment study (``endocam.study``). Conventions: ``docs/conv
 
 from importlib.metadata import PackageNotFoundError, version
 
+# first, before any module imports numba: a kernel cache folder per version of the source
+import endocam._numba_cache  # noqa: F401
+
 try:
     __version__ = version("endocam")
 except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
