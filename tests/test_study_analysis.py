@@ -227,4 +227,5 @@ def test_hidden_by_text_words_and_sums_the_geoms() -> None:
         "the wire 20, outside the image 4, an instrument 3, the ring 3, the box 1, "
         "the ring's handle 1"
     )
-    assert hidden_by_text({}) == "–"
+    assert hidden_by_text({}) == "–"  # nothing hidden
+    assert "not recorded" in hidden_by_text(None)  # a folder from before the column

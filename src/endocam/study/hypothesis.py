@@ -37,6 +37,7 @@ from endocam.study.observability import (
     OBSERVABILITY_CSV,
     OBSERVABILITY_JSON,
     TouchObservation,
+    count_hiders,
     finite_median,
     hidden_counts,
     known_share,
@@ -231,7 +232,7 @@ def hypothesis_dict(
             "median_gap_before_px": finite_median([r.gap_before_px for r in rs]),
             "closes_visibly_share": known_share([r.closes_visibly for r in rs]),
             "gap_in_sight_share": known_share([r.gap_in_sight for r in rs]),
-            "gap_hidden_by": hidden_counts([r.gap_hidden_by for r in rs]),
+            "gap_hidden_by": hidden_counts(rs),
         }
     seeds: dict[str, Any] = {}
     for c in manifest.conditions:
@@ -255,7 +256,9 @@ def hypothesis_dict(
             "gap_in_sight_share": known_share(
                 [f for r in rows for f in (r.get("gap_in_sight") or [None] * r["true_touches"])]
             ),
-            "gap_hidden_by": hidden_counts([h for r in rows for h in r.get("gap_hidden_by") or []]),
+            "gap_hidden_by": None
+            if any(r.get("gap_hidden_by") is None for r in rows)
+            else count_hiders([h for r in rows for h in r["gap_hidden_by"] if h is not None]),
         }
     return {
         "trajectory": trajectory,

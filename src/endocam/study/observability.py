@@ -314,12 +314,23 @@ def gap_in_sight(
     return gap_hidden_by(result, scene, t_start, eye) is None
 
 
-def hidden_counts(hiders: Sequence[str | None]) -> dict[str, int]:
-    """How many gaps each thing hides, most first (``None``, in sight, is not counted)."""
+def hidden_counts(records: Sequence[TouchObservation]) -> dict[str, int] | None:
+    """How many closing gaps each thing hides, most first; None when that was not recorded.
+
+    Not recorded: a record without ``gap_in_sight``, or one not in sight without
+    ``gap_hidden_by`` (a folder made before the column; ``study observe`` fills it in).
+    """
+    hiders = [r.gap_hidden_by for r in records if r.gap_in_sight is False]
+    if any(r.gap_in_sight is None for r in records) or not all(hiders):
+        return None
+    return count_hiders(hiders)
+
+
+def count_hiders(hiders: Sequence[str]) -> dict[str, int]:
+    """``{what: touches}`` over a list of hiders, most first (ties by name)."""
     counts: dict[str, int] = {}
     for h in hiders:
-        if h:
-            counts[h] = counts.get(h, 0) + 1
+        counts[h] = counts.get(h, 0) + 1
     return dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
 
 
@@ -427,7 +438,7 @@ class ConditionObservability(_Frozen):
     median_gap_before_px: float | None = None
     closes_visibly_share: float | None = None
     gap_in_sight_share: float | None = None
-    gap_hidden_by: dict[str, int] = Field(default_factory=dict)
+    gap_hidden_by: dict[str, int] | None = None  # touches per hider; None: not recorded
 
 
 class ObservabilitySummary(_Frozen):
@@ -477,7 +488,7 @@ def summarize(records: Sequence[TouchObservation], eye: Eye = "left") -> Observa
             median_gap_before_px=finite_median([r.gap_before_px for r in rs]),
             closes_visibly_share=known_share([r.closes_visibly for r in rs]),
             gap_in_sight_share=known_share([r.gap_in_sight for r in rs]),
-            gap_hidden_by=hidden_counts([r.gap_hidden_by for r in rs]),
+            gap_hidden_by=hidden_counts(rs),
         )
     return ObservabilitySummary(eye=eye, instant="touch onset (t_start)", conditions=out)
 

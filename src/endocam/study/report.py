@@ -33,15 +33,22 @@ _HIDER_LABELS = (  # (geom-name prefix, label); first match wins
     ("psm", "an instrument"),
     ("board", "the board"),
     ("wall", "the box"),
+    ("post", "a post of the wire"),
+    ("camera_arm", "the camera's arm"),
 )
 
 
-def hidden_by_text(counts: dict[str, int]) -> str:
+NOT_RECORDED = "not recorded (run `endocam study observe`)"
+
+
+def hidden_by_text(counts: dict[str, int] | None) -> str:
     """``gap_hidden_by`` counts in words, most first: ``"the wire 20, the ring 2"`` (``–``: none).
 
     Geoms of one kind are summed (an instrument's jaws and shaft); names not in the table
-    (e.g. ``"outside the image"``) are kept as they are.
+    (e.g. ``"outside the image"``) are kept as they are. ``None``: ``NOT_RECORDED``.
     """
+    if counts is None:
+        return NOT_RECORDED
     out: dict[str, int] = {}
     for name, n in counts.items():
         label = next((lab for pre, lab in _HIDER_LABELS if name.startswith(pre)), name)
