@@ -37,7 +37,7 @@ from endocam.robot.braking import (
     profile_rows,
 )
 from endocam.robot.camera_arm import CameraArm, _braking_points_kernel, natural_pose
-from endocam.robot.cartesian import _box_corners
+from endocam.robot.cartesian import CartesianLimiter, MotionLimits, _box_corners
 from endocam.robot.dh import chain_points
 
 N_STATES = 1500  # count: random states per configuration
@@ -238,3 +238,59 @@ def test_brakes_inside_asks_the_same_points_either_way(
     for a, b in zip(asked[0.0].points, asked[1e9].points, strict=True):
         assert a.tobytes() == b.tobytes()
     assert len(asked[0.0].points) == len(states)
+
+
+class _HalfSpace:
+    """The region x ≤ ``x_max`` (m): a convex workspace, as the free camera's carrier asks it."""
+
+    convex = True
+
+    def __init__(self, x_max: float) -> None:
+        self.x_max = x_max
+
+    def margin(self, p: Any) -> float:
+        return self.x_max - float(p[0])
+
+    def all_inside(self, points: Any) -> bool:
+        return bool(np.all(np.asarray(points, dtype=float)[:, 0] <= self.x_max))
+
+    def keep_out_margin(self, p: Any) -> float:
+        return math.inf
+
+
+def test_free_camera_never_claims_a_stop_whose_brake_leaves_the_workspace() -> None:
+    """A state beyond the limits brakes first; the profiles' box does not hold that part.
+
+    For every random state whose braking path (ruckig's ``at_time``, brake included) reaches
+    farther than the profiles' box, a wall between the two must make the stop check say no.
+    Found in review: the box alone said yes.
+    """
+    dt = 0.01  # s, control period
+    carrier = CartesianLimiter(MotionLimits(), dt, _HalfSpace(0.0))  # type: ignore[arg-type]
+    v, a, _ = carrier._stop_limits
+    rng = np.random.default_rng(21)
+    beyond = 0
+    for _ in range(N_STATES):
+        p = rng.uniform(-0.01, 0.01, 3).tolist()
+        vel = (rng.uniform(-v, v, 3) * rng.choice([0.0, 1.0], 3)).tolist()
+        acc = (rng.uniform(-a, a, 3) * rng.choice([0.0, 1.0, 1.5], 3)).tolist()
+        inp = carrier._stop_inp
+        inp.current_position, inp.current_velocity, inp.current_acceleration = p, vel, acc
+        traj = ruckig.Trajectory(3)
+        if carrier._stop_otg.calculate(inp, traj) not in (
+            ruckig.Result.Working,
+            ruckig.Result.Finished,
+        ):
+            continue
+        path = _at_time_path(traj, dt)
+        if not len(path):
+            continue  # at rest already
+        box_x = float(_box_corners(profile_rows(traj))[:, 0].max())
+        path_x = float(path[:, 0].max())
+        if not path_x > box_x + 1e-9:
+            continue
+        beyond += 1
+        assert isinstance(carrier.workspace, _HalfSpace)
+        carrier.workspace.x_max = 0.5 * (box_x + path_x)  # m, between the box and the path
+        assert not carrier._can_stop_inside(p, vel, acc)
+    assert beyond > 0  # such states were exercised (8 of the 1500 here)

@@ -53,6 +53,15 @@ def profile_rows(trajectory: object) -> FloatArray:
     return np.fromiter(flat, np.float64, len(flat)).reshape(-1, ROW_LENGTH)
 
 
+def has_brake(rows: FloatArray) -> bool:
+    """Whether any profile of ``rows`` (n, 49) starts with a brake pre-trajectory.
+
+    ruckig brakes first from a state beyond its limits; :func:`profile_extrema` does not count
+    that part, :func:`path_positions` does.
+    """
+    return bool(np.any(rows[:, _BRAKE] > 0.0))
+
+
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _t_sums(rows: FloatArray) -> FloatArray:
     """Each profile's running sums of its section durations (n, 7), s.

@@ -32,7 +32,7 @@ from endocam.geometry import FloatArray, as_pose
 from endocam.kernels import Rows, matmul, so3_exp, so3_log, tmatmul
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import MotionStatus
-from endocam.robot.braking import path_positions, profile_extrema, profile_rows
+from endocam.robot.braking import has_brake, path_positions, profile_extrema, profile_rows
 from endocam.task.config import TaskConfig
 from endocam.task.layout import overview_camera_pose, task_centre
 
@@ -218,11 +218,14 @@ class CartesianLimiter:
         rows = profile_rows(self._stop_traj)
         if not ws.all_inside(_box_corners(rows)):
             return False
-        if ws.convex:
+        # The box holds the profiles, not a brake pre-trajectory before them (a state beyond
+        # the limits): then the path itself is checked too.
+        braked = has_brake(rows)
+        if ws.convex and not braked:
             return True  # a convex region holding the path's box's corners holds the path
-        if ws.keep_out_margin(p) > bound:
+        if not braked and ws.keep_out_margin(p) > bound:
             return True  # farther from the keep-out zone than the braking can carry it
-        # a keep-out zone (the wire's): the braking path itself, at every control step
+        # a keep-out zone (the wire's) or a brake: the braking path itself, at every control step
         duration, dt = self._stop_traj.duration, self.dt
         steps = math.ceil(duration / dt - 1e-9)
         return ws.all_inside(path_positions(rows, duration, dt, steps))
