@@ -43,18 +43,12 @@ def _first_outside_kernel(
     """The first row of ``p`` (N, 3), world, m, outside the cone or below ``floor`` (m); N if none.
 
     A row is outside when ``min(ConeWorkspace.margin(row), row[2] − floor) >= 0`` fails (a
-    non-finite row: the cone's margin is NaN); the cone's margin is computed with the scalar
-    method's operations in its order (no fast-math: docs/conventions.md, "Compiled kernels").
+    non-finite row: the cone's margin is NaN), the margin by :func:`cone_margin`.
     """
     for i in range(p.shape[0]):
-        d0, d1, d2 = p[i, 0] - apex[0], p[i, 1] - apex[1], p[i, 2] - apex[2]
-        h = d0 * axis[0] + d1 * axis[1] + d2 * axis[2]
-        r0, r1, r2 = d0 - h * axis[0], d1 - h * axis[1], d2 - h * axis[2]
-        radial = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-        lateral = (h * tan_half - radial) * cos_half
-        if not math.isfinite(h + radial):
-            return i
-        if not min(min(lateral, height - h, h), p[i, 2] - floor) >= 0.0:
+        x, y, z = p[i, 0], p[i, 1], p[i, 2]
+        margin = cone_margin(x, y, z, apex, axis, tan_half, cos_half, height)
+        if not py_min(margin, z - floor) >= 0.0:
             return i
     return p.shape[0]
 

@@ -38,7 +38,7 @@ from numba import njit
 
 from endocam.camera import StereoCamera
 from endocam.geometry import UP, FloatArray, as_pose, invert_pose
-from endocam.kernels import cross, rotation_angle, so3_exp
+from endocam.kernels import cross, py_max, py_min, rotation_angle, so3_exp
 from endocam.pyfloat import dist3, hypot2
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import (
@@ -888,8 +888,7 @@ def _path_engage_kernel(
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _unit_clip(x: float) -> float:
     """Python's ``max(-1.0, min(1.0, x))`` (a NaN gives 1.0, as there)."""
-    y = x if x < 1.0 else 1.0
-    return y if y > -1.0 else -1.0
+    return py_max(-1.0, py_min(1.0, x))
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
