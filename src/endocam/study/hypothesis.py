@@ -24,7 +24,7 @@ import concurrent.futures
 import dataclasses
 import json
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -145,13 +145,16 @@ def write_truth(
     fps: float,
     true_events: Sequence[Interval],
     hidden: Hidden | None,
+    keep: Mapping[str, object] | None = None,
 ) -> None:
     """Write a kept seed's ``truth.json`` (atomically); ``hidden``: per condition, per touch.
 
     ``gap_hidden_by`` is what hides each touch's closing gap (None: it is in sight), and
-    ``gap_in_sight`` the same as flags.
+    ``gap_in_sight`` the same as flags. ``keep``: the file as it was (a replay's rewrite), whose
+    other keys (a user's notes, say) are kept.
     """
     doc = {
+        **(keep or {}),
         "seed": seed,
         "fps": fps,
         "true_events": [list(e) for e in true_events],
@@ -472,7 +475,8 @@ def replay_gap_in_sight(study: Path, workers: int = DEFAULT_WORKERS) -> int:
         if kind == "seed":
             folder = study / SEEDS_DIR / str(key)
             doc = json.loads((folder / TRUTH_JSON).read_text("utf-8"))
-            write_truth(folder, int(doc["seed"]), float(doc["fps"]), doc["true_events"], hidden)
+            seed, fps, events = int(doc["seed"]), float(doc["fps"]), doc["true_events"]
+            write_truth(folder, seed, fps, events, hidden, keep=doc)
     filled = {vid: iter(results[("video", vid)][by_id[vid].condition.value]) for vid in videos}
 
     def refilled(r: TouchObservation) -> TouchObservation:
