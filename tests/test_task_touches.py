@@ -4,12 +4,13 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+import reference_touches as reference
 from endocam.geometry import make_pose, transform_points
 from endocam.task.config import RingConfig, TaskConfig, WireConfig
 from endocam.task.touches import (
     _coarse_kernel,
     _coarse_minimiser,
-    _core_distance,
+    _core_distance_kernel,
     clearance,
     clearances,
     touch_events,
@@ -211,7 +212,7 @@ N_COARSE = 300  # count: random coarse searches compared with the numpy arithmet
 
 
 def test_coarse_search_is_the_numpy_argmin() -> None:
-    """The compiled coarse search picks numpy's argmin of ``_core_distance``, tie rule included."""
+    """The compiled coarse search picks numpy's argmin of the interpreted core distance."""
     wire = Wire(WireConfig())
     pts = wire.search_points
     xyz = (pts[:, 0].copy(), pts[:, 1].copy(), pts[:, 2].copy())
@@ -224,8 +225,87 @@ def test_coarse_search_is_the_numpy_argmin() -> None:
         n = rng.normal(size=(n_poses, 3))
         n /= np.linalg.norm(n, axis=1, keepdims=True)
         major = float(rng.uniform(0.002, 0.02))
-        d = _core_distance(pts[idx], c[:, None, :], n[:, None, :], major)
+        d = reference._core_distance(pts[idx], c[:, None, :], n[:, None, :], major)
         expected = idx[np.arange(n_poses), np.argmin(d, axis=1)]
         got = _coarse_minimiser(xyz, idx, c, n, major)
         np.testing.assert_array_equal(got, expected)  # clipped idx repeats points: ties
         np.testing.assert_array_equal(_coarse_kernel.py_func(*xyz, idx, c, n, major), expected)
+
+
+def _bits(a: np.ndarray) -> bytes:
+    return np.ascontiguousarray(a, dtype=float).tobytes()
+
+
+N_DISTANCE = 20_000  # count: random points per form of the compiled core distance
+
+
+def test_core_distance_kernel_is_the_numpy_arithmetic() -> None:
+    """The compiled core distance gives numpy's floats: arrays (``square``), scalars (``pow``)."""
+    rng = np.random.default_rng(33)
+    k = rng.integers(0, 50, N_DISTANCE)
+    c = rng.normal(0.0, 0.02, (50, 3))
+    n = rng.normal(size=(50, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    p = c[k] + rng.normal(0.0, 0.01, (N_DISTANCE, 3)) * rng.uniform(0.0, 1.0, (N_DISTANCE, 1))
+    p[:50] = c[k[:50]] + 1e-3 * n[k[:50]]  # on the axis: ρ² rounds to ≤ 0 (clamped)
+    major = 0.00575
+    expected = reference._core_distance(p, c[k], n[k], major)
+    assert _bits(_core_distance_kernel(p, c, n, k, major, 0.0)) == _bits(expected)
+    # one point at a time (numpy scalars, libm's pow for ``** 2``), as the scalar refinement
+    each = range(N_DISTANCE)
+    scalar = np.array([reference._core_distance(p[i], c[k[i]], n[k[i]], major) for i in each])
+    got = [_core_distance_kernel(p[i : i + 1], c, n, k[i : i + 1], major, 2.0)[0] for i in each]
+    assert _bits(np.array(got)) == _bits(scalar)
+    assert _bits(expected) != _bits(scalar)  # the forms differ: a kernel must tell them apart
+
+
+def _same_report(a, b) -> None:
+    """Two touch reports are equal bit for bit: samples, clearances, events."""
+    assert _bits(a.t) == _bits(b.t)
+    assert _bits(a.clearance) == _bits(b.clearance)
+    np.testing.assert_array_equal(a.in_contact, b.in_contact)
+    assert (a.dt, a.max_point_speed) == (b.dt, b.max_point_speed)
+    assert len(a.events) == len(b.events)
+    for ea, eb in zip(a.events, b.events, strict=True):
+        assert _bits(np.array([ea.t_start, ea.t_end, ea.min_clearance])) == _bits(
+            np.array([eb.t_start, eb.t_end, eb.min_clearance])
+        )
+        assert _bits(ea.p_world_contact) == _bits(eb.p_world_contact)
+
+
+@pytest.mark.parametrize(
+    ("kind", "n", "seeds", "dt"),
+    [
+        (TrajectoryKind.NOISY, 71, (1, 2, 3), 2e-3),  # the episodes' sampling
+        (TrajectoryKind.NOISY, 36, (4, 5), 2e-3),
+        (TrajectoryKind.NOISY, 12, (6, 10), 2e-3),  # 2 and 1 events: scalar root calls
+        (TrajectoryKind.NOISY, 71, (7, 8), 0.05),  # coarse: deep refinement, few roots
+        (TrajectoryKind.NOISY, 36, (9,), 1.5),
+        (TrajectoryKind.IDEAL, 71, (None,), 2e-3),
+        (TrajectoryKind.IDEAL, 36, (None,), 0.05),
+    ],
+)
+def test_touch_events_are_the_interpreted_detection(
+    wire: Wire, kind: TrajectoryKind, n: int, seeds: tuple, dt: float
+) -> None:
+    """The batched detection gives the samples, clearances and events of the one before."""
+    cfg = TaskConfig()
+    for seed in seeds:
+        traj = make_trajectory(cfg, kind, n, seed, wire=wire)
+        _same_report(
+            touch_events(traj, wire, cfg.ring, dt), reference.touch_events(traj, wire, cfg.ring, dt)
+        )
+
+
+def test_clearances_are_the_interpreted_ones(wire: Wire) -> None:
+    """Batches of every size (scalar Brent up to 4 poses, chunks of 2048) and one pose."""
+    cfg = TaskConfig()
+    traj = make_trajectory(cfg, TrajectoryKind.NOISY, 71, 3, wire=wire)
+    rng = np.random.default_rng(4)
+    for count in (1, 2, 4, 5, 16, 2051, 2053):
+        T = traj.poses(np.sort(rng.uniform(0.0, traj.duration, count)))
+        got, expected = clearances(T, wire, cfg.ring), reference.clearances(T, wire, cfg.ring)
+        assert _bits(got[0]) == _bits(expected[0]) and _bits(got[1]) == _bits(expected[1])
+    for T in traj.poses(rng.uniform(0.0, traj.duration, 5)):
+        got_one, expected_one = clearance(T, wire, cfg.ring), reference.clearance(T, wire, cfg.ring)
+        assert got_one[0] == expected_one[0] and _bits(got_one[1]) == _bits(expected_one[1])

@@ -39,6 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import elementwise, minimize_scalar
 
 from endocam.geometry import FloatArray, as_pose, as_vector3
+from endocam.kernels import py_max
 from endocam.task.config import RingConfig
 from endocam.task.wire import Wire
 
@@ -130,14 +131,28 @@ class TouchReport:
         return float(sum(e.duration for e in self.events) / span)
 
 
-def _core_distance(p: FloatArray, c: FloatArray, n: FloatArray, major: float) -> FloatArray:
-    """Distance, m, from points ``p`` (…, 3) to core circles (centres ``c``, normals ``n``)."""
-    dx = p[..., 0] - c[..., 0]  # component-wise: several times faster than reductions on axis -1
-    dy = p[..., 1] - c[..., 1]
-    dz = p[..., 2] - c[..., 2]
-    h = dx * n[..., 0] + dy * n[..., 1] + dz * n[..., 2]
-    rho = np.sqrt(np.maximum(dx * dx + dy * dy + dz * dz - h * h, 0.0))
-    return np.asarray(np.sqrt(h * h + (rho - major) ** 2), dtype=float)
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
+def _core_distance_kernel(
+    p: FloatArray, c: FloatArray, n: FloatArray, k: NDArray[np.intp], major: float, two: float
+) -> FloatArray:
+    """Distances, m, from points ``p`` (N, 3) to the core circles ``k`` (N,) of ``c``, ``n``.
+
+    Circle ``k[i]`` has centre ``c[k[i]]`` and unit normal ``n[k[i]]`` ((M, 3) each, m) and
+    radius ``major`` (m): ``√(h² + (ρ − R)²)`` with ``h = (p − c)·n``, ``ρ² = |p − c|² − h²``
+    (clamped at 0), summed left to right as numpy summed them component-wise (no fast-math:
+    docs/conventions.md, "Compiled kernels"). ``two`` is the square's form, read at run time:
+    ``0.0`` for ``(ρ − R) * (ρ − R)`` (numpy arrays' ``** 2`` is ``square``), ``2.0`` for libm's
+    ``pow(ρ − R, 2.0)`` (numpy scalars' ``** 2``, as the one-pose refinement computed it).
+    """
+    out = np.empty(p.shape[0])
+    for i in range(p.shape[0]):
+        j = k[i]
+        dx, dy, dz = p[i, 0] - c[j, 0], p[i, 1] - c[j, 1], p[i, 2] - c[j, 2]
+        h = dx * n[j, 0] + dy * n[j, 1] + dz * n[j, 2]
+        rho = math.sqrt(py_max(dx * dx + dy * dy + dz * dz - h * h, 0.0))
+        e = rho - major
+        out[i] = math.sqrt(h * h + (e * e if two == 0.0 else e**two))
+    return out
 
 
 def _coarse_minimiser(
@@ -149,8 +164,9 @@ def _coarse_minimiser(
 ) -> NDArray[np.intp]:
     """The index in ``idx`` (N, k) of each pose's search point nearest to its core circle.
 
-    The same arithmetic as :func:`_core_distance`, operation for operation (so the same
-    values and the same argmin, the first of equal ones), compiled (:func:`_coarse_kernel`)
+    The same arithmetic as :func:`_core_distance_kernel` on arrays, operation for operation
+    (so the same values and the same argmin, the first of equal ones), compiled
+    (:func:`_coarse_kernel`)
     on the contiguous coordinate columns ``xyz`` ((M,) each, m) of the search polyline: the
     coarse search is the bulk of the touch detection. Centres and normals ``c``, ``n`` are
     (N, 3), m.
@@ -173,7 +189,7 @@ def _coarse_kernel(
     """:func:`_coarse_minimiser`'s loop: per pose, the first least core distance's index.
 
     No fast-math (docs/conventions.md, "Compiled kernels"): each distance is
-    :func:`_core_distance`'s float, summed in its order.
+    :func:`_core_distance_kernel`'s float (``two`` 0), summed in its order.
     """
     out = np.empty(idx.shape[0], dtype=np.intp)
     for i in range(idx.shape[0]):
@@ -231,9 +247,12 @@ def _refine(
 
     ``scalar`` (N,) marks the poses refined one by one with scalar Brent (by default all of
     them when there are at most ``_SCALAR_LIMIT``, where it is cheaper than the array method);
-    the others are refined together. Each pose's result depends only on its own inputs.
+    the others are refined together by one ``find_minimum``. Each pose's result depends only on
+    its own inputs and its method (scipy's elementwise solvers iterate each element on its
+    own), so any batch of poses gives each the same bits. ``c``, ``n`` are C-contiguous.
     """
     s_all = wire.search_arc_length
+    pts = wire.search_points
     m = s_all.size
     s_best = s_all[g].copy()
     lo = np.maximum(g - step, 0)
@@ -242,25 +261,39 @@ def _refine(
     if scalar is None:
         scalar = np.full(g.size, g.size <= _SCALAR_LIMIT)
     for i in np.flatnonzero(scalar).tolist():
+        k = np.array([i], dtype=np.intp)
+
+        def one(s: float, k: NDArray[np.intp] = k) -> float:
+            return float(_core_distance_kernel(wire.point(s)[None], c, n, k, major, 2.0)[0])
+
         res = minimize_scalar(
-            lambda s, i=i: float(_core_distance(wire.point(s), c[i], n[i], major)),
-            bounds=(s_all[lo[i]], s_all[hi[i]]),
-            method="bounded",
-            options={"xatol": X_TOL},
+            one, bounds=(s_all[lo[i]], s_all[hi[i]]), method="bounded", options={"xatol": X_TOL}
         )
-        if res.fun <= _core_distance(wire.search_points[g[i]], c[i], n[i], major):
+        if res.fun <= _core_distance_kernel(pts[g[i] : g[i] + 1], c, n, k, major, 2.0)[0]:
             s_best[i] = float(res.x)
     inner = np.flatnonzero((g > 0) & (g < m - 1) & ~scalar)
     if inner.size:
+        # the minimiser's first three calls are at the bracket (lo, g, hi): search points, whose
+        # values come from the search polyline (the same spline values, bit for bit)
+        brackets = (s_all[lo[inner]], s_best[inner], s_all[hi[inner]])
+        known = [
+            (x, _core_distance_kernel(pts[j], c, n, inner, major, 0.0))
+            for x, j in zip(brackets, (lo[inner], g[inner], hi[inner]), strict=True)
+        ]
 
         def objective(s: FloatArray, k: NDArray[np.intp]) -> FloatArray:
             # ``k`` shrinks with the still-active elements; it indexes the poses
-            p = wire.points(s.ravel()).reshape(*s.shape, 3)
-            return _core_distance(p, c[k], n[k], major)
+            for j, (x, f) in enumerate(known):
+                if s.shape == x.shape and np.array_equal(s, x) and np.array_equal(k, inner):
+                    del known[j]
+                    return f
+            known.clear()  # past the bracket: every later call is evaluated
+            p = wire.points(s.ravel())
+            return _core_distance_kernel(p, c, n, k.ravel(), major, 0.0).reshape(s.shape)
 
         res = elementwise.find_minimum(
             objective,
-            (s_all[lo[inner]], s_best[inner], s_all[hi[inner]]),
+            brackets,
             args=(inner,),
             tolerances={"xatol": X_TOL, "xrtol": 0.0, "fatol": 0.0, "frtol": 0.0},
         )
@@ -273,6 +306,18 @@ def _columns(wire: Wire) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The search polyline's x, y, z columns ((M,) each, contiguous), m."""
     pts = wire.search_points
     return pts[:, 0].copy(), pts[:, 1].copy(), pts[:, 2].copy()
+
+
+def _chunk_scalar(count: int) -> NDArray[np.bool_]:
+    """Which of ``count`` poses :func:`clearances` refines with scalar Brent: (count,).
+
+    Those of a block of at most ``_SCALAR_LIMIT`` poses (the last block of ``_CHUNK``).
+    """
+    scalar = np.zeros(count, dtype=bool)
+    for a in range(0, count, _CHUNK):
+        b = min(a + _CHUNK, count)
+        scalar[a:b] = b - a <= _SCALAR_LIMIT
+    return scalar
 
 
 def clearances(
@@ -302,21 +347,26 @@ def clearances(
     T = np.asarray(T_world_ring, dtype=float)
     if T.ndim != 3 or T.shape[1:] != (4, 4) or not np.all(np.isfinite(T)):
         raise ValueError(f"T_world_ring must be a finite (N, 4, 4) array, got {T.shape}")
+    return _clearances(T, wire, ring_cfg, _chunk_scalar(T.shape[0]))
+
+
+def _clearances(
+    T: FloatArray, wire: Wire, ring_cfg: RingConfig, scalar: NDArray[np.bool_]
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`clearances` of finite poses ``T`` (N, 4, 4), m, refined as ``scalar`` (N,) says."""
     reach = ring_cfg.major_radius + ring_cfg.minor_radius + wire.radius
     step = max(1, int(COARSE_STEP / wire.search_spacing))
     half = math.ceil(WINDOW_FACTOR * reach / wire.search_spacing / step) * step
     m = wire.search_arc_length.size
     offsets = np.arange(-half, half + 1, step)
-    c, n = T[:, :3, 3], T[:, :3, 2]
+    c, n = np.ascontiguousarray(T[:, :3, 3]), np.ascontiguousarray(T[:, :3, 2])
     xyz = _columns(wire)
     g = np.empty(T.shape[0], dtype=np.intp)
-    scalar = np.zeros(T.shape[0], dtype=bool)
     for a in range(0, T.shape[0], _CHUNK):  # the coarse search in blocks (bounded memory)
         b = min(a + _CHUNK, T.shape[0])
         k = np.searchsorted(wire.search_arc_length, wire.nearest_s(c[a:b]))
         idx = np.clip(k[:, None] + offsets, 0, m - 1)
         g[a:b] = _coarse_minimiser(xyz, idx, c[a:b], n[a:b], ring_cfg.major_radius)
-        scalar[a:b] = b - a <= _SCALAR_LIMIT  # a small block's poses: scalar Brent
     s_best = _refine(wire, ring_cfg, g, step, c, n, scalar)  # then all together
     return _contact_point(wire.points(s_best), T, ring_cfg, wire.radius)
 
@@ -347,7 +397,7 @@ def clearance(
     idx = np.arange(0, wire.search_arc_length.size, step)
     idx = np.unique(np.append(idx, wire.search_arc_length.size - 1))[None, :]
     T = T[None]
-    c, n = T[:, :3, 3], T[:, :3, 2]
+    c, n = np.ascontiguousarray(T[:, :3, 3]), np.ascontiguousarray(T[:, :3, 2])
     g = _coarse_minimiser(_columns(wire), idx, c, n, ring_cfg.major_radius)
     s_best = _refine(wire, ring_cfg, g, step, c, n)
     cl, p = _contact_point(wire.points(s_best), T, ring_cfg, wire.radius)
@@ -379,6 +429,7 @@ def touch_events(
     n = math.ceil(trajectory.duration / dt) + 1
     t = np.linspace(0.0, trajectory.duration, n)
     c, p = clearances(trajectory.poses(t), wire, ring_cfg)
+    scalar = _chunk_scalar(t.size)  # each sample's refinement method (see _events)
     speed = SPEED_MARGIN * trajectory.max_point_speed(
         t, ring_cfg.major_radius + ring_cfg.minor_radius
     )
@@ -396,8 +447,9 @@ def touch_events(
         t = np.concatenate([t, t_new])[order]
         c = np.concatenate([c, c_new])[order]
         p = np.concatenate([p, p_new])[order]
+        scalar = np.concatenate([scalar, _chunk_scalar(t_new.size)])[order]
     in_contact = c <= 0.0
-    events = _events(trajectory, wire, ring_cfg, t, c, p, in_contact)
+    events = _events(trajectory, wire, ring_cfg, t, c, p, in_contact, scalar)
     return TouchReport(events, t, c, in_contact, float(dt), float(speed))
 
 
@@ -409,8 +461,14 @@ def _events(
     c: FloatArray,
     p: FloatArray,
     in_contact: NDArray[np.bool_],
+    scalar: NDArray[np.bool_],
 ) -> list[TouchEvent]:
-    """Maximal contact runs of the samples, with start/end times root-found together."""
+    """Maximal contact runs of the samples, with start/end times root-found together.
+
+    The root finder's first two calls are at the brackets' ends, samples whose clearance is
+    known: they are answered from ``c`` when each sample was refined by the method
+    (``scalar`` (K,)) that call would use, hence with the same bits.
+    """
     flag = np.concatenate([[False], in_contact, [False]]).astype(np.int8)
     starts = np.flatnonzero(np.diff(flag) == 1)
     ends = np.flatnonzero(np.diff(flag) == -1) - 1
@@ -421,9 +479,18 @@ def _events(
     hi = np.concatenate([t[rise], t[fall + 1]])
     roots = np.empty(0)
     if lo.size:
+        sampled = [(lo, np.concatenate([rise - 1, fall])), (hi, np.concatenate([rise, fall + 1]))]
 
         def c_of_t(time: FloatArray) -> FloatArray:
-            return clearances(trajectory.poses(time.ravel()), wire, ring_cfg)[0].reshape(time.shape)
+            flat = time.ravel()
+            for x, j in sampled:
+                if (
+                    flat.shape == x.shape
+                    and np.array_equal(flat, x)
+                    and np.array_equal(scalar[j], _chunk_scalar(x.size))
+                ):
+                    return c[j].reshape(time.shape)
+            return clearances(trajectory.poses(flat), wire, ring_cfg)[0].reshape(time.shape)
 
         res = elementwise.find_root(c_of_t, (lo, hi), tolerances={"xatol": T_TOL, "xrtol": 0.0})
         # a failed bracket (clearance exactly 0 at a sample) keeps the in-contact sample's time
