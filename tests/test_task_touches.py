@@ -11,6 +11,7 @@ from endocam.task.touches import (
     _coarse_kernel,
     _coarse_minimiser,
     _core_distance_kernel,
+    _search_polyline,
     clearance,
     clearances,
     touch_events,
@@ -211,25 +212,46 @@ def test_ideal_handle_never_meets_the_wire(wire: Wire) -> None:
 N_COARSE = 300  # count: random coarse searches compared with the numpy arithmetic
 
 
-def test_coarse_search_is_the_numpy_argmin() -> None:
-    """The compiled coarse search picks numpy's argmin of the interpreted core distance."""
+@pytest.mark.parametrize("step", [1, 2, 5])
+def test_coarse_search_is_the_numpy_argmin(step: int) -> None:
+    """The compiled coarse search (branch and bound) picks numpy's argmin of the interpreted
+    core distance over the whole window, first of equal values included."""
     wire = Wire(WireConfig())
     pts = wire.search_points
-    xyz = (pts[:, 0].copy(), pts[:, 1].copy(), pts[:, 2].copy())
-    rng = np.random.default_rng(21)
+    xyz, reach = _search_polyline(wire, step)
+    rng = np.random.default_rng(21 + step)
     m = len(pts)
     for _ in range(N_COARSE):
-        n_poses, k = int(rng.integers(1, 20)), int(rng.integers(1, 60))
-        idx = np.clip(rng.integers(-5, m + 5, n_poses)[:, None] + np.arange(k), 0, m - 1)
-        c = pts[idx[:, k // 2]] + rng.normal(0.0, 0.01, (n_poses, 3))
+        n_poses, k = int(rng.integers(1, 20)), int(rng.integers(1, 90))
+        start = rng.integers(-5 * step, m + 5 * step, n_poses)
+        offsets = step * (np.arange(k) - int(rng.integers(0, k)))
+        idx = np.clip(start[:, None] + offsets, 0, m - 1)
+        spread = rng.uniform(0.0, 0.01)  # m: centres near the window's points, or far
+        c = pts[idx[:, rng.integers(0, k)]] + rng.normal(0.0, spread, (n_poses, 3))
         n = rng.normal(size=(n_poses, 3))
         n /= np.linalg.norm(n, axis=1, keepdims=True)
         major = float(rng.uniform(0.002, 0.02))
         d = reference._core_distance(pts[idx], c[:, None, :], n[:, None, :], major)
         expected = idx[np.arange(n_poses), np.argmin(d, axis=1)]
-        got = _coarse_minimiser(xyz, idx, c, n, major)
-        np.testing.assert_array_equal(got, expected)  # clipped idx repeats points: ties
-        np.testing.assert_array_equal(_coarse_kernel.py_func(*xyz, idx, c, n, major), expected)
+        got = _coarse_minimiser(xyz, start, offsets, c, n, major, reach)
+        np.testing.assert_array_equal(got, expected)  # clipped windows repeat points: ties
+        np.testing.assert_array_equal(
+            _coarse_kernel.py_func(*xyz, start, offsets, c, n, major, reach), expected
+        )
+
+
+def test_coarse_search_ties_keep_the_first() -> None:
+    """Equal least distances keep the first column, as numpy's argmin (synthetic polyline)."""
+    x = np.array([1.0, -1.0, 0.0, 3.0])  # m: points 0 and 1 are both 0.5 from the circle
+    y, z = np.zeros(4), np.zeros(4)
+    c, n = np.zeros((3, 3)), np.tile([0.0, 0.0, 1.0], (3, 1))
+    pts = np.column_stack([x, y, z])
+    for window, first in (([0, 1, 3], 0), ([3, 1, 0], 1), ([1, 3, 3], 1)):  # middle one first
+        idx = np.array([window])
+        d = reference._core_distance(pts[idx], c[:1, None, :], n[:1, None, :], 0.5)
+        assert idx[0, np.argmin(d[0])] == first
+        got = _coarse_kernel(x, y, z, np.zeros(1, np.intp), idx[0], c[:1], n[:1], 0.5, 10.0)
+        assert got[0] == first
 
 
 def _bits(a: np.ndarray) -> bytes:

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
+from numba.extending import register_jitable
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import elementwise, minimize_scalar
 
@@ -55,8 +56,10 @@ T_TOL = 1e-6  # s, time tolerance of event start/end root finding (≪ 1 µm of 
 COARSE_STEP = 0.5e-3  # m, arc-length step of the coarse search before refinement
 WINDOW_FACTOR = 3.0  # unitless, searched arc length each side, in units of R + r + r_w
 _SCALAR_LIMIT = 4  # poses, below this refine with scalar Brent instead of the array method
-_CHUNK = 2048  # poses per block of the coarse search (bounds its memory to ~10 MB)
+_CHUNK = 2048  # poses per block; a last block of ≤ _SCALAR_LIMIT poses refines with Brent
 _EPS = 1e-15  # m, below this a direction is undefined
+_SKIP_MARGIN = 1e-12  # m, the coarse search skips points only this much beyond the best
+_REACH_SLACK = 1e-6  # unitless, widening of the polyline's longest chord (round-off)
 
 
 @dataclass(frozen=True)
@@ -131,6 +134,24 @@ class TouchReport:
         return float(sum(e.duration for e in self.events) / span)
 
 
+@register_jitable  # inlined into the compiled kernels below (the same source)
+def _circle_distance(
+    dx: float, dy: float, dz: float, n0: float, n1: float, n2: float, major: float, two: float
+) -> float:
+    """Distance, m, of ``c + (dx, dy, dz)`` to the core circle (centre ``c``, normal ``n``).
+
+    ``√(h² + (ρ − R)²)`` with ``h = d·n``, ``ρ² = |d|² − h²`` (clamped at 0), summed left to
+    right as numpy summed them component-wise (no fast-math: docs/conventions.md, "Compiled
+    kernels"). ``two`` is the square's form, read at run time: ``0.0`` for ``(ρ − R) * (ρ − R)``
+    (numpy arrays' ``** 2`` is ``square``), ``2.0`` for libm's ``pow(ρ − R, 2.0)`` (numpy
+    scalars' ``** 2``, as the one-pose refinement computed it).
+    """
+    h = dx * n0 + dy * n1 + dz * n2
+    rho = math.sqrt(py_max(dx * dx + dy * dy + dz * dz - h * h, 0.0))
+    e = rho - major
+    return math.sqrt(h * h + (e * e if two == 0.0 else e**two))
+
+
 @njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
 def _core_distance_kernel(
     p: FloatArray, c: FloatArray, n: FloatArray, k: NDArray[np.intp], major: float, two: float
@@ -138,75 +159,82 @@ def _core_distance_kernel(
     """Distances, m, from points ``p`` (N, 3) to the core circles ``k`` (N,) of ``c``, ``n``.
 
     Circle ``k[i]`` has centre ``c[k[i]]`` and unit normal ``n[k[i]]`` ((M, 3) each, m) and
-    radius ``major`` (m): ``√(h² + (ρ − R)²)`` with ``h = (p − c)·n``, ``ρ² = |p − c|² − h²``
-    (clamped at 0), summed left to right as numpy summed them component-wise (no fast-math:
-    docs/conventions.md, "Compiled kernels"). ``two`` is the square's form, read at run time:
-    ``0.0`` for ``(ρ − R) * (ρ − R)`` (numpy arrays' ``** 2`` is ``square``), ``2.0`` for libm's
-    ``pow(ρ − R, 2.0)`` (numpy scalars' ``** 2``, as the one-pose refinement computed it).
+    radius ``major`` (m); ``two`` as in :func:`_circle_distance`.
     """
     out = np.empty(p.shape[0])
     for i in range(p.shape[0]):
         j = k[i]
         dx, dy, dz = p[i, 0] - c[j, 0], p[i, 1] - c[j, 1], p[i, 2] - c[j, 2]
-        h = dx * n[j, 0] + dy * n[j, 1] + dz * n[j, 2]
-        rho = math.sqrt(py_max(dx * dx + dy * dy + dz * dz - h * h, 0.0))
-        e = rho - major
-        out[i] = math.sqrt(h * h + (e * e if two == 0.0 else e**two))
+        out[i] = _circle_distance(dx, dy, dz, n[j, 0], n[j, 1], n[j, 2], major, two)
     return out
 
 
 def _coarse_minimiser(
     xyz: tuple[FloatArray, FloatArray, FloatArray],
-    idx: NDArray[np.intp],
+    start: NDArray[np.intp],
+    offsets: NDArray[np.intp],
     c: FloatArray,
     n: FloatArray,
     major: float,
+    reach: float,
 ) -> NDArray[np.intp]:
-    """The index in ``idx`` (N, k) of each pose's search point nearest to its core circle.
+    """Each pose's search point nearest to its core circle, among a window of the polyline.
 
-    The same arithmetic as :func:`_core_distance_kernel` on arrays, operation for operation
-    (so the same values and the same argmin, the first of equal ones), compiled
-    (:func:`_coarse_kernel`)
-    on the contiguous coordinate columns ``xyz`` ((M,) each, m) of the search polyline: the
-    coarse search is the bulk of the touch detection. Centres and normals ``c``, ``n`` are
-    (N, 3), m.
+    Pose ``i`` searches the points ``start[i] + offsets`` ((N,), (k,) ints, increasing
+    offsets), clipped to the polyline ``xyz`` ((M,) contiguous columns each, m): its answer is
+    the first least of the distances :func:`_core_distance_kernel` gives on arrays (numpy's
+    argmin of them, ties included), compiled (:func:`_coarse_kernel`). ``reach`` (m) bounds the
+    distance between the points of two neighbouring offsets (:func:`_search_polyline`).
+    Centres and normals ``c``, ``n`` are (N, 3), m (C-contiguous). Returns (N,) indices.
     """
-    return _coarse_kernel(
-        xyz[0], xyz[1], xyz[2], np.ascontiguousarray(idx, dtype=np.intp), c, n, major
-    )
+    start = np.ascontiguousarray(start, dtype=np.intp)
+    offsets = np.ascontiguousarray(offsets, dtype=np.intp)
+    return _coarse_kernel(xyz[0], xyz[1], xyz[2], start, offsets, c, n, major, reach)
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
 def _coarse_kernel(
     x: FloatArray,
     y: FloatArray,
     z: FloatArray,
-    idx: NDArray[np.intp],
+    start: NDArray[np.intp],
+    offsets: NDArray[np.intp],
     c: FloatArray,
     n: FloatArray,
     major: float,
+    reach: float,
 ) -> NDArray[np.intp]:
     """:func:`_coarse_minimiser`'s loop: per pose, the first least core distance's index.
 
-    No fast-math (docs/conventions.md, "Compiled kernels"): each distance is
-    :func:`_core_distance_kernel`'s float (``two`` 0), summed in its order.
+    Each distance is :func:`_circle_distance`'s float (``two`` 0). Branch and bound, with the
+    same answer as the full scan: the middle offset's distance is the first bound; a point
+    ``d`` (m) from the circle puts the points of the next ``u`` offsets at least
+    ``d − u · reach`` from it (a distance to a set is 1-Lipschitz), so those that cannot come
+    within ``_SKIP_MARGIN`` of the best so far are skipped (they are strictly farther: never
+    the least, nor a tie). Of equal least distances the first offset wins, as numpy's argmin.
     """
-    out = np.empty(idx.shape[0], dtype=np.intp)
-    for i in range(idx.shape[0]):
+    out = np.empty(start.shape[0], dtype=np.intp)
+    last = x.shape[0] - 1
+    width = offsets.shape[0]
+    mid = width // 2
+    for i in range(start.shape[0]):
         c0, c1, c2 = c[i, 0], c[i, 1], c[i, 2]
         n0, n1, n2 = n[i, 0], n[i, 1], n[i, 2]
-        best = idx[i, 0]
-        best_d = math.inf
-        for j in range(idx.shape[1]):
-            k = idx[i, j]
-            dx, dy, dz = x[k] - c0, y[k] - c1, z[k] - c2
-            h = dx * n0 + dy * n1 + dz * n2
-            rho = math.sqrt(max(dx * dx + dy * dy + dz * dz - h * h, 0.0))
-            e = rho - major
-            d = math.sqrt(h * h + e * e)
-            if d < best_d:
-                best, best_d = k, d
-        out[i] = best
+        k = min(max(start[i] + offsets[mid], 0), last)
+        best_k, best_j = k, mid
+        best_d = _circle_distance(x[k] - c0, y[k] - c1, z[k] - c2, n0, n1, n2, major, 0.0)
+        j = 0
+        while j < width:
+            if j != mid:
+                k = min(max(start[i] + offsets[j], 0), last)
+                d = _circle_distance(x[k] - c0, y[k] - c1, z[k] - c2, n0, n1, n2, major, 0.0)
+                if d < best_d or (d == best_d and j < best_j):
+                    best_k, best_j, best_d = k, j, d
+                q = (d - best_d - _SKIP_MARGIN) / reach
+                if q >= 1.0:  # the next int(q) offsets stay farther than best_d: skipped
+                    j += int(q) if q < width else width
+            j += 1
+        out[i] = best_k
     return out
 
 
@@ -302,10 +330,19 @@ def _refine(
     return s_best
 
 
-def _columns(wire: Wire) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """The search polyline's x, y, z columns ((M,) each, contiguous), m."""
+def _search_polyline(
+    wire: Wire, step: int
+) -> tuple[tuple[FloatArray, FloatArray, FloatArray], float]:
+    """The search polyline's x, y, z columns ((M,) each, contiguous), m, and a reach, m.
+
+    The reach bounds the distance between two search points at most ``step`` indices apart:
+    ``step`` times the longest chord of the polyline, widened by ``_REACH_SLACK`` against
+    round-off (the triangle inequality does the rest).
+    """
     pts = wire.search_points
-    return pts[:, 0].copy(), pts[:, 1].copy(), pts[:, 2].copy()
+    chord = float(np.max(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    reach = step * chord * (1.0 + _REACH_SLACK) + _SKIP_MARGIN
+    return (pts[:, 0].copy(), pts[:, 1].copy(), pts[:, 2].copy()), reach
 
 
 def _chunk_scalar(count: int) -> NDArray[np.bool_]:
@@ -357,16 +394,11 @@ def _clearances(
     reach = ring_cfg.major_radius + ring_cfg.minor_radius + wire.radius
     step = max(1, int(COARSE_STEP / wire.search_spacing))
     half = math.ceil(WINDOW_FACTOR * reach / wire.search_spacing / step) * step
-    m = wire.search_arc_length.size
     offsets = np.arange(-half, half + 1, step)
     c, n = np.ascontiguousarray(T[:, :3, 3]), np.ascontiguousarray(T[:, :3, 2])
-    xyz = _columns(wire)
-    g = np.empty(T.shape[0], dtype=np.intp)
-    for a in range(0, T.shape[0], _CHUNK):  # the coarse search in blocks (bounded memory)
-        b = min(a + _CHUNK, T.shape[0])
-        k = np.searchsorted(wire.search_arc_length, wire.nearest_s(c[a:b]))
-        idx = np.clip(k[:, None] + offsets, 0, m - 1)
-        g[a:b] = _coarse_minimiser(xyz, idx, c[a:b], n[a:b], ring_cfg.major_radius)
+    xyz, bound = _search_polyline(wire, step)
+    k = np.searchsorted(wire.search_arc_length, wire.nearest_s(c))
+    g = _coarse_minimiser(xyz, k, offsets, c, n, ring_cfg.major_radius, bound)
     s_best = _refine(wire, ring_cfg, g, step, c, n, scalar)  # then all together
     return _contact_point(wire.points(s_best), T, ring_cfg, wire.radius)
 
@@ -395,10 +427,11 @@ def clearance(
         raise ValueError(f"T_world_ring must be a finite (4, 4) array, got {T.shape}")
     step = max(1, int(COARSE_STEP / wire.search_spacing))
     idx = np.arange(0, wire.search_arc_length.size, step)
-    idx = np.unique(np.append(idx, wire.search_arc_length.size - 1))[None, :]
+    idx = np.unique(np.append(idx, wire.search_arc_length.size - 1))
     T = T[None]
     c, n = np.ascontiguousarray(T[:, :3, 3]), np.ascontiguousarray(T[:, :3, 2])
-    g = _coarse_minimiser(_columns(wire), idx, c, n, ring_cfg.major_radius)
+    xyz, reach = _search_polyline(wire, step)
+    g = _coarse_minimiser(xyz, np.zeros(1, dtype=np.intp), idx, c, n, ring_cfg.major_radius, reach)
     s_best = _refine(wire, ring_cfg, g, step, c, n)
     cl, p = _contact_point(wire.points(s_best), T, ring_cfg, wire.radius)
     return float(cl[0]), p[0]
