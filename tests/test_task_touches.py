@@ -10,6 +10,7 @@ from endocam.task.config import RingConfig, TaskConfig, WireConfig
 from endocam.task.touches import (
     _coarse_kernel,
     _coarse_minimiser,
+    _contact_point,
     _core_distance_kernel,
     _search_polyline,
     clearance,
@@ -331,3 +332,23 @@ def test_clearances_are_the_interpreted_ones(wire: Wire) -> None:
     for T in traj.poses(rng.uniform(0.0, traj.duration, 5)):
         got_one, expected_one = clearance(T, wire, cfg.ring), reference.clearance(T, wire, cfg.ring)
         assert got_one[0] == expected_one[0] and _bits(got_one[1]) == _bits(expected_one[1])
+
+
+def test_contact_point_kernel_is_the_numpy_arithmetic() -> None:
+    """Clearances and contact points of random poses, on-axis and on-core points included."""
+    rng = np.random.default_rng(12)
+    count = 20_000
+    R_ring = np.linalg.qr(rng.normal(size=(count, 3, 3)))[0]
+    T = np.zeros((count, 4, 4))
+    T[:, :3, :3] = R_ring
+    T[:, :3, 3] = rng.normal(0.0, 0.05, (count, 3))
+    T[:, 3, 3] = 1.0
+    p = T[:, :3, 3] + rng.normal(0.0, 0.01, (count, 3)) * rng.uniform(0.0, 1.0, (count, 1))
+    p[:20] = T[:20, :3, 3] + rng.normal(0.0, 0.01, (20, 1)) * T[:20, :3, 2]  # on the axis
+    p[20:40] = T[20:40, :3, 3]  # at the centre
+    T[40:50, :3, :3], T[40:50, :3, 3] = np.eye(3), 0.0
+    p[40:50] = [0.5, 0.0, 0.0]  # on the core circle (R = 0.5): q − p is exactly 0
+    for ring in (RingConfig(), RingConfig(major_radius=0.5)):
+        got = _contact_point(p, T, ring, 0.7e-3)  # on the core: r_w + clearance / 2 ≠ 0
+        expected = reference._contact_point(p, T, ring, 0.7e-3)
+        assert _bits(got[0]) == _bits(expected[0]) and _bits(got[1]) == _bits(expected[1])

@@ -241,24 +241,58 @@ def _coarse_kernel(
 def _contact_point(
     p_wire: FloatArray, T_world_ring: FloatArray, ring_cfg: RingConfig, wire_radius: float
 ) -> tuple[FloatArray, FloatArray]:
-    """Clearance (N,), m, and contact points (N, 3), m, for wire points (N, 3) and poses."""
-    c = T_world_ring[:, :3, 3]
-    n = T_world_ring[:, :3, 2]
-    d = p_wire - c
-    h = np.einsum("ij,ij->i", d, n)
-    radial = d - h[:, None] * n
-    rho = np.linalg.norm(radial, axis=1)
-    on_axis = rho < _EPS
-    radial[on_axis] = T_world_ring[on_axis, :3, 0]
-    rho[on_axis] = 1.0
-    q = c + ring_cfg.major_radius * radial / rho[:, None]
-    gap = q - p_wire
-    dist = np.linalg.norm(gap, axis=1)
-    on_core = dist < _EPS
-    gap[on_core] = n[on_core]
-    dist[on_core] = 1.0
-    clearance = np.linalg.norm(q - p_wire, axis=1) - ring_cfg.minor_radius - wire_radius
-    p_contact = p_wire + gap / dist[:, None] * (wire_radius + 0.5 * clearance)[:, None]
+    """Clearance (N,), m, and contact points (N, 3), m, for wire points (N, 3) and poses.
+
+    The height over the ring plane is numpy's ``einsum`` (its own summation order); the rest
+    is :func:`_contact_kernel`.
+    """
+    h = np.einsum("ij,ij->i", p_wire - T_world_ring[:, :3, 3], T_world_ring[:, :3, 2])
+    return _contact_kernel(
+        np.ascontiguousarray(p_wire),
+        np.ascontiguousarray(T_world_ring),
+        h,
+        ring_cfg.major_radius,
+        ring_cfg.minor_radius,
+        wire_radius,
+    )
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
+def _contact_kernel(
+    p: FloatArray, T: FloatArray, h: FloatArray, major: float, minor: float, wire_radius: float
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`_contact_point` after the heights ``h`` (N,), m: clearances and contact points.
+
+    Per pose, the interpreted arrays' floats (no fast-math: docs/conventions.md, "Compiled
+    kernels"): the radial direction ``d − h n`` (along the ring's x axis on its axis), its norm
+    ``√((x² + y²) + z²)`` as ``np.linalg.norm`` sums it, the core point ``q = c + (R d) / ρ``,
+    the gap ``q − p`` and its norm (along ``n`` when ``p`` is on the core circle), the clearance
+    ``(|q − p| − r) − r_w`` and the contact point ``p + (gap / |gap|) (r_w + clearance / 2)``.
+    """
+    count = p.shape[0]
+    clearance = np.empty(count)
+    p_contact = np.empty((count, 3))
+    for i in range(count):
+        c0, c1, c2 = T[i, 0, 3], T[i, 1, 3], T[i, 2, 3]
+        n0, n1, n2 = T[i, 0, 2], T[i, 1, 2], T[i, 2, 2]
+        p0, p1, p2 = p[i, 0], p[i, 1], p[i, 2]
+        hi = h[i]
+        r0, r1, r2 = (p0 - c0) - hi * n0, (p1 - c1) - hi * n1, (p2 - c2) - hi * n2
+        rho = math.sqrt((r0 * r0 + r1 * r1) + r2 * r2)
+        if rho < _EPS:
+            r0, r1, r2, rho = T[i, 0, 0], T[i, 1, 0], T[i, 2, 0], 1.0
+        g0 = (c0 + major * r0 / rho) - p0
+        g1 = (c1 + major * r1 / rho) - p1
+        g2 = (c2 + major * r2 / rho) - p2
+        dist = math.sqrt((g0 * g0 + g1 * g1) + g2 * g2)
+        cl = dist - minor - wire_radius
+        if dist < _EPS:
+            g0, g1, g2, dist = n0, n1, n2, 1.0
+        scale = wire_radius + 0.5 * cl
+        clearance[i] = cl
+        p_contact[i, 0] = p0 + g0 / dist * scale
+        p_contact[i, 1] = p1 + g1 / dist * scale
+        p_contact[i, 2] = p2 + g2 / dist * scale
     return clearance, p_contact
 
 
