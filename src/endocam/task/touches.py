@@ -331,7 +331,7 @@ def _refine(
         res = minimize_scalar(
             one, bounds=(s_all[lo[i]], s_all[hi[i]]), method="bounded", options={"xatol": X_TOL}
         )
-        if res.fun <= _core_distance_kernel(pts[g[i] : g[i] + 1], c, n, k, major, 2.0)[0]:
+        if res.fun <= _core_distance_kernel(pts[g[i : i + 1]], c, n, k, major, 2.0)[0]:
             s_best[i] = float(res.x)
     inner = np.flatnonzero((g > 0) & (g < m - 1) & ~scalar)
     if inner.size:
