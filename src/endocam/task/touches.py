@@ -60,6 +60,7 @@ _CHUNK = 2048  # poses per block; a last block of ≤ _SCALAR_LIMIT poses refine
 _EPS = 1e-15  # m, below this a direction is undefined
 _SKIP_MARGIN = 1e-12  # m, the coarse search skips points only this much beyond the best
 _REACH_SLACK = 1e-6  # unitless, widening of the polyline's longest chord (round-off)
+_LANES = 8  # poses the coarse search advances together (instruction-level parallelism)
 
 
 @dataclass(frozen=True)
@@ -213,28 +214,45 @@ def _coarse_kernel(
     within ``_SKIP_MARGIN`` of the best so far are skipped (they are strictly farther: never
     the least, nor a tie). Of equal least distances the first offset wins, as numpy's argmin.
     """
-    out = np.empty(start.shape[0], dtype=np.intp)
+    count = start.shape[0]
+    out = np.empty(count, dtype=np.intp)
     last = x.shape[0] - 1
     width = offsets.shape[0]
     mid = width // 2
-    for i in range(start.shape[0]):
-        c0, c1, c2 = c[i, 0], c[i, 1], c[i, 2]
-        n0, n1, n2 = n[i, 0], n[i, 1], n[i, 2]
-        k = min(max(start[i] + offsets[mid], 0), last)
-        best_k, best_j = k, mid
-        best_d = _circle_distance(x[k] - c0, y[k] - c1, z[k] - c2, n0, n1, n2, major, 0.0)
-        j = 0
-        while j < width:
-            if j != mid:
-                k = min(max(start[i] + offsets[j], 0), last)
-                d = _circle_distance(x[k] - c0, y[k] - c1, z[k] - c2, n0, n1, n2, major, 0.0)
-                if d < best_d or (d == best_d and j < best_j):
-                    best_k, best_j, best_d = k, j, d
-                q = (d - best_d - _SKIP_MARGIN) / reach
-                if q >= 1.0:  # the next int(q) offsets stay farther than best_d: skipped
-                    j += int(q) if q < width else width
-            j += 1
-        out[i] = best_k
+    # _LANES poses at a time, one step of each in turn: their searches overlap in the CPU
+    col = np.empty(_LANES, dtype=np.intp)  # next offset to look at, per lane
+    best_col = np.empty(_LANES, dtype=np.intp)
+    best_k = np.empty(_LANES, dtype=np.intp)
+    best_d = np.empty(_LANES)
+    for base in range(0, count, _LANES):
+        lanes = min(_LANES, count - base)
+        for a in range(lanes):
+            i = base + a
+            k = min(max(start[i] + offsets[mid], 0), last)
+            dx, dy, dz = x[k] - c[i, 0], y[k] - c[i, 1], z[k] - c[i, 2]
+            best_d[a] = _circle_distance(dx, dy, dz, n[i, 0], n[i, 1], n[i, 2], major, 0.0)
+            best_k[a], best_col[a], col[a] = k, mid, 0
+        busy = lanes
+        while busy > 0:
+            busy = 0
+            for a in range(lanes):
+                j = col[a]
+                if j >= width:
+                    continue
+                busy += 1
+                if j != mid:
+                    i = base + a
+                    k = min(max(start[i] + offsets[j], 0), last)
+                    dx, dy, dz = x[k] - c[i, 0], y[k] - c[i, 1], z[k] - c[i, 2]
+                    d = _circle_distance(dx, dy, dz, n[i, 0], n[i, 1], n[i, 2], major, 0.0)
+                    if d < best_d[a] or (d == best_d[a] and j < best_col[a]):
+                        best_k[a], best_col[a], best_d[a] = k, j, d
+                    q = (d - best_d[a] - _SKIP_MARGIN) / reach
+                    if q >= 1.0:  # the next int(q) offsets stay farther than best_d: skipped
+                        j += int(q) if q < width else width
+                col[a] = j + 1
+        for a in range(lanes):
+            out[base + a] = best_k[a]
     return out
 
 
@@ -431,7 +449,7 @@ def _clearances(
     offsets = np.arange(-half, half + 1, step)
     c, n = np.ascontiguousarray(T[:, :3, 3]), np.ascontiguousarray(T[:, :3, 2])
     xyz, bound = _search_polyline(wire, step)
-    k = np.searchsorted(wire.search_arc_length, wire.nearest_s(c))
+    k = wire.nearest_index(c)  # the window's centre: the search point nearest the ring centre
     g = _coarse_minimiser(xyz, k, offsets, c, n, ring_cfg.major_radius, bound)
     s_best = _refine(wire, ring_cfg, g, step, c, n, scalar)  # then all together
     return _contact_point(wire.points(s_best), T, ring_cfg, wire.radius)
