@@ -4,12 +4,15 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+import reference_touches as reference
 from endocam.geometry import make_pose, transform_points
 from endocam.task.config import RingConfig, TaskConfig, WireConfig
 from endocam.task.touches import (
     _coarse_kernel,
     _coarse_minimiser,
-    _core_distance,
+    _contact_point,
+    _core_distance_kernel,
+    _search_polyline,
     clearance,
     clearances,
     touch_events,
@@ -210,22 +213,142 @@ def test_ideal_handle_never_meets_the_wire(wire: Wire) -> None:
 N_COARSE = 300  # count: random coarse searches compared with the numpy arithmetic
 
 
-def test_coarse_search_is_the_numpy_argmin() -> None:
-    """The compiled coarse search picks numpy's argmin of ``_core_distance``, tie rule included."""
+@pytest.mark.parametrize("step", [1, 2, 5])
+def test_coarse_search_is_the_numpy_argmin(step: int) -> None:
+    """The compiled coarse search (branch and bound) picks numpy's argmin of the interpreted
+    core distance over the whole window, first of equal values included."""
     wire = Wire(WireConfig())
     pts = wire.search_points
-    xyz = (pts[:, 0].copy(), pts[:, 1].copy(), pts[:, 2].copy())
-    rng = np.random.default_rng(21)
+    xyz, reach = _search_polyline(wire, step)
+    rng = np.random.default_rng(21 + step)
     m = len(pts)
     for _ in range(N_COARSE):
-        n_poses, k = int(rng.integers(1, 20)), int(rng.integers(1, 60))
-        idx = np.clip(rng.integers(-5, m + 5, n_poses)[:, None] + np.arange(k), 0, m - 1)
-        c = pts[idx[:, k // 2]] + rng.normal(0.0, 0.01, (n_poses, 3))
+        n_poses, k = int(rng.integers(1, 20)), int(rng.integers(1, 90))
+        start = rng.integers(-5 * step, m + 5 * step, n_poses)
+        offsets = step * (np.arange(k) - int(rng.integers(0, k)))
+        idx = np.clip(start[:, None] + offsets, 0, m - 1)
+        spread = rng.uniform(0.0, 0.01)  # m: centres near the window's points, or far
+        c = pts[idx[:, rng.integers(0, k)]] + rng.normal(0.0, spread, (n_poses, 3))
         n = rng.normal(size=(n_poses, 3))
         n /= np.linalg.norm(n, axis=1, keepdims=True)
         major = float(rng.uniform(0.002, 0.02))
-        d = _core_distance(pts[idx], c[:, None, :], n[:, None, :], major)
+        d = reference._core_distance(pts[idx], c[:, None, :], n[:, None, :], major)
         expected = idx[np.arange(n_poses), np.argmin(d, axis=1)]
-        got = _coarse_minimiser(xyz, idx, c, n, major)
-        np.testing.assert_array_equal(got, expected)  # clipped idx repeats points: ties
-        np.testing.assert_array_equal(_coarse_kernel.py_func(*xyz, idx, c, n, major), expected)
+        got = _coarse_minimiser(xyz, start, offsets, c, n, major, reach)
+        np.testing.assert_array_equal(got, expected)  # clipped windows repeat points: ties
+        np.testing.assert_array_equal(
+            _coarse_kernel.py_func(*xyz, start, offsets, c, n, major, reach), expected
+        )
+
+
+def test_coarse_search_ties_keep_the_first() -> None:
+    """Equal least distances keep the first column, as numpy's argmin (synthetic polyline)."""
+    x = np.array([1.0, -1.0, 0.0, 3.0])  # m: points 0 and 1 are both 0.5 from the circle
+    y, z = np.zeros(4), np.zeros(4)
+    c, n = np.zeros((3, 3)), np.tile([0.0, 0.0, 1.0], (3, 1))
+    pts = np.column_stack([x, y, z])
+    for window, first in (([0, 1, 3], 0), ([3, 1, 0], 1), ([1, 3, 3], 1)):  # middle one first
+        idx = np.array([window])
+        d = reference._core_distance(pts[idx], c[:1, None, :], n[:1, None, :], 0.5)
+        assert idx[0, np.argmin(d[0])] == first
+        got = _coarse_kernel(x, y, z, np.zeros(1, np.intp), idx[0], c[:1], n[:1], 0.5, 10.0)
+        assert got[0] == first
+
+
+def _bits(a: np.ndarray) -> bytes:
+    return np.ascontiguousarray(a, dtype=float).tobytes()
+
+
+N_DISTANCE = 20_000  # count: random points per form of the compiled core distance
+
+
+def test_core_distance_kernel_is_the_numpy_arithmetic() -> None:
+    """The compiled core distance gives numpy's floats: arrays (``square``), scalars (``pow``)."""
+    rng = np.random.default_rng(33)
+    k = rng.integers(0, 50, N_DISTANCE)
+    c = rng.normal(0.0, 0.02, (50, 3))
+    n = rng.normal(size=(50, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    p = c[k] + rng.normal(0.0, 0.01, (N_DISTANCE, 3)) * rng.uniform(0.0, 1.0, (N_DISTANCE, 1))
+    p[:50] = c[k[:50]] + 1e-3 * n[k[:50]]  # on the axis: ρ² rounds to ≤ 0 (clamped)
+    major = 0.00575
+    expected = reference._core_distance(p, c[k], n[k], major)
+    assert _bits(_core_distance_kernel(p, c, n, k, major, 0.0)) == _bits(expected)
+    # one point at a time (numpy scalars, libm's pow for ``** 2``), as the scalar refinement
+    each = range(N_DISTANCE)
+    scalar = np.array([reference._core_distance(p[i], c[k[i]], n[k[i]], major) for i in each])
+    got = [_core_distance_kernel(p[i : i + 1], c, n, k[i : i + 1], major, 2.0)[0] for i in each]
+    assert _bits(np.array(got)) == _bits(scalar)
+    assert _bits(expected) != _bits(scalar)  # the forms differ: a kernel must tell them apart
+
+
+def _same_report(a, b) -> None:
+    """Two touch reports are equal bit for bit: samples, clearances, events."""
+    assert _bits(a.t) == _bits(b.t)
+    assert _bits(a.clearance) == _bits(b.clearance)
+    np.testing.assert_array_equal(a.in_contact, b.in_contact)
+    assert (a.dt, a.max_point_speed) == (b.dt, b.max_point_speed)
+    assert len(a.events) == len(b.events)
+    for ea, eb in zip(a.events, b.events, strict=True):
+        assert _bits(np.array([ea.t_start, ea.t_end, ea.min_clearance])) == _bits(
+            np.array([eb.t_start, eb.t_end, eb.min_clearance])
+        )
+        assert _bits(ea.p_world_contact) == _bits(eb.p_world_contact)
+
+
+@pytest.mark.parametrize(
+    ("kind", "n", "seeds", "dt"),
+    [
+        (TrajectoryKind.NOISY, 71, (1, 2, 3), 2e-3),  # the episodes' sampling
+        (TrajectoryKind.NOISY, 36, (4, 5), 2e-3),
+        (TrajectoryKind.NOISY, 12, (6, 10), 2e-3),  # 2 and 1 events: scalar root calls
+        (TrajectoryKind.NOISY, 71, (7, 8), 0.05),  # coarse: deep refinement, few roots
+        (TrajectoryKind.NOISY, 36, (9,), 1.5),
+        (TrajectoryKind.IDEAL, 71, (None,), 2e-3),
+        (TrajectoryKind.IDEAL, 36, (None,), 0.05),
+    ],
+)
+def test_touch_events_are_the_interpreted_detection(
+    wire: Wire, kind: TrajectoryKind, n: int, seeds: tuple, dt: float
+) -> None:
+    """The batched detection gives the samples, clearances and events of the one before."""
+    cfg = TaskConfig()
+    for seed in seeds:
+        traj = make_trajectory(cfg, kind, n, seed, wire=wire)
+        _same_report(
+            touch_events(traj, wire, cfg.ring, dt), reference.touch_events(traj, wire, cfg.ring, dt)
+        )
+
+
+def test_clearances_are_the_interpreted_ones(wire: Wire) -> None:
+    """Batches of every size (scalar Brent up to 4 poses, chunks of 2048) and one pose."""
+    cfg = TaskConfig()
+    traj = make_trajectory(cfg, TrajectoryKind.NOISY, 71, 3, wire=wire)
+    rng = np.random.default_rng(4)
+    for count in (1, 2, 4, 5, 16, 2051, 2053):
+        T = traj.poses(np.sort(rng.uniform(0.0, traj.duration, count)))
+        got, expected = clearances(T, wire, cfg.ring), reference.clearances(T, wire, cfg.ring)
+        assert _bits(got[0]) == _bits(expected[0]) and _bits(got[1]) == _bits(expected[1])
+    for T in traj.poses(rng.uniform(0.0, traj.duration, 5)):
+        got_one, expected_one = clearance(T, wire, cfg.ring), reference.clearance(T, wire, cfg.ring)
+        assert got_one[0] == expected_one[0] and _bits(got_one[1]) == _bits(expected_one[1])
+
+
+def test_contact_point_kernel_is_the_numpy_arithmetic() -> None:
+    """Clearances and contact points of random poses, on-axis and on-core points included."""
+    rng = np.random.default_rng(12)
+    count = 20_000
+    R_ring = np.linalg.qr(rng.normal(size=(count, 3, 3)))[0]
+    T = np.zeros((count, 4, 4))
+    T[:, :3, :3] = R_ring
+    T[:, :3, 3] = rng.normal(0.0, 0.05, (count, 3))
+    T[:, 3, 3] = 1.0
+    p = T[:, :3, 3] + rng.normal(0.0, 0.01, (count, 3)) * rng.uniform(0.0, 1.0, (count, 1))
+    p[:20] = T[:20, :3, 3] + rng.normal(0.0, 0.01, (20, 1)) * T[:20, :3, 2]  # on the axis
+    p[20:40] = T[20:40, :3, 3]  # at the centre
+    T[40:50, :3, :3], T[40:50, :3, 3] = np.eye(3), 0.0
+    p[40:50] = [0.5, 0.0, 0.0]  # on the core circle (R = 0.5): q − p is exactly 0
+    for ring in (RingConfig(), RingConfig(major_radius=0.5)):
+        got = _contact_point(p, T, ring, 0.7e-3)  # on the core: r_w + clearance / 2 ≠ 0
+        expected = reference._contact_point(p, T, ring, 0.7e-3)
+        assert _bits(got[0]) == _bits(expected[0]) and _bits(got[1]) == _bits(expected[1])

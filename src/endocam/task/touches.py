@@ -35,10 +35,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
+from numba.extending import register_jitable
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import elementwise, minimize_scalar
 
 from endocam.geometry import FloatArray, as_pose, as_vector3
+from endocam.kernels import py_max
 from endocam.task.config import RingConfig
 from endocam.task.wire import Wire
 
@@ -54,8 +56,11 @@ T_TOL = 1e-6  # s, time tolerance of event start/end root finding (≪ 1 µm of 
 COARSE_STEP = 0.5e-3  # m, arc-length step of the coarse search before refinement
 WINDOW_FACTOR = 3.0  # unitless, searched arc length each side, in units of R + r + r_w
 _SCALAR_LIMIT = 4  # poses, below this refine with scalar Brent instead of the array method
-_CHUNK = 2048  # poses per block of the coarse search (bounds its memory to ~10 MB)
+_CHUNK = 2048  # poses per block; a last block of ≤ _SCALAR_LIMIT poses refines with Brent
 _EPS = 1e-15  # m, below this a direction is undefined
+_SKIP_MARGIN = 1e-12  # m, the coarse search skips points only this much beyond the best
+_REACH_SLACK = 1e-6  # unitless, widening of the polyline's longest chord (round-off)
+_LANES = 8  # poses the coarse search advances together (instruction-level parallelism)
 
 
 @dataclass(frozen=True)
@@ -130,91 +135,182 @@ class TouchReport:
         return float(sum(e.duration for e in self.events) / span)
 
 
-def _core_distance(p: FloatArray, c: FloatArray, n: FloatArray, major: float) -> FloatArray:
-    """Distance, m, from points ``p`` (…, 3) to core circles (centres ``c``, normals ``n``)."""
-    dx = p[..., 0] - c[..., 0]  # component-wise: several times faster than reductions on axis -1
-    dy = p[..., 1] - c[..., 1]
-    dz = p[..., 2] - c[..., 2]
-    h = dx * n[..., 0] + dy * n[..., 1] + dz * n[..., 2]
-    rho = np.sqrt(np.maximum(dx * dx + dy * dy + dz * dz - h * h, 0.0))
-    return np.asarray(np.sqrt(h * h + (rho - major) ** 2), dtype=float)
+@register_jitable  # inlined into the compiled kernels below (the same source)
+def _circle_distance(
+    dx: float, dy: float, dz: float, n0: float, n1: float, n2: float, major: float, two: float
+) -> float:
+    """Distance, m, of ``c + (dx, dy, dz)`` to the core circle (centre ``c``, normal ``n``).
+
+    ``√(h² + (ρ − R)²)`` with ``h = d·n``, ``ρ² = |d|² − h²`` (clamped at 0), summed left to
+    right as numpy summed them component-wise (no fast-math: docs/conventions.md, "Compiled
+    kernels"). ``two`` is the square's form, read at run time: ``0.0`` for ``(ρ − R) * (ρ − R)``
+    (numpy arrays' ``** 2`` is ``square``), ``2.0`` for libm's ``pow(ρ − R, 2.0)`` (numpy
+    scalars' ``** 2``, as the one-pose refinement computed it).
+    """
+    h = dx * n0 + dy * n1 + dz * n2
+    rho = math.sqrt(py_max(dx * dx + dy * dy + dz * dz - h * h, 0.0))
+    e = rho - major
+    return math.sqrt(h * h + (e * e if two == 0.0 else e**two))
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
+def _core_distance_kernel(
+    p: FloatArray, c: FloatArray, n: FloatArray, k: NDArray[np.intp], major: float, two: float
+) -> FloatArray:
+    """Distances, m, from points ``p`` (N, 3) to the core circles ``k`` (N,) of ``c``, ``n``.
+
+    Circle ``k[i]`` has centre ``c[k[i]]`` and unit normal ``n[k[i]]`` ((M, 3) each, m) and
+    radius ``major`` (m); ``two`` as in :func:`_circle_distance`.
+    """
+    out = np.empty(p.shape[0])
+    for i in range(p.shape[0]):
+        j = k[i]
+        dx, dy, dz = p[i, 0] - c[j, 0], p[i, 1] - c[j, 1], p[i, 2] - c[j, 2]
+        out[i] = _circle_distance(dx, dy, dz, n[j, 0], n[j, 1], n[j, 2], major, two)
+    return out
 
 
 def _coarse_minimiser(
     xyz: tuple[FloatArray, FloatArray, FloatArray],
-    idx: NDArray[np.intp],
+    start: NDArray[np.intp],
+    offsets: NDArray[np.intp],
     c: FloatArray,
     n: FloatArray,
     major: float,
+    reach: float,
 ) -> NDArray[np.intp]:
-    """The index in ``idx`` (N, k) of each pose's search point nearest to its core circle.
+    """Each pose's search point nearest to its core circle, among a window of the polyline.
 
-    The same arithmetic as :func:`_core_distance`, operation for operation (so the same
-    values and the same argmin, the first of equal ones), compiled (:func:`_coarse_kernel`)
-    on the contiguous coordinate columns ``xyz`` ((M,) each, m) of the search polyline: the
-    coarse search is the bulk of the touch detection. Centres and normals ``c``, ``n`` are
-    (N, 3), m.
+    Pose ``i`` searches the points ``start[i] + offsets`` ((N,), (k,) ints, increasing
+    offsets), clipped to the polyline ``xyz`` ((M,) contiguous columns each, m): its answer is
+    the first least of the distances :func:`_core_distance_kernel` gives on arrays (numpy's
+    argmin of them, ties included), compiled (:func:`_coarse_kernel`). ``reach`` (m) bounds the
+    distance between the points of two neighbouring offsets (:func:`_search_polyline`).
+    Centres and normals ``c``, ``n`` are (N, 3), m (C-contiguous). Returns (N,) indices.
     """
-    return _coarse_kernel(
-        xyz[0], xyz[1], xyz[2], np.ascontiguousarray(idx, dtype=np.intp), c, n, major
-    )
+    start = np.ascontiguousarray(start, dtype=np.intp)
+    offsets = np.ascontiguousarray(offsets, dtype=np.intp)
+    return _coarse_kernel(xyz[0], xyz[1], xyz[2], start, offsets, c, n, major, reach)
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
 def _coarse_kernel(
     x: FloatArray,
     y: FloatArray,
     z: FloatArray,
-    idx: NDArray[np.intp],
+    start: NDArray[np.intp],
+    offsets: NDArray[np.intp],
     c: FloatArray,
     n: FloatArray,
     major: float,
+    reach: float,
 ) -> NDArray[np.intp]:
     """:func:`_coarse_minimiser`'s loop: per pose, the first least core distance's index.
 
-    No fast-math (docs/conventions.md, "Compiled kernels"): each distance is
-    :func:`_core_distance`'s float, summed in its order.
+    Each distance is :func:`_circle_distance`'s float (``two`` 0). Branch and bound, with the
+    same answer as the full scan: the middle offset's distance is the first bound; a point
+    ``d`` (m) from the circle puts the points of the next ``u`` offsets at least
+    ``d − u · reach`` from it (a distance to a set is 1-Lipschitz), so those that cannot come
+    within ``_SKIP_MARGIN`` of the best so far are skipped (they are strictly farther: never
+    the least, nor a tie). Of equal least distances the first offset wins, as numpy's argmin.
     """
-    out = np.empty(idx.shape[0], dtype=np.intp)
-    for i in range(idx.shape[0]):
-        c0, c1, c2 = c[i, 0], c[i, 1], c[i, 2]
-        n0, n1, n2 = n[i, 0], n[i, 1], n[i, 2]
-        best = idx[i, 0]
-        best_d = math.inf
-        for j in range(idx.shape[1]):
-            k = idx[i, j]
-            dx, dy, dz = x[k] - c0, y[k] - c1, z[k] - c2
-            h = dx * n0 + dy * n1 + dz * n2
-            rho = math.sqrt(max(dx * dx + dy * dy + dz * dz - h * h, 0.0))
-            e = rho - major
-            d = math.sqrt(h * h + e * e)
-            if d < best_d:
-                best, best_d = k, d
-        out[i] = best
+    count = start.shape[0]
+    out = np.empty(count, dtype=np.intp)
+    last = x.shape[0] - 1
+    width = offsets.shape[0]
+    mid = width // 2
+    # _LANES poses at a time, one step of each in turn: their searches overlap in the CPU
+    col = np.empty(_LANES, dtype=np.intp)  # next offset to look at, per lane
+    best_col = np.empty(_LANES, dtype=np.intp)
+    best_k = np.empty(_LANES, dtype=np.intp)
+    best_d = np.empty(_LANES)
+    for base in range(0, count, _LANES):
+        lanes = min(_LANES, count - base)
+        for a in range(lanes):
+            i = base + a
+            k = min(max(start[i] + offsets[mid], 0), last)
+            dx, dy, dz = x[k] - c[i, 0], y[k] - c[i, 1], z[k] - c[i, 2]
+            best_d[a] = _circle_distance(dx, dy, dz, n[i, 0], n[i, 1], n[i, 2], major, 0.0)
+            best_k[a], best_col[a], col[a] = k, mid, 0
+        busy = lanes
+        while busy > 0:
+            busy = 0
+            for a in range(lanes):
+                j = col[a]
+                if j >= width:
+                    continue
+                busy += 1
+                if j != mid:
+                    i = base + a
+                    k = min(max(start[i] + offsets[j], 0), last)
+                    dx, dy, dz = x[k] - c[i, 0], y[k] - c[i, 1], z[k] - c[i, 2]
+                    d = _circle_distance(dx, dy, dz, n[i, 0], n[i, 1], n[i, 2], major, 0.0)
+                    if d < best_d[a] or (d == best_d[a] and j < best_col[a]):
+                        best_k[a], best_col[a], best_d[a] = k, j, d
+                    q = (d - best_d[a] - _SKIP_MARGIN) / reach
+                    if q >= 1.0:  # the next int(q) offsets stay farther than best_d: skipped
+                        j += int(q) if q < width else width
+                col[a] = j + 1
+        for a in range(lanes):
+            out[base + a] = best_k[a]
     return out
 
 
 def _contact_point(
     p_wire: FloatArray, T_world_ring: FloatArray, ring_cfg: RingConfig, wire_radius: float
 ) -> tuple[FloatArray, FloatArray]:
-    """Clearance (N,), m, and contact points (N, 3), m, for wire points (N, 3) and poses."""
-    c = T_world_ring[:, :3, 3]
-    n = T_world_ring[:, :3, 2]
-    d = p_wire - c
-    h = np.einsum("ij,ij->i", d, n)
-    radial = d - h[:, None] * n
-    rho = np.linalg.norm(radial, axis=1)
-    on_axis = rho < _EPS
-    radial[on_axis] = T_world_ring[on_axis, :3, 0]
-    rho[on_axis] = 1.0
-    q = c + ring_cfg.major_radius * radial / rho[:, None]
-    gap = q - p_wire
-    dist = np.linalg.norm(gap, axis=1)
-    on_core = dist < _EPS
-    gap[on_core] = n[on_core]
-    dist[on_core] = 1.0
-    clearance = np.linalg.norm(q - p_wire, axis=1) - ring_cfg.minor_radius - wire_radius
-    p_contact = p_wire + gap / dist[:, None] * (wire_radius + 0.5 * clearance)[:, None]
+    """Clearance (N,), m, and contact points (N, 3), m, for wire points (N, 3) and poses.
+
+    The height over the ring plane is numpy's ``einsum`` (its own summation order); the rest
+    is :func:`_contact_kernel`.
+    """
+    h = np.einsum("ij,ij->i", p_wire - T_world_ring[:, :3, 3], T_world_ring[:, :3, 2])
+    return _contact_kernel(
+        np.ascontiguousarray(p_wire),
+        np.ascontiguousarray(T_world_ring),
+        h,
+        ring_cfg.major_radius,
+        ring_cfg.minor_radius,
+        wire_radius,
+    )
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
+def _contact_kernel(
+    p: FloatArray, T: FloatArray, h: FloatArray, major: float, minor: float, wire_radius: float
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`_contact_point` after the heights ``h`` (N,), m: clearances and contact points.
+
+    Per pose, the interpreted arrays' floats (no fast-math: docs/conventions.md, "Compiled
+    kernels"): the radial direction ``d − h n`` (along the ring's x axis on its axis), its norm
+    ``√((x² + y²) + z²)`` as ``np.linalg.norm`` sums it, the core point ``q = c + (R d) / ρ``,
+    the gap ``q − p`` and its norm (along ``n`` when ``p`` is on the core circle), the clearance
+    ``(|q − p| − r) − r_w`` and the contact point ``p + (gap / |gap|) (r_w + clearance / 2)``.
+    """
+    count = p.shape[0]
+    clearance = np.empty(count)
+    p_contact = np.empty((count, 3))
+    for i in range(count):
+        c0, c1, c2 = T[i, 0, 3], T[i, 1, 3], T[i, 2, 3]
+        n0, n1, n2 = T[i, 0, 2], T[i, 1, 2], T[i, 2, 2]
+        p0, p1, p2 = p[i, 0], p[i, 1], p[i, 2]
+        hi = h[i]
+        r0, r1, r2 = (p0 - c0) - hi * n0, (p1 - c1) - hi * n1, (p2 - c2) - hi * n2
+        rho = math.sqrt((r0 * r0 + r1 * r1) + r2 * r2)
+        if rho < _EPS:
+            r0, r1, r2, rho = T[i, 0, 0], T[i, 1, 0], T[i, 2, 0], 1.0
+        g0 = (c0 + major * r0 / rho) - p0
+        g1 = (c1 + major * r1 / rho) - p1
+        g2 = (c2 + major * r2 / rho) - p2
+        dist = math.sqrt((g0 * g0 + g1 * g1) + g2 * g2)
+        cl = dist - minor - wire_radius
+        if dist < _EPS:
+            g0, g1, g2, dist = n0, n1, n2, 1.0
+        scale = wire_radius + 0.5 * cl
+        clearance[i] = cl
+        p_contact[i, 0] = p0 + g0 / dist * scale
+        p_contact[i, 1] = p1 + g1 / dist * scale
+        p_contact[i, 2] = p2 + g2 / dist * scale
     return clearance, p_contact
 
 
@@ -231,9 +327,12 @@ def _refine(
 
     ``scalar`` (N,) marks the poses refined one by one with scalar Brent (by default all of
     them when there are at most ``_SCALAR_LIMIT``, where it is cheaper than the array method);
-    the others are refined together. Each pose's result depends only on its own inputs.
+    the others are refined together by one ``find_minimum``. Each pose's result depends only on
+    its own inputs and its method (scipy's elementwise solvers iterate each element on its
+    own), so any batch of poses gives each the same bits. ``c``, ``n`` are C-contiguous.
     """
     s_all = wire.search_arc_length
+    pts = wire.search_points
     m = s_all.size
     s_best = s_all[g].copy()
     lo = np.maximum(g - step, 0)
@@ -242,25 +341,39 @@ def _refine(
     if scalar is None:
         scalar = np.full(g.size, g.size <= _SCALAR_LIMIT)
     for i in np.flatnonzero(scalar).tolist():
+        k = np.array([i], dtype=np.intp)
+
+        def one(s: float, k: NDArray[np.intp] = k) -> float:
+            return float(_core_distance_kernel(wire.point(s)[None], c, n, k, major, 2.0)[0])
+
         res = minimize_scalar(
-            lambda s, i=i: float(_core_distance(wire.point(s), c[i], n[i], major)),
-            bounds=(s_all[lo[i]], s_all[hi[i]]),
-            method="bounded",
-            options={"xatol": X_TOL},
+            one, bounds=(s_all[lo[i]], s_all[hi[i]]), method="bounded", options={"xatol": X_TOL}
         )
-        if res.fun <= _core_distance(wire.search_points[g[i]], c[i], n[i], major):
+        if res.fun <= _core_distance_kernel(pts[g[i : i + 1]], c, n, k, major, 2.0)[0]:
             s_best[i] = float(res.x)
     inner = np.flatnonzero((g > 0) & (g < m - 1) & ~scalar)
     if inner.size:
+        # the minimiser's first three calls are at the bracket (lo, g, hi): search points, whose
+        # values come from the search polyline (the same spline values, bit for bit)
+        brackets = (s_all[lo[inner]], s_best[inner], s_all[hi[inner]])
+        known = [
+            (x, _core_distance_kernel(pts[j], c, n, inner, major, 0.0))
+            for x, j in zip(brackets, (lo[inner], g[inner], hi[inner]), strict=True)
+        ]
 
         def objective(s: FloatArray, k: NDArray[np.intp]) -> FloatArray:
             # ``k`` shrinks with the still-active elements; it indexes the poses
-            p = wire.points(s.ravel()).reshape(*s.shape, 3)
-            return _core_distance(p, c[k], n[k], major)
+            for j, (x, f) in enumerate(known):
+                if s.shape == x.shape and np.array_equal(s, x) and np.array_equal(k, inner):
+                    del known[j]
+                    return f
+            known.clear()  # past the bracket: every later call is evaluated
+            p = wire.points(s.ravel())
+            return _core_distance_kernel(p, c, n, k.ravel(), major, 0.0).reshape(s.shape)
 
         res = elementwise.find_minimum(
             objective,
-            (s_all[lo[inner]], s_best[inner], s_all[hi[inner]]),
+            brackets,
             args=(inner,),
             tolerances={"xatol": X_TOL, "xrtol": 0.0, "fatol": 0.0, "frtol": 0.0},
         )
@@ -269,10 +382,31 @@ def _refine(
     return s_best
 
 
-def _columns(wire: Wire) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """The search polyline's x, y, z columns ((M,) each, contiguous), m."""
+def _search_polyline(
+    wire: Wire, step: int
+) -> tuple[tuple[FloatArray, FloatArray, FloatArray], float]:
+    """The search polyline's x, y, z columns ((M,) each, contiguous), m, and a reach, m.
+
+    The reach bounds the distance between two search points at most ``step`` indices apart:
+    ``step`` times the longest chord of the polyline, widened by ``_REACH_SLACK`` against
+    round-off (the triangle inequality does the rest).
+    """
     pts = wire.search_points
-    return pts[:, 0].copy(), pts[:, 1].copy(), pts[:, 2].copy()
+    chord = float(np.max(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    reach = step * chord * (1.0 + _REACH_SLACK) + _SKIP_MARGIN
+    return (pts[:, 0].copy(), pts[:, 1].copy(), pts[:, 2].copy()), reach
+
+
+def _chunk_scalar(count: int) -> NDArray[np.bool_]:
+    """Which of ``count`` poses :func:`clearances` refines with scalar Brent: (count,).
+
+    Those of a block of at most ``_SCALAR_LIMIT`` poses (the last block of ``_CHUNK``).
+    """
+    scalar = np.zeros(count, dtype=bool)
+    for a in range(0, count, _CHUNK):
+        b = min(a + _CHUNK, count)
+        scalar[a:b] = b - a <= _SCALAR_LIMIT
+    return scalar
 
 
 def clearances(
@@ -302,21 +436,21 @@ def clearances(
     T = np.asarray(T_world_ring, dtype=float)
     if T.ndim != 3 or T.shape[1:] != (4, 4) or not np.all(np.isfinite(T)):
         raise ValueError(f"T_world_ring must be a finite (N, 4, 4) array, got {T.shape}")
+    return _clearances(T, wire, ring_cfg, _chunk_scalar(T.shape[0]))
+
+
+def _clearances(
+    T: FloatArray, wire: Wire, ring_cfg: RingConfig, scalar: NDArray[np.bool_]
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`clearances` of finite poses ``T`` (N, 4, 4), m, refined as ``scalar`` (N,) says."""
     reach = ring_cfg.major_radius + ring_cfg.minor_radius + wire.radius
     step = max(1, int(COARSE_STEP / wire.search_spacing))
     half = math.ceil(WINDOW_FACTOR * reach / wire.search_spacing / step) * step
-    m = wire.search_arc_length.size
     offsets = np.arange(-half, half + 1, step)
-    c, n = T[:, :3, 3], T[:, :3, 2]
-    xyz = _columns(wire)
-    g = np.empty(T.shape[0], dtype=np.intp)
-    scalar = np.zeros(T.shape[0], dtype=bool)
-    for a in range(0, T.shape[0], _CHUNK):  # the coarse search in blocks (bounded memory)
-        b = min(a + _CHUNK, T.shape[0])
-        k = np.searchsorted(wire.search_arc_length, wire.nearest_s(c[a:b]))
-        idx = np.clip(k[:, None] + offsets, 0, m - 1)
-        g[a:b] = _coarse_minimiser(xyz, idx, c[a:b], n[a:b], ring_cfg.major_radius)
-        scalar[a:b] = b - a <= _SCALAR_LIMIT  # a small block's poses: scalar Brent
+    c, n = np.ascontiguousarray(T[:, :3, 3]), np.ascontiguousarray(T[:, :3, 2])
+    xyz, bound = _search_polyline(wire, step)
+    k = wire.nearest_index(c)  # the window's centre: the search point nearest the ring centre
+    g = _coarse_minimiser(xyz, k, offsets, c, n, ring_cfg.major_radius, bound)
     s_best = _refine(wire, ring_cfg, g, step, c, n, scalar)  # then all together
     return _contact_point(wire.points(s_best), T, ring_cfg, wire.radius)
 
@@ -345,10 +479,11 @@ def clearance(
         raise ValueError(f"T_world_ring must be a finite (4, 4) array, got {T.shape}")
     step = max(1, int(COARSE_STEP / wire.search_spacing))
     idx = np.arange(0, wire.search_arc_length.size, step)
-    idx = np.unique(np.append(idx, wire.search_arc_length.size - 1))[None, :]
+    idx = np.unique(np.append(idx, wire.search_arc_length.size - 1))
     T = T[None]
-    c, n = T[:, :3, 3], T[:, :3, 2]
-    g = _coarse_minimiser(_columns(wire), idx, c, n, ring_cfg.major_radius)
+    c, n = np.ascontiguousarray(T[:, :3, 3]), np.ascontiguousarray(T[:, :3, 2])
+    xyz, reach = _search_polyline(wire, step)
+    g = _coarse_minimiser(xyz, np.zeros(1, dtype=np.intp), idx, c, n, ring_cfg.major_radius, reach)
     s_best = _refine(wire, ring_cfg, g, step, c, n)
     cl, p = _contact_point(wire.points(s_best), T, ring_cfg, wire.radius)
     return float(cl[0]), p[0]
@@ -379,6 +514,7 @@ def touch_events(
     n = math.ceil(trajectory.duration / dt) + 1
     t = np.linspace(0.0, trajectory.duration, n)
     c, p = clearances(trajectory.poses(t), wire, ring_cfg)
+    scalar = _chunk_scalar(t.size)  # each sample's refinement method (see _events)
     speed = SPEED_MARGIN * trajectory.max_point_speed(
         t, ring_cfg.major_radius + ring_cfg.minor_radius
     )
@@ -396,8 +532,9 @@ def touch_events(
         t = np.concatenate([t, t_new])[order]
         c = np.concatenate([c, c_new])[order]
         p = np.concatenate([p, p_new])[order]
+        scalar = np.concatenate([scalar, _chunk_scalar(t_new.size)])[order]
     in_contact = c <= 0.0
-    events = _events(trajectory, wire, ring_cfg, t, c, p, in_contact)
+    events = _events(trajectory, wire, ring_cfg, t, c, p, in_contact, scalar)
     return TouchReport(events, t, c, in_contact, float(dt), float(speed))
 
 
@@ -409,8 +546,14 @@ def _events(
     c: FloatArray,
     p: FloatArray,
     in_contact: NDArray[np.bool_],
+    scalar: NDArray[np.bool_],
 ) -> list[TouchEvent]:
-    """Maximal contact runs of the samples, with start/end times root-found together."""
+    """Maximal contact runs of the samples, with start/end times root-found together.
+
+    The root finder's first two calls are at the brackets' ends, samples whose clearance is
+    known: they are answered from ``c`` when each sample was refined by the method
+    (``scalar`` (K,)) that call would use, hence with the same bits.
+    """
     flag = np.concatenate([[False], in_contact, [False]]).astype(np.int8)
     starts = np.flatnonzero(np.diff(flag) == 1)
     ends = np.flatnonzero(np.diff(flag) == -1) - 1
@@ -421,9 +564,18 @@ def _events(
     hi = np.concatenate([t[rise], t[fall + 1]])
     roots = np.empty(0)
     if lo.size:
+        sampled = [(lo, np.concatenate([rise - 1, fall])), (hi, np.concatenate([rise, fall + 1]))]
 
         def c_of_t(time: FloatArray) -> FloatArray:
-            return clearances(trajectory.poses(time.ravel()), wire, ring_cfg)[0].reshape(time.shape)
+            flat = time.ravel()
+            for x, j in sampled:
+                if (
+                    flat.shape == x.shape
+                    and np.array_equal(flat, x)
+                    and np.array_equal(scalar[j], _chunk_scalar(x.size))
+                ):
+                    return c[j].reshape(time.shape)
+            return clearances(trajectory.poses(flat), wire, ring_cfg)[0].reshape(time.shape)
 
         res = elementwise.find_root(c_of_t, (lo, hi), tolerances={"xatol": T_TOL, "xrtol": 0.0})
         # a failed bracket (clearance exactly 0 at a sample) keeps the in-contact sample's time

@@ -13,7 +13,7 @@ from typing import overload
 
 import numpy as np
 from numba import njit
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import cumulative_simpson
 from scipy.interpolate import make_interp_spline
 from scipy.optimize import minimize_scalar
@@ -274,8 +274,12 @@ class Wire:
 
         Resolution is the internal search spacing (0.25 mm); use :meth:`closest` for exact.
         """
+        return np.asarray(self._search_s[self.nearest_index(p_world)], dtype=float)
+
+    def nearest_index(self, p_world: FloatArray) -> NDArray[np.intp]:
+        """Indices (N,) of the :attr:`search_points` nearest to ``p_world`` (N, 3), m."""
         _, k = self._tree.query(np.atleast_2d(p_world))
-        return np.asarray(self._search_s[k], dtype=float)
+        return np.asarray(k, dtype=np.intp)
 
     def surface_distance(self, p_world: ArrayLike) -> FloatArray:
         """Distance (N,) from points (N, 3) in world, m, to the wire's tube surface, m.
