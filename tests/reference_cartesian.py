@@ -4,10 +4,10 @@
 (r7-free compiled the Python around ruckig: ``_prepare``, ``_next_pose``, ``_stop_start``,
 ``_path_inside``), with its rotation kernels on Python floats (``endocam.kernels``: the same
 source, interpreted) and the brake test on numpy (``_has_brake``). ``InterpretedWorkspace`` is
-``control.safety.Workspace``'s ``margin`` / ``all_inside`` / ``keep_out_margin`` as they were
-(the cone's margin interpreted, the keep-out zone asked through ``ClearanceGuard.margin`` and
-``first_outside``). ``tests/test_cartesian_kernels.py`` pins the compiled ones to them bit for
-bit.
+``control.safety.Workspace``'s ``margin`` / ``all_inside`` / ``keep_out_margin`` as they were:
+the cone's margin interpreted (as ``ConeWorkspace.margin`` was), the keep-out zone asked
+through ``ClearanceGuard.margin`` and ``first_outside``. ``tests/test_cartesian_kernels.py``
+pins the compiled ones to them bit for bit.
 """
 
 # mypy: ignore-errors
@@ -29,7 +29,7 @@ from ruckig import (
     Trajectory,
 )
 
-from endocam.control.safety import ConeWorkspace, KeepOut
+from endocam.control.safety import ConeWorkspace, KeepOut, cone_margin
 from endocam.geometry import FloatArray
 from endocam.kernels import Rows, matmul, so3_exp, so3_log, tmatmul
 from endocam.robot.actuator import WorkspaceBound
@@ -67,7 +67,9 @@ class InterpretedWorkspace:
 
     def margin(self, p_world: FloatArray | Sequence[float]) -> float:
         p = p_world.tolist() if isinstance(p_world, np.ndarray) else p_world
-        m = min(self.cone.margin(p), p[2] - self.floor)
+        c = self.cone  # ConeWorkspace.margin as it was: cone_margin interpreted
+        cone = cone_margin(p[0], p[1], p[2], c._apex, c._axis, c._tan_half, c._cos_half, c.height)
+        m = min(cone, p[2] - self.floor)
         if self.keep_out is not None:
             return min(m, self.keep_out.margin(p))
         return m

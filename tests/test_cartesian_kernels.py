@@ -17,7 +17,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from endocam.config import ExperimentConfig
-from endocam.control.safety import Workspace
+from endocam.control.safety import Workspace, cone_margin
 from endocam.geometry import make_pose
 from endocam.robot.cartesian import CartesianLimiter, MotionLimits
 from endocam.task.wire import Wire
@@ -110,7 +110,8 @@ def test_compiled_step_is_the_interpreted_step(kind: str) -> None:
 
 
 def test_workspace_queries_are_the_interpreted_ones() -> None:
-    """``margin``, ``keep_out_margin`` and ``all_inside``: the same floats, answers and cache."""
+    """``margin`` (the cone's too), ``keep_out_margin``, ``all_inside``: the same floats,
+    answers and cache."""
     compiled, interpreted, centre = _workspaces("wire")
     assert compiled is not None and interpreted is not None
     rng = np.random.default_rng(34)
@@ -121,6 +122,11 @@ def test_workspace_queries_are_the_interpreted_ones() -> None:
             p[int(rng.integers(0, 3))] = rng.choice([math.nan, math.inf, -math.inf])
         point = p.tolist() if rng.random() < 0.5 else p
         a, b = compiled.margin(point), interpreted.margin(point)
+        assert np.float64(a).tobytes() == np.float64(b).tobytes()
+        c = compiled.cone
+        a = c.margin(point)
+        x, y, z = p.tolist()
+        b = cone_margin(x, y, z, c._apex, c._axis, c._tan_half, c._cos_half, c.height)
         assert np.float64(a).tobytes() == np.float64(b).tobytes()
         a, b = compiled.keep_out_margin(point), interpreted.keep_out_margin(point)
         assert np.float64(a).tobytes() == np.float64(b).tobytes()

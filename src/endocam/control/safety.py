@@ -86,6 +86,13 @@ def cone_margin(
 Cone = tuple[tuple[float, float, float], tuple[float, float, float], float, float, float]
 
 
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _cone_margin_kernel(constants: FloatArray, x: float, y: float, z: float) -> float:
+    """:func:`cone_margin` of ``(x, y, z)``, world, m, with the cone's ``constants`` (9,), m."""
+    apex, axis, tan_half, cos_half, height = cone_at(constants, 0)
+    return cone_margin(x, y, z, apex, axis, tan_half, cos_half, height)
+
+
 @register_jitable  # also callable from compiled kernels (the same source)
 def cone_at(values: Sequence[float] | FloatArray, i: int) -> Cone:
     """The cone's constants stored from ``values[i]`` (:attr:`ConeWorkspace.constants`).
@@ -121,6 +128,7 @@ class ConeWorkspace:
     _axis: tuple[float, ...] = field(init=False, repr=False, compare=False)
     _tan_half: float = field(init=False, repr=False, compare=False)
     _cos_half: float = field(init=False, repr=False, compare=False)
+    _constants: FloatArray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         # Plain-float copies for the control loop (endocam.kernels rule).
@@ -129,6 +137,7 @@ class ConeWorkspace:
         object.__setattr__(self, "_axis", tuple(np.asarray(self.axis, dtype=float).tolist()))
         object.__setattr__(self, "_tan_half", tan_half)
         object.__setattr__(self, "_cos_half", 1.0 / math.sqrt(1.0 + tan_half * tan_half))
+        object.__setattr__(self, "_constants", np.array(self.constants))
 
     @classmethod
     def from_rcm(
@@ -168,11 +177,11 @@ class ConeWorkspace:
         ----------
         p_world : (3,)
             Point in world, m.
+
+        Compiled (:func:`cone_margin`).
         """
         p = p_world.tolist() if isinstance(p_world, np.ndarray) else p_world
-        return cone_margin(
-            p[0], p[1], p[2], self._apex, self._axis, self._tan_half, self._cos_half, self.height
-        )
+        return float(_cone_margin_kernel(self._constants, p[0], p[1], p[2]))
 
     @property
     def constants(self) -> list[float]:
@@ -375,7 +384,7 @@ class Workspace:
     def __post_init__(self) -> None:
         keep = self.keep_out is not None
         zone = self.keep_out.kernel_state if self.keep_out is not None else _NO_KEEP_OUT
-        cone = np.array(self.cone.constants)
+        cone = self.cone._constants
         state = cast(WorkspaceState, (cone, float(self.floor), keep, *zone))
         object.__setattr__(self, "_state", state)
 

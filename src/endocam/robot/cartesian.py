@@ -140,6 +140,7 @@ def _stop_bound(
 _REJECTED = 1  # _prepare's answer: the target is not finite (the last valid one is used)
 _MOVING = 2  # the twist gives a target velocity (buf[12:18])
 _SAME = 4  # the target is the one the camera rests on
+_F64 = np.dtype(np.float64)
 _NO_TWIST = np.zeros(0)
 _NO_TWIST.setflags(write=False)
 
@@ -491,12 +492,14 @@ class CartesianLimiter:
         the argument.
         """
         T_new = T_world_target
-        if not (type(T_new) is np.ndarray and T_new.dtype == np.float64):
+        if type(T_new) is not np.ndarray or T_new.dtype is not _F64:
             T_new = np.asarray(T_world_target, dtype=float)
         flat = T_new.reshape(16) if T_new.size == 16 else _NOT_A_POSE
         tw = _NO_TWIST
         if twist is not None:
-            tw = np.ravel(np.asarray(twist, dtype=float))
+            tw = twist
+            if type(tw) is not np.ndarray or tw.dtype is not _F64 or tw.ndim != 1:
+                tw = np.ravel(np.asarray(twist, dtype=float))
         code = _prepare(
             flat, self._target_flat, self._arrived_at, tw, self._T, self._vmax, self._buf
         )
