@@ -1,9 +1,10 @@
 """The free camera's limiter and workspace queries as the interpreter ran them (tests' reference).
 
 ``InterpretedLimiter`` is ``endocam.robot.cartesian.CartesianLimiter`` at main before round 7
-(r7-free compiled the Python around ruckig: ``_prepare``, ``_next_pose``, ``_stop_start``,
-``_path_inside``), with its rotation kernels on Python floats (``endocam.kernels``: the same
-source, interpreted) and the brake test on numpy (``_has_brake``). ``InterpretedWorkspace`` is
+(r7-free compiled the Python around ruckig: ``_prepare``, ``_advance`` with ``_next_pose`` and
+``_stop_start``, ``_path_inside``), with its rotation kernels on Python floats
+(``endocam.kernels``: the same source, interpreted) and the brake test on numpy
+(``_has_brake``). ``InterpretedWorkspace`` is
 ``control.safety.Workspace``'s ``margin`` / ``all_inside`` / ``keep_out_margin`` as they were:
 the cone's margin interpreted (as ``ConeWorkspace.margin`` was), the keep-out zone asked
 through ``ClearanceGuard.margin`` and ``first_outside``. ``tests/test_cartesian_kernels.py``

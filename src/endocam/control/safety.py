@@ -266,6 +266,10 @@ _NO_KEEP_OUT = (
 )
 
 
+NO_WORKSPACE = cast(WorkspaceState, (np.zeros(9), 0.0, False, *_NO_KEEP_OUT))
+"""A compiled caller's placeholder for no workspace (never read: it asks no query then)."""
+
+
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def workspace_margin(
     cone: FloatArray,

@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 from numba import njit
+from numba.extending import register_jitable
 from pydantic import BaseModel, ConfigDict, Field
 from ruckig import (
     ControlInterface,
@@ -29,6 +30,7 @@ from ruckig import (
 
 from endocam.camera import StereoCamera
 from endocam.control.safety import (
+    NO_WORKSPACE,
     WorkspaceState,
     workspace_all_inside,
     workspace_keep_out_margin,
@@ -137,10 +139,14 @@ def _stop_bound(
 # The limiter's state around ruckig, compiled (CartesianLimiter.step). ``T``: the current pose
 # (4, 4), world, m; ``flat``: a target pose's 16 entries, row by row; ``buf`` (18,): ruckig's
 # current position (6), target position (6) and target velocity (6) for the step, SI.
-_REJECTED = 1  # _prepare's answer: the target is not finite (the last valid one is used)
-_MOVING = 2  # the twist gives a target velocity (buf[12:18])
-_SAME = 4  # the target is the one the camera rests on
+_TARGET_REJECTED = 1  # _prepare's flags: the target is not finite (the last valid one is used)
+_TARGET_MOVING = 2  # the twist gives a target velocity (buf[12:18])
+_TARGET_SAME = 4  # the target is the one the camera rests on
 _F64 = np.dtype(np.float64)
+# Enum members read once: a class attribute of a Python 3.11 enum costs ~0.3 µs per access.
+_FINISHED, _MOVING, _REJECTED = MotionStatus.FINISHED, MotionStatus.MOVING, MotionStatus.REJECTED
+_RUCKIG_OK = (Result.Working, Result.Finished)
+_RUCKIG_FINISHED = Result.Finished
 _NO_TWIST = np.zeros(0)
 _NO_TWIST.setflags(write=False)
 
@@ -155,13 +161,14 @@ def _prepare(
     vmax: FloatArray,
     buf: FloatArray,
 ) -> int:
-    """Ruckig's input for a step towards the target ``flat`` (16,); flags (``_REJECTED`` …).
+    """Ruckig's input for a step towards the target ``flat`` (16,); flags (``_TARGET_…``).
 
     A target with a non-finite entry is replaced by ``last`` (16,), the last valid one (its
     twist dropped). ``twist`` (6,): linear velocity in world (m/s), angular velocity in world
     (rad/s), or ``(0,)`` for none; a finite, non-zero one gives the target velocity, the
     angular part in the current camera frame, each clipped to ``±vmax`` (6,) (Python's
-    ``min(max(v, −m), m)``). ``_SAME`` when the target equals ``arrived`` (16,) entry by entry.
+    ``min(max(v, −m), m)``). ``_TARGET_SAME`` when the target equals ``arrived`` (16,), entry
+    by entry.
     Writes ``buf``: the current position ``T``'s (m) and rotation vector 0; the target
     position (m) and ``so3_log(Rᵀ R_target)`` (rad, body); the target velocity.
     """
@@ -169,7 +176,7 @@ def _prepare(
     for i in range(16):
         if not math.isfinite(flat[i]):
             flat = last
-            code = _REJECTED
+            code = _TARGET_REJECTED
             break
     if code == 0 and twist.shape[0] == 6:
         finite, moving = True, False
@@ -184,12 +191,12 @@ def _prepare(
             buf[17] = T[0, 2] * w3 + T[1, 2] * w4 + T[2, 2] * w5
             for i in range(6):
                 buf[12 + i] = py_min(py_max(buf[12 + i], -vmax[i]), vmax[i])
-            code |= _MOVING
+            code |= _TARGET_MOVING
     same = True
     for i in range(16):
         same = same and flat[i] == arrived[i]
     if same:
-        code |= _SAME
+        code |= _TARGET_SAME
     R = ((T[0, 0], T[0, 1], T[0, 2]), (T[1, 0], T[1, 1], T[1, 2]), (T[2, 0], T[2, 1], T[2, 2]))
     R_tgt = ((flat[0], flat[1], flat[2]), (flat[4], flat[5], flat[6]), (flat[8], flat[9], flat[10]))
     theta = so3_log(tmatmul(R, R_tgt))
@@ -199,8 +206,9 @@ def _prepare(
     return code
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+@register_jitable  # also callable from compiled kernels (the same source)
 def _next_pose(
+    out: FloatArray,
     T: FloatArray,
     flat: FloatArray,
     arriving: bool,
@@ -211,23 +219,76 @@ def _next_pose(
     ry: float,
     rz: float,
 ) -> None:
-    """Writes into ``T`` (4, 4) the pose after a step: the target ``flat`` (16,) when ``arriving``.
+    """Writes into ``out`` (4, 4) the pose after a step: the target ``flat`` (16,) if ``arriving``.
 
-    Else ruckig's new state from ``T``: position ``(x, y, z)``, world, m, orientation
+    Else ruckig's new state from ``T`` (4, 4): position ``(x, y, z)``, world, m, orientation
     ``R so3_exp(rx, ry, rz)`` (rotation vector in the camera frame, rad).
     """
     if arriving:
         for r in range(3):
             for c in range(4):
-                T[r, c] = flat[4 * r + c]
+                out[r, c] = flat[4 * r + c]
     else:
         R = ((T[0, 0], T[0, 1], T[0, 2]), (T[1, 0], T[1, 1], T[1, 2]), (T[2, 0], T[2, 1], T[2, 2]))
         M = matmul(R, so3_exp((rx, ry, rz)))
         for r in range(3):
             for c in range(3):
-                T[r, c] = M[r][c]
-        T[0, 3], T[1, 3], T[2, 3] = x, y, z
-    T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
+                out[r, c] = M[r][c]
+        out[0, 3], out[1, 3], out[2, 3] = x, y, z
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _advance(
+    cone: FloatArray,
+    floor: float,
+    keep: bool,
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    out: FloatArray,
+    T: FloatArray,
+    flat: FloatArray,
+    arriving: bool,
+    check: bool,
+    x: float,
+    y: float,
+    z: float,
+    rx: float,
+    ry: float,
+    rz: float,
+    v0: float,
+    v1: float,
+    v2: float,
+    a0: float,
+    a1: float,
+    a2: float,
+    V: float,
+    A: float,
+    J: float,
+) -> tuple[int, float]:
+    """The pose after a step into ``out`` (:func:`_next_pose`); with ``check``, its stop check.
+
+    The state reached: the target ``flat`` at rest when ``arriving``, else ruckig's new
+    position ``(x, y, z)`` (m) with velocity ``v`` (m/s) and acceleration ``a`` (m/s²), world;
+    its :func:`_stop_start` in the workspace ``state`` (first eleven arguments), limits ``V``,
+    ``A``, ``J``. Without ``check``: ``(1, 0.0)``.
+    """
+    _next_pose(out, T, flat, arriving, x, y, z, rx, ry, rz)
+    if not check:
+        return 1, 0.0
+    if arriving:
+        x, y, z = flat[3], flat[7], flat[11]
+        v0, v1, v2, a0, a1, a2 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    return _stop_start(
+        cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance,
+        x, y, z, v0, v1, v2, a0, a1, a2, V, A, J,
+    )  # fmt: skip
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -340,9 +401,9 @@ class CartesianLimiter:
     the floor therefore no longer overshoots below it.
 
     The Python around ruckig is compiled: the target's finite check, its rotation vector and
-    the clipped target velocity (:func:`_prepare`), the next pose (:func:`_next_pose`) and the
-    stop check (:func:`_stop_start`, :func:`_path_inside`, with the workspace's compiled
-    queries, ``control.safety.workspace_margin`` / ``workspace_all_inside``).
+    the clipped target velocity (:func:`_prepare`), the next pose and the start of the stop
+    check (:func:`_advance`), the braking path's check (:func:`_path_inside`), with the
+    workspace's compiled queries (``control.safety.workspace_margin`` and the others).
 
     Parameters
     ----------
@@ -376,6 +437,7 @@ class CartesianLimiter:
         # so synchronised arrival buys nothing, and it halves ruckig's cost.
         self._inp.synchronization = Synchronization.No
         self._T = np.eye(4)  # the current pose, world, m
+        self._T_next = np.eye(4)  # the next one (_advance), then swapped in
         self._v = [0.0] * 6  # linear velocity (world) and angular velocity (body), SI
         self._acc = [0.0] * 6
         self._target = np.eye(4)
@@ -383,12 +445,13 @@ class CartesianLimiter:
         self._arrived_at = np.full(16, math.nan)  # flattened target the camera rests on
         self._buf = np.zeros(18)  # ruckig's positions and target velocity (_prepare)
         self._moving_target = False  # the last step had a target velocity
-        self.status = MotionStatus.FINISHED
+        self.status = _FINISHED
         self.workspace = workspace
         self._safe = False  # the camera can brake to rest inside the workspace
         self.braked = 0  # steps on which the workspace made the camera brake
+        self._ws_state: WorkspaceState = NO_WORKSPACE
         if workspace is not None:
-            self._ws_state: WorkspaceState = workspace.kernel_state
+            self._ws_state = workspace.kernel_state
             self._stop_otg = Ruckig(3)  # the braking path of the position DoFs (extrema)
             self._stop_inp = InputParameter(3)
             self._stop_inp.control_interface = ControlInterface.Velocity
@@ -408,23 +471,29 @@ class CartesianLimiter:
 
     def _can_stop_inside(self, p: list[float], v: list[float], a: list[float]) -> bool:
         """Whether a camera at ``p`` (m) moving with ``v``, ``a`` (world) can brake inside."""
-        state = self._ws_state
         V, A, J = self._stop_limits
         code, bound = _stop_start(
-            *state, p[0], p[1], p[2], v[0], v[1], v[2], a[0], a[1], a[2], V, A, J
+            *self._ws_state, p[0], p[1], p[2], v[0], v[1], v[2], a[0], a[1], a[2], V, A, J
         )
-        if code != 2:
-            return code == 1
+        return code == 1 if code != 2 else self._path_inside(p, v, a, bound)
+
+    def _path_inside(self, p: list[float], v: list[float], a: list[float], bound: float) -> bool:
+        """Whether the braking path from ``p`` (m), ``v``, ``a`` (world) stays inside.
+
+        ``bound``: its :func:`_stop_bound`, m (:func:`_path_inside`).
+        """
         inp = self._stop_inp
         inp.current_position = p
         inp.current_velocity = v
         inp.current_acceleration = a
-        if self._stop_otg.calculate(inp, self._stop_traj) not in (Result.Working, Result.Finished):
+        if self._stop_otg.calculate(inp, self._stop_traj) not in _RUCKIG_OK:
             return False
         # (ruckig's position_extrema counts the target position 0 under velocity control)
         traj = self._stop_traj
         rows = profile_rows(traj)
-        return bool(_path_inside(*state, rows, traj.duration, self.dt, p[0], p[1], p[2], bound))
+        return bool(
+            _path_inside(*self._ws_state, rows, traj.duration, self.dt, p[0], p[1], p[2], bound)
+        )
 
     def _brake(self) -> FloatArray:
         """One step along the braking path of the current state (checked the step before)."""
@@ -433,15 +502,19 @@ class CartesianLimiter:
         inp.current_position = [*T[:3, 3].tolist(), 0.0, 0.0, 0.0]
         inp.current_velocity = self._v
         inp.current_acceleration = self._acc
-        if self._brake_otg.update(inp, self._brake_out) not in (Result.Working, Result.Finished):
+        if self._brake_otg.update(inp, self._brake_out) not in _RUCKIG_OK:
             raise RuntimeError("ruckig failed to brake")
         x, y, z, rx, ry, rz = self._brake_out.new_position
-        _next_pose(T, self._target_flat, False, x, y, z, rx, ry, rz)
+        _advance(
+            *self._ws_state, self._T_next, T, self._target_flat, False, False,
+            x, y, z, rx, ry, rz, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+        )  # fmt: skip
+        self._T, self._T_next = self._T_next, T
         self._v = self._brake_out.new_velocity
         self._acc = self._brake_out.new_acceleration
         self.braked += 1
-        self.status = MotionStatus.MOVING
-        return T.copy()
+        self.status = _MOVING
+        return self._T.copy()
 
     def reset(self, T_world_cam: FloatArray) -> None:
         """Start at rest at ``T_world_cam`` (4, 4)."""
@@ -453,7 +526,7 @@ class CartesianLimiter:
         self._target = np.array(T_world_cam, dtype=float)
         self._target_flat = self._target.reshape(16)
         self._arrived_at = self._target_flat.copy()
-        self.status = MotionStatus.FINISHED
+        self.status = _FINISHED
         self._safe = self.workspace is not None and self.workspace.margin(T[:3, 3].tolist()) >= 0.0
         if self._moving_target:
             self._inp.target_velocity = [0.0] * 6
@@ -503,19 +576,19 @@ class CartesianLimiter:
         code = _prepare(
             flat, self._target_flat, self._arrived_at, tw, self._T, self._vmax, self._buf
         )
-        rejected = code & _REJECTED
+        rejected = code & _TARGET_REJECTED
         if rejected:
             flat = self._target_flat
         else:
             self._target, self._target_flat = T_new, flat
-        moving = code & _MOVING
+        moving = code & _TARGET_MOVING
         b = self._buf.tolist()
         if moving or self._moving_target:
             self._inp.target_velocity = b[12:18] if moving else [0.0] * 6
             self._moving_target = bool(moving)
             if moving:
-                self.status = MotionStatus.MOVING
-        if self.status is MotionStatus.FINISHED and code & _SAME:
+                self.status = _MOVING
+        if self.status is _FINISHED and code & _TARGET_SAME:
             return self._T.copy()  # at rest on an unchanged target: nothing to do
         # Re-anchor the orientation DoFs at the current orientation: current rotation vector 0,
         # target = log(R_cur^T R_target) (body frame, |θ| ≤ π) (_prepare).
@@ -528,32 +601,35 @@ class CartesianLimiter:
             result = self._otg.update(inp, self._out)
         except RuckigError:
             result = self._retry(inp)
-        if result not in (Result.Working, Result.Finished):
+        if result not in _RUCKIG_OK:
             raise RuntimeError(f"ruckig failed with {result} for a finite target")
-        arriving = result == Result.Finished and not moving
+        arriving = result is _RUCKIG_FINISHED and not moving
         out = self._out
-        new = out.new_position
-        if self.workspace is not None:
-            if arriving:
-                stoppable = self._can_stop_inside(b[6:9], [0.0] * 3, [0.0] * 3)
-            else:
-                v_next, a_next = out.new_velocity, out.new_acceleration
-                stoppable = self._can_stop_inside(new[:3], v_next[:3], a_next[:3])
+        new, v, a = out.new_position, out.new_velocity, out.new_acceleration
+        check = self.workspace is not None
+        V, A, J = self._stop_limits
+        code, bound = _advance(
+            *self._ws_state, self._T_next, self._T, flat, arriving, check,
+            new[0], new[1], new[2], new[3], new[4], new[5],
+            v[0], v[1], v[2], a[0], a[1], a[2], V, A, J,
+        )  # fmt: skip
+        if check:
+            # (arriving: at rest, code 0 or 1)
+            stoppable = code == 1 if code != 2 else self._path_inside(new[:3], v[:3], a[:3], bound)
             if self._safe and not stoppable:
                 return self._brake()  # the braking path of a safe state stays safe
             self._safe = stoppable
-        x, y, z, rx, ry, rz = new
-        _next_pose(self._T, flat, arriving, x, y, z, rx, ry, rz)
+        self._T, self._T_next = self._T_next, self._T
         if arriving:
             # at rest on the target: take it exactly (no round-off)
             self._v = [0.0] * 6
             self._acc = [0.0] * 6
-            self.status = MotionStatus.REJECTED if rejected else MotionStatus.FINISHED
+            self.status = _REJECTED if rejected else _FINISHED
             self._arrived_at = flat.copy()
         else:
-            self._v = out.new_velocity
-            self._acc = out.new_acceleration
-            self.status = MotionStatus.REJECTED if rejected else MotionStatus.MOVING
+            self._v = v
+            self._acc = a
+            self.status = _REJECTED if rejected else _MOVING
         return self._T.copy()
 
 
@@ -563,6 +639,7 @@ _NOT_A_POSE.setflags(write=False)
 
 _NO_JOINTS = np.zeros(0)
 _NO_JOINTS.setflags(write=False)
+_EXACT = ActuatorStatus.EXACT  # (an enum member read once)
 
 
 class FreeCamera:
@@ -625,4 +702,4 @@ class FreeCamera:
         ``twist`` (6,): the command's velocity, linear then angular, world, m/s and rad/s.
         """
         T = self.limiter.step(T_world_cmd, twist)
-        return ActuatorStep(T, _NO_JOINTS, T_world_cmd, ActuatorStatus.EXACT, 0.0, 0.0, True)
+        return ActuatorStep(T, _NO_JOINTS, T_world_cmd, _EXACT, 0.0, 0.0, True)
