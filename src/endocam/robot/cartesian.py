@@ -5,8 +5,10 @@ A policy commands a pose; the camera does not teleport there. Each control step,
 degrees of freedom, the position and the rotation vector relative to the current orientation,
 under per-axis velocity, acceleration and jerk limits. The per-axis limits are the configured
 norms divided by √3, so the speed and acceleration *norms* never exceed the configured limits.
-The rotation-vector map (SO(3) log and exp) runs on plain floats (:mod:`endocam.kernels`):
-the limiter steps once per control period (100 Hz by default, ``EpisodeConfig.control_rate``).
+The limiter steps once per control period (100 Hz by default, ``EpisodeConfig.control_rate``):
+everything around ruckig's ``update`` (the target's check, the rotation-vector map of
+:mod:`endocam.kernels`, the next pose, the workspace's stop check) runs in a few compiled
+calls (docs/conventions.md, "Compiled kernels").
 """
 
 from __future__ import annotations
