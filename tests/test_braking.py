@@ -17,6 +17,7 @@ import pytest
 import ruckig
 
 from endocam.config import ExperimentConfig
+from endocam.control.safety import ConeWorkspace, Workspace
 from endocam.robot import camera_arm
 from endocam.robot.actuator import ArmKind
 from endocam.robot.arm import (
@@ -240,33 +241,21 @@ def test_brakes_inside_asks_the_same_points_either_way(
     assert len(asked[0.0].points) == len(states)
 
 
-class _HalfSpace:
-    """The region x ≤ ``x_max`` (m): a convex workspace, as the free camera's carrier asks it."""
-
-    convex = True
-
-    def __init__(self, x_max: float) -> None:
-        self.x_max = x_max
-
-    def margin(self, p: Any) -> float:
-        return self.x_max - float(p[0])
-
-    def all_inside(self, points: Any) -> bool:
-        return bool(np.all(np.asarray(points, dtype=float)[:, 0] <= self.x_max))
-
-    def keep_out_margin(self, p: Any) -> float:
-        return math.inf
+def _floor_at(z_min: float) -> Workspace:
+    """The region z ≥ ``z_min`` (m) inside a cone far wider than the states: a convex workspace."""
+    cone = ConeWorkspace.from_rcm([0.0, 0.0, -5.0], [0.0, 0.0, 0.0], height=10.0, base_radius=10.0)
+    return Workspace(cone, z_min)
 
 
 def test_free_camera_never_claims_a_stop_whose_brake_leaves_the_workspace() -> None:
     """A state beyond the limits brakes first; the profiles' box does not hold that part.
 
     For every random state whose braking path (ruckig's ``at_time``, brake included) reaches
-    farther than the profiles' box, a wall between the two must make the stop check say no.
+    lower than the profiles' box, a floor between the two must make the stop check say no.
     Found in review: the box alone said yes.
     """
     dt = 0.01  # s, control period
-    carrier = CartesianLimiter(MotionLimits(), dt, _HalfSpace(0.0))  # type: ignore[arg-type]
+    carrier = CartesianLimiter(MotionLimits(), dt, _floor_at(-1.0))
     v, a, _ = carrier._stop_limits
     rng = np.random.default_rng(21)
     beyond = 0
@@ -285,12 +274,13 @@ def test_free_camera_never_claims_a_stop_whose_brake_leaves_the_workspace() -> N
         path = _at_time_path(traj, dt)
         if not len(path):
             continue  # at rest already
-        box_x = float(_box_corners(profile_rows(traj))[:, 0].max())
-        path_x = float(path[:, 0].max())
-        if not path_x > box_x + 1e-9:
+        box_z = float(_box_corners(profile_rows(traj))[:, 2].min())
+        path_z = float(path[:, 2].min())
+        if not path_z < box_z - 1e-9:
             continue
         beyond += 1
-        assert isinstance(carrier.workspace, _HalfSpace)
-        carrier.workspace.x_max = 0.5 * (box_x + path_x)  # m, between the box and the path
-        assert not carrier._can_stop_inside(p, vel, acc)
-    assert beyond > 0  # such states were exercised (8 of the 1500 here)
+        floor = 0.5 * (box_z + path_z)  # m, between the box and the path
+        assert not CartesianLimiter(MotionLimits(), dt, _floor_at(floor))._can_stop_inside(
+            p, vel, acc
+        )
+    assert beyond > 0  # such states were exercised

@@ -107,7 +107,8 @@ def reject(a: Vec, z: Vec) -> Vec:
     return (a[0] - k * z[0], a[1] - k * z[1], a[2] - k * z[2])
 
 
-def so3_log(R: Rows) -> list[float]:
+@register_jitable  # also callable from compiled kernels (the same source)
+def so3_log(R: Sequence[Sequence[float]]) -> list[float]:
     """Rotation vector (3,) of a rotation matrix given as rows, rad; |θ| ≤ π.
 
     Uses the quaternion of ``R`` (Shepperd's branch choice, stable for every angle) and
@@ -136,7 +137,8 @@ def so3_log(R: Rows) -> list[float]:
     return [scale * x, scale * y, scale * z]
 
 
-def so3_exp(theta: list[float]) -> Rows:
+@register_jitable  # also callable from compiled kernels (the same source)
+def so3_exp(theta: Sequence[float]) -> Rows:
     """Rotation matrix (rows) of a rotation vector (3,), rad (Rodrigues' formula)."""
     x, y, z = theta
     a2 = x * x + y * y + z * z
@@ -152,7 +154,8 @@ def so3_exp(theta: list[float]) -> Rows:
     ]
 
 
-def matmul(A: Rows, B: Rows) -> Rows:
+@register_jitable  # also callable from compiled kernels (the same source)
+def matmul(A: Sequence[Sequence[float]], B: Sequence[Sequence[float]]) -> Rows:
     """``A B`` for 3×3 row lists (unrolled: this runs every control step)."""
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
     (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = B
@@ -166,7 +169,8 @@ def matmul(A: Rows, B: Rows) -> Rows:
     ]  # fmt: skip
 
 
-def tmatmul(A: Rows, B: Rows) -> Rows:
+@register_jitable  # also callable from compiled kernels (the same source)
+def tmatmul(A: Sequence[Sequence[float]], B: Sequence[Sequence[float]]) -> Rows:
     """``A^T B`` for 3×3 row lists."""
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
     return matmul([[a00, a10, a20], [a01, a11, a21], [a02, a12, a22]], B)

@@ -14,20 +14,22 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Protocol
+from typing import Protocol, cast
 
 import numpy as np
 from numba import njit
 from numba.extending import register_jitable
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from endocam.camera import MIN_DEPTH, StereoCamera
+from endocam.control.clearance import CACHE_SIZE, _distance, _first_outside
 from endocam.geometry import FloatArray, as_vector3, unit_vector
 from endocam.kernels import py_max, py_min
 
 CONE_HEIGHT = 0.30  # m, the PSM-held camera's reach, slightly under the instrument (paper III-C)
 CONE_BASE_RADIUS = 0.25  # m; the paper chose 0.10 m for its farther port (docs/world.md)
 D_F_STEP = 1.0e-3  # m, working-distance change per control step (paper: ±1 mm)
+IntArray = NDArray[np.integer]
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -84,6 +86,13 @@ def cone_margin(
 Cone = tuple[tuple[float, float, float], tuple[float, float, float], float, float, float]
 
 
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _cone_margin_kernel(constants: FloatArray, x: float, y: float, z: float) -> float:
+    """:func:`cone_margin` of ``(x, y, z)``, world, m, with the cone's ``constants`` (9,), m."""
+    apex, axis, tan_half, cos_half, height = cone_at(constants, 0)
+    return cone_margin(x, y, z, apex, axis, tan_half, cos_half, height)
+
+
 @register_jitable  # also callable from compiled kernels (the same source)
 def cone_at(values: Sequence[float] | FloatArray, i: int) -> Cone:
     """The cone's constants stored from ``values[i]`` (:attr:`ConeWorkspace.constants`).
@@ -119,6 +128,7 @@ class ConeWorkspace:
     _axis: tuple[float, ...] = field(init=False, repr=False, compare=False)
     _tan_half: float = field(init=False, repr=False, compare=False)
     _cos_half: float = field(init=False, repr=False, compare=False)
+    _constants: FloatArray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         # Plain-float copies for the control loop (endocam.kernels rule).
@@ -127,6 +137,7 @@ class ConeWorkspace:
         object.__setattr__(self, "_axis", tuple(np.asarray(self.axis, dtype=float).tolist()))
         object.__setattr__(self, "_tan_half", tan_half)
         object.__setattr__(self, "_cos_half", 1.0 / math.sqrt(1.0 + tan_half * tan_half))
+        object.__setattr__(self, "_constants", np.array(self.constants))
 
     @classmethod
     def from_rcm(
@@ -166,11 +177,11 @@ class ConeWorkspace:
         ----------
         p_world : (3,)
             Point in world, m.
+
+        Compiled (:func:`cone_margin`).
         """
         p = p_world.tolist() if isinstance(p_world, np.ndarray) else p_world
-        return cone_margin(
-            p[0], p[1], p[2], self._apex, self._axis, self._tan_half, self._cos_half, self.height
-        )
+        return float(_cone_margin_kernel(self._constants, p[0], p[1], p[2]))
 
     @property
     def constants(self) -> list[float]:
@@ -202,6 +213,16 @@ class ConeWorkspace:
 class KeepOut(Protocol):
     """A region the camera must stay out of (``control.clearance.ClearanceGuard``: the wire)."""
 
+    @property
+    def kernel_state(self) -> tuple[object, ...]:
+        """Its compiled queries' arguments (``ClearanceGuard.kernel_state``: ``_distance``'s).
+
+        The wire's search arrays, the tube radius (m), the Lipschitz cache (``ref``, ``nref``)
+        and the clearance (m): the compiled workspace queries (:func:`workspace_margin`) ask
+        the zone through them, the cache shared with :meth:`margin`.
+        """
+        ...
+
     def margin(self, p_world: Sequence[float]) -> float:
         """Signed clearance of a camera position (3,), world, m: ≥ 0 outside the region."""
         ...
@@ -213,6 +234,132 @@ class KeepOut(Protocol):
         turn would find it, any cache it keeps left as those calls leave it.
         """
         ...
+
+
+# A workspace's compiled queries take its constants as ``state`` (:attr:`Workspace.kernel_state`):
+# the cone's constants (9,) (:attr:`ConeWorkspace.constants`), the floor (m), whether there is a
+# keep-out zone, then the zone's ``ClearanceGuard.kernel_state`` (the wire's search arrays, the
+# tube radius (m), the Lipschitz cache, the clearance (m); placeholders of the same types
+# without a zone, never read).
+WorkspaceState = tuple[
+    FloatArray,
+    float,
+    bool,
+    FloatArray,
+    IntArray,
+    IntArray,
+    IntArray,
+    float,
+    FloatArray,
+    IntArray,
+    float,
+]
+_NO_KEEP_OUT = (
+    np.zeros((1, 3)),
+    np.full((1, 5), -1, dtype=np.int64),
+    np.zeros(2, dtype=np.int32),
+    np.zeros(2, dtype=np.int64),
+    0.0,
+    np.zeros((CACHE_SIZE, 4)),
+    np.zeros(1, dtype=np.int64),
+    0.0,
+)
+
+
+NO_WORKSPACE = cast(WorkspaceState, (np.zeros(9), 0.0, False, *_NO_KEEP_OUT))
+"""A compiled caller's placeholder for no workspace (never read: it asks no query then)."""
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def workspace_margin(
+    cone: FloatArray,
+    floor: float,
+    keep: bool,
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    x: float,
+    y: float,
+    z: float,
+) -> float:
+    """:meth:`Workspace.margin` of the point ``(x, y, z)``, world, m (``state`` above), m.
+
+    ``min(cone margin, z − floor)``, then with the keep-out zone's margin (its surface distance
+    less the clearance: one query at most, the cache updated as ``ClearanceGuard.margin``
+    does), Python's ``min`` order; NaN for a non-finite point.
+    """
+    apex, axis, tan_half, cos_half, height = cone_at(cone, 0)
+    m = py_min(cone_margin(x, y, z, apex, axis, tan_half, cos_half, height), z - floor)
+    if keep:
+        zone = workspace_keep_out_margin(
+            cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance, x, y, z
+        )
+        return py_min(m, zone)
+    return m
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def workspace_keep_out_margin(
+    cone: FloatArray,
+    floor: float,
+    keep: bool,
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    x: float,
+    y: float,
+    z: float,
+) -> float:
+    """:meth:`Workspace.keep_out_margin` of ``(x, y, z)``, world, m (``state`` above), m.
+
+    The zone's surface distance less the clearance (``ClearanceGuard.margin``: a lower bound
+    when positive, one query at most); inf without a zone.
+    """
+    if not keep:
+        return math.inf
+    d = _distance(pts, table, pool, meta, radius, ref, nref, clearance, x, y, z, 0.0)
+    return d - clearance
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def workspace_all_inside(
+    cone: FloatArray,
+    floor: float,
+    keep: bool,
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    p: FloatArray,
+) -> bool:
+    """:meth:`Workspace.all_inside` of the points ``p`` (N, 3), world, m (``state`` above).
+
+    The cone and the floor for every point (:func:`_first_outside_kernel`), the keep-out zone
+    up to the first point they reject, that one included (``ClearanceGuard.first_outside``):
+    the zone's cache ends as ``margin`` called on each point in turn would leave it.
+    """
+    apex, axis, tan_half, cos_half, height = cone_at(cone, 0)
+    n = p.shape[0]
+    first = _first_outside_kernel(p, apex, axis, tan_half, cos_half, height, floor)
+    if not keep:
+        return first == n
+    count = first + 1 if first + 1 < n else n  # Python's min(first + 1, n)
+    inside = _first_outside(pts, table, pool, meta, radius, ref, nref, clearance, p, count)
+    return inside == count and first == n
 
 
 @dataclass(frozen=True)
@@ -236,6 +383,24 @@ class Workspace:
     cone: ConeWorkspace
     floor: float
     keep_out: KeepOut | None = None
+    _state: WorkspaceState = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        keep = self.keep_out is not None
+        zone = self.keep_out.kernel_state if self.keep_out is not None else _NO_KEEP_OUT
+        cone = self.cone._constants
+        state = cast(WorkspaceState, (cone, float(self.floor), keep, *zone))
+        object.__setattr__(self, "_state", state)
+
+    @property
+    def kernel_state(self) -> WorkspaceState:
+        """The arguments compiled queries take first (:func:`workspace_margin`, ``_all_inside``).
+
+        The cone's constants (9,) (:attr:`ConeWorkspace.constants`), the floor (m), whether
+        there is a keep-out zone, and the zone's ``kernel_state`` (placeholders without one);
+        the zone's cache is shared with :meth:`margin`.
+        """
+        return self._state
 
     @property
     def convex(self) -> bool:
@@ -245,33 +410,30 @@ class Workspace:
     def keep_out_margin(self, p_world: Sequence[float]) -> float:
         """Signed clearance of a point (3,) in world, m, to the keep-out zone alone (inf: none).
 
-        A lower bound when positive (``ClearanceGuard.margin``).
+        A lower bound when positive (``ClearanceGuard.margin``), compiled
+        (:func:`workspace_keep_out_margin`).
         """
-        return math.inf if self.keep_out is None else self.keep_out.margin(p_world)
+        p = p_world.tolist() if isinstance(p_world, np.ndarray) else p_world
+        return float(workspace_keep_out_margin(*self._state, p[0], p[1], p[2]))
 
     def margin(self, p_world: FloatArray | Sequence[float]) -> float:
-        """Signed clearance of a point (3,) in world, m: > 0 inside, < 0 outside (NaN: unknown)."""
+        """Signed clearance of a point (3,) in world, m: > 0 inside, < 0 outside (NaN: unknown).
+
+        ``min(cone margin, height above the floor, keep-out margin)``, compiled
+        (:func:`workspace_margin`).
+        """
         p = p_world.tolist() if isinstance(p_world, np.ndarray) else p_world
-        m = min(self.cone.margin(p), p[2] - self.floor)
-        if self.keep_out is not None:
-            return min(m, self.keep_out.margin(p))
-        return m
+        return float(workspace_margin(*self._state, p[0], p[1], p[2]))
 
     def all_inside(self, p_world: FloatArray) -> bool:
         """Whether every point (N, 3), world, m, is inside: ``all(margin(p) >= 0 for p in …)``.
 
         The same answer, and the keep-out zone's cache left as those calls in turn (stopping
-        at the first point outside) would leave it, for a whole path at once: the cone and the
-        floor are checked for every point (:meth:`ConeWorkspace.first_outside`, compiled), the
-        keep-out zone up to the first point they reject (:meth:`KeepOut.first_outside`).
+        at the first point outside) would leave it, for a whole path at once, compiled
+        (:func:`workspace_all_inside`).
         """
         p = np.ascontiguousarray(p_world, dtype=float).reshape(-1, 3)
-        n = len(p)
-        first = self.cone.first_outside(p, self.floor)  # the first outside the cone or floor
-        if self.keep_out is None:
-            return first == n
-        count = min(first + 1, n)  # margin() asks the keep-out zone about the failing point too
-        return self.keep_out.first_outside(p, count) == count and first == n
+        return bool(workspace_all_inside(*self._state, p))
 
 
 STALE_REASON = "ring pose stale (older than ring_max_age, or stamped in the future); holding"

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, NamedTuple, Protocol
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 from endocam.geometry import FloatArray
 
@@ -98,6 +98,14 @@ class WorkspaceBound(Protocol):
         """Whether every camera position (N, 3), world, m, is inside (a path, at once).
 
         The answer of ``all(margin(p) >= 0.0 for p in p_world)``.
+        """
+        ...
+
+    @property
+    def kernel_state(self) -> tuple[Any, ...]:
+        """The arguments its compiled queries take first (``control.safety.workspace_margin``).
+
+        The free camera's compiled stop check asks the workspace through them.
         """
         ...
 

@@ -19,6 +19,7 @@ jerks (2 each; all 0 without a brake).
 from __future__ import annotations
 
 import math
+import struct
 from typing import Any
 
 import numpy as np
@@ -33,6 +34,7 @@ _P, _V, _A, _J, _T = 0, 8, 16, 24, 31
 _BRAKE, _BRAKE_T, _BRAKE_P, _BRAKE_V, _BRAKE_A, _BRAKE_J = 38, 39, 41, 43, 45, 47
 ROW_LENGTH = 49  # floats per profile row
 _NO_BRAKE = [0.0] * (ROW_LENGTH - _BRAKE)
+_PACKED: dict[int, struct.Struct] = {}  # native doubles, by count (packing a list is cheap)
 
 
 def profile_rows(trajectory: object) -> FloatArray:
@@ -45,21 +47,31 @@ def profile_rows(trajectory: object) -> FloatArray:
     flat: list[float] = []
     for pr in traj.profiles[0]:
         brake = pr.brake
-        flat += pr.p + pr.v + pr.a + pr.j + pr.t
+        flat += pr.p
+        flat += pr.v
+        flat += pr.a
+        flat += pr.j
+        flat += pr.t
         if brake.duration > 0.0:
             flat += [brake.duration, *brake.t, *brake.p, *brake.v, *brake.a, *brake.j]
         else:
             flat += _NO_BRAKE
-    return np.fromiter(flat, np.float64, len(flat)).reshape(-1, ROW_LENGTH)
+    n = len(flat)
+    packed = _PACKED.get(n) or _PACKED.setdefault(n, struct.Struct(f"{n}d"))
+    return np.frombuffer(bytearray(packed.pack(*flat))).reshape(-1, ROW_LENGTH)
 
 
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def has_brake(rows: FloatArray) -> bool:
     """Whether any profile of ``rows`` (n, 49) starts with a brake pre-trajectory.
 
     ruckig brakes first from a state beyond its limits; :func:`profile_extrema` does not count
     that part, :func:`path_positions` does.
     """
-    return bool(np.any(rows[:, _BRAKE] > 0.0))
+    for k in range(rows.shape[0]):
+        if rows[k, _BRAKE] > 0.0:
+            return True
+    return False
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)

@@ -5,8 +5,10 @@ A policy commands a pose; the camera does not teleport there. Each control step,
 degrees of freedom, the position and the rotation vector relative to the current orientation,
 under per-axis velocity, acceleration and jerk limits. The per-axis limits are the configured
 norms divided by √3, so the speed and acceleration *norms* never exceed the configured limits.
-The rotation-vector map (SO(3) log and exp) runs on plain floats (:mod:`endocam.kernels`):
-the limiter steps once per control period (100 Hz by default, ``EpisodeConfig.control_rate``).
+The limiter steps once per control period (100 Hz by default, ``EpisodeConfig.control_rate``):
+everything around ruckig's ``update`` (the target's check, the rotation-vector map of
+:mod:`endocam.kernels`, the next pose, the workspace's stop check) runs in a few compiled
+calls (docs/conventions.md, "Compiled kernels").
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import math
 
 import numpy as np
 from numba import njit
+from numba.extending import register_jitable
 from pydantic import BaseModel, ConfigDict, Field
 from ruckig import (
     ControlInterface,
@@ -28,8 +31,15 @@ from ruckig import (
 )
 
 from endocam.camera import StereoCamera
+from endocam.control.safety import (
+    NO_WORKSPACE,
+    WorkspaceState,
+    workspace_all_inside,
+    workspace_keep_out_margin,
+    workspace_margin,
+)
 from endocam.geometry import FloatArray, as_pose
-from endocam.kernels import Rows, matmul, so3_exp, so3_log, tmatmul
+from endocam.kernels import matmul, py_max, py_min, so3_exp, so3_log, tmatmul
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import MotionStatus
 from endocam.robot.braking import has_brake, path_positions, profile_extrema, profile_rows
@@ -128,6 +138,260 @@ def _stop_bound(
     return math.sqrt(total)
 
 
+# The limiter's state around ruckig, compiled (CartesianLimiter.step). ``T``: the current pose
+# (4, 4), world, m; ``flat``: a target pose's 16 entries, row by row; ``buf`` (18,): ruckig's
+# current position (6), target position (6) and target velocity (6) for the step, SI.
+_TARGET_REJECTED = 1  # _prepare's flags: the target is not finite (the last valid one is used)
+_TARGET_MOVING = 2  # the twist gives a target velocity (buf[12:18])
+_TARGET_SAME = 4  # the target is the one the camera rests on
+_F64 = np.dtype(np.float64)
+# Enum members read once: a class attribute of a Python 3.11 enum costs ~0.3 µs per access.
+_FINISHED, _MOVING, _REJECTED = MotionStatus.FINISHED, MotionStatus.MOVING, MotionStatus.REJECTED
+_RUCKIG_OK = (Result.Working, Result.Finished)
+_RUCKIG_FINISHED = Result.Finished
+_NO_TWIST = np.zeros(0)
+_NO_TWIST.setflags(write=False)
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _prepare(
+    flat: FloatArray,
+    last: FloatArray,
+    arrived: FloatArray,
+    twist: FloatArray,
+    T: FloatArray,
+    vmax: FloatArray,
+    buf: FloatArray,
+) -> int:
+    """Ruckig's input for a step towards the target ``flat`` (16,); flags (``_TARGET_…``).
+
+    A target with a non-finite entry is replaced by ``last`` (16,), the last valid one (its
+    twist dropped). ``twist`` (6,): linear velocity in world (m/s), angular velocity in world
+    (rad/s), or ``(0,)`` for none; a finite, non-zero one gives the target velocity, the
+    angular part in the current camera frame, each clipped to ``±vmax`` (6,) (Python's
+    ``min(max(v, −m), m)``). ``_TARGET_SAME`` when the target equals ``arrived`` (16,), entry
+    by entry.
+    Writes ``buf``: the current position ``T``'s (m) and rotation vector 0; the target
+    position (m) and ``so3_log(Rᵀ R_target)`` (rad, body); the target velocity.
+    """
+    code = 0
+    for i in range(16):
+        if not math.isfinite(flat[i]):
+            flat = last
+            code = _TARGET_REJECTED
+            break
+    if code == 0 and twist.shape[0] == 6:
+        finite, moving = True, False
+        for i in range(6):
+            finite = finite and math.isfinite(twist[i])
+            moving = moving or twist[i] != 0.0
+        if finite and moving:
+            w3, w4, w5 = twist[3], twist[4], twist[5]
+            buf[12], buf[13], buf[14] = twist[0], twist[1], twist[2]
+            buf[15] = T[0, 0] * w3 + T[1, 0] * w4 + T[2, 0] * w5
+            buf[16] = T[0, 1] * w3 + T[1, 1] * w4 + T[2, 1] * w5
+            buf[17] = T[0, 2] * w3 + T[1, 2] * w4 + T[2, 2] * w5
+            for i in range(6):
+                buf[12 + i] = py_min(py_max(buf[12 + i], -vmax[i]), vmax[i])
+            code |= _TARGET_MOVING
+    same = True
+    for i in range(16):
+        same = same and flat[i] == arrived[i]
+    if same:
+        code |= _TARGET_SAME
+    R = ((T[0, 0], T[0, 1], T[0, 2]), (T[1, 0], T[1, 1], T[1, 2]), (T[2, 0], T[2, 1], T[2, 2]))
+    R_tgt = ((flat[0], flat[1], flat[2]), (flat[4], flat[5], flat[6]), (flat[8], flat[9], flat[10]))
+    theta = so3_log(tmatmul(R, R_tgt))
+    buf[0], buf[1], buf[2], buf[3], buf[4], buf[5] = T[0, 3], T[1, 3], T[2, 3], 0.0, 0.0, 0.0
+    buf[6], buf[7], buf[8] = flat[3], flat[7], flat[11]
+    buf[9], buf[10], buf[11] = theta[0], theta[1], theta[2]
+    return code
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _next_pose(
+    out: FloatArray,
+    T: FloatArray,
+    flat: FloatArray,
+    arriving: bool,
+    x: float,
+    y: float,
+    z: float,
+    rx: float,
+    ry: float,
+    rz: float,
+) -> None:
+    """Writes into ``out`` (4, 4) the pose after a step: the target ``flat`` (16,) if ``arriving``.
+
+    Else ruckig's new state from ``T`` (4, 4): position ``(x, y, z)``, world, m, orientation
+    ``R so3_exp(rx, ry, rz)`` (rotation vector in the camera frame, rad).
+    """
+    if arriving:
+        for r in range(3):
+            for c in range(4):
+                out[r, c] = flat[4 * r + c]
+    else:
+        R = ((T[0, 0], T[0, 1], T[0, 2]), (T[1, 0], T[1, 1], T[1, 2]), (T[2, 0], T[2, 1], T[2, 2]))
+        M = matmul(R, so3_exp((rx, ry, rz)))
+        for r in range(3):
+            for c in range(3):
+                out[r, c] = M[r][c]
+        out[0, 3], out[1, 3], out[2, 3] = x, y, z
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _advance(
+    cone: FloatArray,
+    floor: float,
+    keep: bool,
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    out: FloatArray,
+    T: FloatArray,
+    flat: FloatArray,
+    arriving: bool,
+    check: bool,
+    x: float,
+    y: float,
+    z: float,
+    rx: float,
+    ry: float,
+    rz: float,
+    v0: float,
+    v1: float,
+    v2: float,
+    a0: float,
+    a1: float,
+    a2: float,
+    V: float,
+    A: float,
+    J: float,
+) -> tuple[int, float]:
+    """The pose after a step into ``out`` (:func:`_next_pose`); with ``check``, its stop check.
+
+    The state reached: the target ``flat`` at rest when ``arriving``, else ruckig's new
+    position ``(x, y, z)`` (m) with velocity ``v`` (m/s) and acceleration ``a`` (m/s²), world;
+    its :func:`_stop_start` in the workspace ``state`` (first eleven arguments), limits ``V``,
+    ``A``, ``J``. Without ``check``: ``(1, 0.0)``.
+    """
+    _next_pose(out, T, flat, arriving, x, y, z, rx, ry, rz)
+    if not check:
+        return 1, 0.0
+    if arriving:
+        x, y, z = flat[3], flat[7], flat[11]
+        v0, v1, v2, a0, a1, a2 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    return _stop_start(
+        cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance,
+        x, y, z, v0, v1, v2, a0, a1, a2, V, A, J,
+    )  # fmt: skip
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _stop_start(
+    cone: FloatArray,
+    floor: float,
+    keep: bool,
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    x: float,
+    y: float,
+    z: float,
+    v0: float,
+    v1: float,
+    v2: float,
+    a0: float,
+    a1: float,
+    a2: float,
+    V: float,
+    A: float,
+    J: float,
+) -> tuple[int, float]:
+    """The stop check's start: 1 it can stop inside, 0 it cannot, 2 ask the braking path.
+
+    A camera at ``(x, y, z)`` (m) moving with ``v`` (m/s), ``a`` (m/s²), world, in the
+    workspace ``state`` (``control.safety.Workspace.kernel_state``): at rest, its margin
+    decides; farther inside than :func:`_stop_bound` (limits ``V``, ``A``, ``J``), yes. Also
+    returns that bound, m.
+    """
+    margin = workspace_margin(
+        cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance, x, y, z
+    )
+    if not (v0 != 0.0 or v1 != 0.0 or v2 != 0.0 or a0 != 0.0 or a1 != 0.0 or a2 != 0.0):
+        return (1 if margin >= 0.0 else 0), 0.0
+    bound = _stop_bound(v0, v1, v2, a0, a1, a2, V, A, J)
+    if margin > bound:
+        return 1, bound  # farther inside than any braking from this state can carry it
+    return 2, bound
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _path_inside(
+    cone: FloatArray,
+    floor: float,
+    keep: bool,
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    rows: FloatArray,
+    duration: float,
+    dt: float,
+    x: float,
+    y: float,
+    z: float,
+    bound: float,
+) -> bool:
+    """Whether the braking path ``rows`` (3, 49) from ``(x, y, z)`` (m) stays in the workspace.
+
+    ``rows``: the path's :func:`~endocam.robot.braking.profile_rows`, ``duration`` its length
+    (s), ``dt`` the control period (s), ``bound`` its :func:`_stop_bound` (m). The corners of
+    the box the path's profiles span must be inside; then a convex region holds the path,
+    unless a brake pre-trajectory precedes the profiles; a camera farther from the keep-out
+    zone than ``bound`` cannot reach it either; else the path is checked at every control
+    step (:func:`~endocam.robot.braking.path_positions`).
+    """
+    corners = _box_corners(rows)
+    if not workspace_all_inside(
+        cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance, corners
+    ):
+        return False
+    # The box holds the profiles, not a brake pre-trajectory before them (a state beyond the
+    # limits): then the path itself is checked too.
+    braked = has_brake(rows)
+    if not keep and not braked:
+        return True  # a convex region holding the path's box's corners holds the path
+    if not braked and (
+        workspace_keep_out_margin(
+            cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance, x, y, z
+        )
+        > bound
+    ):
+        return True  # farther from the keep-out zone than the braking can carry it
+    # a keep-out zone (the wire's) or a brake: the braking path itself, at every control step
+    steps = math.ceil(duration / dt - 1e-9)
+    path = path_positions(rows, duration, dt, steps)
+    return workspace_all_inside(
+        cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance, path
+    )
+
+
 class CartesianLimiter:
     """Moves a pose towards a (moving) target under speed, acceleration and jerk limits.
 
@@ -137,6 +401,11 @@ class CartesianLimiter:
     cone and above the floor); otherwise the camera brakes along the braking path of the
     state before, which was checked the same way. A jerk-limited camera arriving at a goal on
     the floor therefore no longer overshoots below it.
+
+    The Python around ruckig is compiled: the target's finite check, its rotation vector and
+    the clipped target velocity (:func:`_prepare`), the next pose and the start of the stop
+    check (:func:`_advance`), the braking path's check (:func:`_path_inside`), with the
+    workspace's compiled queries (``control.safety.workspace_margin`` and the others).
 
     Parameters
     ----------
@@ -164,23 +433,27 @@ class CartesianLimiter:
         self._inp.max_acceleration = [a, a, a, al, al, al]
         j, jr = limits.max_linear_jerk / _SQRT3, limits.max_angular_jerk / _SQRT3
         self._inp.max_jerk = [j, j, j, jr, jr, jr]  # jerk-limited: smooth for the viewer
+        self._vmax = np.array(self._inp.max_velocity)
         self._stop_limits = (v, a, j)  # the position DoFs' limits, m/s, m/s², m/s³
         # Each DoF is limited on its own (no time synchronisation): the target moves every step,
         # so synchronised arrival buys nothing, and it halves ruckig's cost.
         self._inp.synchronization = Synchronization.No
-        self._p = [0.0, 0.0, 0.0]
-        self._R: Rows = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+        self._T = np.eye(4)  # the current pose, world, m
+        self._T_next = np.eye(4)  # the next one (_advance), then swapped in
         self._v = [0.0] * 6  # linear velocity (world) and angular velocity (body), SI
         self._acc = [0.0] * 6
         self._target = np.eye(4)
-        self._arrived_at: list[float] = []  # flattened target the camera rests on
+        self._target_flat = self._target.reshape(16)
+        self._arrived_at = np.full(16, math.nan)  # flattened target the camera rests on
+        self._buf = np.zeros(18)  # ruckig's positions and target velocity (_prepare)
         self._moving_target = False  # the last step had a target velocity
-        self._pose_array = np.eye(4)
-        self.status = MotionStatus.FINISHED
+        self.status = _FINISHED
         self.workspace = workspace
         self._safe = False  # the camera can brake to rest inside the workspace
         self.braked = 0  # steps on which the workspace made the camera brake
+        self._ws_state: WorkspaceState = NO_WORKSPACE
         if workspace is not None:
+            self._ws_state = workspace.kernel_state
             self._stop_otg = Ruckig(3)  # the braking path of the position DoFs (extrema)
             self._stop_inp = InputParameter(3)
             self._stop_inp.control_interface = ControlInterface.Velocity
@@ -200,65 +473,63 @@ class CartesianLimiter:
 
     def _can_stop_inside(self, p: list[float], v: list[float], a: list[float]) -> bool:
         """Whether a camera at ``p`` (m) moving with ``v``, ``a`` (world) can brake inside."""
-        ws = self.workspace
-        assert ws is not None
-        margin = ws.margin(p)
-        if not any(v) and not any(a):
-            return margin >= 0.0
-        bound = _stop_bound(v[0], v[1], v[2], a[0], a[1], a[2], *self._stop_limits)
-        if margin > bound:
-            return True  # farther inside than any braking from this state can carry it
+        V, A, J = self._stop_limits
+        code, bound = _stop_start(
+            *self._ws_state, p[0], p[1], p[2], v[0], v[1], v[2], a[0], a[1], a[2], V, A, J
+        )
+        return code == 1 if code != 2 else self._path_inside(p, v, a, bound)
+
+    def _path_inside(self, p: list[float], v: list[float], a: list[float], bound: float) -> bool:
+        """Whether the braking path from ``p`` (m), ``v``, ``a`` (world) stays inside.
+
+        ``bound``: its :func:`_stop_bound`, m (:func:`_path_inside`).
+        """
         inp = self._stop_inp
         inp.current_position = p
         inp.current_velocity = v
         inp.current_acceleration = a
-        if self._stop_otg.calculate(inp, self._stop_traj) not in (Result.Working, Result.Finished):
+        if self._stop_otg.calculate(inp, self._stop_traj) not in _RUCKIG_OK:
             return False
         # (ruckig's position_extrema counts the target position 0 under velocity control)
-        rows = profile_rows(self._stop_traj)
-        if not ws.all_inside(_box_corners(rows)):
-            return False
-        # The box holds the profiles, not a brake pre-trajectory before them (a state beyond
-        # the limits): then the path itself is checked too.
-        braked = has_brake(rows)
-        if ws.convex and not braked:
-            return True  # a convex region holding the path's box's corners holds the path
-        if not braked and ws.keep_out_margin(p) > bound:
-            return True  # farther from the keep-out zone than the braking can carry it
-        # a keep-out zone (the wire's) or a brake: the braking path itself, at every control step
-        duration, dt = self._stop_traj.duration, self.dt
-        steps = math.ceil(duration / dt - 1e-9)
-        return ws.all_inside(path_positions(rows, duration, dt, steps))
+        traj = self._stop_traj
+        rows = profile_rows(traj)
+        return bool(
+            _path_inside(*self._ws_state, rows, traj.duration, self.dt, p[0], p[1], p[2], bound)
+        )
 
     def _brake(self) -> FloatArray:
         """One step along the braking path of the current state (checked the step before)."""
         inp = self._brake_inp
-        inp.current_position = [*self._p, 0.0, 0.0, 0.0]
+        T = self._T
+        inp.current_position = [*T[:3, 3].tolist(), 0.0, 0.0, 0.0]
         inp.current_velocity = self._v
         inp.current_acceleration = self._acc
-        if self._brake_otg.update(inp, self._brake_out) not in (Result.Working, Result.Finished):
+        if self._brake_otg.update(inp, self._brake_out) not in _RUCKIG_OK:
             raise RuntimeError("ruckig failed to brake")
-        new = self._brake_out.new_position
-        self._p = new[:3]
-        self._R = matmul(self._R, so3_exp(new[3:]))
+        x, y, z, rx, ry, rz = self._brake_out.new_position
+        _advance(
+            *self._ws_state, self._T_next, T, self._target_flat, False, False,
+            x, y, z, rx, ry, rz, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+        )  # fmt: skip
+        self._T, self._T_next = self._T_next, T
         self._v = self._brake_out.new_velocity
         self._acc = self._brake_out.new_acceleration
         self.braked += 1
-        self.status = MotionStatus.MOVING
-        return self.pose
+        self.status = _MOVING
+        return self._T.copy()
 
     def reset(self, T_world_cam: FloatArray) -> None:
         """Start at rest at ``T_world_cam`` (4, 4)."""
         T = np.asarray(T_world_cam, dtype=float)
-        self._p = T[:3, 3].tolist()
-        self._R = T[:3, :3].tolist()
+        self._T = np.eye(4)
+        self._T[:3] = T[:3]
         self._v = [0.0] * 6
         self._acc = [0.0] * 6
         self._target = np.array(T_world_cam, dtype=float)
-        self._arrived_at = self._target.ravel().tolist()
-        self._pose_array = self.pose
-        self.status = MotionStatus.FINISHED
-        self._safe = self.workspace is not None and self.workspace.margin(self._p) >= 0.0
+        self._target_flat = self._target.reshape(16)
+        self._arrived_at = self._target_flat.copy()
+        self.status = _FINISHED
+        self._safe = self.workspace is not None and self.workspace.margin(T[:3, 3].tolist()) >= 0.0
         if self._moving_target:
             self._inp.target_velocity = [0.0] * 6
             self._moving_target = False
@@ -266,15 +537,7 @@ class CartesianLimiter:
     @property
     def pose(self) -> FloatArray:
         """Current ``T_world_cam`` (4, 4)."""
-        R, p = self._R, self._p
-        return np.array(
-            [
-                [R[0][0], R[0][1], R[0][2], p[0]],
-                [R[1][0], R[1][1], R[1][2], p[1]],
-                [R[2][0], R[2][1], R[2][2], p[2]],
-                [0.0, 0.0, 0.0, 1.0],
-            ]
-        )
+        return self._T.copy()
 
     @property
     def velocity(self) -> FloatArray:
@@ -291,27 +554,6 @@ class CartesianLimiter:
         ]
         return self._otg.update(inp, self._out)
 
-    def _target_velocity(self, twist: FloatArray | None) -> list[float] | None:
-        """Target velocity in ruckig's coordinates, clipped to the per-axis limits, or ``None``.
-
-        ``twist`` (6,): linear velocity in world (m/s), angular velocity in world (rad/s); the
-        angular part is expressed in the current camera frame (the orientation DoFs' frame).
-        ``None`` for no twist, a non-finite one or an all-zero one (arrive at rest).
-        """
-        if twist is None:
-            return None
-        w = np.ravel(twist).tolist()
-        if len(w) != 6 or not math.isfinite(math.fsum(w)) or not any(w):
-            return None
-        R = self._R
-        body = [
-            R[0][0] * w[3] + R[1][0] * w[4] + R[2][0] * w[5],
-            R[0][1] * w[3] + R[1][1] * w[4] + R[2][1] * w[5],
-            R[0][2] * w[3] + R[1][2] * w[4] + R[2][2] * w[5],
-        ]
-        vmax = self._inp.max_velocity
-        return [min(max(v, -m), m) for v, m in zip([w[0], w[1], w[2], *body], vmax, strict=True)]
-
     def step(self, T_world_target: FloatArray, twist: FloatArray | None = None) -> FloatArray:
         """Advance one control period towards ``T_world_target`` (4, 4); returns the new pose.
 
@@ -321,73 +563,85 @@ class CartesianLimiter:
         ``twist`` (6,), optional: the target's velocity, linear in world (m/s) then angular in
         world (rad/s). The camera then reaches the target moving with it (clipped to the
         per-axis speed limits), so a steadily moving target is followed without lag. ``None``
-        (the default) arrives at rest, exactly as without the argument.
+        (the default), a non-finite or an all-zero one arrives at rest, exactly as without
+        the argument.
         """
-        flat = np.ravel(T_world_target).tolist()
-        rejected = len(flat) != 16 or not math.isfinite(math.fsum(flat))
+        T_new = T_world_target
+        if type(T_new) is not np.ndarray or T_new.dtype is not _F64:
+            T_new = np.asarray(T_world_target, dtype=float)
+        flat = T_new.reshape(16) if T_new.size == 16 else _NOT_A_POSE
+        tw = _NO_TWIST
+        if twist is not None:
+            tw = twist
+            if type(tw) is not np.ndarray or tw.dtype is not _F64 or tw.ndim != 1:
+                tw = np.ravel(np.asarray(twist, dtype=float))
+        code = _prepare(
+            flat, self._target_flat, self._arrived_at, tw, self._T, self._vmax, self._buf
+        )
+        rejected = code & _TARGET_REJECTED
         if rejected:
-            T_world_target = self._target
-            flat = T_world_target.ravel().tolist()
-            twist = None
+            flat = self._target_flat
         else:
-            self._target = T_world_target
-        v_target = self._target_velocity(twist)
-        if v_target is not None or self._moving_target:
-            self._inp.target_velocity = v_target if v_target is not None else [0.0] * 6
-            self._moving_target = v_target is not None
-            if v_target is not None:
-                self.status = MotionStatus.MOVING
-        if self.status is MotionStatus.FINISHED and flat == self._arrived_at:
-            return self._pose_array.copy()  # at rest on an unchanged target: nothing to do
+            self._target, self._target_flat = T_new, flat
+        moving = code & _TARGET_MOVING
+        b = self._buf.tolist()
+        if moving or self._moving_target:
+            self._inp.target_velocity = b[12:18] if moving else [0.0] * 6
+            self._moving_target = bool(moving)
+            if moving:
+                self.status = _MOVING
+        if self.status is _FINISHED and code & _TARGET_SAME:
+            return self._T.copy()  # at rest on an unchanged target: nothing to do
         # Re-anchor the orientation DoFs at the current orientation: current rotation vector 0,
-        # target = log(R_cur^T R_target) (body frame, |θ| ≤ π).
-        R_tgt = [flat[0:3], flat[4:7], flat[8:11]]
-        theta = so3_log(tmatmul(self._R, R_tgt))
-        p = self._p
+        # target = log(R_cur^T R_target) (body frame, |θ| ≤ π) (_prepare).
         inp = self._inp
-        inp.current_position = [p[0], p[1], p[2], 0.0, 0.0, 0.0]
-        inp.target_position = [flat[3], flat[7], flat[11], *theta]
+        inp.current_position = b[0:6]
+        inp.target_position = b[6:12]
         inp.current_velocity = self._v
         inp.current_acceleration = self._acc
         try:
             result = self._otg.update(inp, self._out)
         except RuckigError:
             result = self._retry(inp)
-        if result not in (Result.Working, Result.Finished):
+        if result not in _RUCKIG_OK:
             raise RuntimeError(f"ruckig failed with {result} for a finite target")
-        arriving = result == Result.Finished and v_target is None
-        if self.workspace is not None:
-            if arriving:
-                p_next, v_next, a_next = [flat[3], flat[7], flat[11]], [0.0] * 3, [0.0] * 3
-            else:
-                out = self._out
-                p_next = out.new_position[:3]
-                v_next, a_next = out.new_velocity[:3], out.new_acceleration[:3]
-            stoppable = self._can_stop_inside(p_next, v_next, a_next)
+        arriving = result is _RUCKIG_FINISHED and not moving
+        out = self._out
+        new, v, a = out.new_position, out.new_velocity, out.new_acceleration
+        check = self.workspace is not None
+        V, A, J = self._stop_limits
+        code, bound = _advance(
+            *self._ws_state, self._T_next, self._T, flat, arriving, check,
+            new[0], new[1], new[2], new[3], new[4], new[5],
+            v[0], v[1], v[2], a[0], a[1], a[2], V, A, J,
+        )  # fmt: skip
+        if check:
+            # (arriving: at rest, code 0 or 1)
+            stoppable = code == 1 if code != 2 else self._path_inside(new[:3], v[:3], a[:3], bound)
             if self._safe and not stoppable:
                 return self._brake()  # the braking path of a safe state stays safe
             self._safe = stoppable
+        self._T, self._T_next = self._T_next, self._T
         if arriving:
             # at rest on the target: take it exactly (no round-off)
-            self._p = [flat[3], flat[7], flat[11]]
-            self._R = R_tgt
             self._v = [0.0] * 6
             self._acc = [0.0] * 6
-            self.status = MotionStatus.REJECTED if rejected else MotionStatus.FINISHED
-            self._arrived_at = flat
-            self._pose_array = self.pose
-            return self._pose_array
-        new = self._out.new_position
-        self._p = new[:3]
-        self._R = matmul(self._R, so3_exp(new[3:]))
-        self._v = self._out.new_velocity
-        self._acc = self._out.new_acceleration
-        self.status = MotionStatus.REJECTED if rejected else MotionStatus.MOVING
-        return self.pose
+            self.status = _REJECTED if rejected else _FINISHED
+            self._arrived_at = flat.copy()
+        else:
+            self._v = v
+            self._acc = a
+            self.status = _REJECTED if rejected else _MOVING
+        return self._T.copy()
+
+
+_NOT_A_POSE = np.full(16, math.nan)  # a command without 16 entries: rejected
+_NOT_A_POSE.setflags(write=False)
 
 
 _NO_JOINTS = np.zeros(0)
 _NO_JOINTS.setflags(write=False)
+_EXACT = ActuatorStatus.EXACT  # (an enum member read once)
 
 
 class FreeCamera:
@@ -450,4 +704,4 @@ class FreeCamera:
         ``twist`` (6,): the command's velocity, linear then angular, world, m/s and rad/s.
         """
         T = self.limiter.step(T_world_cmd, twist)
-        return ActuatorStep(T, _NO_JOINTS, T_world_cmd, ActuatorStatus.EXACT, 0.0, 0.0, True)
+        return ActuatorStep(T, _NO_JOINTS, T_world_cmd, _EXACT, 0.0, 0.0, True)
