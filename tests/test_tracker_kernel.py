@@ -426,3 +426,128 @@ def test_a_subclass_changing_the_goal_does_not_skip_the_wire_guard() -> None:
         inside += d < policy.guard.clearance
         T_cam = cmd.T_world_cam
     assert inside == 0
+
+
+# -- the input checks and the ring gate (r7-ctrl: compiled into the steps) -------------------
+
+
+def faulty_observations(seed: int) -> list[Observation]:
+    """Observations with every fault the checks answer: non-finite or missing poses, stale
+    and future stamps, wild jumps the gate rejects (and re-acquisitions after
+    ``ring_reacquire``), degenerate normals; the camera pose given as the command before."""
+    rng = np.random.default_rng(seed)
+    out = []
+    base = random_observations(seed, True)
+    t_lost = -1.0
+    for t, T_ring, tips in base:
+        T_ring = T_ring.copy()
+        t_ring: float | None = t - LATENCY
+        kind = rng.random()
+        if kind < 0.03:
+            T_ring[int(rng.integers(0, 3)), int(rng.integers(0, 4))] = math.nan
+        elif kind < 0.05:
+            T_ring[int(rng.integers(0, 3)), 3] = rng.choice([math.inf, -math.inf])
+        elif kind < 0.07:
+            T_ring = None  # type: ignore[assignment]
+        elif kind < 0.10:
+            t_ring = t - rng.choice([0.5, 5.0, -0.01, math.nan])  # stale, or from the future
+        elif kind < 0.12:
+            t_ring = None  # unstamped
+        elif kind < 0.17 or t < t_lost:  # far off: the gate rejects, then re-acquires
+            T_ring[:3, 3] += [0.05, -0.03, 0.01]
+            if kind < 0.135:
+                t_lost = t + float(rng.uniform(0.1, 1.5))
+        elif kind < 0.20:
+            T_ring[:3, :3] = T_ring[:3, :3] @ np.diag([1.0, -1.0, -1.0])  # the normal flips
+        elif kind < 0.22:
+            T_ring[:3, 2] = 0.0  # degenerate
+        out.append(Observation(t, T_ring, None, tips, None, t_ring))  # type: ignore[arg-type]
+    return out
+
+
+def run_faulty(policy: _MovingPolicy, reference: object, seed: int) -> list[str]:
+    """Step both on :func:`faulty_observations`; assert equal commands; return the reasons."""
+    obs_seq = faulty_observations(seed)
+    T0 = obs_seq[0].T_world_ring
+    T_cam = look_at_pose(T0[:3, 3] + [0.03, 0.01, 0.04], T0[:3, 3])
+    context = PolicyContext(CAMERA, T_cam, T0, P_RCM, DT, LATENCY, wire=WIRE)
+    policy.reset(context)
+    reference.reset(context)  # type: ignore[attr-defined]
+    rng = np.random.default_rng(seed + 7)
+    reasons = []
+    for k, obs in enumerate(obs_seq):
+        T_obs: object = T_cam
+        kind = rng.random()
+        if kind < 0.03:
+            T_obs = T_cam.copy()
+            T_obs[int(rng.integers(0, 4)), int(rng.integers(0, 4))] = math.nan  # type: ignore[index]
+        elif kind < 0.04:
+            T_obs = T_cam.tolist()  # a list: converted
+        elif kind < 0.05:
+            T_obs = np.zeros((3, 4))  # the wrong shape: not a pose
+        obs = obs._replace(T_world_cam=T_obs)
+        got, want = policy.step(obs), reference.step(obs)  # type: ignore[attr-defined]
+        assert same_command(got, want), f"step {k}: {got} != {want}"
+        assert policy._gate.rejected == reference._gate.rejected  # type: ignore[attr-defined]
+        reasons.append(got.reason)
+        T_cam = got.T_world_cam.copy()
+        T_cam[:3, 3] += rng.normal(scale=1e-3, size=3)
+    return reasons
+
+
+FAULTY = {
+    "endocam": (EndocamPolicy, ref.InterpretedEndocamPolicy),
+    **MOVING,
+}
+
+
+@pytest.mark.parametrize("name", sorted(FAULTY))
+def test_faulty_observations_match_the_interpreted_checks(name: str) -> None:
+    """Non-finite, missing, stale and wild observations: the compiled checks and gate answer
+    as the interpreted ones did, command for command, with the same rejections."""
+    new, old = FAULTY[name]
+    reasons: set[str] = set()
+    for seed in range(4):
+        cfg = ControllerConfig()
+        reasons |= set(run_faulty(new(cfg), old(cfg), 100 + seed))
+    expected = {
+        "camera pose not finite; holding",
+        "ring pose missing or not finite",
+        policies.STALE_REASON,
+        policies.GATE_REASON,
+    }
+    if name == "endocam":
+        expected.add("ring pose degenerate (zero normal)")
+    assert expected <= reasons, expected - reasons  # every check answered at least once
+
+
+def test_compiled_gate_is_the_interpreted_gate() -> None:
+    """``RingGate`` (compiled) and the interpreted gate: the same answers and rejections on
+    random observations, jumps, turns, gaps and re-acquisitions inside and outside a cone."""
+    cfg = ControllerConfig()
+    cone = ConeWorkspace.from_rcm(P_RCM, [0.0, 0.0, 0.02], 0.3, 0.25)
+    rng = np.random.default_rng(5)
+    answers = set()
+    for trial in range(20):
+        gate, old = cfg.ring_gate(), ref.InterpretedRingGate.of(cfg)
+        if trial % 2:
+            gate.reset(cone=cone)
+            old.reset(cone.contains)
+        p, n = np.array([0.0, 0.0, 0.03]), np.array([0.0, 0.0, 1.0])
+        t = 0.0
+        for _ in range(300):
+            t += float(rng.choice([DT, DT, DT, 0.0, 0.3, 2.0, -DT]))
+            kind = rng.random()
+            if kind < 0.1:
+                q = p + rng.normal(scale=0.3, size=3)  # a wild pose (maybe outside the cone)
+            else:
+                q = p + rng.normal(scale=1e-3, size=3)
+            m = unit(n + rng.normal(scale=0.3 if kind > 0.9 else 0.01, size=3))
+            if rng.random() < 0.5:
+                p, n = q, m
+            x_p, x_n = q.tolist(), m.tolist()
+            a, b = gate.accept(t, x_p, x_n), old.accept(t, x_p, x_n)
+            assert a == b
+            assert gate.rejected == old.rejected
+            answers.add(a)
+    assert answers == {True, False}
