@@ -474,7 +474,7 @@ class _MovingPolicy:
         pivot = (p_world_pivot[0], p_world_pivot[1], p_world_pivot[2])
         now = (p_world_now[0], p_world_now[1], p_world_now[2])
         back_off = max(0.0, self.config.d_max - self.d_f)  # the look distance may grow first
-        return guard.apply(T_world_cam, pivot, self._feasible, now, back_off)
+        return guard.apply(T_world_cam, pivot, self._workspace, now, back_off)
 
     def _detoured(
         self,
