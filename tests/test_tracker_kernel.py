@@ -551,3 +551,45 @@ def test_compiled_gate_is_the_interpreted_gate() -> None:
             assert gate.rejected == old.rejected
             answers.add(a)
     assert answers == {True, False}
+
+
+def test_the_last_gate_and_the_goals_margin_are_the_cones() -> None:
+    """The tracker's last gate (``_inside_kernel``) is ``cone.margin(p) >= 0`` and ``p[2] >=
+    min_camera_height − FLOOR_TOL_M``; the moving policies' goal margin (``_OUT_MARGIN``) is
+    ``cone.margin`` of the goal, bit for bit."""
+    cfg = ControllerConfig()
+    policy = EndocamPolicy(cfg)
+    obs_seq = random_observations(3, wire=False)
+    T0 = obs_seq[0][1]
+    T_cam = look_at_pose(T0[:3, 3] + [0.03, 0.01, 0.04], T0[:3, 3])
+    policy.reset(PolicyContext(CAMERA, T_cam, T0, P_RCM, DT, LATENCY))
+    floor = cfg.min_camera_height - tracker.FLOOR_TOL_M
+    rng = np.random.default_rng(11)
+    apex = np.array(policy.cone.apex)
+    answers = set()
+    for _ in range(20_000):
+        T = np.eye(4)
+        T[:3, 3] = apex + rng.normal(scale=0.15, size=3)
+        if rng.random() < 0.3:  # on the floor, within round-off
+            T[2, 3] = floor + float(rng.choice([-1e-12, 0.0, 1e-12]))
+        if rng.random() < 0.01:
+            T[int(rng.integers(0, 3)), 3] = math.nan
+        p = T[:3, 3].tolist()
+        want = policy.cone.margin(p) >= 0.0 and p[2] >= floor
+        assert policy._in_workspace(T) == want
+        answers.add(want)
+    assert answers == {True, False}
+    for moving in (CenteringPolicy(cfg), OrientationPolicy(cfg)):
+        checked = 0
+        for seed in range(2):
+            obs_seq = random_observations(seed, wire=False)
+            T0 = obs_seq[0][1]
+            T_cam = look_at_pose(T0[:3, 3] + [0.03, 0.01, 0.04], T0[:3, 3])
+            moving.reset(PolicyContext(CAMERA, T_cam, T0, P_RCM, DT, LATENCY))
+            for t, T_ring, tips in obs_seq:
+                T_cam = moving.step(Observation(t, T_ring, T_cam, tips)).T_world_cam
+                margin = float(moving._step_out[policies._OUT_MARGIN])
+                if not math.isnan(margin):
+                    assert repr(margin) == repr(moving.cone.margin(moving._kernel_p))
+                    checked += 1
+        assert checked > STEPS

@@ -80,7 +80,8 @@ _N_PARAMS = 35
 _OUT_CLEARED, _OUT_DETOUR, _OUT_VIA = 0, 1, 2  # clear, detour, its way-point (3), m
 _OUT_RING, _OUT_CAM = 5, 8  # m, the observed ring centre and camera position (3 each)
 _OUT_CHECK = 11  # the observation's check (``observed``: OBS_*)
-_N_OUT = 12
+_OUT_MARGIN = 12  # m, the goal's cone margin (``ConeWorkspace.margin``)
+_N_OUT = 13
 # ``observed``'s answers: the observation is usable, or why not
 OBS_OK, OBS_CAMERA, OBS_RING, OBS_STALE, OBS_DEGENERATE, OBS_GATE = range(6)
 CHECK_REASONS = (
@@ -295,6 +296,7 @@ def _step_kernel(
     )
     out[_OUT_CHECK] = check
     out[_OUT_CLEARED] = out[_OUT_DETOUR] = 0.0
+    out[_OUT_MARGIN] = math.nan
     if check != OBS_OK:
         return d_f, False, T0
     for i in range(3):
@@ -311,12 +313,16 @@ def _step_kernel(
         for i in range(3):
             T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
         T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
-    if not (found and has_guard and plain):
+    if not found:
         return d, found, T
     g = (T[0, 3], T[1, 3], T[2, 3])
-    c = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])  # the guard's pivot: the ring centre
     cone = cone_at(prm, _CONE)
-    margin = cone_margin(g[0], g[1], g[2], cone[0], cone[1], cone[2], cone[3], cone[4])
+    out[_OUT_MARGIN] = margin = cone_margin(
+        g[0], g[1], g[2], cone[0], cone[1], cone[2], cone[3], cone[4]
+    )
+    if not (has_guard and plain):
+        return d, found, T
+    c = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])  # the guard's pivot: the ring centre
     if margin >= release and not (
         dist3(g[0], g[1], g[2], previous[0, 3], previous[1, 3], previous[2, 3]) > prm[_JUMP]
     ):
@@ -570,7 +576,10 @@ class _MovingPolicy:
             return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
         goal_rows = goal.tolist()
         p_goal = [goal_rows[0][3], goal_rows[1][3], goal_rows[2][3]]
-        margin = self.cone.margin(p_goal)
+        if goal is self._kernel_goal and p_goal == self._kernel_p:
+            margin = out[_OUT_MARGIN]  # the kernel's ConeWorkspace.margin of this very pose
+        else:
+            margin = self.cone.margin(p_goal)
         # Freeze when the goal leaves the cone; release only once it is FREEZE_RELEASE_MARGIN
         # inside, so a goal grazing the surface does not toggle the camera every step.
         release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0

@@ -575,6 +575,20 @@ def _plan_kernel(
     return view, twist
 
 
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _inside_kernel(T: FloatArray, params: FloatArray, floor: float) -> bool:  # pragma: no cover
+    """Whether the pose ``T`` (4, 4), world, m, is inside the cone and at or above ``floor`` (m).
+
+    ``ConeWorkspace.margin(p) >= 0`` (the cone stored in ``params``, :func:`_plan_kernel`'s)
+    and ``p[2] >= floor`` for its position ``p``.
+    """
+    a, axis, tan_half, cos_half, height = cone_at(params, _CONE)
+    p = (T[0, 3], T[1, 3], T[2, 3])
+    return cone_margin(p[0], p[1], p[2], a, axis, tan_half, cos_half, height) >= 0.0 and (
+        p[2] >= floor
+    )
+
+
 class EndocamPolicy(_MovingPolicy):
     """The paper's orientation goal with side keeping, orbits, prediction and left-eye centring.
 
@@ -607,6 +621,7 @@ class EndocamPolicy(_MovingPolicy):
         self._transfer = None
         self._half_b = 0.5 * context.camera.baseline if self.config.centre_left_eye else 0.0
         self._aim_floor = self.config.min_camera_height + tc.floor_clearance  # m, goals aim here
+        self._cmd_floor = self.config.min_camera_height - FLOOR_TOL_M  # m, commands stay above
         self._horizon = context.sensing_latency + tc.carrier_lead if tc.predict else 0.0
         self.transfers = 0
         cfg, geometry = self.config, self._window_geometry
@@ -944,10 +959,10 @@ class EndocamPolicy(_MovingPolicy):
     def _in_workspace(self, T_world_cmd: FloatArray) -> bool:
         """Whether a commanded pose (4, 4) is inside the cone and above the floor.
 
-        The last gate: computed here, independently of the compiled step's own margin.
+        The last gate: computed here (:func:`_inside_kernel`), independently of the compiled
+        step's own margin.
         """
-        p = T_world_cmd[:3, 3].tolist()
-        return self.cone.margin(p) >= 0.0 and p[2] >= self.config.min_camera_height - FLOOR_TOL_M
+        return bool(_inside_kernel(T_world_cmd, self._params, self._cmd_floor))
 
     @property
     def _ctx_dt(self) -> float:
