@@ -24,7 +24,7 @@ from endocam.runner.experiments import paper_paths
 from endocam.task.config import WireConfig
 from endocam.task.trajectory import TrajectoryKind
 from endocam.task.wire import Wire
-from endocam.view import look_at_pose, pose_from_columns, rotation_columns
+from endocam.view import look_at_pose, look_at_unchecked, pose_from_columns, rotation_columns
 
 GRID = np.linspace(0.1, 0.9, 81)  # unitless, ring positions as fractions of the wire's length
 ROUND_M = 1e-9  # m, round-off of a rebuilt pose
@@ -493,6 +493,57 @@ def test_compiled_search_is_the_interpreted_one(seed: int) -> None:
             assert tuple(escape[1:]) == ref.escape
         assert (guard.adjusted, guard.blocked) == (ref.adjusted, ref.blocked)
     assert answers == {"same", "moved", "none"}
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_look_at_is_the_interpreted_one(seed: int) -> None:
+    """``ClearanceGuard.apply_look_at`` (``_look_at_kernel``) and what the policies' detour
+    did before: ``look_at_unchecked``, the workspace's check of the way-point, the
+    interpreted guard's ``apply``; the same poses (the fallback itself when the points
+    coincide), escape directions, counts and caches, bit for bit."""
+    cfg = ExperimentConfig()
+    rng = np.random.default_rng(100 + seed)
+    wire = Wire(cfg.task.wire) if seed % 2 else _random_wire(seed)
+    rcm = np.array(cfg.task.scene.rcm_position)
+    feature = wire.point(0.5 * wire.length)
+    wider = WIRE_CLEARANCE + 0.003  # m: a feasible way-point may still need turning
+    guard, ref = ClearanceGuard(wire, wider), _InterpretedGuard(wire, wider)
+    ws, ws_ref = (cfg.controller.workspace(rcm, feature, wire) for _ in range(2))
+    previous = look_at_pose(feature + np.array([0.0, -0.05, 0.05]), feature)
+    answers = set()
+    for _ in range(APPLY_CALLS):
+        s = rng.uniform(0.05, 0.95) * wire.length
+        p_c = wire.point(s) + rng.normal(0.0, 0.003, 3)
+        via = p_c + rng.normal(0.0, 0.03, 3) + [0.0, 0.0, 0.015]
+        if rng.random() < 0.4:  # near the wire's continuation: too close
+            via = wire.point(s) + wire.tangent(s) * rng.uniform(0.01, 0.06)
+        if rng.random() < 0.03:
+            via = p_c.copy()  # no direction to look along: the fallback
+        fallback = look_at_pose(p_c + np.array([0.0, 0.0, 0.05]), p_c)
+        pivot = tuple(p_c.tolist())
+        via_t = tuple(via.tolist())
+        now = tuple((via + rng.normal(0.0, 0.01, 3)).tolist())
+        back_off = float(rng.choice([0.0, 0.02]))
+        got = guard.apply_look_at(via_t, pivot, fallback, previous, ws, now, back_off)
+        T = look_at_unchecked(np.array(via_t), np.asarray(pivot), fallback, previous)
+        feasible = lambda p: ws_ref.margin(p) >= 0.0  # noqa: E731
+        want = ref.apply(T, pivot, feasible, now, back_off) if feasible(list(via_t)) else None
+        assert (got is None) == (want is None)
+        if got is not None:
+            assert got.tobytes() == want.tobytes()
+            assert (got is fallback) == (want is fallback)
+            answers.add("fallback" if got is fallback else "same" if want is T else "moved")
+            previous = got
+        else:
+            answers.add("none")
+        assert guard.refs == ref.refs
+        assert ws.keep_out.refs == ws_ref.keep_out.refs
+        escape = guard._escape.tolist()
+        assert (escape[0] != 0.0) == (ref.escape is not None)
+        if ref.escape is not None:
+            assert tuple(escape[1:]) == ref.escape
+        assert (guard.adjusted, guard.blocked) == (ref.adjusted, ref.blocked)
+    assert {"same", "moved", "none"} <= answers
 
 
 def test_step_out_leaves_the_zone_by_the_push() -> None:

@@ -77,6 +77,7 @@ DETOUR_CREEP = 2.0e-4  # m, trace step from the zone's edge when the segment lea
 _EPS = 1e-9  # unitless, shorter directions are degenerate
 # _apply_kernel's answers: the pose itself, a backed-off or rotated one, none clear, not finite
 APPLY_CLEAR, APPLY_ADJUSTED, APPLY_BLOCKED, APPLY_NOT_FINITE = range(4)
+APPLY_INFEASIBLE = 4  # _look_at_kernel: the pose's position is outside the workspace
 _NO_KEEP_OUT = (  # _apply_kernel's keep-out arguments without one (unread)
     np.zeros((1, 3)),
     np.full((2, 5), -1, dtype=np.int64),
@@ -411,8 +412,8 @@ def _rotate(v: Vec, k: Vec, c: float, s: float) -> Vec:
     )
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _apply_kernel(
+@register_jitable  # also callable from compiled kernels (the same source)
+def clear_pose(
     pts: FloatArray,
     table: np.ndarray,
     pool: np.ndarray,
@@ -438,7 +439,7 @@ def _apply_kernel(
     k_ref: FloatArray,
     k_nref: np.ndarray,
     k_clearance: float,
-) -> tuple[int, FloatArray]:  # pragma: no cover - compiled
+) -> tuple[int, FloatArray]:
     """:meth:`ClearanceGuard.apply` of the pose ``T`` (4, 4): ``(APPLY_*, pose (4, 4))``.
 
     The guard's ``state`` first, then :meth:`~ClearanceGuard.apply`'s arguments: ``pivot``,
@@ -549,6 +550,102 @@ def _apply_kernel(
             if theta > MAX_ESCAPE_ANGLE:
                 break
     return APPLY_BLOCKED, T
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _apply_kernel(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    T: FloatArray,
+    pivot: Vec,
+    has_now: bool,
+    now: Vec,
+    back_off: float,
+    escape: FloatArray,
+    kind: int,
+    ws: FloatArray,
+    keep: bool,
+    k_pts: FloatArray,
+    k_table: np.ndarray,
+    k_pool: np.ndarray,
+    k_meta: np.ndarray,
+    k_radius: float,
+    k_ref: FloatArray,
+    k_nref: np.ndarray,
+    k_clearance: float,
+) -> tuple[int, FloatArray]:  # pragma: no cover - compiled
+    """:func:`clear_pose` from Python (:meth:`ClearanceGuard.apply`)."""
+    return clear_pose(
+        pts, table, pool, meta, radius, ref, nref, clearance, T, pivot, has_now, now, back_off,
+        escape, kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref,
+        k_clearance,
+    )  # fmt: skip
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _look_at_kernel(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    p: Vec,
+    pivot: Vec,
+    fallback: FloatArray,
+    previous: FloatArray,
+    has_now: bool,
+    now: Vec,
+    back_off: float,
+    escape: FloatArray,
+    kind: int,
+    ws: FloatArray,
+    keep: bool,
+    k_pts: FloatArray,
+    k_table: np.ndarray,
+    k_pool: np.ndarray,
+    k_meta: np.ndarray,
+    k_radius: float,
+    k_ref: FloatArray,
+    k_nref: np.ndarray,
+    k_clearance: float,
+) -> tuple[int, bool, FloatArray]:  # pragma: no cover - compiled
+    """:meth:`ClearanceGuard.apply_look_at`: ``(APPLY_* or APPLY_INFEASIBLE, fallen back, pose)``.
+
+    The pose at ``p`` (m) looking at ``pivot`` (m) with a level horizon, its roll from
+    ``previous`` (4, 4) (``view.look_at_unchecked``: ``fallback`` (4, 4) when the two
+    points coincide; then "fallen back"); ``APPLY_INFEASIBLE`` if ``p`` is not feasible
+    (:func:`_feasible`), else :func:`clear_pose` of the pose (the other arguments its).
+    """
+    d = (pivot[0] - p[0], pivot[1] - p[1], pivot[2] - p[2])
+    length = norm(d)
+    fell_back = not length > 1e-9
+    T = fallback
+    if not fell_back:
+        x_prev = (previous[0, 0], previous[1, 0], previous[2, 0])
+        x, y, z = rotation_columns(scaled(d, 1.0 / length), (0.0, 0.0, 1.0), x_prev)
+        T = np.empty((4, 4))
+        for i in range(3):
+            T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
+        T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
+    if not _feasible(
+        kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref, k_clearance, p
+    ):
+        return APPLY_INFEASIBLE, fell_back, T
+    code, cleared = clear_pose(
+        pts, table, pool, meta, radius, ref, nref, clearance, T, pivot, has_now, now, back_off,
+        escape, kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref,
+        k_clearance,
+    )  # fmt: skip
+    return code, fell_back, cleared
 
 
 class ClearanceGuard:
@@ -668,6 +765,46 @@ class ClearanceGuard:
         )
         if code == APPLY_CLEAR:
             return T_world_cam
+        if code == APPLY_ADJUSTED:
+            self.adjusted += 1
+            return T
+        if code == APPLY_BLOCKED:
+            self.blocked += 1
+        return None
+
+    def apply_look_at(
+        self,
+        p_world: Vec,
+        p_world_pivot: Vec,
+        fallback: FloatArray,
+        previous: FloatArray,
+        workspace: Workspace,
+        p_world_now: Vec | None = None,
+        back_off: float = 0.0,
+    ) -> FloatArray | None:
+        """:meth:`apply` of the pose at ``p_world`` looking at the pivot, if it is feasible.
+
+        The pose: ``view.look_at_unchecked(p_world, p_world_pivot, fallback, previous)`` (a
+        level horizon, the roll kept from ``previous`` (4, 4) near the vertical; ``fallback``
+        (4, 4) itself when the two points coincide). ``None`` when ``p_world`` (3,), world,
+        m, is outside the ``workspace`` (``Workspace.margin < 0``), else :meth:`apply`'s
+        answer. One compiled call (:func:`_look_at_kernel`).
+        """
+        p, c, now = p_world, p_world_pivot, p_world_now
+        code, fell_back, T = _look_at_kernel(
+            *self._state,
+            (float(p[0]), float(p[1]), float(p[2])),
+            (float(c[0]), float(c[1]), float(c[2])),
+            fallback,
+            previous,
+            now is not None,
+            (0.0, 0.0, 0.0) if now is None else (float(now[0]), float(now[1]), float(now[2])),
+            float(back_off),
+            self._escape,
+            *self._feasible_args(workspace),  # type: ignore[arg-type]
+        )
+        if code == APPLY_CLEAR:
+            return fallback if fell_back else T
         if code == APPLY_ADJUSTED:
             self.adjusted += 1
             return T

@@ -459,11 +459,6 @@ class _MovingPolicy:
         self._kernel_goal, self._kernel_p = goal, goal[:3, 3].tolist()
         return goal
 
-    def _feasible(self, p_world: list[float]) -> bool:
-        """Whether a camera position (3,), world, m, is inside the workspace (cone and floor)."""
-        assert self._workspace is not None  # set by reset()
-        return self._workspace.margin(p_world) >= 0.0
-
     def _clear(
         self, T_world_cam: FloatArray, p_world_pivot: Sequence[float], p_world_now: Sequence[float]
     ) -> FloatArray | None:
@@ -497,7 +492,8 @@ class _MovingPolicy:
         clearance guard itself.
 
         ``traced``: ``ClearanceGuard.detour``'s answer for this move, (found, way-point), when
-        a compiled step asked it already.
+        a compiled step asked it already. The way-point pose, the workspace's check of the
+        way-point and the guard are one compiled call (``ClearanceGuard.apply_look_at``).
         """
         guard = self.guard
         if guard is None:
@@ -514,8 +510,14 @@ class _MovingPolicy:
         self._stalled = self._stalled + 1 if still else 0
         if self._stalled >= STALL_STEPS:  # refused at the zone's edge: straight out first
             via = guard.step_out(p_world_now) or via
-        T = look_at_unchecked(np.array(via), np.asarray(p_world_pivot), T_world_cmd, self._last_cmd)
-        return self._clear(T, p_world_pivot, p_world_now) if self._feasible(list(via)) else None
+        # the way-point pose (``look_at_unchecked``), if feasible, through the guard (``_clear``)
+        assert self._workspace is not None and self._last_cmd is not None  # set by reset()
+        pivot = (p_world_pivot[0], p_world_pivot[1], p_world_pivot[2])
+        now = (p_world_now[0], p_world_now[1], p_world_now[2])
+        back_off = max(0.0, self.config.d_max - self.d_f)  # as _clear's
+        return guard.apply_look_at(
+            via, pivot, T_world_cmd, self._last_cmd, self._workspace, now, back_off
+        )
 
     def _hold(self, state: TrackingState, reason: str) -> CameraCommand:
         assert self._last_cmd is not None
