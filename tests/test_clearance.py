@@ -524,10 +524,12 @@ def test_compiled_look_at_is_the_interpreted_one(seed: int) -> None:
         via_t = tuple(via.tolist())
         now = tuple((via + rng.normal(0.0, 0.01, 3)).tolist())
         back_off = float(rng.choice([0.0, 0.02]))
-        got = guard.apply_look_at(via_t, pivot, fallback, previous, ws, now, back_off)
+        check = rng.random() < 0.7  # the detour's way-point is checked; a path's is not
+        got = guard.apply_look_at(via_t, pivot, fallback, previous, ws, now, back_off, check)
         T = look_at_unchecked(np.array(via_t), np.asarray(pivot), fallback, previous)
         feasible = lambda p: ws_ref.margin(p) >= 0.0  # noqa: E731
-        want = ref.apply(T, pivot, feasible, now, back_off) if feasible(list(via_t)) else None
+        checked = not check or feasible(list(via_t))
+        want = ref.apply(T, pivot, feasible, now, back_off) if checked else None
         assert (got is None) == (want is None)
         if got is not None:
             assert got.tobytes() == want.tobytes()

@@ -593,3 +593,36 @@ def test_the_last_gate_and_the_goals_margin_are_the_cones() -> None:
                     assert repr(margin) == repr(moving.cone.margin(moving._kernel_p))
                     checked += 1
         assert checked > STEPS
+
+
+def test_the_orientation_waypoint_is_the_cleared_look_at() -> None:
+    """``OrientationPolicy._cleared_waypoint`` (one compiled call) is ``_clear`` of
+    ``_waypoint_pose``, as the step asked before: way-points near the wire, with back-off."""
+    cfg = ControllerConfig()
+    new, old = OrientationPolicy(cfg), OrientationPolicy(cfg)
+    rng = np.random.default_rng(21)
+    pts = WIRE.search_points
+    T0 = ring_pose(pts[len(pts) // 2], np.array([0.0, 0.3, 1.0]))
+    T_cam = look_at_pose(T0[:3, 3] + [0.03, 0.01, 0.04], T0[:3, 3])
+    for policy in (new, old):
+        policy.reset(PolicyContext(CAMERA, T_cam, T0, P_RCM, DT, LATENCY, wire=WIRE))
+    answers = set()
+    for _ in range(2000):
+        k = int(rng.integers(100, len(pts) - 100))
+        T_ring = ring_pose(pts[k] + rng.normal(scale=0.002, size=3), rng.normal(size=3))
+        tangent = unit(pts[k + 5] - pts[k - 5])
+        p = pts[k] + tangent * rng.uniform(0.0, 0.05) + rng.normal(scale=0.01, size=3)
+        goal = look_at_pose(T_ring[:3, 3] + [0.0, 0.02, 0.05], T_ring[:3, 3])
+        p_ring, p_now = T_ring[:3, 3].tolist(), (p + rng.normal(scale=0.01, size=3)).tolist()
+        d_f = float(rng.uniform(cfg.d_min, cfg.d_max))
+        new.d_f = old.d_f = d_f
+        got = new._cleared_waypoint(p, T_ring, goal, p_ring, p_now)
+        want = old._clear(old._waypoint_pose(p, T_ring, goal), p_ring, p_now)
+        assert (got is None) == (want is None)
+        if want is not None:
+            assert got.tobytes() == want.tobytes()
+        assert new.guard.refs == old.guard.refs  # type: ignore[union-attr]
+        assert (new.guard.adjusted, new.guard.blocked) == (old.guard.adjusted, old.guard.blocked)  # type: ignore[union-attr]
+        new._last_cmd = old._last_cmd = got if got is not None else new._last_cmd
+        answers.add("none" if want is None else "moved" if new.guard.adjusted else "same")
+    assert new.guard.adjusted > 0 and new.guard.blocked >= 0  # type: ignore[union-attr]

@@ -602,6 +602,7 @@ def _look_at_kernel(
     pivot: Vec,
     fallback: FloatArray,
     previous: FloatArray,
+    check: bool,
     has_now: bool,
     now: Vec,
     back_off: float,
@@ -622,8 +623,9 @@ def _look_at_kernel(
 
     The pose at ``p`` (m) looking at ``pivot`` (m) with a level horizon, its roll from
     ``previous`` (4, 4) (``view.look_at_unchecked``: ``fallback`` (4, 4) when the two
-    points coincide; then "fallen back"); ``APPLY_INFEASIBLE`` if ``p`` is not feasible
-    (:func:`_feasible`), else :func:`clear_pose` of the pose (the other arguments its).
+    points coincide; then "fallen back"); if ``check``, ``APPLY_INFEASIBLE`` when ``p`` is
+    not feasible (:func:`_feasible`); then :func:`clear_pose` of the pose (the other
+    arguments its).
     """
     d = (pivot[0] - p[0], pivot[1] - p[1], pivot[2] - p[2])
     length = norm(d)
@@ -636,7 +638,7 @@ def _look_at_kernel(
         for i in range(3):
             T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
         T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
-    if not _feasible(
+    if check and not _feasible(
         kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref, k_clearance, p
     ):
         return APPLY_INFEASIBLE, fell_back, T
@@ -781,14 +783,15 @@ class ClearanceGuard:
         workspace: Workspace,
         p_world_now: Vec | None = None,
         back_off: float = 0.0,
+        check: bool = True,
     ) -> FloatArray | None:
         """:meth:`apply` of the pose at ``p_world`` looking at the pivot, if it is feasible.
 
         The pose: ``view.look_at_unchecked(p_world, p_world_pivot, fallback, previous)`` (a
         level horizon, the roll kept from ``previous`` (4, 4) near the vertical; ``fallback``
         (4, 4) itself when the two points coincide). ``None`` when ``p_world`` (3,), world,
-        m, is outside the ``workspace`` (``Workspace.margin < 0``), else :meth:`apply`'s
-        answer. One compiled call (:func:`_look_at_kernel`).
+        m, is outside the ``workspace`` (``Workspace.margin < 0``; asked only if ``check``),
+        else :meth:`apply`'s answer. One compiled call (:func:`_look_at_kernel`).
         """
         p, c, now = p_world, p_world_pivot, p_world_now
         code, fell_back, T = _look_at_kernel(
@@ -797,6 +800,7 @@ class ClearanceGuard:
             (float(c[0]), float(c[1]), float(c[2])),
             fallback,
             previous,
+            check,
             now is not None,
             (0.0, 0.0, 0.0) if now is None else (float(now[0]), float(now[1]), float(now[2])),
             float(back_off),

@@ -625,7 +625,7 @@ class _MovingPolicy:
                 self._path = None  # arrived: back to plain tracking
             else:
                 p = self._path.point_at(self._s)
-                wp = self._clear(self._waypoint_pose(p, T_ring, goal), p_ring, p_now)
+                wp = self._cleared_waypoint(p, T_ring, goal, p_ring, p_now)
                 if wp is None:
                     self._path = None
                     self._last_goal = None
@@ -669,6 +669,51 @@ class _MovingPolicy:
         """Pose at a way-point: look at the ring centre with a level horizon."""
         return look_at_unchecked(p, T_ring[:3, 3], goal, self._last_cmd)
 
+    def _cleared_waypoint(
+        self,
+        p: FloatArray,
+        T_ring: FloatArray,
+        goal: FloatArray,
+        p_ring: Sequence[float],
+        p_now: Sequence[float],
+    ) -> FloatArray | None:
+        """``_clear(_waypoint_pose(p, T_ring, goal), p_ring, p_now)``: the way-point's command.
+
+        ``p`` (3,) the way-point, ``T_ring`` (4, 4), ``goal`` (4, 4), ``p_ring`` (3,) the
+        ring centre, ``p_now`` (3,) the camera, world, m.
+        """
+        return self._clear(self._waypoint_pose(p, T_ring, goal), p_ring, p_now)
+
+
+class _LookingPolicy(_MovingPolicy):
+    """A moving policy whose way-point poses look at the ring centre (``_waypoint_pose``)."""
+
+    def _cleared_waypoint(
+        self,
+        p: FloatArray,
+        T_ring: FloatArray,
+        goal: FloatArray,
+        p_ring: Sequence[float],
+        p_now: Sequence[float],
+    ) -> FloatArray | None:
+        """The way-point's pose and the guard in one compiled call (``apply_look_at``)."""
+        guard = self.guard
+        if guard is None:
+            return self._waypoint_pose(p, T_ring, goal)
+        assert self._workspace is not None and self._last_cmd is not None  # set by reset()
+        q = p.tolist()
+        back_off = max(0.0, self.config.d_max - self.d_f)  # as _clear's
+        return guard.apply_look_at(
+            (q[0], q[1], q[2]),
+            (p_ring[0], p_ring[1], p_ring[2]),
+            goal,
+            self._last_cmd,
+            self._workspace,
+            (p_now[0], p_now[1], p_now[2]),
+            back_off,
+            check=False,
+        )
+
 
 class CenteringPolicy(_MovingPolicy):
     """Condition II: keep the initial orientation, put the ring centre on the optical axis."""
@@ -693,7 +738,7 @@ class CenteringPolicy(_MovingPolicy):
         return T
 
 
-class OrientationPolicy(_MovingPolicy):
+class OrientationPolicy(_LookingPolicy):
     """Condition III: the paper's orientation-aware camera (goal on the ring normal)."""
 
     name = "orientation"

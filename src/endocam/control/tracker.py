@@ -622,6 +622,8 @@ class EndocamPolicy(_MovingPolicy):
         self._half_b = 0.5 * context.camera.baseline if self.config.centre_left_eye else 0.0
         self._aim_floor = self.config.min_camera_height + tc.floor_clearance  # m, goals aim here
         self._cmd_floor = self.config.min_camera_height - FLOOR_TOL_M  # m, commands stay above
+        g_lin, g_ang = tc.feedforward_gain
+        self._gains = np.array([g_lin, g_lin, g_lin, g_ang, g_ang, g_ang])  # the twist's gains
         self._horizon = context.sensing_latency + tc.carrier_lead if tc.predict else 0.0
         self.transfers = 0
         cfg, geometry = self.config, self._window_geometry
@@ -826,8 +828,7 @@ class EndocamPolicy(_MovingPolicy):
         side_before = self._side
         self._side = s
         self._last_goal = goal
-        p_goal = goal[:3, 3].tolist()
-        if side_changed or (fresh and math.dist(p_goal, p_cam) > cfg.jump_threshold):
+        if side_changed or (fresh and math.dist(goal[:3, 3].tolist(), p_cam) > cfg.jump_threshold):
             self._start(tc.side_transfer if side_changed else tc.first_approach, p_cam, p_c)
 
         state, reason = TrackingState.TRACKING, ""
@@ -848,9 +849,7 @@ class EndocamPolicy(_MovingPolicy):
             twist = self._feedforward_twist(goal, view_twist)
         near_edge = goal[2, 3] <= self._aim_floor + FLOOR_TOL_M or margin < tc.floor_clearance
         if twist is not None and not near_edge and not adjusted:
-            g_lin, g_ang = tc.feedforward_gain
-            twist[:3] *= g_lin
-            twist[3:] *= g_ang
+            twist *= self._gains  # linear × g_lin, angular × g_ang (element by element)
         else:
             twist = None  # a goal at the floor or the cone arrives at rest: nothing carries it out
         if cmd is not goal:  # an orbit or way-point pose keeps the clearance too
