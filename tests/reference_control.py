@@ -7,7 +7,9 @@ and goals (``_MovingPolicy.step``, ``CenteringPolicy``'s and ``OrientationPolicy
 ``InterpretedCenteringPolicy`` and ``InterpretedOrientationPolicy``); and the plain-float maths
 they called (``view.rotation_columns``, ``control.goal.choose_side`` and
 ``goal_pose_unchecked``, ``control.safety.window_status_rows``, ``adjust_working_distance`` and
-``ConeWorkspace.margin``). ``tests/test_tracker_kernel.py`` pins the compiled steps
+``ConeWorkspace.margin``); the ring gate (``control.safety.RingGate``, as
+``InterpretedRingGate``: r7-ctrl compiled it into the steps with the input checks).
+``tests/test_tracker_kernel.py`` pins the compiled steps
 (``endocam.control.tracker._plan_kernel``, ``control.policies._step_kernel`` and the functions
 they compile) to it bit for bit.
 """
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -316,6 +319,56 @@ class InterpretedRingPredictor:
         return (x[0], x[1], x[2]), n
 
 
+class InterpretedRingGate:
+    """``control.safety.RingGate`` as it was (before r7-ctrl compiled it)."""
+
+    def __init__(self, max_speed: float, max_rate: float, horizon: float, reacquire: float) -> None:
+        self.max_speed, self.max_rate = max_speed, max_rate
+        self.horizon, self.reacquire = horizon, reacquire
+        self._ref: tuple[float, list[float]] | None = None  # last accepted (t, [p, n])
+        self._raw: tuple[float, list[float]] | None = None  # last finite observation
+        self._inside: Callable[[Sequence[float]], bool] | None = None
+        self.rejected = 0  # observations rejected this episode
+
+    @classmethod
+    def of(cls, cfg: ControllerConfig) -> InterpretedRingGate:
+        return cls(cfg.ring_max_speed, cfg.ring_max_rate, cfg.ring_gate_horizon, cfg.ring_reacquire)
+
+    def reset(self, inside: Callable[[Sequence[float]], bool] | None = None) -> None:
+        self._ref = None
+        self._raw = None
+        self._inside = inside
+        self.rejected = 0
+
+    def _agrees(self, ref: tuple[float, list[float]], t: float, x: list[float]) -> bool:
+        t0, x0 = ref
+        dt = min(max(t - t0, 0.0), self.horizon)
+        dp = math.dist(x[:3], x0[:3])
+        cos = x[3] * x0[3] + x[4] * x0[4] + x[5] * x0[5]
+        turn = math.acos(max(-1.0, min(1.0, cos)))
+        return dp <= self.max_speed * dt and turn <= self.max_rate * dt
+
+    def accept(self, t: float, p_world: Sequence[float], n_world: Sequence[float]) -> bool:
+        x = [*p_world, *n_world]
+        ref, raw = self._ref, self._raw
+        self._raw = (t, x)
+        ok = ref is None or self._agrees(ref, t, x)
+        if not ok and ref is not None and t - ref[0] > self.reacquire and raw is not None:
+            ok = 0.0 < t - raw[0] <= self.horizon and self._agrees(raw, t, x)
+            ok = ok and (self._inside is None or self._inside(x[:3]))
+        if ok:
+            self._ref = (t, x)
+        else:
+            self.rejected += 1
+        return ok
+
+
+def _interpreted_gate(policy: _MovingPolicy) -> None:
+    """Give a reference policy the interpreted gate (after ``_MovingPolicy.reset``)."""
+    policy._gate = InterpretedRingGate.of(policy.config)
+    policy._gate.reset(policy.cone.contains)
+
+
 class InterpretedEndocamPolicy(_MovingPolicy):
     """The paper's orientation goal with side keeping, orbits, prediction and left-eye centring.
 
@@ -338,6 +391,7 @@ class InterpretedEndocamPolicy(_MovingPolicy):
     def reset(self, context: PolicyContext) -> None:
         """Cone, windows, predictor and side memory for a new episode."""
         super().reset(context)
+        _interpreted_gate(self)
         tc = self.tracker
         self._predictor = InterpretedRingPredictor(max(1, round(tc.velocity_window / context.dt)))
         self._side = 0.0
@@ -829,6 +883,17 @@ class InterpretedOraclePolicy(InterpretedEndocamPolicy):
 
 class _InterpretedMoving:
     """``_MovingPolicy.step`` as it was (the rest of the class is unchanged)."""
+
+    def reset(self, context: PolicyContext) -> None:
+        super().reset(context)
+        _interpreted_gate(self)
+
+    def _gated(self, t: float, ring_rows: Rows) -> bool:
+        R = ring_rows
+        n = (R[0][2], R[1][2], R[2][2])
+        if not math.hypot(*n) > _MIN_NORMAL:
+            return True
+        return self._gate.accept(t, (R[0][3], R[1][3], R[2][3]), n)
 
     def step(self, obs: Observation) -> CameraCommand:
         """Input checks, working distance, goal, cone freeze, way-points — in that order."""

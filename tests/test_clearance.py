@@ -24,7 +24,7 @@ from endocam.runner.experiments import paper_paths
 from endocam.task.config import WireConfig
 from endocam.task.trajectory import TrajectoryKind
 from endocam.task.wire import Wire
-from endocam.view import look_at_pose
+from endocam.view import look_at_pose, look_at_unchecked, pose_from_columns, rotation_columns
 
 GRID = np.linspace(0.1, 0.9, 81)  # unitless, ring positions as fractions of the wire's length
 ROUND_M = 1e-9  # m, round-off of a rebuilt pose
@@ -278,6 +278,142 @@ class _InterpretedGuard:
         lift = clearance.DETOUR_PUSH + max(0.0, self.clearance - self.distance(x))
         return (x[0] + lift * out[0], x[1] + lift * out[1], x[2] + lift * out[2])
 
+    # ``ClearanceGuard.apply`` and its search as they were before r7-ctrl compiled them
+    # (``_apply_kernel``), with a ``feasible`` callable
+
+    escape: kernels.Vec | None = None
+    adjusted = 0
+    blocked = 0
+
+    def remember(self, p: list[float], d: float) -> None:
+        self.refs.insert(0, (list(p), d))
+        del self.refs[2:]
+
+    def apply(self, T, pivot, feasible=None, p_now=None, back_off=0.0):
+        rows = T.tolist()
+        p = [rows[0][3], rows[1][3], rows[2][3]]
+        if not math.isfinite(p[0] + p[1] + p[2] + sum(pivot)):
+            return None
+        if self.distance(p) >= self.clearance:
+            self.escape = None
+            return T
+        found = None
+        if back_off > 0.0:
+            found = self.backed_off(rows, p, back_off, feasible)
+        if found is None:
+            found = self.rotated(rows, p, pivot, feasible, p_now)
+        if found is None:
+            self.blocked += 1
+            return None
+        self.adjusted += 1
+        return found
+
+    def rotated(self, rows, p, c, feasible, p_now):
+        x = (rows[0][0], rows[1][0], rows[2][0])
+        y = (rows[0][1], rows[1][1], rows[2][1])
+        z = (rows[0][2], rows[1][2], rows[2][2])
+        rel = (p[0] - c[0], p[1] - c[1], p[2] - c[2])
+        r = kernels.norm(rel)
+        if not r > 1e-9:
+            return None
+        a, b, w = kernels.dot(rel, x), kernels.dot(rel, y), kernels.dot(rel, z)
+        u = kernels.scaled(rel, 1.0 / r)
+        for e in self.directions(p, u, c, p_now):
+            T = self.search(u, e, r, c, (a, b, w), (x, z), feasible)
+            if T is not None:
+                self.escape = e
+                return T
+        return None
+
+    def backed_off(self, rows, p, back_off, feasible):
+        z = (rows[0][2], rows[1][2], rows[2][2])
+        target = self.clearance + clearance.AIM_BEYOND
+        s = 0.0
+        back = (-z[0], -z[1], -z[2])
+        for _ in range(clearance.MAX_ESCAPE_STEPS):
+            pos = [p[0] - s * z[0], p[1] - s * z[1], p[2] - s * z[2]]
+            d, k = self.nearest_surface(pos)
+            if d >= target:
+                if feasible is not None and not feasible(pos):
+                    return None
+                self.remember(pos, d)
+                T = np.array(rows)
+                T[:3, 3] = pos
+                return T
+            s += self.newton(target - d, pos, k, back)
+            if s > back_off:
+                return None
+        return None
+
+    def newton(self, short, pos, k, velocity):
+        q = self.points[k].tolist()
+        g = (pos[0] - q[0], pos[1] - q[1], pos[2] - q[2])
+        speed = kernels.norm(velocity)
+        conservative = short / speed if speed > 1e-9 else short
+        length = kernels.norm(g)
+        if not length > 1e-9:
+            return max(conservative, 1e-7)
+        rate = kernels.dot(g, velocity) / length
+        if rate * clearance.NEWTON_GAIN <= speed:
+            return max(clearance.NEWTON_GAIN * conservative, 1e-7)
+        return max(short / rate, conservative, 1e-7)
+
+    def directions(self, p, u, c, p_now):
+        out = []
+        _, k = self.nearest_surface(p)
+        q = self.points[k].tolist()
+        candidates = [] if self.escape is None else [self.escape]
+        if p_now is not None:
+            candidates.append((p_now[0] - c[0], p_now[1] - c[1], p_now[2] - c[2]))
+        candidates += [(p[0] - q[0], p[1] - q[1], p[2] - q[2]), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)]
+        for cand in candidates:
+            e = kernels.reject(cand, u)
+            length = kernels.norm(e)
+            if length > 1e-6:
+                out.append(kernels.scaled(e, 1.0 / length))
+                break
+        if not out:
+            return out
+        e0 = out[0]
+        e1 = kernels.cross(u, e0)
+        return [e0, e1, kernels.scaled(e1, -1.0), kernels.scaled(e0, -1.0)]
+
+    def search(self, u, e, r, c, local, xz, feasible):
+        a, b, w = local
+        x0, z0 = xz
+        k = kernels.cross(u, e)
+        theta = 0.0
+        target = self.clearance + clearance.AIM_BEYOND
+        for _ in range(clearance.MAX_ESCAPE_STEPS):
+            ct, st = math.cos(theta), math.sin(theta)
+            z = _rotate(z0, k, ct, st)
+            x_prev = _rotate(x0, k, ct, st)
+            xc, yc, zc = rotation_columns(z, (0.0, 0.0, 1.0), x_prev)
+            pos = [c[i] + a * xc[i] + b * yc[i] + w * zc[i] for i in range(3)]
+            d, near = self.nearest_surface(pos)
+            if d >= target and (feasible is None or feasible(pos)):
+                self.remember(pos, d)
+                return pose_from_columns(xc, yc, zc, (pos[0], pos[1], pos[2]))
+            if d < target:
+                rel = (pos[0] - c[0], pos[1] - c[1], pos[2] - c[2])
+                step = self.newton(target - d, pos, near, kernels.cross(k, rel))
+            else:
+                step = clearance.MIN_ESCAPE_STEP
+            theta += max(step, clearance.MIN_ESCAPE_STEP * 0.1)
+            if theta > clearance.MAX_ESCAPE_ANGLE:
+                return None
+        return None
+
+
+def _rotate(v: kernels.Vec, k: kernels.Vec, c: float, s: float) -> kernels.Vec:
+    kv = kernels.cross(k, v)
+    kd = kernels.dot(k, v) * (1.0 - c)
+    return (
+        v[0] * c + kv[0] * s + k[0] * kd,
+        v[1] * c + kv[1] * s + k[1] * kd,
+        v[2] * c + kv[2] * s + k[2] * kd,
+    )
+
 
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**32 - 1))
@@ -308,6 +444,108 @@ def test_compiled_guard_is_the_interpreted_one(seed: int) -> None:
         assert guard.distance(q) == ref.distance(q)
         p = p + rng.normal(0.0, 0.004, 3)
     assert math.isnan(guard.distance([math.nan, 0.0, 0.0]))
+
+
+APPLY_CALLS = 300  # guard.apply calls per random walk
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_search_is_the_interpreted_one(seed: int) -> None:
+    """``ClearanceGuard.apply`` (``_apply_kernel``: the check, the back-off and the rotation's
+    search, the workspace's feasibility) and the interpreted search: the same poses, escape
+    directions, counts and caches (the guard's and the workspace keep-out's), bit for bit."""
+    cfg = ExperimentConfig()
+    rng = np.random.default_rng(seed)
+    wire = Wire(cfg.task.wire) if seed % 2 else _random_wire(seed)
+    rcm = np.array(cfg.task.scene.rcm_position)
+    feature = wire.point(0.5 * wire.length)
+    guard, ref = ClearanceGuard(wire, WIRE_CLEARANCE), _InterpretedGuard(wire, WIRE_CLEARANCE)
+    ws, ws_ref = (cfg.controller.workspace(rcm, feature, wire) for _ in range(2))
+    answers = set()
+    for _ in range(APPLY_CALLS):
+        p_c = wire.point(rng.uniform(0.05, 0.95) * wire.length) + rng.normal(0.0, 0.003, 3)
+        p_cam = p_c + rng.normal(0.0, 0.03, 3) + [0.0, 0.0, 0.02]
+        if rng.random() < 0.4:  # on the wire's continuation: too close
+            s = rng.uniform(0.1, 0.9) * wire.length
+            p_c = wire.point(s)
+            p_cam = p_c + wire.tangent(s) * rng.uniform(0.02, 0.08) + rng.normal(0.0, 0.002, 3)
+        T = look_at_pose(p_cam, p_c)
+        pivot = tuple(p_c.tolist())
+        now = None if rng.random() < 0.3 else tuple((p_cam + rng.normal(0.0, 0.02, 3)).tolist())
+        back_off = float(rng.choice([0.0, 0.01, 0.04]))
+        use_ws = rng.random() < 0.7
+        if rng.random() < 0.02:
+            T[1, 3] = math.nan
+        got = guard.apply(T, pivot, ws if use_ws else None, now, back_off)
+        feasible = (lambda p: ws_ref.margin(p) >= 0.0) if use_ws else None
+        want = ref.apply(T, pivot, feasible, now, back_off)
+        assert (got is None) == (want is None)
+        if got is not None:
+            assert got.tobytes() == want.tobytes()
+            answers.add("same" if got is T else "moved")
+        else:
+            answers.add("none")
+        assert guard.refs == ref.refs
+        assert ws.keep_out.refs == ws_ref.keep_out.refs
+        escape = guard._escape.tolist()
+        assert (escape[0] != 0.0) == (ref.escape is not None)
+        if ref.escape is not None:
+            assert tuple(escape[1:]) == ref.escape
+        assert (guard.adjusted, guard.blocked) == (ref.adjusted, ref.blocked)
+    assert answers == {"same", "moved", "none"}
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_look_at_is_the_interpreted_one(seed: int) -> None:
+    """``ClearanceGuard.apply_look_at`` (``_look_at_kernel``) and what the policies' detour
+    did before: ``look_at_unchecked``, the workspace's check of the way-point, the
+    interpreted guard's ``apply``; the same poses (the fallback itself when the points
+    coincide), escape directions, counts and caches, bit for bit."""
+    cfg = ExperimentConfig()
+    rng = np.random.default_rng(100 + seed)
+    wire = Wire(cfg.task.wire) if seed % 2 else _random_wire(seed)
+    rcm = np.array(cfg.task.scene.rcm_position)
+    feature = wire.point(0.5 * wire.length)
+    wider = WIRE_CLEARANCE + 0.003  # m: a feasible way-point may still need turning
+    guard, ref = ClearanceGuard(wire, wider), _InterpretedGuard(wire, wider)
+    ws, ws_ref = (cfg.controller.workspace(rcm, feature, wire) for _ in range(2))
+    previous = look_at_pose(feature + np.array([0.0, -0.05, 0.05]), feature)
+    answers = set()
+    for _ in range(APPLY_CALLS):
+        s = rng.uniform(0.05, 0.95) * wire.length
+        p_c = wire.point(s) + rng.normal(0.0, 0.003, 3)
+        via = p_c + rng.normal(0.0, 0.03, 3) + [0.0, 0.0, 0.015]
+        if rng.random() < 0.4:  # near the wire's continuation: too close
+            via = wire.point(s) + wire.tangent(s) * rng.uniform(0.01, 0.06)
+        if rng.random() < 0.03:
+            via = p_c.copy()  # no direction to look along: the fallback
+        fallback = look_at_pose(p_c + np.array([0.0, 0.0, 0.05]), p_c)
+        pivot = tuple(p_c.tolist())
+        via_t = tuple(via.tolist())
+        now = tuple((via + rng.normal(0.0, 0.01, 3)).tolist())
+        back_off = float(rng.choice([0.0, 0.02]))
+        check = rng.random() < 0.7  # the detour's way-point is checked; a path's is not
+        got = guard.apply_look_at(via_t, pivot, fallback, previous, ws, now, back_off, check)
+        T = look_at_unchecked(np.array(via_t), np.asarray(pivot), fallback, previous)
+        feasible = lambda p: ws_ref.margin(p) >= 0.0  # noqa: E731
+        checked = not check or feasible(list(via_t))
+        want = ref.apply(T, pivot, feasible, now, back_off) if checked else None
+        assert (got is None) == (want is None)
+        if got is not None:
+            assert got.tobytes() == want.tobytes()
+            assert (got is fallback) == (want is fallback)
+            answers.add("fallback" if got is fallback else "same" if want is T else "moved")
+            previous = got
+        else:
+            answers.add("none")
+        assert guard.refs == ref.refs
+        assert ws.keep_out.refs == ws_ref.keep_out.refs
+        escape = guard._escape.tolist()
+        assert (escape[0] != 0.0) == (ref.escape is not None)
+        if ref.escape is not None:
+            assert tuple(escape[1:]) == ref.escape
+        assert (guard.adjusted, guard.blocked) == (ref.adjusted, ref.blocked)
+    assert {"same", "moved", "none"} <= answers
 
 
 def test_step_out_leaves_the_zone_by_the_push() -> None:

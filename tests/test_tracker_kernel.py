@@ -426,3 +426,203 @@ def test_a_subclass_changing_the_goal_does_not_skip_the_wire_guard() -> None:
         inside += d < policy.guard.clearance
         T_cam = cmd.T_world_cam
     assert inside == 0
+
+
+# -- the input checks and the ring gate (r7-ctrl: compiled into the steps) -------------------
+
+
+def faulty_observations(seed: int) -> list[Observation]:
+    """Observations with every fault the checks answer: non-finite or missing poses, stale
+    and future stamps, wild jumps the gate rejects (and re-acquisitions after
+    ``ring_reacquire``), degenerate normals; the camera pose given as the command before."""
+    rng = np.random.default_rng(seed)
+    out = []
+    base = random_observations(seed, True)
+    t_lost = -1.0
+    for t, T_ring, tips in base:
+        T_ring = T_ring.copy()
+        t_ring: float | None = t - LATENCY
+        kind = rng.random()
+        if kind < 0.03:
+            T_ring[int(rng.integers(0, 3)), int(rng.integers(0, 4))] = math.nan
+        elif kind < 0.05:
+            T_ring[int(rng.integers(0, 3)), 3] = rng.choice([math.inf, -math.inf])
+        elif kind < 0.07:
+            T_ring = None  # type: ignore[assignment]
+        elif kind < 0.10:
+            t_ring = t - rng.choice([0.5, 5.0, -0.01, math.nan])  # stale, or from the future
+        elif kind < 0.12:
+            t_ring = None  # unstamped
+        elif kind < 0.17 or t < t_lost:  # far off: the gate rejects, then re-acquires
+            T_ring[:3, 3] += [0.05, -0.03, 0.01]
+            if kind < 0.135:
+                t_lost = t + float(rng.uniform(0.1, 1.5))
+        elif kind < 0.20:
+            T_ring[:3, :3] = T_ring[:3, :3] @ np.diag([1.0, -1.0, -1.0])  # the normal flips
+        elif kind < 0.22:
+            T_ring[:3, 2] = 0.0  # degenerate
+        out.append(Observation(t, T_ring, None, tips, None, t_ring))  # type: ignore[arg-type]
+    return out
+
+
+def run_faulty(policy: _MovingPolicy, reference: object, seed: int) -> list[str]:
+    """Step both on :func:`faulty_observations`; assert equal commands; return the reasons."""
+    obs_seq = faulty_observations(seed)
+    T0 = obs_seq[0].T_world_ring
+    T_cam = look_at_pose(T0[:3, 3] + [0.03, 0.01, 0.04], T0[:3, 3])
+    context = PolicyContext(CAMERA, T_cam, T0, P_RCM, DT, LATENCY, wire=WIRE)
+    policy.reset(context)
+    reference.reset(context)  # type: ignore[attr-defined]
+    rng = np.random.default_rng(seed + 7)
+    reasons = []
+    for k, obs in enumerate(obs_seq):
+        T_obs: object = T_cam
+        kind = rng.random()
+        if kind < 0.03:
+            T_obs = T_cam.copy()
+            T_obs[int(rng.integers(0, 4)), int(rng.integers(0, 4))] = math.nan  # type: ignore[index]
+        elif kind < 0.04:
+            T_obs = T_cam.tolist()  # a list: converted
+        elif kind < 0.05:
+            T_obs = np.zeros((3, 4))  # the wrong shape: not a pose
+        obs = obs._replace(T_world_cam=T_obs)
+        got, want = policy.step(obs), reference.step(obs)  # type: ignore[attr-defined]
+        assert same_command(got, want), f"step {k}: {got} != {want}"
+        assert policy._gate.rejected == reference._gate.rejected  # type: ignore[attr-defined]
+        reasons.append(got.reason)
+        T_cam = got.T_world_cam.copy()
+        T_cam[:3, 3] += rng.normal(scale=1e-3, size=3)
+    return reasons
+
+
+FAULTY = {
+    "endocam": (EndocamPolicy, ref.InterpretedEndocamPolicy),
+    **MOVING,
+}
+
+
+@pytest.mark.parametrize("name", sorted(FAULTY))
+def test_faulty_observations_match_the_interpreted_checks(name: str) -> None:
+    """Non-finite, missing, stale and wild observations: the compiled checks and gate answer
+    as the interpreted ones did, command for command, with the same rejections."""
+    new, old = FAULTY[name]
+    reasons: set[str] = set()
+    for seed in range(4):
+        cfg = ControllerConfig()
+        reasons |= set(run_faulty(new(cfg), old(cfg), 100 + seed))
+    expected = {
+        "camera pose not finite; holding",
+        "ring pose missing or not finite",
+        policies.STALE_REASON,
+        policies.GATE_REASON,
+    }
+    if name == "endocam":
+        expected.add("ring pose degenerate (zero normal)")
+    assert expected <= reasons, expected - reasons  # every check answered at least once
+
+
+def test_compiled_gate_is_the_interpreted_gate() -> None:
+    """``RingGate`` (compiled) and the interpreted gate: the same answers and rejections on
+    random observations, jumps, turns, gaps and re-acquisitions inside and outside a cone."""
+    cfg = ControllerConfig()
+    cone = ConeWorkspace.from_rcm(P_RCM, [0.0, 0.0, 0.02], 0.3, 0.25)
+    rng = np.random.default_rng(5)
+    answers = set()
+    for trial in range(20):
+        gate, old = cfg.ring_gate(), ref.InterpretedRingGate.of(cfg)
+        if trial % 2:
+            gate.reset(cone=cone)
+            old.reset(cone.contains)
+        p, n = np.array([0.0, 0.0, 0.03]), np.array([0.0, 0.0, 1.0])
+        t = 0.0
+        for _ in range(300):
+            t += float(rng.choice([DT, DT, DT, 0.0, 0.3, 2.0, -DT]))
+            kind = rng.random()
+            if kind < 0.1:
+                q = p + rng.normal(scale=0.3, size=3)  # a wild pose (maybe outside the cone)
+            else:
+                q = p + rng.normal(scale=1e-3, size=3)
+            m = unit(n + rng.normal(scale=0.3 if kind > 0.9 else 0.01, size=3))
+            if rng.random() < 0.5:
+                p, n = q, m
+            x_p, x_n = q.tolist(), m.tolist()
+            a, b = gate.accept(t, x_p, x_n), old.accept(t, x_p, x_n)
+            assert a == b
+            assert gate.rejected == old.rejected
+            answers.add(a)
+    assert answers == {True, False}
+
+
+def test_the_last_gate_and_the_goals_margin_are_the_cones() -> None:
+    """The tracker's last gate (``_inside_kernel``) is ``cone.margin(p) >= 0`` and ``p[2] >=
+    min_camera_height − FLOOR_TOL_M``; the moving policies' goal margin (``_OUT_MARGIN``) is
+    ``cone.margin`` of the goal, bit for bit."""
+    cfg = ControllerConfig()
+    policy = EndocamPolicy(cfg)
+    obs_seq = random_observations(3, wire=False)
+    T0 = obs_seq[0][1]
+    T_cam = look_at_pose(T0[:3, 3] + [0.03, 0.01, 0.04], T0[:3, 3])
+    policy.reset(PolicyContext(CAMERA, T_cam, T0, P_RCM, DT, LATENCY))
+    floor = cfg.min_camera_height - tracker.FLOOR_TOL_M
+    rng = np.random.default_rng(11)
+    apex = np.array(policy.cone.apex)
+    answers = set()
+    for _ in range(20_000):
+        T = np.eye(4)
+        T[:3, 3] = apex + rng.normal(scale=0.15, size=3)
+        if rng.random() < 0.3:  # on the floor, within round-off
+            T[2, 3] = floor + float(rng.choice([-1e-12, 0.0, 1e-12]))
+        if rng.random() < 0.01:
+            T[int(rng.integers(0, 3)), 3] = math.nan
+        p = T[:3, 3].tolist()
+        want = policy.cone.margin(p) >= 0.0 and p[2] >= floor
+        assert policy._in_workspace(T) == want
+        answers.add(want)
+    assert answers == {True, False}
+    for moving in (CenteringPolicy(cfg), OrientationPolicy(cfg)):
+        checked = 0
+        for seed in range(2):
+            obs_seq = random_observations(seed, wire=False)
+            T0 = obs_seq[0][1]
+            T_cam = look_at_pose(T0[:3, 3] + [0.03, 0.01, 0.04], T0[:3, 3])
+            moving.reset(PolicyContext(CAMERA, T_cam, T0, P_RCM, DT, LATENCY))
+            for t, T_ring, tips in obs_seq:
+                T_cam = moving.step(Observation(t, T_ring, T_cam, tips)).T_world_cam
+                margin = float(moving._step_out[policies._OUT_MARGIN])
+                if not math.isnan(margin):
+                    assert repr(margin) == repr(moving.cone.margin(moving._kernel_p))
+                    checked += 1
+        assert checked > STEPS
+
+
+def test_the_orientation_waypoint_is_the_cleared_look_at() -> None:
+    """``OrientationPolicy._cleared_waypoint`` (one compiled call) is ``_clear`` of
+    ``_waypoint_pose``, as the step asked before: way-points near the wire, with back-off."""
+    cfg = ControllerConfig()
+    new, old = OrientationPolicy(cfg), OrientationPolicy(cfg)
+    rng = np.random.default_rng(21)
+    pts = WIRE.search_points
+    T0 = ring_pose(pts[len(pts) // 2], np.array([0.0, 0.3, 1.0]))
+    T_cam = look_at_pose(T0[:3, 3] + [0.03, 0.01, 0.04], T0[:3, 3])
+    for policy in (new, old):
+        policy.reset(PolicyContext(CAMERA, T_cam, T0, P_RCM, DT, LATENCY, wire=WIRE))
+    answers = set()
+    for _ in range(2000):
+        k = int(rng.integers(100, len(pts) - 100))
+        T_ring = ring_pose(pts[k] + rng.normal(scale=0.002, size=3), rng.normal(size=3))
+        tangent = unit(pts[k + 5] - pts[k - 5])
+        p = pts[k] + tangent * rng.uniform(0.0, 0.05) + rng.normal(scale=0.01, size=3)
+        goal = look_at_pose(T_ring[:3, 3] + [0.0, 0.02, 0.05], T_ring[:3, 3])
+        p_ring, p_now = T_ring[:3, 3].tolist(), (p + rng.normal(scale=0.01, size=3)).tolist()
+        d_f = float(rng.uniform(cfg.d_min, cfg.d_max))
+        new.d_f = old.d_f = d_f
+        got = new._cleared_waypoint(p, T_ring, goal, p_ring, p_now)
+        want = old._clear(old._waypoint_pose(p, T_ring, goal), p_ring, p_now)
+        assert (got is None) == (want is None)
+        if want is not None:
+            assert got.tobytes() == want.tobytes()
+        assert new.guard.refs == old.guard.refs  # type: ignore[union-attr]
+        assert (new.guard.adjusted, new.guard.blocked) == (old.guard.adjusted, old.guard.blocked)  # type: ignore[union-attr]
+        new._last_cmd = old._last_cmd = got if got is not None else new._last_cmd
+        answers.add("none" if want is None else "moved" if new.guard.adjusted else "same")
+    assert new.guard.adjusted > 0 and new.guard.blocked >= 0  # type: ignore[union-attr]

@@ -44,17 +44,19 @@ from planning images; the ring's pose is still only what the controller observes
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from numba import njit
+from numba.extending import register_jitable
 
 from endocam.camera import SCOPE_RADIUS
+from endocam.control.safety import Workspace, cone_margin
 from endocam.geometry import FloatArray
-from endocam.kernels import Vec, cross, dot, norm, reject, scaled, unit_checked
+from endocam.kernels import Vec, cross, dot, norm, py_max, py_min, reject, scaled, unit_checked
 from endocam.pyfloat import dist3
 from endocam.task.wire import Wire, _surface_query
-from endocam.view import pose_from_columns, rotation_columns
+from endocam.view import rotation_columns
 
 CLEARANCE_MARGIN = 2.0e-3  # m, beyond the scope's radius: the carriers' tracking deviation
 WIRE_CLEARANCE = SCOPE_RADIUS + CLEARANCE_MARGIN  # m, ControllerConfig.wire_clearance default
@@ -73,8 +75,19 @@ DETOUR_SCALES = (1.0, 0.5, 0.25)  # unitless, fractions of the slide tried, long
 DETOUR_TOL = 1.0e-5  # m, a traced segment closer than this to the zone is blocked
 DETOUR_CREEP = 2.0e-4  # m, trace step from the zone's edge when the segment leaves it
 _EPS = 1e-9  # unitless, shorter directions are degenerate
-
-Feasible = Callable[[list[float]], bool]
+# _apply_kernel's answers: the pose itself, a backed-off or rotated one, none clear, not finite
+APPLY_CLEAR, APPLY_ADJUSTED, APPLY_BLOCKED, APPLY_NOT_FINITE = range(4)
+APPLY_INFEASIBLE = 4  # _look_at_kernel: the pose's position is outside the workspace
+_NO_KEEP_OUT = (  # _apply_kernel's keep-out arguments without one (unread)
+    np.zeros((1, 3)),
+    np.full((2, 5), -1, dtype=np.int64),
+    np.zeros(1, dtype=np.int32),
+    np.array([0, 1], dtype=np.int64),
+    0.0,
+    np.zeros((CACHE_SIZE, 4)),
+    np.zeros(1, dtype=np.int64),
+    0.0,
+)
 
 
 # The guard's queries, compiled. ``state`` below is ``ClearanceGuard._state``: the wire's
@@ -330,6 +343,313 @@ def _cleared_move(
     return True, found, via
 
 
+# The guard's search for a clear pose (``ClearanceGuard.apply``), compiled. ``feasible`` below:
+# whether a camera position may be commanded, ``control.safety.Workspace.margin`` ≥ 0 (the
+# cone, the floor and the workspace's own keep-out guard, whose cache it updates), or
+# everywhere (``kind`` 0). ``ws``: the cone's constants (9,) (``ConeWorkspace.constants``) and
+# the floor, m; ``keep``: whether the workspace has a keep-out zone, then its guard's state.
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _feasible(
+    kind: int,
+    ws: FloatArray,
+    keep: bool,
+    k_pts: FloatArray,
+    k_table: np.ndarray,
+    k_pool: np.ndarray,
+    k_meta: np.ndarray,
+    k_radius: float,
+    k_ref: FloatArray,
+    k_nref: np.ndarray,
+    k_clearance: float,
+    pos: Vec,
+) -> bool:
+    """Whether ``pos`` (m) is feasible: ``Workspace.margin(pos) >= 0`` (``kind`` 1), or True."""
+    if kind == 0:
+        return True
+    x, y, z = pos
+    cone = ((ws[0], ws[1], ws[2]), (ws[3], ws[4], ws[5]))
+    m = py_min(cone_margin(x, y, z, cone[0], cone[1], ws[6], ws[7], ws[8]), z - ws[9])
+    if keep:
+        d = _distance(
+            k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref, k_clearance, x, y, z, 0.0
+        )
+        m = py_min(m, d - k_clearance)
+    return m >= 0.0
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _newton(pts: FloatArray, short: float, pos: Vec, k: int, velocity: Vec) -> float:
+    """Parameter step that adds ``short`` (m) to the distance, the point moving at ``velocity``.
+
+    The distance's gradient at ``pos`` (m) is the unit vector from the nearest wire point
+    (``pts[k]``, m); its rate along ``velocity`` (m per unit parameter) gives a Newton step,
+    bounded by ``[1, NEWTON_GAIN]`` times the conservative step ``short / ‖velocity‖`` (the
+    distance to a line along a line is convex: the step lands at or just past the clear value).
+    """
+    g = (pos[0] - pts[k, 0], pos[1] - pts[k, 1], pos[2] - pts[k, 2])
+    speed = norm(velocity)
+    conservative = short / speed if speed > _EPS else short
+    length = norm(g)
+    if not length > _EPS:
+        return py_max(conservative, 1e-7)
+    rate = dot(g, velocity) / length
+    if rate * NEWTON_GAIN <= speed:
+        return py_max(NEWTON_GAIN * conservative, 1e-7)
+    return py_max(py_max(short / rate, conservative), 1e-7)  # Python's max of the three
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _rotate(v: Vec, k: Vec, c: float, s: float) -> Vec:
+    """``v`` rotated about the unit axis ``k`` by the angle with cosine ``c`` and sine ``s``."""
+    kv = cross(k, v)
+    kd = dot(k, v) * (1.0 - c)
+    return (
+        v[0] * c + kv[0] * s + k[0] * kd,
+        v[1] * c + kv[1] * s + k[1] * kd,
+        v[2] * c + kv[2] * s + k[2] * kd,
+    )
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def clear_pose(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    T: FloatArray,
+    pivot: Vec,
+    has_now: bool,
+    now: Vec,
+    back_off: float,
+    escape: FloatArray,
+    kind: int,
+    ws: FloatArray,
+    keep: bool,
+    k_pts: FloatArray,
+    k_table: np.ndarray,
+    k_pool: np.ndarray,
+    k_meta: np.ndarray,
+    k_radius: float,
+    k_ref: FloatArray,
+    k_nref: np.ndarray,
+    k_clearance: float,
+) -> tuple[int, FloatArray]:
+    """:meth:`ClearanceGuard.apply` of the pose ``T`` (4, 4): ``(APPLY_*, pose (4, 4))``.
+
+    The guard's ``state`` first, then :meth:`~ClearanceGuard.apply`'s arguments: ``pivot``,
+    ``now`` (m; read if ``has_now``), ``back_off`` (m); ``escape`` (4,): the remembered
+    escape direction (a flag, then the unit direction, world; updated); the workspace
+    (``kind``, ``ws``, ``keep`` … ``k_clearance``: :func:`_feasible`'s). ``APPLY_CLEAR``:
+    ``T`` itself; ``APPLY_ADJUSTED``: the pose backed off or rotated; ``APPLY_BLOCKED``: no
+    clear feasible pose; ``APPLY_NOT_FINITE``: a non-finite pose or pivot. The interpreter's
+    floats and queries in its order (docs/conventions.md, "Compiled kernels").
+    """
+    c = pivot
+    p = (T[0, 3], T[1, 3], T[2, 3])
+    if not math.isfinite(p[0] + p[1] + p[2] + (0.0 + c[0] + c[1] + c[2])):
+        return APPLY_NOT_FINITE, T
+    if _distance(pts, table, pool, meta, radius, ref, nref, clearance, p[0], p[1], p[2], 0.0) >= (
+        clearance
+    ):
+        escape[0] = 0.0
+        return APPLY_CLEAR, T
+    target = clearance + AIM_BEYOND
+    if back_off > 0.0:  # back along the optical axis: the camera moves 1:1 with the distance
+        z = (T[0, 2], T[1, 2], T[2, 2])
+        back = (-z[0], -z[1], -z[2])
+        s = 0.0
+        for _ in range(MAX_ESCAPE_STEPS):
+            pos = (p[0] - s * z[0], p[1] - s * z[1], p[2] - s * z[2])
+            k, dist = _surface_query(pts, table, pool, meta, pos[0], pos[1], pos[2])
+            d = dist - radius
+            if d >= target:
+                if not _feasible(
+                    kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref,
+                    k_clearance, pos,
+                ):  # fmt: skip
+                    break
+                _remember(ref, nref, pos[0], pos[1], pos[2], d)
+                out = T.copy()
+                for i in range(3):
+                    out[i, 3] = pos[i]
+                return APPLY_ADJUSTED, out
+            s += _newton(pts, target - d, pos, k, back)
+            if s > back_off:
+                break
+    # rotated about the pivot (module docstring)
+    x0 = (T[0, 0], T[1, 0], T[2, 0])
+    y0 = (T[0, 1], T[1, 1], T[2, 1])
+    z0 = (T[0, 2], T[1, 2], T[2, 2])
+    rel = (p[0] - c[0], p[1] - c[1], p[2] - c[2])
+    r = norm(rel)
+    if not r > _EPS:
+        return APPLY_BLOCKED, T
+    a, b, w = dot(rel, x0), dot(rel, y0), dot(rel, z0)  # camera position in its own frame
+    u = scaled(rel, 1.0 / r)
+    # the escape directions ⟂ u, best first: the remembered one, else towards the camera
+    # now, else the distance's gradient (away from the nearest wire point); then the
+    # perpendiculars and the opposite
+    k_near, _ = _surface_query(pts, table, pool, meta, p[0], p[1], p[2])
+    q = (pts[k_near, 0], pts[k_near, 1], pts[k_near, 2])
+    candidates = [(p[0] - q[0], p[1] - q[1], p[2] - q[2]), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)]
+    if has_now:
+        candidates.insert(0, (now[0] - c[0], now[1] - c[1], now[2] - c[2]))
+    if escape[0] != 0.0:
+        candidates.insert(0, (escape[1], escape[2], escape[3]))
+    found = False
+    e0 = u
+    for cand in candidates:
+        e = reject(cand, u)
+        length = norm(e)
+        if length > 1e-6:
+            e0 = scaled(e, 1.0 / length)
+            found = True
+            break
+    if not found:
+        return APPLY_BLOCKED, T
+    e1 = cross(u, e0)
+    for e in (e0, e1, scaled(e1, -1.0), scaled(e0, -1.0)):
+        # the smallest angle along e with a clear, feasible pose (conservative advancement)
+        k_axis = cross(u, e)  # rotation axis: u turns towards e
+        theta = 0.0
+        for _ in range(MAX_ESCAPE_STEPS):
+            ct, st = math.cos(theta), math.sin(theta)
+            z = _rotate(z0, k_axis, ct, st)
+            x_prev = _rotate(x0, k_axis, ct, st)
+            xc, yc, zc = rotation_columns(z, (0.0, 0.0, 1.0), x_prev)
+            pos = (
+                c[0] + a * xc[0] + b * yc[0] + w * zc[0],
+                c[1] + a * xc[1] + b * yc[1] + w * zc[1],
+                c[2] + a * xc[2] + b * yc[2] + w * zc[2],
+            )
+            near, dist = _surface_query(pts, table, pool, meta, pos[0], pos[1], pos[2])
+            d = dist - radius
+            if d >= target and _feasible(
+                kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref,
+                k_clearance, pos,
+            ):  # fmt: skip
+                _remember(ref, nref, pos[0], pos[1], pos[2], d)
+                escape[0], escape[1], escape[2], escape[3] = 1.0, e[0], e[1], e[2]
+                out = np.empty((4, 4))
+                for i in range(3):
+                    out[i, 0], out[i, 1], out[i, 2], out[i, 3] = xc[i], yc[i], zc[i], pos[i]
+                out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
+                return APPLY_ADJUSTED, out
+            if d < target:  # the camera's velocity per radian: k × (pos − c)
+                rel_pos = (pos[0] - c[0], pos[1] - c[1], pos[2] - c[2])
+                step = _newton(pts, target - d, pos, near, cross(k_axis, rel_pos))
+            else:
+                step = MIN_ESCAPE_STEP
+            theta += py_max(step, MIN_ESCAPE_STEP * 0.1)
+            if theta > MAX_ESCAPE_ANGLE:
+                break
+    return APPLY_BLOCKED, T
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _apply_kernel(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    T: FloatArray,
+    pivot: Vec,
+    has_now: bool,
+    now: Vec,
+    back_off: float,
+    escape: FloatArray,
+    kind: int,
+    ws: FloatArray,
+    keep: bool,
+    k_pts: FloatArray,
+    k_table: np.ndarray,
+    k_pool: np.ndarray,
+    k_meta: np.ndarray,
+    k_radius: float,
+    k_ref: FloatArray,
+    k_nref: np.ndarray,
+    k_clearance: float,
+) -> tuple[int, FloatArray]:  # pragma: no cover - compiled
+    """:func:`clear_pose` from Python (:meth:`ClearanceGuard.apply`)."""
+    return clear_pose(
+        pts, table, pool, meta, radius, ref, nref, clearance, T, pivot, has_now, now, back_off,
+        escape, kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref,
+        k_clearance,
+    )  # fmt: skip
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _look_at_kernel(
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    p: Vec,
+    pivot: Vec,
+    fallback: FloatArray,
+    previous: FloatArray,
+    check: bool,
+    has_now: bool,
+    now: Vec,
+    back_off: float,
+    escape: FloatArray,
+    kind: int,
+    ws: FloatArray,
+    keep: bool,
+    k_pts: FloatArray,
+    k_table: np.ndarray,
+    k_pool: np.ndarray,
+    k_meta: np.ndarray,
+    k_radius: float,
+    k_ref: FloatArray,
+    k_nref: np.ndarray,
+    k_clearance: float,
+) -> tuple[int, bool, FloatArray]:  # pragma: no cover - compiled
+    """:meth:`ClearanceGuard.apply_look_at`: ``(APPLY_* or APPLY_INFEASIBLE, fallen back, pose)``.
+
+    The pose at ``p`` (m) looking at ``pivot`` (m) with a level horizon, its roll from
+    ``previous`` (4, 4) (``view.look_at_unchecked``: ``fallback`` (4, 4) when the two
+    points coincide; then "fallen back"); if ``check``, ``APPLY_INFEASIBLE`` when ``p`` is
+    not feasible (:func:`_feasible`); then :func:`clear_pose` of the pose (the other
+    arguments its).
+    """
+    d = (pivot[0] - p[0], pivot[1] - p[1], pivot[2] - p[2])
+    length = norm(d)
+    fell_back = not length > 1e-9
+    T = fallback
+    if not fell_back:
+        x_prev = (previous[0, 0], previous[1, 0], previous[2, 0])
+        x, y, z = rotation_columns(scaled(d, 1.0 / length), (0.0, 0.0, 1.0), x_prev)
+        T = np.empty((4, 4))
+        for i in range(3):
+            T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
+        T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
+    if check and not _feasible(
+        kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref, k_clearance, p
+    ):
+        return APPLY_INFEASIBLE, fell_back, T
+    code, cleared = clear_pose(
+        pts, table, pool, meta, radius, ref, nref, clearance, T, pivot, has_now, now, back_off,
+        escape, kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref,
+        k_clearance,
+    )  # fmt: skip
+    return code, fell_back, cleared
+
+
 class ClearanceGuard:
     """Keeps commanded camera positions ``clearance`` from the wire's surface (module docstring).
 
@@ -346,18 +666,19 @@ class ClearanceGuard:
             raise ValueError(f"clearance must be ≥ 0 m, got {clearance}")
         self.wire = wire
         self.clearance = float(clearance)
-        self._points = wire.search_points
         self._ref = np.zeros((CACHE_SIZE, 4))  # the last queries: point (m), distance (m)
         self._nref = np.zeros(1, dtype=np.int64)  # rows of _ref in use, newest first
         self._state = (*wire.query_state, wire.radius, self._ref, self._nref, self.clearance)
-        self._escape: Vec | None = None  # world direction used on the last adjusted step
+        self._escape = np.zeros(4)  # the direction of the last rotation: flag, unit (3,), world
+        self._workspace: Workspace | None = None  # the last workspace given to apply()
+        self._workspace_args: tuple[object, ...] = ()  # its _apply_kernel arguments
         self.adjusted = 0  # poses rotated this episode
         self.blocked = 0  # poses with no clear, feasible rotation this episode
 
     def reset(self) -> None:
         """Forget the cached query and the escape direction (a new episode)."""
         self._nref[0] = 0
-        self._escape = None
+        self._escape[0] = 0.0
         self.adjusted = 0
         self.blocked = 0
 
@@ -375,10 +696,6 @@ class ClearanceGuard:
     def refs(self) -> list[tuple[list[float], float]]:
         """The cached queries, newest first: (point (3,), world, m; surface distance, m)."""
         return [(row[:3], row[3]) for row in self._ref[: self._nref[0]].tolist()]
-
-    def _remember(self, p_world: list[float], d: float) -> None:
-        """Keep a query for the Lipschitz bound (the newest ``CACHE_SIZE``: goal and camera)."""
-        _remember(self._ref, self._nref, p_world[0], p_world[1], p_world[2], d)
 
     def margin(self, p_world: Sequence[float]) -> float:
         """Signed clearance of a camera position (3,), world, m: ≥ 0 clear (``Workspace``).
@@ -405,11 +722,13 @@ class ClearanceGuard:
         self,
         T_world_cam: FloatArray,
         p_world_pivot: Vec,
-        feasible: Feasible | None = None,
+        workspace: Workspace | None = None,
         p_world_now: Vec | None = None,
         back_off: float = 0.0,
     ) -> FloatArray | None:
         """The commanded pose, or the nearest clear one rotated about the pivot; ``None``: none.
+
+        One compiled call (:func:`_apply_kernel`).
 
         Parameters
         ----------
@@ -418,9 +737,10 @@ class ClearanceGuard:
         p_world_pivot : 3-tuple
             The point the pose looks at (the ring centre), world, m: it keeps its place in the
             camera frame.
-        feasible : callable or None
-            ``feasible(p_world)`` for a camera position (3,), world, m: whether it may be
-            commanded (the workspace); ``None``: everywhere.
+        workspace : Workspace or None
+            Where a camera position may be commanded (``Workspace.margin(p) >= 0``: the cone,
+            the floor and its own keep-out guard, whose cache the checks update); ``None``:
+            everywhere.
         p_world_now : 3-tuple or None
             Where the camera is now, world, m: without a remembered escape direction the pose
             turns towards it first (the camera need not cross the wire to reach it).
@@ -434,23 +754,81 @@ class ClearanceGuard:
             ``T_world_cam`` itself when clear; a rotated, clear and feasible pose; or ``None``
             (non-finite input, or no clear feasible rotation up to ``MAX_ESCAPE_ANGLE``).
         """
-        rows = T_world_cam.tolist()
-        p = [rows[0][3], rows[1][3], rows[2][3]]
-        if not math.isfinite(p[0] + p[1] + p[2] + sum(p_world_pivot)):
-            return None
-        if self.is_clear(p):
-            self._escape = None
+        c, now = p_world_pivot, p_world_now
+        code, T = _apply_kernel(
+            *self._state,
+            np.asarray(T_world_cam, dtype=float),
+            (float(c[0]), float(c[1]), float(c[2])),
+            now is not None,
+            (0.0, 0.0, 0.0) if now is None else (float(now[0]), float(now[1]), float(now[2])),
+            float(back_off),
+            self._escape,
+            *self._feasible_args(workspace),  # type: ignore[arg-type]
+        )
+        if code == APPLY_CLEAR:
             return T_world_cam
-        found = None
-        if back_off > 0.0:
-            found = self._backed_off(rows, p, back_off, feasible)
-        if found is None:
-            found = self._rotated(rows, p, p_world_pivot, feasible, p_world_now)
-        if found is None:
+        if code == APPLY_ADJUSTED:
+            self.adjusted += 1
+            return T
+        if code == APPLY_BLOCKED:
             self.blocked += 1
-            return None
-        self.adjusted += 1
-        return found
+        return None
+
+    def apply_look_at(
+        self,
+        p_world: Vec,
+        p_world_pivot: Vec,
+        fallback: FloatArray,
+        previous: FloatArray,
+        workspace: Workspace,
+        p_world_now: Vec | None = None,
+        back_off: float = 0.0,
+        check: bool = True,
+    ) -> FloatArray | None:
+        """:meth:`apply` of the pose at ``p_world`` looking at the pivot, if it is feasible.
+
+        The pose: ``view.look_at_unchecked(p_world, p_world_pivot, fallback, previous)`` (a
+        level horizon, the roll kept from ``previous`` (4, 4) near the vertical; ``fallback``
+        (4, 4) itself when the two points coincide). ``None`` when ``p_world`` (3,), world,
+        m, is outside the ``workspace`` (``Workspace.margin < 0``; asked only if ``check``),
+        else :meth:`apply`'s answer. One compiled call (:func:`_look_at_kernel`).
+        """
+        p, c, now = p_world, p_world_pivot, p_world_now
+        code, fell_back, T = _look_at_kernel(
+            *self._state,
+            (float(p[0]), float(p[1]), float(p[2])),
+            (float(c[0]), float(c[1]), float(c[2])),
+            fallback,
+            previous,
+            check,
+            now is not None,
+            (0.0, 0.0, 0.0) if now is None else (float(now[0]), float(now[1]), float(now[2])),
+            float(back_off),
+            self._escape,
+            *self._feasible_args(workspace),  # type: ignore[arg-type]
+        )
+        if code == APPLY_CLEAR:
+            return fallback if fell_back else T
+        if code == APPLY_ADJUSTED:
+            self.adjusted += 1
+            return T
+        if code == APPLY_BLOCKED:
+            self.blocked += 1
+        return None
+
+    def _feasible_args(self, workspace: Workspace | None) -> tuple[object, ...]:
+        """:func:`_apply_kernel`'s workspace arguments (``kind`` … ``k_clearance``)."""
+        if workspace is None:
+            return (0, np.zeros(10), False, *_NO_KEEP_OUT)
+        if workspace is not self._workspace:
+            keep_out = workspace.keep_out
+            if keep_out is not None and not isinstance(keep_out, ClearanceGuard):
+                raise TypeError("a workspace's keep-out zone must be a ClearanceGuard")
+            ws = np.array([*workspace.cone.constants, workspace.floor])
+            keep = _NO_KEEP_OUT if keep_out is None else keep_out.kernel_state
+            self._workspace = workspace
+            self._workspace_args = (1, ws, keep_out is not None, *keep)
+        return self._workspace_args
 
     @property
     def kernel_state(self) -> tuple[object, ...]:
@@ -468,7 +846,7 @@ class ClearanceGuard:
         The caller made :meth:`apply`'s finite check and query (:func:`_distance`, the same
         cache); this records the pass (no escape direction is remembered).
         """
-        self._escape = None
+        self._escape[0] = 0.0
         return T_world_cam
 
     def detour(self, p_world_now: Sequence[float], p_world_cmd: Sequence[float]) -> Vec | None:
@@ -508,155 +886,12 @@ class ClearanceGuard:
         ok, lifted = _lifted(pts, table, pool, meta, self.wire.radius, self.clearance, p)
         return lifted if ok and lifted != p else None
 
-    def _rotated(
-        self,
-        rows: list[list[float]],
-        p: list[float],
-        c: Vec,
-        feasible: Feasible | None,
-        p_now: Vec | None,
-    ) -> FloatArray | None:
-        x: Vec = (rows[0][0], rows[1][0], rows[2][0])
-        y: Vec = (rows[0][1], rows[1][1], rows[2][1])
-        z: Vec = (rows[0][2], rows[1][2], rows[2][2])
-        rel = (p[0] - c[0], p[1] - c[1], p[2] - c[2])
-        r = norm(rel)
-        if not r > _EPS:
-            return None
-        a, b, w = dot(rel, x), dot(rel, y), dot(rel, z)  # camera position in its own frame
-        u = scaled(rel, 1.0 / r)
-        for e in self._directions(p, u, c, p_now):
-            T = self._search(u, e, r, c, (a, b, w), (x, z), feasible)
-            if T is not None:
-                self._escape = e
-                return T
-        return None
-
-    def _backed_off(
-        self, rows: list[list[float]], p: list[float], back_off: float, feasible: Feasible | None
-    ) -> FloatArray | None:
-        """The pose moved back along its optical axis (at most ``back_off``, m) until clear.
-
-        Conservative advancement again: the camera moves 1:1 with the back-off distance.
-        """
-        z = (rows[0][2], rows[1][2], rows[2][2])
-        target = self.clearance + AIM_BEYOND
-        s = 0.0
-        back = (-z[0], -z[1], -z[2])
-        for _ in range(MAX_ESCAPE_STEPS):
-            pos = [p[0] - s * z[0], p[1] - s * z[1], p[2] - s * z[2]]
-            d, k = self.wire.nearest_surface(pos)
-            if d >= target:
-                if feasible is not None and not feasible(pos):
-                    return None
-                self._remember(pos, d)
-                T = np.array(rows)
-                T[:3, 3] = pos
-                return T
-            s += self._newton(target - d, pos, k, back)
-            if s > back_off:
-                return None
-        return None
-
-    def _newton(self, short: float, pos: list[float], k: int, velocity: Vec) -> float:
-        """Parameter step that adds ``short`` (m) to the distance, the point moving at ``velocity``.
-
-        The distance's gradient at ``pos`` is the unit vector from the nearest wire point
-        (index ``k``); its rate along ``velocity`` (m per unit parameter) gives a Newton step,
-        bounded by ``[1, NEWTON_GAIN]`` times the conservative step ``short / ‖velocity‖``
-        (the distance to a line along a line is convex: the step lands at or just past the
-        clear value).
-        """
-        q = self._points[k].tolist()
-        g = (pos[0] - q[0], pos[1] - q[1], pos[2] - q[2])
-        speed = norm(velocity)
-        conservative = short / speed if speed > _EPS else short
-        length = norm(g)
-        if not length > _EPS:
-            return max(conservative, 1e-7)
-        rate = dot(g, velocity) / length
-        if rate * NEWTON_GAIN <= speed:
-            return max(NEWTON_GAIN * conservative, 1e-7)
-        return max(short / rate, conservative, 1e-7)
-
-    def _directions(self, p: list[float], u: Vec, c: Vec, p_now: Vec | None) -> list[Vec]:
-        """Escape directions ⟂ ``u`` to try, best first.
-
-        The remembered one, else towards the camera now, else the distance's gradient (away
-        from the nearest wire point); then the perpendiculars and the opposite.
-        """
-        out: list[Vec] = []
-        _, k = self.wire.nearest_surface(p)
-        q = self._points[k].tolist()
-        candidates = [] if self._escape is None else [self._escape]
-        if p_now is not None:
-            candidates.append((p_now[0] - c[0], p_now[1] - c[1], p_now[2] - c[2]))
-        candidates += [(p[0] - q[0], p[1] - q[1], p[2] - q[2]), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)]
-        for cand in candidates:
-            e = reject(cand, u)
-            length = norm(e)
-            if length > 1e-6:
-                out.append(scaled(e, 1.0 / length))
-                break
-        if not out:
-            return out
-        e0 = out[0]
-        e1 = cross(u, e0)
-        return [e0, e1, scaled(e1, -1.0), scaled(e0, -1.0)]
-
-    def _search(
-        self,
-        u: Vec,
-        e: Vec,
-        r: float,
-        c: Vec,
-        local: tuple[float, float, float],
-        xz: tuple[Vec, Vec],
-        feasible: Feasible | None,
-    ) -> FloatArray | None:
-        """Smallest angle along ``e`` with a clear, feasible pose (conservative advancement)."""
-        a, b, w = local
-        x0, z0 = xz
-        k = cross(u, e)  # rotation axis: u turns towards e
-        theta = 0.0
-        target = self.clearance + AIM_BEYOND
-        for _ in range(MAX_ESCAPE_STEPS):
-            ct, st = math.cos(theta), math.sin(theta)
-            z = _rotate(z0, k, ct, st)
-            x_prev = _rotate(x0, k, ct, st)
-            xc, yc, zc = rotation_columns(z, (0.0, 0.0, 1.0), x_prev)
-            pos = [c[i] + a * xc[i] + b * yc[i] + w * zc[i] for i in range(3)]
-            d, near = self.wire.nearest_surface(pos)
-            if d >= target and (feasible is None or feasible(pos)):
-                self._remember(pos, d)
-                return pose_from_columns(xc, yc, zc, (pos[0], pos[1], pos[2]))
-            if d < target:  # the camera's velocity per radian: k × (pos − c)
-                rel = (pos[0] - c[0], pos[1] - c[1], pos[2] - c[2])
-                step = self._newton(target - d, pos, near, cross(k, rel))
-            else:
-                step = MIN_ESCAPE_STEP
-            theta += max(step, MIN_ESCAPE_STEP * 0.1)
-            if theta > MAX_ESCAPE_ANGLE:
-                return None
-        return None
-
-
-def _rotate(v: Vec, k: Vec, c: float, s: float) -> Vec:
-    """``v`` rotated about the unit axis ``k`` by the angle with cosine ``c`` and sine ``s``."""
-    kv = cross(k, v)
-    kd = dot(k, v) * (1.0 - c)
-    return (
-        v[0] * c + kv[0] * s + k[0] * kd,
-        v[1] * c + kv[1] * s + k[1] * kd,
-        v[2] * c + kv[2] * s + k[2] * kd,
-    )
-
 
 def clear_pose_or_none(
-    guard: ClearanceGuard | None, T: FloatArray, pivot: Vec, feasible: Feasible | None = None
+    guard: ClearanceGuard | None, T: FloatArray, pivot: Vec, workspace: Workspace | None = None
 ) -> FloatArray | None:
-    """``guard.apply(T, pivot, feasible)``, or ``T`` when there is no guard (no wire model)."""
-    return T if guard is None else guard.apply(T, pivot, feasible)
+    """``guard.apply(T, pivot, workspace)``, or ``T`` when there is no guard (no wire model)."""
+    return T if guard is None else guard.apply(T, pivot, workspace)
 
 
 __all__ = ["CLEARANCE_MARGIN", "WIRE_CLEARANCE", "ClearanceGuard", "clear_pose_or_none"]

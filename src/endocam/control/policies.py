@@ -28,14 +28,17 @@ from endocam.control.config import ControllerConfig, SideRule
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.safety import (
+    CLOCK_TOL,
     STALE_REASON,
+    Cone,
     ConeWorkspace,
     WindowGeometry,
     Workspace,
     adjusted_distance,
     cone_at,
     cone_margin,
-    is_stale,
+    gate_commit,
+    gate_decide,
     window_code_of,
 )
 from endocam.control.types import (
@@ -45,7 +48,7 @@ from endocam.control.types import (
     TrackingState,
 )
 from endocam.geometry import UP, FloatArray
-from endocam.kernels import Rows, Vec, finite_rows
+from endocam.kernels import Vec, finite_rows, unit_checked
 from endocam.pyfloat import dist3
 from endocam.view import look_at_unchecked
 
@@ -55,6 +58,8 @@ LIFT_TOL = 1e-4  # m, resolution of the cone-limited way-point height
 _MIN_NORMAL = 1e-9  # unitless, a ring normal shorter than this is degenerate
 GATE_REASON = "ring pose rejected by the observation gate (moved too fast); holding"
 DETOUR_REASON = "detouring around the wire's clearance zone"
+CAMERA_REASON = "camera pose not finite; holding"
+RING_REASON = "ring pose missing or not finite"
 WIRE_REASON = "no view of the ring keeps the wire clearance inside the workspace; holding"
 STALL_STEPS = 10  # control steps a detouring camera may stand still before it steps out
 STALL_TOL_M = 1e-9  # m, a camera that moved less than this in a step stood still
@@ -73,7 +78,20 @@ _JUMP = 34  # m, jump_threshold
 _N_PARAMS = 35
 # _step_kernel's results (``_MovingPolicy._out``): the guard's answers on the plain path
 _OUT_CLEARED, _OUT_DETOUR, _OUT_VIA = 0, 1, 2  # clear, detour, its way-point (3), m
-_N_OUT = 5
+_OUT_RING, _OUT_CAM = 5, 8  # m, the observed ring centre and camera position (3 each)
+_OUT_CHECK = 11  # the observation's check (``observed``: OBS_*)
+_OUT_MARGIN = 12  # m, the goal's cone margin (``ConeWorkspace.margin``)
+_N_OUT = 13
+# ``observed``'s answers: the observation is usable, or why not
+OBS_OK, OBS_CAMERA, OBS_RING, OBS_STALE, OBS_DEGENERATE, OBS_GATE = range(6)
+CHECK_REASONS = (
+    "",
+    CAMERA_REASON,
+    RING_REASON,
+    STALE_REASON,
+    "ring pose degenerate (zero normal)",
+    GATE_REASON,
+)  # the hold's reason per OBS_* answer
 # _step_kernel's and the tracker's guard arguments without a wire model (unread): the types
 # of a wire's ``ClearanceGuard.kernel_state`` (``Wire.query_state``, radius, the Lipschitz
 # cache, clearance)
@@ -87,6 +105,98 @@ NO_GUARD = (
     np.zeros(1, dtype=np.int64),
     0.0,
 )
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def finite_pose(T: FloatArray) -> bool:
+    """Whether every entry of ``T`` (4, 4) is finite (``kernels.finite_rows``' test)."""
+    for i in range(4):
+        for j in range(4):
+            if not math.isfinite(T[i, j]):
+                return False
+    return True
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def observed(
+    T_cam: FloatArray,
+    T_ring: FloatArray,
+    t: float,
+    has_t_ring: bool,
+    t_ring: float,
+    max_age: float,
+    gate: FloatArray,
+    bounds: FloatArray,
+    cone: Cone,
+    unit_normal: bool,
+) -> int:
+    """The policies' input checks in their order, the ring gate last: ``OBS_OK`` or why not.
+
+    ``T_cam``, ``T_ring`` (4, 4) the observed camera and ring poses, world, m: not finite,
+    ``OBS_CAMERA`` / ``OBS_RING``. The ring pose captured at ``t_ring`` (s; unstamped: not
+    ``has_t_ring``) is stale at ``t`` (s) beyond ``max_age`` (s) or ``CLOCK_TOL`` in the
+    future (``safety.is_stale``): ``OBS_STALE``. ``unit_normal`` (the tracker): the gate gets
+    the unit normal, and a degenerate one is ``OBS_DEGENERATE``; else (the moving policies)
+    the gate gets the normal as observed and a degenerate one passes (the goal reports it).
+    The gate (``safety.RingGate``: its ``state`` and ``bounds``; re-acquired only inside the
+    ``cone``): ``OBS_GATE`` when it rejects.
+    """
+    if not finite_pose(T_cam):
+        return OBS_CAMERA
+    if not finite_pose(T_ring):
+        return OBS_RING
+    if has_t_ring:
+        age = t - t_ring
+        if not (-CLOCK_TOL <= age <= max_age):
+            return OBS_STALE
+    n = (T_ring[0, 2], T_ring[1, 2], T_ring[2, 2])
+    if unit_normal:
+        ok, n = unit_checked(n)
+        if not ok:
+            return OBS_DEGENERATE
+    elif not dist3(n[0], n[1], n[2], 0.0, 0.0, 0.0) > _MIN_NORMAL:  # math.hypot(*n)
+        return OBS_OK
+    x = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3], n[0], n[1], n[2])
+    decision = gate_decide(gate, bounds, t, x)
+    ok = decision == 1
+    if decision == 2:  # re-acquired only inside the workspace (ConeWorkspace.contains)
+        a, axis, tan_half, cos_half, height = cone
+        margin = cone_margin(x[0], x[1], x[2], a, axis, tan_half, cos_half, height)
+        ok = math.isfinite(margin) and margin >= 0.0
+    gate_commit(gate, t, x, ok)
+    return OBS_OK if ok else OBS_GATE
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _observed_kernel(
+    T_cam: FloatArray,
+    T_ring: FloatArray,
+    t: float,
+    has_t_ring: bool,
+    t_ring: float,
+    max_age: float,
+    gate: FloatArray,
+    bounds: FloatArray,
+    params: FloatArray,
+    i_cone: int,
+    unit_normal: bool,
+) -> int:  # pragma: no cover - compiled
+    """:func:`observed` from Python, the cone stored from ``params[i_cone]`` (the oracle's)."""
+    cone = cone_at(params, i_cone)
+    return observed(T_cam, T_ring, t, has_t_ring, t_ring, max_age, gate, bounds, cone, unit_normal)
+
+
+def pose_array(T: object) -> FloatArray | None:
+    """``T`` as a (4, 4) float array (itself when it is one), or ``None`` (missing, wrong shape).
+
+    The boundary from an observation into the compiled checks (:func:`observed`).
+    """
+    if type(T) is np.ndarray and T.dtype == np.float64 and T.shape == (4, 4):
+        return T
+    if T is None:
+        return None
+    arr = np.asarray(T, dtype=float)
+    return arr if arr.shape == (4, 4) else None
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -136,6 +246,12 @@ def _step_kernel(
     tips: FloatArray,
     previous: FloatArray,
     T0: FloatArray,
+    t: float,
+    has_t_ring: bool,
+    t_ring: float,
+    max_age: float,
+    gate: FloatArray,
+    bounds: FloatArray,
     d_f: float,
     params: FloatArray,
     out: FloatArray,
@@ -151,14 +267,17 @@ def _step_kernel(
     nref: np.ndarray,
     clearance: float,
 ) -> tuple[float, bool, FloatArray]:  # pragma: no cover - compiled
-    """The moving policies' working distance and goal: (new ``d_f`` m, found, goal (4, 4)).
+    """The moving policies' checks, working distance and goal: (``d_f`` m, found, goal (4, 4)).
 
-    ``T_cam``, ``T_ring`` (4, 4) the camera and (checked) ring poses, world, m; ``tips``
-    (K, 3) world, m; ``previous`` (4, 4) the last goal or the camera; ``T0`` (4, 4) the
-    centering goal's orientation; ``d_f`` m; ``params`` (``_N_PARAMS``,) the policy's
-    constants. The windows' rule (``window_code``, ``adjusted_distance``), then the goal at
-    the new distance: the centering one (the ring centre on the initial optical axis) or the
-    orientation one (:func:`orientation_goal`; not found: a degenerate normal). The
+    ``T_cam``, ``T_ring`` (4, 4) the observed camera and ring poses, world, m; ``tips`` (K, 3)
+    world, m; ``previous`` (4, 4) the last goal or the camera; ``T0`` (4, 4) the centering
+    goal's orientation; ``d_f`` m; ``params`` (``_N_PARAMS``,) the policy's constants. First the
+    input checks and the ring gate (:func:`observed` at ``t`` s, the ring captured at ``t_ring``
+    s unless not ``has_t_ring``, ``max_age`` s; the gate's ``state`` and ``bounds``): an
+    observation they refuse gives ``out[_OUT_CHECK]`` its reason and ``(d_f, False, T0)``,
+    nothing else done. Then the windows' rule (``window_code``, ``adjusted_distance``), then the
+    goal at the new distance: the centering one (the ring centre on the initial optical axis) or
+    the orientation one (:func:`orientation_goal`; not found: a degenerate normal). The
     interpreter's operations in its order (docs/conventions.md, "Compiled kernels").
 
     On the step's plain path (``plain``: no way-point path; the goal's cone margin at least
@@ -168,9 +287,20 @@ def _step_kernel(
     query; the ring centre its pivot) and, if so, whether the move from the camera to it needs
     a detour (``ClearanceGuard.detour``); a goal not clear leaves the guard's cache as it was.
     ``out`` (``_N_OUT``,): whether the guard found the goal clear, whether the move needs a
-    detour, and its way-point (m).
+    detour, and its way-point (m); the ring centre and camera position observed (m); the
+    checks' answer.
     """
     prm = params
+    check = observed(
+        T_cam, T_ring, t, has_t_ring, t_ring, max_age, gate, bounds, cone_at(prm, _CONE), False
+    )
+    out[_OUT_CHECK] = check
+    out[_OUT_CLEARED] = out[_OUT_DETOUR] = 0.0
+    out[_OUT_MARGIN] = math.nan
+    if check != OBS_OK:
+        return d_f, False, T0
+    for i in range(3):
+        out[_OUT_RING + i], out[_OUT_CAM + i] = T_ring[i, 3], T_cam[i, 3]
     code = window_code_of(T_cam, tips, prm[_WINDOW : _WINDOW + 9])
     d = adjusted_distance(d_f, code, prm[_D_MIN], prm[_D_MAX], prm[_D_STEP])
     T = T0.copy()
@@ -183,13 +313,16 @@ def _step_kernel(
         for i in range(3):
             T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
         T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
-    out[_OUT_CLEARED] = out[_OUT_DETOUR] = 0.0
-    if not (found and has_guard and plain):
+    if not found:
         return d, found, T
     g = (T[0, 3], T[1, 3], T[2, 3])
-    c = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])  # the guard's pivot: the ring centre
     cone = cone_at(prm, _CONE)
-    margin = cone_margin(g[0], g[1], g[2], cone[0], cone[1], cone[2], cone[3], cone[4])
+    out[_OUT_MARGIN] = margin = cone_margin(
+        g[0], g[1], g[2], cone[0], cone[1], cone[2], cone[3], cone[4]
+    )
+    if not (has_guard and plain):
+        return d, found, T
+    c = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])  # the guard's pivot: the ring centre
     if margin >= release and not (
         dist3(g[0], g[1], g[2], previous[0, 3], previous[1, 3], previous[2, 3]) > prm[_JUMP]
     ):
@@ -263,7 +396,7 @@ class _MovingPolicy:
         self._frozen_T = None
         self._path = None
         self._s = 0.0
-        self._gate.reset(self._cone.contains)
+        self._gate.reset(cone=self._cone)
         self._p_detour: Sequence[float] | None = None  # the camera at the last detour step, m
         self._stalled = 0  # detour steps the camera has stood still
         cfg = self.config
@@ -289,23 +422,30 @@ class _MovingPolicy:
         return self._cone
 
     def _goal(self, obs: Observation, T_cam: FloatArray, T_ring: FloatArray) -> FloatArray | None:
-        """Set the working distance for ``obs``'s tips, then give the goal (4, 4) or ``None``.
+        """Check ``obs``, set the working distance for its tips, then give the goal (4, 4).
 
-        ``T_cam``, ``T_ring`` (4, 4): the observed camera and (checked) ring poses, world, m.
-        ``None``: the ring pose gives no goal (a degenerate normal). One compiled call
-        (:func:`_step_kernel`, with the subclass's ``_params``).
+        ``T_cam``, ``T_ring`` (4, 4): the observed camera and ring poses, world, m. ``None``:
+        the checks refused the observation (``_step_out[_OUT_CHECK]`` says why) or the ring
+        pose gives no goal (a degenerate normal). One compiled call (:func:`_step_kernel`,
+        with the subclass's ``_params``).
         """
         tips = obs.p_world_tips
         if not (isinstance(tips, np.ndarray) and tips.ndim == 2):
             tips = np.asarray(tips, dtype=float).reshape(-1, 3)
         previous = self._last_goal if self._last_goal is not None else T_cam
-        guard = self.guard
+        guard, gate, t_ring = self.guard, self._gate, obs.t_ring
         self.d_f, found, goal = _step_kernel(
             T_cam,
             T_ring,
             tips,
             previous,
             self._T0,
+            float(obs.t),
+            t_ring is not None,
+            0.0 if t_ring is None else float(t_ring),
+            self.config.ring_max_age,
+            gate.state,
+            gate.bounds,
             self.d_f,
             self._params,
             self._step_out,
@@ -318,11 +458,6 @@ class _MovingPolicy:
             return None
         self._kernel_goal, self._kernel_p = goal, goal[:3, 3].tolist()
         return goal
-
-    def _feasible(self, p_world: list[float]) -> bool:
-        """Whether a camera position (3,), world, m, is inside the workspace (cone and floor)."""
-        assert self._workspace is not None  # set by reset()
-        return self._workspace.margin(p_world) >= 0.0
 
     def _clear(
         self, T_world_cam: FloatArray, p_world_pivot: Sequence[float], p_world_now: Sequence[float]
@@ -340,7 +475,7 @@ class _MovingPolicy:
         pivot = (p_world_pivot[0], p_world_pivot[1], p_world_pivot[2])
         now = (p_world_now[0], p_world_now[1], p_world_now[2])
         back_off = max(0.0, self.config.d_max - self.d_f)  # the look distance may grow first
-        return guard.apply(T_world_cam, pivot, self._feasible, now, back_off)
+        return guard.apply(T_world_cam, pivot, self._workspace, now, back_off)
 
     def _detoured(
         self,
@@ -357,7 +492,8 @@ class _MovingPolicy:
         clearance guard itself.
 
         ``traced``: ``ClearanceGuard.detour``'s answer for this move, (found, way-point), when
-        a compiled step asked it already.
+        a compiled step asked it already. The way-point pose, the workspace's check of the
+        way-point and the guard are one compiled call (``ClearanceGuard.apply_look_at``).
         """
         guard = self.guard
         if guard is None:
@@ -374,62 +510,59 @@ class _MovingPolicy:
         self._stalled = self._stalled + 1 if still else 0
         if self._stalled >= STALL_STEPS:  # refused at the zone's edge: straight out first
             via = guard.step_out(p_world_now) or via
-        T = look_at_unchecked(np.array(via), np.asarray(p_world_pivot), T_world_cmd, self._last_cmd)
-        return self._clear(T, p_world_pivot, p_world_now) if self._feasible(list(via)) else None
+        # the way-point pose (``look_at_unchecked``), if feasible, through the guard (``_clear``)
+        assert self._workspace is not None and self._last_cmd is not None  # set by reset()
+        pivot = (p_world_pivot[0], p_world_pivot[1], p_world_pivot[2])
+        now = (p_world_now[0], p_world_now[1], p_world_now[2])
+        back_off = max(0.0, self.config.d_max - self.d_f)  # as _clear's
+        return guard.apply_look_at(
+            via, pivot, T_world_cmd, self._last_cmd, self._workspace, now, back_off
+        )
 
     def _hold(self, state: TrackingState, reason: str) -> CameraCommand:
         assert self._last_cmd is not None
         return CameraCommand(self._last_cmd, state, self.d_f, reason)
 
-    def _gated(self, t: float, ring_rows: Rows) -> bool:
-        """Whether the observation gate (``control.safety.RingGate``) accepts a ring pose.
-
-        A degenerate normal passes here: the goal reports it (lost tracking, its own reason).
-        """
-        R = ring_rows
-        n = (R[0][2], R[1][2], R[2][2])
-        if not math.hypot(*n) > _MIN_NORMAL:
-            return True
-        return self._gate.accept(t, (R[0][3], R[1][3], R[2][3]), n)
-
     def step(self, obs: Observation) -> CameraCommand:
-        """Input checks, working distance, goal, cone freeze, way-points — in that order."""
+        """Input checks, working distance, goal, cone freeze, way-points — in that order.
+
+        The checks (finite poses, a fresh ring pose, the ring gate; :func:`observed`), the
+        working distance and the goal are one compiled call (:meth:`_goal`).
+        """
         ctx = self._ctx
         if ctx is None:
             raise RuntimeError("call reset() before step()")
         cfg = self.config
-        cam_rows = finite_rows(obs.T_world_cam)
-        if cam_rows is None:
-            return self._hold(TrackingState.LOST_TRACKING, "camera pose not finite; holding")
-        T_cam = np.asarray(obs.T_world_cam, dtype=float)
-        ring_rows = finite_rows(obs.T_world_ring)
-        if ring_rows is None:
+        T_cam = pose_array(obs.T_world_cam)
+        T_ring = pose_array(obs.T_world_ring)
+        if T_cam is None or (T_ring is None and finite_rows(T_cam) is None):
+            return self._hold(TrackingState.LOST_TRACKING, CAMERA_REASON)
+        if T_ring is None:
             self._last_goal = None
             self._path = None
-            return self._hold(TrackingState.LOST_TRACKING, "ring pose missing or not finite")
-        if is_stale(obs.t, obs.t_ring, cfg.ring_max_age):
-            self._last_goal = None
-            self._path = None
-            return self._hold(TrackingState.LOST_TRACKING, STALE_REASON)
-        if not self._gated(obs.t, ring_rows):
-            self._last_goal = None
-            self._path = None
-            return self._hold(TrackingState.LOST_TRACKING, GATE_REASON)
-        T_ring = np.asarray(obs.T_world_ring, dtype=float)
+            return self._hold(TrackingState.LOST_TRACKING, RING_REASON)
 
         d_f_before = self.d_f
-        goal = self._goal(obs, T_cam, T_ring)  # the working distance, then the goal
+        goal = self._goal(obs, T_cam, T_ring)  # the checks, the working distance, the goal
+        out = self._step_out.tolist()
+        check = out[_OUT_CHECK]
+        if check != OBS_OK:
+            if check == OBS_CAMERA:
+                return self._hold(TrackingState.LOST_TRACKING, CAMERA_REASON)
+            self._last_goal = None
+            self._path = None
+            return self._hold(TrackingState.LOST_TRACKING, CHECK_REASONS[int(check)])
         if goal is None:
             self.d_f = d_f_before
             self._last_goal = None
             self._path = None
             return self._hold(TrackingState.LOST_TRACKING, "ring pose degenerate (zero normal)")
-        p_ring = [ring_rows[0][3], ring_rows[1][3], ring_rows[2][3]]
-        p_now = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
+        p_ring = out[_OUT_RING : _OUT_RING + 3]
+        p_now = out[_OUT_CAM : _OUT_CAM + 3]
         # cleared by the kernel, with its trace to the goal: only for the very pose it checked
         # (a subclass's ``_goal`` may change it; then the guard checks it here)
         cleared = (
-            self._step_out[_OUT_CLEARED] != 0.0
+            out[_OUT_CLEARED] != 0.0
             and goal is self._kernel_goal
             and goal[:3, 3].tolist() == self._kernel_p
         )
@@ -445,7 +578,10 @@ class _MovingPolicy:
             return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
         goal_rows = goal.tolist()
         p_goal = [goal_rows[0][3], goal_rows[1][3], goal_rows[2][3]]
-        margin = self.cone.margin(p_goal)
+        if goal is self._kernel_goal and p_goal == self._kernel_p:
+            margin = out[_OUT_MARGIN]  # the kernel's ConeWorkspace.margin of this very pose
+        else:
+            margin = self.cone.margin(p_goal)
         # Freeze when the goal leaves the cone; release only once it is FREEZE_RELEASE_MARGIN
         # inside, so a goal grazing the surface does not toggle the camera every step.
         release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0
@@ -463,18 +599,14 @@ class _MovingPolicy:
             )
         self._frozen_T = None
 
-        if self._last_goal is not None:
-            ref_p = self._last_goal_p
-        else:
-            ref_p = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
+        ref_p = self._last_goal_p if self._last_goal is not None else p_now
         jumped = math.dist(p_goal, ref_p) > cfg.jump_threshold
         self._last_goal = goal
         self._last_goal_p = p_goal
         if jumped and self._path is None:
-            p_cam = [cam_rows[0][3], cam_rows[1][3], cam_rows[2][3]]
             self._path = WaypointPath(
                 intermediate_waypoints(
-                    T_cam[:3, 3], np.array(p_goal), UP, self._lift(p_cam), self._lift(p_goal)
+                    T_cam[:3, 3], np.array(p_goal), UP, self._lift(p_now), self._lift(p_goal)
                 )
             )
             self._s = 0.0
@@ -493,7 +625,7 @@ class _MovingPolicy:
                 self._path = None  # arrived: back to plain tracking
             else:
                 p = self._path.point_at(self._s)
-                wp = self._clear(self._waypoint_pose(p, T_ring, goal), p_ring, p_now)
+                wp = self._cleared_waypoint(p, T_ring, goal, p_ring, p_now)
                 if wp is None:
                     self._path = None
                     self._last_goal = None
@@ -502,7 +634,6 @@ class _MovingPolicy:
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
         traced = None
         if cleared and cmd is goal:  # the plain path: no way-points
-            out = self._step_out.tolist()
             traced = (bool(out[_OUT_DETOUR]), (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2]))
         via = self._detoured(cmd, p_ring, p_now, traced)
         if via is not None:
@@ -538,6 +669,51 @@ class _MovingPolicy:
         """Pose at a way-point: look at the ring centre with a level horizon."""
         return look_at_unchecked(p, T_ring[:3, 3], goal, self._last_cmd)
 
+    def _cleared_waypoint(
+        self,
+        p: FloatArray,
+        T_ring: FloatArray,
+        goal: FloatArray,
+        p_ring: Sequence[float],
+        p_now: Sequence[float],
+    ) -> FloatArray | None:
+        """``_clear(_waypoint_pose(p, T_ring, goal), p_ring, p_now)``: the way-point's command.
+
+        ``p`` (3,) the way-point, ``T_ring`` (4, 4), ``goal`` (4, 4), ``p_ring`` (3,) the
+        ring centre, ``p_now`` (3,) the camera, world, m.
+        """
+        return self._clear(self._waypoint_pose(p, T_ring, goal), p_ring, p_now)
+
+
+class _LookingPolicy(_MovingPolicy):
+    """A moving policy whose way-point poses look at the ring centre (``_waypoint_pose``)."""
+
+    def _cleared_waypoint(
+        self,
+        p: FloatArray,
+        T_ring: FloatArray,
+        goal: FloatArray,
+        p_ring: Sequence[float],
+        p_now: Sequence[float],
+    ) -> FloatArray | None:
+        """The way-point's pose and the guard in one compiled call (``apply_look_at``)."""
+        guard = self.guard
+        if guard is None:
+            return self._waypoint_pose(p, T_ring, goal)
+        assert self._workspace is not None and self._last_cmd is not None  # set by reset()
+        q = p.tolist()
+        back_off = max(0.0, self.config.d_max - self.d_f)  # as _clear's
+        return guard.apply_look_at(
+            (q[0], q[1], q[2]),
+            (p_ring[0], p_ring[1], p_ring[2]),
+            goal,
+            self._last_cmd,
+            self._workspace,
+            (p_now[0], p_now[1], p_now[2]),
+            back_off,
+            check=False,
+        )
+
 
 class CenteringPolicy(_MovingPolicy):
     """Condition II: keep the initial orientation, put the ring centre on the optical axis."""
@@ -562,7 +738,7 @@ class CenteringPolicy(_MovingPolicy):
         return T
 
 
-class OrientationPolicy(_MovingPolicy):
+class OrientationPolicy(_LookingPolicy):
     """Condition III: the paper's orientation-aware camera (goal on the ring normal)."""
 
     name = "orientation"

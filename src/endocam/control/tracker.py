@@ -53,20 +53,25 @@ from endocam.control.config import ControllerConfig, SideRule, Transfer
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.policies import (
+    CAMERA_REASON,
+    CHECK_REASONS,
     DETOUR_REASON,
     FREEZE_RELEASE_MARGIN,
-    GATE_REASON,
     NO_GUARD,
+    OBS_CAMERA,
+    OBS_OK,
+    RING_REASON,
     WIRE_REASON,
     _MovingPolicy,
+    _observed_kernel,
+    observed,
+    pose_array,
 )
 from endocam.control.safety import (
-    STALE_REASON,
     Cone,
     adjusted_distance,
     cone_at,
     cone_margin,
-    is_stale,
     window_code_of,
 )
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
@@ -305,7 +310,9 @@ _N_PARAMS = _JUMP + 1
 _OUT_D, _OUT_FOUND, _OUT_SIDE, _OUT_MARGIN, _OUT_TWIST = range(5)
 _OUT_P, _OUT_N, _OUT_U = 5, 8, 11  # ring centre (m), normal, view direction: 3 each
 _OUT_CLEARED, _OUT_DETOUR, _OUT_VIA = 14, 15, 16  # the guard's answers on the plain path
-_N_OUT = 19
+_OUT_CAM = 19  # m, the observed camera position (3)
+_OUT_CHECK = 22  # the observation's checks (``policies.observed``: OBS_*)
+_N_OUT = 23
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -407,6 +414,12 @@ def _plan_kernel(
     count: np.ndarray,
     spacing: int,
     t: float,
+    check: bool,
+    has_t_ring: bool,
+    t_ring: float,
+    max_age: float,
+    gate: FloatArray,
+    bounds: FloatArray,
     horizon: float,
     dt: float,
     feedforward: bool,
@@ -429,11 +442,14 @@ def _plan_kernel(
     nref: np.ndarray,
     clearance: float,
 ) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
-    """:meth:`EndocamPolicy.step` from the working distance to the view and its twist.
+    """:meth:`EndocamPolicy.step` from the input checks to the view and its twist.
 
-    Working distance (the windows), prediction, shortening, side and view, the view's pose
-    and (speculatively) its feed-forward twist, with the interpreter's operations in its
-    order (docs/conventions.md, "Compiled kernels").
+    If ``check``: the input checks and the ring gate first (``policies.observed`` at ``t`` s,
+    the ring captured at ``t_ring`` s unless not ``has_t_ring``, ``max_age`` s, the gate's
+    ``state`` and ``bounds``), and an observation they refuse ends the step there with
+    ``out[_OUT_CHECK]`` its reason. Then working distance (the windows), prediction, shortening,
+    side and view, the view's pose and (speculatively) its feed-forward twist, with the
+    interpreter's operations in its order (docs/conventions.md, "Compiled kernels").
 
     ``T_cam``, ``T_ring`` (4, 4): camera and (checked) ring poses, world, m; ``tips`` (K, 3)
     world, m; ``previous`` (4, 4) the last goal or command. ``buf`` (L, 7), ``count`` (1,),
@@ -453,11 +469,21 @@ def _plan_kernel(
     Fills ``out`` (``_N_OUT``,): the new working distance (m), whether a view was found,
     its side, its pose's cone margin (m), whether a twist was computed, the predicted ring
     centre (m) and normal, the view direction, whether the guard found the view clear,
-    whether the move needs a detour and its way-point (m). Returns the view's pose (4, 4)
+    whether the move needs a detour and its way-point (m), the camera's position (m), the
+    checks' answer. Returns the view's pose (4, 4)
     and the goal's twist from the view to the next step's (6,): m/s, rad/s, world
     (meaningful when found, and when computed).
     """
     prm = params
+    cone = cone_at(prm, _CONE)
+    out[_OUT_CHECK] = OBS_OK
+    if check:
+        answer = observed(T_cam, T_ring, t, has_t_ring, t_ring, max_age, gate, bounds, cone, True)
+        if answer != OBS_OK:
+            out[_OUT_CHECK] = answer
+            return np.eye(4), np.zeros(6)
+    for i in range(3):
+        out[_OUT_CAM + i] = T_cam[i, 3]
     code = window_code_of(T_cam, tips, prm[_WINDOW : _WINDOW + 9])
     d_f = adjusted_distance(d_f, code, prm[_D_MIN], prm[_D_MAX], prm[_D_STEP])
     if given.shape[0] == 0:
@@ -467,7 +493,6 @@ def _plan_kernel(
     else:
         p_c, n = (given[0], given[1], given[2]), (given[3], given[4], given[5])
     aim_floor, half_b = prm[_AIM_FLOOR], prm[_HALF_B]
-    cone = cone_at(prm, _CONE)
     keep_side = prm[_KEEP_SIDE] != 0.0
     if code == 1 and keep_side and prm[_SHORTEN] != 0.0:
         d_f = _shortened_of(p_c, n, d_f, side, previous, tips, prm, cone)
@@ -550,6 +575,20 @@ def _plan_kernel(
     return view, twist
 
 
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _inside_kernel(T: FloatArray, params: FloatArray, floor: float) -> bool:  # pragma: no cover
+    """Whether the pose ``T`` (4, 4), world, m, is inside the cone and at or above ``floor`` (m).
+
+    ``ConeWorkspace.margin(p) >= 0`` (the cone stored in ``params``, :func:`_plan_kernel`'s)
+    and ``p[2] >= floor`` for its position ``p``.
+    """
+    a, axis, tan_half, cos_half, height = cone_at(params, _CONE)
+    p = (T[0, 3], T[1, 3], T[2, 3])
+    return cone_margin(p[0], p[1], p[2], a, axis, tan_half, cos_half, height) >= 0.0 and (
+        p[2] >= floor
+    )
+
+
 class EndocamPolicy(_MovingPolicy):
     """The paper's orientation goal with side keeping, orbits, prediction and left-eye centring.
 
@@ -582,6 +621,9 @@ class EndocamPolicy(_MovingPolicy):
         self._transfer = None
         self._half_b = 0.5 * context.camera.baseline if self.config.centre_left_eye else 0.0
         self._aim_floor = self.config.min_camera_height + tc.floor_clearance  # m, goals aim here
+        self._cmd_floor = self.config.min_camera_height - FLOOR_TOL_M  # m, commands stay above
+        g_lin, g_ang = tc.feedforward_gain
+        self._gains = np.array([g_lin, g_lin, g_lin, g_ang, g_ang, g_ang])  # the twist's gains
         self._horizon = context.sensing_latency + tc.carrier_lead if tc.predict else 0.0
         self.transfers = 0
         cfg, geometry = self.config, self._window_geometry
@@ -641,18 +683,34 @@ class EndocamPolicy(_MovingPolicy):
         return twist
 
     def _plan_view(
-        self, obs: Observation, p_obs: Vec, n_obs: Vec, previous: FloatArray
+        self, obs: Observation, T_cam: FloatArray, T_ring: FloatArray, previous: FloatArray
     ) -> tuple[list[float], FloatArray, FloatArray]:
-        """:func:`_plan_kernel` for an accepted observation (ring centre ``p_obs``, m, normal).
+        """:func:`_plan_kernel` for ``obs``, its camera and ring poses ``T_cam``, ``T_ring`` (4, 4).
 
-        Returns its scalar results (``_OUT_*``), the view's pose (4, 4) and its twist (6,).
+        Returns its scalar results (``_OUT_*``; ``_OUT_CHECK``: the checks' answer, the rest
+        unset unless ``OBS_OK``), the view's pose (4, 4) and its twist (6,).
         """
         ctx = self._ctx
         assert ctx is not None  # set by reset()
         pred = self._predictor
         feedforward = self.tracker.feedforward and self._horizon > 0.0 and ctx.follows_twist
         given = _NO_PREDICTIONS
+        gate, t_ring, t = self._gate, obs.t_ring, float(obs.t)
+        has_t_ring = t_ring is not None
+        t_ring = 0.0 if t_ring is None else float(t_ring)
+        max_age = self.config.ring_max_age
+        check = True
         if not isinstance(pred, RingPredictor):  # the oracle's: the true future
+            answer = _observed_kernel(
+                T_cam, T_ring, t, has_t_ring, t_ring, max_age, gate.state, gate.bounds,
+                self._params, _CONE, True,
+            )  # fmt: skip
+            if answer != OBS_OK:
+                self._out[_OUT_CHECK] = answer
+                return self._out.tolist(), T_cam, np.zeros(6)
+            check = False  # made
+            p_obs = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])
+            n_obs = unit_or_none((T_ring[0, 2], T_ring[1, 2], T_ring[2, 2]))
             pred.push(obs.t, p_obs, n_obs)
             p1, n1 = pred.predict(self._horizon)
             p2, n2 = pred.predict(self._horizon + ctx.dt)
@@ -662,14 +720,20 @@ class EndocamPolicy(_MovingPolicy):
         if not (isinstance(tips, np.ndarray) and tips.ndim == 2):
             tips = np.asarray(tips, dtype=float).reshape(-1, 3)
         view, twist = _plan_kernel(
-            np.asarray(obs.T_world_cam, dtype=float),
-            np.asarray(obs.T_world_ring, dtype=float),
+            T_cam,
+            T_ring,
             tips,
             previous,
             pred.buf,
             pred.count,
             pred.spacing,
-            obs.t,
+            t,
+            check,
+            has_t_ring,
+            t_ring,
+            max_age,
+            gate.state,
+            gate.bounds,
             self._horizon,
             ctx.dt,
             feedforward,
@@ -710,28 +774,25 @@ class EndocamPolicy(_MovingPolicy):
         if ctx is None:
             raise RuntimeError("call reset() before step()")
         cfg, tc = self.config, self.tracker
-        cam_rows = finite_rows(obs.T_world_cam)
-        if cam_rows is None:
-            return self._hold(TrackingState.LOST_TRACKING, "camera pose not finite; holding")
-        ring_rows = finite_rows(obs.T_world_ring)
-        if ring_rows is None:
-            return self._lose("ring pose missing or not finite")
-        if is_stale(obs.t, obs.t_ring, cfg.ring_max_age):
-            return self._lose(STALE_REASON)
-        R = ring_rows
-        n_obs = unit_or_none((R[0][2], R[1][2], R[2][2]))
-        if n_obs is None:
-            return self._lose("ring pose degenerate (zero normal)")
-        p_obs = (R[0][3], R[1][3], R[2][3])
-        if not self._gate.accept(obs.t, p_obs, n_obs):
-            return self._lose(GATE_REASON)
-        p_cam = (cam_rows[0][3], cam_rows[1][3], cam_rows[2][3])
+        T_cam = pose_array(obs.T_world_cam)
+        T_ring = pose_array(obs.T_world_ring)
+        if T_cam is None or (T_ring is None and finite_rows(T_cam) is None):
+            return self._hold(TrackingState.LOST_TRACKING, CAMERA_REASON)
+        if T_ring is None:
+            return self._lose(RING_REASON)
 
         previous = self._last_goal if self._last_goal is not None else self._last_cmd
         assert previous is not None  # set by reset()
         d_before = self.d_f
-        # the working distance, prediction, side, view and its twist: one compiled call
-        out, view, view_twist = self._plan_view(obs, p_obs, n_obs, previous)
+        # the checks (finite poses, a fresh ring pose, the gate), the working distance,
+        # prediction, side, view and its twist: one compiled call
+        out, view, view_twist = self._plan_view(obs, T_cam, T_ring, previous)
+        check = out[_OUT_CHECK]
+        if check != OBS_OK:
+            if check == OBS_CAMERA:
+                return self._hold(TrackingState.LOST_TRACKING, CAMERA_REASON)
+            return self._lose(CHECK_REASONS[int(check)])
+        p_cam = (out[_OUT_CAM], out[_OUT_CAM + 1], out[_OUT_CAM + 2])
         self.d_f = d = out[_OUT_D]
         p_c = (out[_OUT_P], out[_OUT_P + 1], out[_OUT_P + 2])
         margin = -math.inf
@@ -757,7 +818,7 @@ class EndocamPolicy(_MovingPolicy):
         release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0
         if goal is None or not margin >= release:
             if self._frozen_T is None:
-                self._frozen_T = np.asarray(obs.T_world_cam, dtype=float)
+                self._frozen_T = T_cam
             self._last_cmd = self._frozen_T
             return self._freeze(d_before, "no view of the ring inside the cone workspace")
         self._frozen_T = None
@@ -767,14 +828,13 @@ class EndocamPolicy(_MovingPolicy):
         side_before = self._side
         self._side = s
         self._last_goal = goal
-        p_goal = goal[:3, 3].tolist()
-        if side_changed or (fresh and math.dist(p_goal, p_cam) > cfg.jump_threshold):
+        if side_changed or (fresh and math.dist(goal[:3, 3].tolist(), p_cam) > cfg.jump_threshold):
             self._start(tc.side_transfer if side_changed else tc.first_approach, p_cam, p_c)
 
         state, reason = TrackingState.TRACKING, ""
         cmd, twist = goal, None
         if self._transfer is Transfer.ORBIT:
-            z_cam = (cam_rows[0][2], cam_rows[1][2], cam_rows[2][2])
+            z_cam = tuple(T_cam[:3, 2].tolist())
             orbit = self._orbit(p_c, u, d, p_cam, z_cam)
             if orbit is not None:
                 cmd = orbit
@@ -789,9 +849,7 @@ class EndocamPolicy(_MovingPolicy):
             twist = self._feedforward_twist(goal, view_twist)
         near_edge = goal[2, 3] <= self._aim_floor + FLOOR_TOL_M or margin < tc.floor_clearance
         if twist is not None and not near_edge and not adjusted:
-            g_lin, g_ang = tc.feedforward_gain
-            twist[:3] *= g_lin
-            twist[3:] *= g_ang
+            twist *= self._gains  # linear × g_lin, angular × g_ang (element by element)
         else:
             twist = None  # a goal at the floor or the cone arrives at rest: nothing carries it out
         if cmd is not goal:  # an orbit or way-point pose keeps the clearance too
@@ -900,10 +958,10 @@ class EndocamPolicy(_MovingPolicy):
     def _in_workspace(self, T_world_cmd: FloatArray) -> bool:
         """Whether a commanded pose (4, 4) is inside the cone and above the floor.
 
-        The last gate: computed here, independently of the compiled step's own margin.
+        The last gate: computed here (:func:`_inside_kernel`), independently of the compiled
+        step's own margin.
         """
-        p = T_world_cmd[:3, 3].tolist()
-        return self.cone.margin(p) >= 0.0 and p[2] >= self.config.min_camera_height - FLOOR_TOL_M
+        return bool(_inside_kernel(T_world_cmd, self._params, self._cmd_floor))
 
     @property
     def _ctx_dt(self) -> float:

@@ -16,7 +16,9 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+from numba import njit
 
+from endocam.blasfloat import dot3
 from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
 from endocam.control.registry import POLICIES, make_policy
@@ -365,13 +367,20 @@ def run_episode(
 _MIN_LOOK_M = 1e-3  # m: a ring closer than this along the optical axis gives no look-at point
 
 
-def _look_distance(T_world_cmd: FloatArray, T_world_ring: FloatArray, d_f: float) -> float:
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _look_distance(
+    T_world_cmd: FloatArray, T_world_ring: FloatArray, d_f: float
+) -> float:  # pragma: no cover - compiled
     """Depth of the (sensed) ring centre along a commanded optical axis, m; else ``d_f``.
 
     The nearest feasible view of a command turns about the point the command looks at: the
     ring centre for the tracking goal (at ``d_f``) and for the way-point poses (farther).
+    ``T_world_cmd``, ``T_world_ring`` (4, 4), world, m. The depth is numpy's
+    ``(T_world_ring[:3, 3] - T_world_cmd[:3, 3]) @ T_world_cmd[:3, 2]`` (BLAS ``ddot``:
+    :func:`endocam.blasfloat.dot3`), the same float (``tests/test_runner_kernels.py``).
     """
-    depth = float((T_world_ring[:3, 3] - T_world_cmd[:3, 3]) @ T_world_cmd[:3, 2])
+    R, C = T_world_ring, T_world_cmd
+    depth = dot3(R[0, 3] - C[0, 3], R[1, 3] - C[1, 3], R[2, 3] - C[2, 3], C[0, 2], C[1, 2], C[2, 2])
     return depth if depth > _MIN_LOOK_M and math.isfinite(depth) else d_f
 
 
