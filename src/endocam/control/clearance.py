@@ -45,18 +45,22 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
 from endocam.camera import SCOPE_RADIUS
-from endocam.control.safety import Workspace, cone_margin
+from endocam.control.cone import cone_margin
 from endocam.geometry import FloatArray
 from endocam.kernels import Vec, cross, dot, norm, py_max, py_min, reject, scaled, unit_checked
 from endocam.pyfloat import dist3
 from endocam.task.wire import Wire, _surface_query
 from endocam.view import rotation_columns
+
+if TYPE_CHECKING:  # (safety imports this module's kernels)
+    from endocam.control.safety import Workspace
 
 CLEARANCE_MARGIN = 2.0e-3  # m, beyond the scope's radius: the carriers' tracking deviation
 WIRE_CLEARANCE = SCOPE_RADIUS + CLEARANCE_MARGIN  # m, ControllerConfig.wire_clearance default

@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from endocam.camera import MIN_DEPTH, StereoCamera
 from endocam.control.clearance import CACHE_SIZE, _distance, _first_outside
+from endocam.control.cone import cone_margin
 from endocam.geometry import FloatArray, as_vector3, unit_vector
 from endocam.kernels import py_max, py_min
 from endocam.pyfloat import dist3
@@ -54,34 +55,6 @@ def _first_outside_kernel(
         if not py_min(margin, z - floor) >= 0.0:
             return i
     return p.shape[0]
-
-
-@register_jitable  # also callable from compiled kernels (the same source)
-def cone_margin(
-    x: float,
-    y: float,
-    z: float,
-    apex: tuple[float, ...],
-    axis: tuple[float, ...],
-    tan_half: float,
-    cos_half: float,
-    height: float,
-) -> float:
-    """:meth:`ConeWorkspace.margin` of the point ``(x, y, z)``, world, m: > 0 inside, m.
-
-    ``apex`` (3,) world, m; ``axis`` (3,) unit, world; ``tan_half``, ``cos_half``: of the
-    half-angle; ``height`` m. NaN for a non-finite point.
-    """
-    a = apex
-    k = axis
-    d0, d1, d2 = x - a[0], y - a[1], z - a[2]
-    h = d0 * k[0] + d1 * k[1] + d2 * k[2]
-    r0, r1, r2 = d0 - h * k[0], d1 - h * k[1], d2 - h * k[2]
-    radial = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-    lateral = (h * tan_half - radial) * cos_half
-    if not math.isfinite(h + radial):
-        return math.nan
-    return py_min(py_min(lateral, height - h), h)  # Python's min(lateral, height - h, h)
 
 
 Cone = tuple[tuple[float, float, float], tuple[float, float, float], float, float, float]

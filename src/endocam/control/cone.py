@@ -1,0 +1,44 @@
+"""The cone workspace's signed margin (paper Sec. III-C): one source, interpreted and compiled.
+
+Its own module so that both :mod:`endocam.control.safety` (the cone, the workspace) and
+:mod:`endocam.control.clearance` (whose compiled search checks the workspace's feasibility)
+import it without importing each other; ``control.safety.cone_margin`` is the same function.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba.extending import register_jitable
+
+from endocam.kernels import py_min
+
+__all__ = ["cone_margin"]
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def cone_margin(
+    x: float,
+    y: float,
+    z: float,
+    apex: tuple[float, ...],
+    axis: tuple[float, ...],
+    tan_half: float,
+    cos_half: float,
+    height: float,
+) -> float:
+    """:meth:`ConeWorkspace.margin` of the point ``(x, y, z)``, world, m: > 0 inside, m.
+
+    ``apex`` (3,) world, m; ``axis`` (3,) unit, world; ``tan_half``, ``cos_half``: of the
+    half-angle; ``height`` m. NaN for a non-finite point.
+    """
+    a = apex
+    k = axis
+    d0, d1, d2 = x - a[0], y - a[1], z - a[2]
+    h = d0 * k[0] + d1 * k[1] + d2 * k[2]
+    r0, r1, r2 = d0 - h * k[0], d1 - h * k[1], d2 - h * k[2]
+    radial = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    lateral = (h * tan_half - radial) * cos_half
+    if not math.isfinite(h + radial):
+        return math.nan
+    return py_min(py_min(lateral, height - h), h)  # Python's min(lateral, height - h, h)
