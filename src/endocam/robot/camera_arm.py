@@ -36,9 +36,10 @@ import numpy as np
 import ruckig
 from numba import njit
 
+from endocam.blasfloat import dot3, matmul4, matvec3
 from endocam.camera import StereoCamera
 from endocam.geometry import UP, FloatArray, as_pose, invert_pose
-from endocam.kernels import cross, py_max, py_min, rotation_angle, so3_exp
+from endocam.kernels import _SMALL_ANGLE, cross, py_max, py_min, rotation_angle
 from endocam.pyfloat import dist3, hypot2
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import (
@@ -58,12 +59,16 @@ from endocam.robot.dh import (
     pose12_between,
     pose12_from_matrix,
 )
+from endocam.robot.ecm import _DONE as _ECM_DONE
 from endocam.robot.ecm import ECM
+from endocam.robot.ecm import _exact_kernel as _ecm_exact_kernel
+from endocam.robot.ecm import _solve_kernel as _ecm_solve_kernel
 from endocam.robot.kinematics import RcmArm
 from endocam.robot.psm import PSM
+from endocam.robot.psm import _exact_kernel as _psm_exact_kernel
 from endocam.task.config import TaskConfig
 from endocam.task.layout import FramingError, port_view
-from endocam.view import look_at_unchecked, rotation_looking_along, vec
+from endocam.view import look_at_columns, rotation_looking_along, vec
 
 __all__ = [
     "ARM_START_GAP",
@@ -151,27 +156,10 @@ def view_towards_port(
     (4, 4) ndarray
         The turned pose, m. ``T_world_cam`` itself when the look-at point is at the port.
     """
-    rotvec = _port_rotvec(T_world_cam, look_distance, p_world_rcm)
-    if rotvec is None:
+    found, r0, r1, r2 = _port_rotvec_kernel(T_world_cam, look_distance, p_world_rcm)
+    if not found:
         return np.array(T_world_cam, dtype=float)
-    return _turned(T_world_cam, look_distance, rotvec, fraction)
-
-
-def _port_rotvec(T: FloatArray, look_distance: float, p_rcm: FloatArray) -> FloatArray | None:
-    """Rotation vector (3,), rad, taking the optical axis onto the port direction."""
-    z = T[:3, 2]
-    v = T[:3, 3] + look_distance * z - p_rcm
-    norm_v = _norm(v)
-    if norm_v <= _EPS_AXIS:
-        return None
-    v = v / norm_v
-    axis = _cross(z.tolist(), v.tolist())
-    sin_t, cos_t = _norm(axis), float(z @ v)
-    if sin_t <= _EPS_AXIS:
-        if cos_t > 0.0:
-            return np.zeros(3)
-        axis, sin_t = T[:3, 1].copy(), 1.0  # looking straight at the port: pan about image y
-    return axis * (math.atan2(sin_t, cos_t) / sin_t)
+    return _turned_kernel(T_world_cam, look_distance, r0, r1, r2, fraction)
 
 
 def _norm(v: FloatArray) -> float:
@@ -183,20 +171,276 @@ def _norm(v: FloatArray) -> float:
     return math.sqrt(v.dot(v))
 
 
-def _cross(a: list[float], b: list[float]) -> FloatArray:
-    """``np.cross`` of two 3-vectors (the same products and differences) on Python floats."""
-    return np.array(cross((a[0], a[1], a[2]), (b[0], b[1], b[2])), dtype=float)
+# CameraArm._frames: the (4, 4, 4) poses its kernels take (m)
+_F_WORLD_RCM, _F_RCM_WORLD, _F_TIP_CAM, _F_CAM_TIP = 0, 1, 2, 3
 
 
-def _turned(T: FloatArray, look_distance: float, rotvec: FloatArray, fraction: float) -> FloatArray:
-    """``T`` moved about its look-at point by ``fraction`` of ``rotvec``, horizon re-levelled."""
-    R_turn = so3_exp([fraction * x for x in rotvec.tolist()])
-    t = T.tolist()  # plain floats: numpy's element-wise products and sums, the same floats
-    z = [t[0][2], t[1][2], t[2][2]]
-    z_t = [R_turn[i][0] * z[0] + R_turn[i][1] * z[1] + R_turn[i][2] * z[2] for i in range(3)]
-    c = [t[i][3] + look_distance * z[i] for i in range(3)]
-    p_t = [c[i] - look_distance * z_t[i] for i in range(3)]
-    return look_at_unchecked(np.array(p_t), np.array(c), T, T)
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _so3_exp(x: float, y: float, z: float) -> FloatArray:
+    """:func:`endocam.kernels.so3_exp` of the rotation vector ``(x, y, z)`` (rad): (3, 3).
+
+    The same floats (Rodrigues' formula, the same products in the same order), as an array.
+    """
+    a2 = x * x + y * y + z * z
+    if a2 < _SMALL_ANGLE * _SMALL_ANGLE:
+        s, c = 1.0, 0.5  # sin(a)/a and (1 − cos a)/a² to first order
+    else:
+        a = math.sqrt(a2)
+        s, c = math.sin(a) / a, (1.0 - math.cos(a)) / a2
+    R = np.empty((3, 3))
+    R[0, 0], R[0, 1], R[0, 2] = 1.0 - c * (y * y + z * z), c * x * y - s * z, c * x * z + s * y
+    R[1, 0], R[1, 1], R[1, 2] = c * x * y + s * z, 1.0 - c * (x * x + z * z), c * y * z - s * x
+    R[2, 0], R[2, 1], R[2, 2] = c * x * z - s * y, c * y * z + s * x, 1.0 - c * (x * x + y * y)
+    return R
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _port_rotvec_kernel(
+    T: FloatArray, look_distance: float, p_rcm: FloatArray
+) -> tuple[bool, float, float, float]:
+    """The rotation vector (rad) taking a camera's optical axis onto the port direction.
+
+    ``T`` (4, 4): the camera, world, m; ``p_rcm`` (3,): the port, world, m. ``(False, …)``
+    when the look-at point (``look_distance`` ahead on z, m) is at the port. numpy's floats
+    (``np.linalg.norm`` and ``@`` through :mod:`endocam.blasfloat`'s dot).
+    """
+    z0, z1, z2 = T[0, 2], T[1, 2], T[2, 2]
+    v0 = T[0, 3] + look_distance * z0 - p_rcm[0]
+    v1 = T[1, 3] + look_distance * z1 - p_rcm[1]
+    v2 = T[2, 3] + look_distance * z2 - p_rcm[2]
+    norm_v = math.sqrt(dot3(v0, v1, v2, v0, v1, v2))
+    if norm_v <= _EPS_AXIS:
+        return False, 0.0, 0.0, 0.0
+    v0, v1, v2 = v0 / norm_v, v1 / norm_v, v2 / norm_v
+    a0, a1, a2 = cross((z0, z1, z2), (v0, v1, v2))
+    sin_t, cos_t = math.sqrt(dot3(a0, a1, a2, a0, a1, a2)), dot3(z0, z1, z2, v0, v1, v2)
+    if sin_t <= _EPS_AXIS:
+        if cos_t > 0.0:
+            return True, 0.0, 0.0, 0.0
+        a0, a1, a2, sin_t = T[0, 1], T[1, 1], T[2, 1], 1.0  # straight at the port: pan about y
+    k = math.atan2(sin_t, cos_t) / sin_t
+    return True, a0 * k, a1 * k, a2 * k
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _look_at_matrix(
+    p: tuple[float, float, float], c: tuple[float, float, float], T: FloatArray
+) -> FloatArray:
+    """:func:`~endocam.view.look_at_unchecked` from ``p`` at ``c`` (world, m), rolled as ``T``.
+
+    A (4, 4) pose, m; a copy of ``T`` (4, 4) when the two points coincide.
+    """
+    found, x, y, z = look_at_columns(p, c, (T[0, 0], T[1, 0], T[2, 0]))
+    out = np.empty((4, 4))
+    if not found:
+        out[:] = T
+        return out
+    for i in range(3):
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x[i], y[i], z[i], p[i]
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
+    return out
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _turned_kernel(
+    T: FloatArray, look_distance: float, r0: float, r1: float, r2: float, fraction: float
+) -> FloatArray:
+    """``T`` (4, 4) moved about its look-at point by ``fraction`` of the rotation ``r`` (rad).
+
+    The look-at point is ``look_distance`` (m) ahead on the optical axis; the horizon is
+    levelled again (rolled as ``T`` near vertical). A new (4, 4) pose, world, m.
+    """
+    R = _so3_exp(fraction * r0, fraction * r1, fraction * r2)
+    z0, z1, z2 = T[0, 2], T[1, 2], T[2, 2]
+    zt0 = R[0, 0] * z0 + R[0, 1] * z1 + R[0, 2] * z2
+    zt1 = R[1, 0] * z0 + R[1, 1] * z1 + R[1, 2] * z2
+    zt2 = R[2, 0] * z0 + R[2, 1] * z1 + R[2, 2] * z2
+    c0 = T[0, 3] + look_distance * z0
+    c1 = T[1, 3] + look_distance * z1
+    c2 = T[2, 3] + look_distance * z2
+    p = (c0 - look_distance * zt0, c1 - look_distance * zt1, c2 - look_distance * zt2)
+    return _look_at_matrix(p, (c0, c1, c2), T)
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _between12(frames: FloatArray, T: FloatArray) -> Pose12:
+    """The tool tip's goal in the RCM frame (12 floats, m) of a camera pose ``T`` (4, 4), world.
+
+    :func:`~endocam.robot.dh.pose12_between` of ``T_rcm_world``, ``T``, ``T_cam_tip``.
+    """
+    A, B = frames[_F_RCM_WORLD], frames[_F_CAM_TIP]
+    pre12 = (
+        A[0, 0], A[0, 1], A[0, 2], A[1, 0], A[1, 1], A[1, 2], A[2, 0], A[2, 1], A[2, 2],
+        A[0, 3], A[1, 3], A[2, 3],
+    )  # fmt: skip
+    post = (
+        (B[0, 0], B[0, 1], B[0, 2], B[0, 3]),
+        (B[1, 0], B[1, 1], B[1, 2], B[1, 3]),
+        (B[2, 0], B[2, 1], B[2, 2], B[2, 3]),
+    )
+    return pose12_between(pre12, T, post)
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _exact_into(
+    psm: bool,
+    params: FloatArray,
+    consts: FloatArray,
+    frames: FloatArray,
+    T: FloatArray,
+    seed0: float,
+    seed3: float,
+    two: float,
+    out: FloatArray,
+) -> bool:
+    """:meth:`CameraArm._exact`: the exact joints of a camera pose ``T`` (4, 4), world, m.
+
+    The arm's compiled exact IK (the PSM's, ``psm`` True, or the ECM's; ``params``, ``consts``:
+    its chain's parameters and its constants; seeded by joints 0 and 3 of the measured ones,
+    rad; ``two``: 2.0) of the tip goal :func:`_between12`. True and the joints (rad / m) in
+    ``out`` (n,) if they exist; False (``out`` untouched) if not.
+    """
+    goal12 = _between12(frames, T)
+    if psm:
+        ok, q6 = _psm_exact_kernel(params, consts, goal12, seed0, seed3, two)
+        if ok:
+            for i in range(6):
+                out[i] = q6[i]
+        return ok
+    ok4, q4 = _ecm_exact_kernel(params, consts, goal12, seed3, two)
+    if ok4:
+        for i in range(4):
+            out[i] = q4[i]
+    return ok4
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _tip_goal12(frames: FloatArray, T: FloatArray) -> Pose12:
+    """``T_rcm_world @ T @ T_cam_tip`` (numpy's floats) as 12 floats, m: the tip's goal."""
+    A, B = np.empty((4, 4)), np.empty((4, 4))
+    matmul4(frames[_F_RCM_WORLD], T, A)
+    matmul4(A, frames[_F_CAM_TIP], B)
+    return (
+        B[0, 0], B[0, 1], B[0, 2], B[1, 0], B[1, 1], B[1, 2], B[2, 0], B[2, 1], B[2, 2],
+        B[0, 3], B[1, 3], B[2, 3],
+    )  # fmt: skip
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _reached(frames: FloatArray, T12: Pose12) -> FloatArray:
+    """``T_world_rcm @ T_rcm_tip @ T_tip_cam`` (numpy's floats): the camera (4, 4), world, m.
+
+    ``T12``: the tip in the RCM frame (12 floats, m).
+    """
+    T = np.empty((4, 4))
+    for i in range(3):
+        T[i, 0], T[i, 1], T[i, 2], T[i, 3] = T12[3 * i], T12[3 * i + 1], T12[3 * i + 2], T12[9 + i]
+    T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
+    A, out = np.empty((4, 4)), np.empty((4, 4))
+    matmul4(frames[_F_WORLD_RCM], T, A)
+    matmul4(A, frames[_F_TIP_CAM], out)
+    return out
+
+
+# _ecm_target_kernel's outcomes: the answer (exact, the port view, the nearest pose), or the
+# nearest in-limit position is needed (scipy, in Python) for the port view or for the goal
+_TARGET_EXACT, _TARGET_VIEW, _TARGET_NEAREST, _TARGET_PORT_SCIPY, _TARGET_GOAL_SCIPY = range(5)
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _ecm_target_kernel(
+    params: FloatArray,
+    consts: FloatArray,
+    frames: FloatArray,
+    p_rcm: FloatArray,
+    T_goal: FloatArray,
+    look_distance: float,
+    seed3: float,
+    two: float,
+) -> tuple[int, tuple[float, float, float, float], FloatArray]:
+    """:meth:`CameraArm.target` on the ECM: ``(outcome, q, T)``, one of ``_TARGET_*``.
+
+    ``_TARGET_EXACT``: the goal ``T_goal`` (4, 4, world, m) is exact, ``q`` its joints (rad /
+    m) and ``T`` a copy of it; ``_TARGET_VIEW``: the port view of the goal's look-at point
+    (``look_distance`` ahead, m; ``p_rcm`` (3,): the port, m) is reached (within
+    ``VIEW_POSITION_TOL_M``), ``q`` its joints and ``T`` the camera there; ``_TARGET_NEAREST``:
+    the nearest configuration of the goal, ``q`` and its camera ``T``. ``_TARGET_PORT_SCIPY``
+    (``T``: the port view) and ``_TARGET_GOAL_SCIPY``: the ECM's IK needs its nearest in-limit
+    position (scipy): the caller goes on from there. The ECM's compiled IK
+    (:func:`~endocam.robot.ecm._exact_kernel`, ``_solve_kernel``; ``seed3``: the measured
+    roll, rad; ``two``: 2.0) and numpy's products (:mod:`endocam.blasfloat`).
+    """
+    ok, q = _ecm_exact_kernel(params, consts, _between12(frames, T_goal), seed3, two)
+    if ok:
+        return _TARGET_EXACT, q, T_goal.copy()
+    found, r0, r1, r2 = _port_rotvec_kernel(T_goal, look_distance, p_rcm)
+    if found:
+        T_port = _turned_kernel(T_goal, look_distance, r0, r1, r2, 1.0)
+        goal = _tip_goal12(frames, T_port)
+        outcome, _, q, pos_err, _, T12, _ = _ecm_solve_kernel(
+            params, consts, goal, seed3, two, None
+        )
+        if outcome != _ECM_DONE:
+            return _TARGET_PORT_SCIPY, q, T_port
+        if pos_err <= VIEW_POSITION_TOL_M:
+            return _TARGET_VIEW, q, _reached(frames, T12)
+    goal = _tip_goal12(frames, T_goal)
+    outcome, _, q, _, _, T12, _ = _ecm_solve_kernel(params, consts, goal, seed3, two, None)
+    if outcome != _ECM_DONE:
+        return _TARGET_GOAL_SCIPY, q, T_goal.copy()
+    return _TARGET_NEAREST, q, _reached(frames, T12)
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _path_kernel(
+    psm: bool,
+    params: FloatArray,
+    consts: FloatArray,
+    frames: FloatArray,
+    T_cam: FloatArray,
+    T_target: FloatArray,
+    look_distance: float,
+    seed0: float,
+    seed3: float,
+    two: float,
+    out: FloatArray,
+) -> bool:
+    """:meth:`CameraArm._path_target`: whether the camera-space path is taken, its joints.
+
+    ``T_cam``, ``T_target`` (4, 4): the camera and its target, world, m; ``look_distance``:
+    m. True, with the exact joints (rad / m) of the path's next pose in ``out`` (n,), when
+    the path is taken (:func:`_path_engage_kernel`) and the arm reaches that pose exactly
+    (:func:`_exact_into`; ``psm``, ``params``, ``consts``, ``frames``, the seeds and ``two``
+    as there). numpy's floats for its products (:mod:`endocam.blasfloat`).
+    """
+    engage, r_cur, alpha, u0, u1, u2, c0, c1, c2 = _path_engage_kernel(
+        T_cam, T_target, look_distance
+    )
+    if not engage:
+        return False
+    g0, g1, g2 = -T_target[0, 2], -T_target[1, 2], -T_target[2, 2]
+    a0, a1, a2 = cross((u0, u1, u2), (g0, g1, g2))
+    sin_a = math.sqrt(dot3(a0, a1, a2, a0, a1, a2))
+    cos_a = dot3(u0, u1, u2, g0, g1, g2)
+    ang = math.atan2(sin_a, cos_a)
+    if sin_a > _EPS_AXIS:
+        k = alpha * ang / sin_a
+        r0, r1, r2 = a0 * k, a1 * k, a2 * k
+    elif cos_a > 0.0:
+        r0, r1, r2 = 0.0, 0.0, 0.0
+    else:  # opposite: over the top
+        k0, k1, k2 = cross((u0, u1, u2), (0.0, 0.0, 1.0))
+        k_norm = math.sqrt(dot3(k0, k1, k2, k0, k1, k2))
+        if not k_norm > _EPS_AXIS:
+            return False
+        k = alpha * ang / k_norm
+        r0, r1, r2 = k0 * k, k1 * k, k2 * k
+    R = _so3_exp(r0, r1, r2)
+    r = r_cur + alpha * (look_distance - r_cur)
+    w0, w1, w2 = matvec3(R, (u0, u1, u2))
+    p = (c0 + r * w0, c1 + r * w1, c2 + r * w2)
+    T_via = _look_at_matrix(p, (c0, c1, c2), T_target)
+    return _exact_into(psm, params, consts, frames, T_via, seed0, seed3, two, out)
 
 
 class CameraArm:
@@ -259,6 +503,14 @@ class CameraArm:
         self._pose_consts = np.array(
             [*self._world_rcm12, *T_last_cam[:3].ravel().tolist(), *self._p_rcm_list]
         )
+        # the kernels' arm state: its poses (_F_*), its IK's constants, an output row
+        self._frames = np.ascontiguousarray(
+            [self._T_world_rcm, self._T_rcm_world, self._T_tip_cam, self._T_cam_tip], dtype=float
+        )
+        self._is_psm = kind is ArmKind.PSM
+        self._ik_params = self.model.chain._param_array
+        self._ik_consts: FloatArray = self.model._consts  # type: ignore[attr-defined]
+        self._q_out = np.empty(self.model.n_joints)
         self._arm = SimulatedArm(self.model, dt=dt, q0=natural_pose(self.model))
         self._q = self._arm.measured_js()[0]
         self._T_cam = self.camera_pose(self._q)
@@ -367,9 +619,17 @@ class CameraArm:
         return self._T_rcm_world @ T_world_cam @ self._T_cam_tip
 
     def _exact(self, T_world_cam: FloatArray) -> list[float] | None:
-        """The exact joints (rad / m) of a camera pose (4, 4), world, m; ``None`` if none."""
-        goal12 = pose12_between(self._rcm_world12, T_world_cam, self._cam_tip_rows)
-        return self.model.exact12_unchecked(goal12, self._q)
+        """The exact joints (rad / m) of a camera pose (4, 4), world, m; ``None`` if none.
+
+        One compiled call (:func:`_exact_into`), seeded by the measured joints.
+        """
+        q, out = self._q, self._q_out
+        if _exact_into(
+            self._is_psm, self._ik_params, self._ik_consts, self._frames, T_world_cam,
+            q[0], q[3], 2.0, out,
+        ):  # fmt: skip
+            return out.tolist()
+        return None
 
     def target(
         self, T_world_goal: FloatArray, look_distance: float
@@ -391,33 +651,60 @@ class CameraArm:
             The camera pose of ``q``'s goal: the goal, or the view put in its place, m.
         status : ActuatorStatus
         """
+        if not self._is_psm:
+            return self._ecm_target(T_world_goal, look_distance)
         q = self._exact(T_world_goal)
         if q is not None:
             self._k_prev = None
             T_target = np.array(T_world_goal, dtype=float)  # not the caller's array
             T_target.setflags(write=False)
             return q, T_target, ActuatorStatus.EXACT
-        rotvec = _port_rotvec(T_world_goal, look_distance, self._p_world_rcm)
-        if rotvec is not None:
-            if self.kind is ArmKind.ECM:
-                # the 4-DoF scope's only view of that point; a roll beyond its limits is
-                # conceded too (the horizon tilts), as long as the view itself is reached
-                T_port = _turned(T_world_goal, look_distance, rotvec, 1.0)
-                port = self.model.solve_unchecked(self._tip_goal(T_port), self._q)
-                if port.position_error <= VIEW_POSITION_TOL_M:
-                    T_reached = self._T_world_rcm @ port.T_rcm_tip @ self._T_tip_cam
-                    return port.q.tolist(), T_reached, ActuatorStatus.VIEW
-            else:
-                found = self._view_search(T_world_goal, look_distance, rotvec)
-                if found is not None:
-                    return found[0], found[1], ActuatorStatus.VIEW
+        found, r0, r1, r2 = _port_rotvec_kernel(T_world_goal, look_distance, self._p_world_rcm)
+        if found:
+            view = self._view_search(T_world_goal, look_distance, (r0, r1, r2))
+            if view is not None:
+                return view[0], view[1], ActuatorStatus.VIEW
+        return self._nearest(T_world_goal)
+
+    def _nearest(self, T_world_goal: FloatArray) -> tuple[list[float], FloatArray, ActuatorStatus]:
+        """The nearest configuration of a camera goal (4, 4), world, m, and its camera, m."""
         self._k_prev = None
         result = self.model.solve_unchecked(self._tip_goal(T_world_goal), self._q)
         T_near = self._T_world_rcm @ result.T_rcm_tip @ self._T_tip_cam
         return result.q.tolist(), T_near, ActuatorStatus.NEAREST
 
+    def _ecm_target(
+        self, T_world_goal: FloatArray, look_distance: float
+    ) -> tuple[list[float], FloatArray, ActuatorStatus]:
+        """:meth:`target` on the ECM: one compiled call (:func:`_ecm_target_kernel`).
+
+        The 4-DoF scope's only view of the goal's look-at point is its port view; a roll
+        beyond its limits is conceded too (the horizon tilts), as long as the view itself is
+        reached. scipy's nearest in-limit position, when the IK needs it, is found here.
+        """
+        q = self._q
+        outcome, q_new, T = _ecm_target_kernel(
+            self._ik_params, self._ik_consts, self._frames, self._p_world_rcm, T_world_goal,
+            look_distance, q[3], 2.0,
+        )  # fmt: skip
+        if outcome == _TARGET_EXACT:
+            self._k_prev = None
+            T.setflags(write=False)
+            return list(q_new), T, ActuatorStatus.EXACT
+        if outcome == _TARGET_VIEW:
+            return list(q_new), T, ActuatorStatus.VIEW
+        if outcome == _TARGET_NEAREST:
+            self._k_prev = None
+            return list(q_new), T, ActuatorStatus.NEAREST
+        if outcome == _TARGET_PORT_SCIPY:  # T: the port view
+            port = self.model.solve_unchecked(self._tip_goal(T), self._q)
+            if port.position_error <= VIEW_POSITION_TOL_M:
+                T_reached = self._T_world_rcm @ port.T_rcm_tip @ self._T_tip_cam
+                return port.q.tolist(), T_reached, ActuatorStatus.VIEW
+        return self._nearest(T_world_goal)
+
     def _view_search(
-        self, T_goal: FloatArray, look_distance: float, rotvec: FloatArray
+        self, T_goal: FloatArray, look_distance: float, rotvec: tuple[float, float, float]
     ) -> tuple[list[float], FloatArray] | None:
         """A locally smallest reachable turn ``k / VIEW_STEPS`` towards the port view.
 
@@ -433,10 +720,11 @@ class CameraArm:
         boundary jumps).
         """
         cache: dict[int, tuple[list[float], FloatArray] | None] = {}
+        r0, r1, r2 = rotvec
 
         def reach(k: int) -> tuple[list[float], FloatArray] | None:
             if k not in cache:
-                T = _turned(T_goal, look_distance, rotvec, k / VIEW_STEPS)
+                T = _turned_kernel(T_goal, look_distance, r0, r1, r2, k / VIEW_STEPS)
                 q = self._exact(T)
                 cache[k] = None if q is None else (q, T)
             return cache[k]
@@ -500,34 +788,13 @@ class CameraArm:
         move towards it for one step, so a far target is reached along the path instead of the
         straight joint-space line (whose view swings away from ``c``).
         """
-        engage, r_cur, alpha, u0, u1, u2, c0, c1, c2 = _path_engage_kernel(
-            self._T_cam, T_target, look_distance
-        )
-        if not engage:
-            return None
-        u, c = [u0, u1, u2], [c0, c1, c2]
-        z_t = [float(T_target[0, 2]), float(T_target[1, 2]), float(T_target[2, 2])]
-        c_arr = np.array(c)
-        u_cur = np.array(u)
-        u_goal = -np.array(z_t)
-        axis = _cross(u, [-x for x in z_t])
-        sin_a = _norm(axis)
-        ang = math.atan2(sin_a, float(u_cur @ u_goal))
-        if sin_a > _EPS_AXIS:
-            rotvec = axis * (alpha * ang / sin_a)
-        elif u_cur @ u_goal > 0.0:
-            rotvec = np.zeros(3)
-        else:  # opposite: over the top
-            k = _cross(u, [0.0, 0.0, 1.0])
-            k_norm = _norm(k)
-            if not k_norm > _EPS_AXIS:
-                return None
-            rotvec = k * (alpha * ang / k_norm)
-        R = np.array(so3_exp(rotvec.tolist()))
-        r = r_cur + alpha * (look_distance - r_cur)
-        p = c_arr + r * (R @ u_cur)
-        T_via = look_at_unchecked(p, c_arr, T_target, T_target)
-        return self._exact(T_via)
+        q, out = self._q, self._q_out
+        if _path_kernel(
+            self._is_psm, self._ik_params, self._ik_consts, self._frames, self._T_cam, T_target,
+            look_distance, q[0], q[3], 2.0, out,
+        ):  # fmt: skip
+            return out.tolist()
+        return None
 
     def reset(self, T_world_cam: object, look_distance: float | None = None) -> FloatArray:
         """Place the arm, at rest, at the configuration nearest to a camera pose.
