@@ -30,8 +30,8 @@ from endocam.robot.camera_arm import (
     _look_at_matrix,
     _path_engage_kernel,
     _port_rotvec_kernel,
-    _pose_angle_kernel,
     _so3_exp,
+    _target_error_kernel,
     _turned_kernel,
     arm_model,
     natural_pose,
@@ -399,12 +399,16 @@ def test_arm_cycle_is_the_interpreted_one(kind: ArmKind) -> None:
     assert stops > 0
 
 
-def test_pose_angle_is_the_interpreted_rotation_angle() -> None:
+def test_target_error_is_the_interpreted_one() -> None:
+    """``CameraArm.step``'s errors as they were: numpy's norm, the interpreted rotation angle."""
     rng = np.random.default_rng(31)
     for _ in range(5000):
         A = make_pose(Rotation.random(random_state=rng).as_matrix(), rng.normal(0.0, 0.1, 3))
         turn = rng.normal(0.0, 1.0, 3) * rng.choice([1e-9, 1e-4, 0.1, 3.0])
-        B = make_pose(Rotation.from_rotvec(turn).as_matrix() @ A[:3, :3], A[:3, 3])
-        expected = rotation_angle(A[:3, :3].tolist(), B[:3, :3].tolist())
-        assert _pose_angle_kernel(A, B, 2.0) == expected
-        assert _pose_angle_kernel(B, B, 2.0) == rotation_angle(B.tolist(), B.tolist())
+        shift = rng.normal(0.0, 0.01, 3) * rng.choice([0.0, 1e-9, 1.0])
+        B = make_pose(Rotation.from_rotvec(turn).as_matrix() @ A[:3, :3], A[:3, 3] + shift)
+        d = A[:3, 3] - B[:3, 3]
+        expected = (math.sqrt(d.dot(d)), rotation_angle(A[:3, :3].tolist(), B[:3, :3].tolist()))
+        assert _target_error_kernel(A, B, 2.0) == expected
+        assert expected[0] == float(np.linalg.norm(d))
+        assert _target_error_kernel(B, B, 2.0) == (0.0, rotation_angle(B.tolist(), B.tolist()))

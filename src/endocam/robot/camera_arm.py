@@ -30,6 +30,7 @@ tool tip (identity for the ECM, whose tip frame is its optical frame).
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -55,7 +56,6 @@ from endocam.robot.dh import (
     _compose_kernel,
     _points_kernel,
     _pose12_times_kernel,
-    chain_points,
     pose12_between,
     pose12_from_matrix,
 )
@@ -543,6 +543,7 @@ class CameraArm:
         self._brake_inp.max_velocity = list(vmax)
         self._brake_inp.max_acceleration = list(amax)
         self._brake_inp.max_jerk = [math.inf] * n
+        self._brake_inp.current_acceleration = [0.0] * n  # every braking path starts so
         self._brake_traj = ruckig.Trajectory(n)
         self._safe = False  # the camera can stop inside the workspace
         self._stop: list[float] = self._q.tolist()  # where the joints stop if braked now
@@ -902,15 +903,15 @@ class CameraArm:
         if approach is ActuatorStatus.EXACT:
             pos_err = ang_err = 0.0
         else:
-            pos_err = _norm(T_target[:3, 3] - T_goal[:3, 3])
-            ang_err = _pose_angle_kernel(T_target, T_goal, 2.0)
+            pos_err, ang_err = _target_error_kernel(T_target, T_goal, 2.0)
         reachable = approach is ActuatorStatus.EXACT or (
             self.kind is ArmKind.ECM and approach is ActuatorStatus.VIEW
         )
         if self.camera_path and approach is not ActuatorStatus.NEAREST:
             q_cmd = self._on_path(q_cmd, T_target, look_distance)
         if self.workspace is not None:
-            q_before, qd_before = self._arm.measured_js()
+            arm = self._arm  # (its arrays are replaced, never written, as it moves)
+            q_before, qd_before = arm._q, arm._qd
         if self._stalled is not None:
             q_cmd = list(q_cmd)
             q_cmd[self._stalled] = float(self._q[self._stalled])
@@ -948,7 +949,7 @@ class CameraArm:
         """
         ws = self.workspace
         assert ws is not None
-        q, qd = self._arm.measured_js()
+        q, qd = self._arm._q, self._arm._qd  # (replaced, never written, as the arm moves)
         stop_row, T_now, moving, slide, turn, to_rcm = _stop_kernel(
             self.model.chain._param_array, self._pose_consts, self._stop_consts, q, qd
         )
@@ -974,8 +975,7 @@ class CameraArm:
         inp = self._brake_inp
         inp.current_position = q
         inp.current_velocity = qd
-        inp.current_acceleration = [0.0] * len(q)
-        inp.target_position = stop
+        inp.target_position = stop  # (current_acceleration: 0, set once)
         if self._brake_otg.calculate(inp, self._brake_traj) not in (
             ruckig.Result.Working,
             ruckig.Result.Finished,
@@ -997,9 +997,17 @@ class CameraArm:
                 self._last_cam_point,
             )
         else:  # a short path: fewer calls of ruckig's own sampler than reading the profiles
-            path = [traj.at_time(min(i * dt, duration))[0] for i in range(1, steps + 1)]
+            at_time = traj.at_time
+            path = [at_time(min(i * dt, duration))[0] for i in range(1, steps + 1)]
             path.append(stop)
-            points = chain_points(self.model.chain, path, self._world_rcm12, self._last_cam_point)
+            n = len(stop)
+            q_rows = np.fromiter(
+                itertools.chain.from_iterable(path), float, (steps + 1) * n
+            ).reshape(-1, n)
+            a3, b3, c3 = self._last_cam_point
+            points = _points_kernel(
+                self.model.chain._param_array, q_rows, self._world_rcm12, a3, b3, c3
+            )
         return ws.all_inside(points)
 
     def _keep_inside(self, q_before: FloatArray, qd_before: FloatArray) -> FloatArray | None:
@@ -1158,13 +1166,21 @@ def _unit_clip(x: float) -> float:
     return py_max(-1.0, py_min(1.0, x))
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _pose_angle_kernel(T_a: FloatArray, T_b: FloatArray, two: float) -> float:
-    """:func:`~endocam.kernels.rotation_angle` of two poses (4, 4), rad, compiled.
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _target_error_kernel(
+    T_target: FloatArray, T_goal: FloatArray, two: float
+) -> tuple[float, float]:
+    """How far a target pose is from the goal (both (4, 4), world): m, and rad.
 
-    ``two``: 2.0, passed at run time (a constant exponent would be folded into a product).
+    numpy's ``np.linalg.norm`` of the positions' difference (its dot: :mod:`endocam.blasfloat`)
+    and :func:`~endocam.kernels.rotation_angle` of their rotations (``two``: 2.0, passed at run
+    time: a constant exponent would be folded into a product).
     """
-    return rotation_angle(_rotation_rows(T_a), _rotation_rows(T_b), two)
+    d0 = T_target[0, 3] - T_goal[0, 3]
+    d1 = T_target[1, 3] - T_goal[1, 3]
+    d2 = T_target[2, 3] - T_goal[2, 3]
+    pos_err = math.sqrt(dot3(d0, d1, d2, d0, d1, d2))
+    return pos_err, rotation_angle(_rotation_rows(T_target), _rotation_rows(T_goal), two)
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
