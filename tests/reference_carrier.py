@@ -1,12 +1,12 @@
 """The camera arm's port view, target and camera-space path as the interpreter ran them.
 
 A copy of ``endocam.robot.camera_arm`` at main before r7-arm (``_port_rotvec``, ``_turned``,
-``CameraArm._exact``, ``target``, ``_view_search`` and ``_path_target``, with ``view``'s
-``look_at_unchecked``), as functions of a :class:`~endocam.robot.camera_arm.CameraArm`:
+``CameraArm._exact``, ``target``, ``_view_search``, ``_path_target`` and ``step``'s errors,
+with ``view``'s ``look_at_unchecked``), as functions of a ``CameraArm``:
 ``tests/test_carrier_fast_paths.py`` pins the compiled ones (``_port_rotvec_kernel``,
-``_turned_kernel``, ``_exact_into``, ``_ecm_target_kernel``, ``_path_kernel``) to them bit for
-bit. numpy's products here go through its BLAS; the kernels take them from
-``endocam.blasfloat``.
+``_turned_kernel``, ``_exact_into``, ``_ecm_target_kernel``, ``_path_kernel``,
+``_target_error_kernel``) to them bit for bit. numpy's products here go through its BLAS; the
+kernels take them from ``endocam.blasfloat``.
 """
 
 # mypy: ignore-errors
@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from endocam.geometry import FloatArray
-from endocam.kernels import cross, norm, scaled, so3_exp
+from endocam.kernels import cross, norm, rotation_angle, scaled, so3_exp
 from endocam.robot.actuator import ActuatorStatus
 from endocam.robot.camera_arm import (
     _EPS_AXIS,
@@ -113,6 +113,15 @@ def target(arm, T_world_goal, look_distance):
     result = arm.model.solve_unchecked(tip_goal(arm, T_world_goal), arm._q)
     T_near = arm._T_world_rcm @ result.T_rcm_tip @ arm._T_tip_cam
     return result.q.tolist(), T_near, ActuatorStatus.NEAREST
+
+
+def target_errors(answer, T_goal):
+    """``CameraArm.step``'s errors of a target as they were: m, rad (0 when exact)."""
+    _, T_target, status = answer
+    if status is ActuatorStatus.EXACT:
+        return 0.0, 0.0
+    d = T_target[:3, 3] - T_goal[:3, 3]
+    return _norm(d), rotation_angle(T_target[:3, :3].tolist(), T_goal[:3, :3].tolist())
 
 
 def view_search(arm, T_goal, look_distance, rotvec):

@@ -290,8 +290,9 @@ def test_target_is_the_interpreted_one(kind: ArmKind) -> None:
         look = float(rng.uniform(0.01, 0.3))
         for _ in range(2):  # then nearby: the warm search
             want = ref_carrier.target(ref, T, look)
-            got = arm.target(T, look)
+            got = arm._target_errors(T, look)
             _same_answer(got, want)
+            assert got[3:] == ref_carrier.target_errors(want, T)
             assert arm._k_prev == ref._k_prev
             statuses[got[2]] = statuses.get(got[2], 0) + 1
             T = T.copy()

@@ -357,8 +357,10 @@ def _ecm_target_kernel(
     look_distance: float,
     seed3: float,
     two: float,
-) -> tuple[int, tuple[float, float, float, float], FloatArray]:
-    """:meth:`CameraArm.target` on the ECM: ``(outcome, q, T)``, one of ``_TARGET_*``.
+) -> tuple[int, tuple[float, float, float, float], FloatArray, float, float]:
+    """:meth:`CameraArm.target` on the ECM: ``(outcome, q, T, position_error, angle_error)``.
+
+    ``outcome``: one of ``_TARGET_*``.
 
     ``_TARGET_EXACT``: the goal ``T_goal`` (4, 4, world, m) is exact, ``q`` its joints (rad /
     m) and ``T`` a copy of it; ``_TARGET_VIEW``: the port view of the goal's look-at point
@@ -368,11 +370,13 @@ def _ecm_target_kernel(
     (``T``: the port view) and ``_TARGET_GOAL_SCIPY``: the ECM's IK needs its nearest in-limit
     position (scipy): the caller goes on from there. The ECM's compiled IK
     (:func:`~endocam.robot.ecm._exact_kernel`, ``_solve_kernel``; ``seed3``: the measured
-    roll, rad; ``two``: 2.0) and numpy's products (:mod:`endocam.blasfloat`).
+    roll, rad; ``two``: 2.0) and numpy's products (:mod:`endocam.blasfloat`). Then how far
+    ``T`` is from the goal (:func:`_target_error_kernel`: m, rad; 0.0 but for the view and the
+    nearest pose).
     """
     ok, q = _ecm_exact_kernel(params, consts, _between12(frames, T_goal), seed3, two)
     if ok:
-        return _TARGET_EXACT, q, T_goal.copy()
+        return _TARGET_EXACT, q, T_goal.copy(), 0.0, 0.0
     found, r0, r1, r2 = _port_rotvec_kernel(T_goal, look_distance, p_rcm)
     if found:
         T_port = _turned_kernel(T_goal, look_distance, r0, r1, r2, 1.0)
@@ -381,14 +385,18 @@ def _ecm_target_kernel(
             params, consts, goal, seed3, two, None
         )
         if outcome != _ECM_DONE:
-            return _TARGET_PORT_SCIPY, q, T_port
+            return _TARGET_PORT_SCIPY, q, T_port, 0.0, 0.0
         if pos_err <= VIEW_POSITION_TOL_M:
-            return _TARGET_VIEW, q, _reached(frames, T12)
+            T = _reached(frames, T12)
+            e_pos, e_ang = _target_error_kernel(T, T_goal, two)
+            return _TARGET_VIEW, q, T, e_pos, e_ang
     goal = _tip_goal12(frames, T_goal)
     outcome, _, q, _, _, T12, _ = _ecm_solve_kernel(params, consts, goal, seed3, two, None)
     if outcome != _ECM_DONE:
-        return _TARGET_GOAL_SCIPY, q, T_goal.copy()
-    return _TARGET_NEAREST, q, _reached(frames, T12)
+        return _TARGET_GOAL_SCIPY, q, T_goal.copy(), 0.0, 0.0
+    T = _reached(frames, T12)
+    e_pos, e_ang = _target_error_kernel(T, T_goal, two)
+    return _TARGET_NEAREST, q, T, e_pos, e_ang
 
 
 @njit(cache=True)  # compiled once, then loaded from the cache
@@ -517,7 +525,9 @@ class CameraArm:
         self._k_prev: int | None = None  # the last conceded turn, in VIEW_STEPS (warm start)
         self._last_key: bytes | None = None  # the last goal (bytes) and its look distance
         self._last_look = math.nan
-        self._last_target: tuple[list[float], FloatArray, ActuatorStatus] | None = None
+        # the last goal's answer: joints, target pose, status, position and angle errors
+        self._last_target: tuple[list[float], FloatArray, ActuatorStatus, float, float] | None
+        self._last_target = None
         self._via_port = False  # on the path through the port view after a target jump
         self._stalled: int | None = None  # a stalled joint (fault injection)
         self.workspace = workspace
@@ -652,8 +662,24 @@ class CameraArm:
             The camera pose of ``q``'s goal: the goal, or the view put in its place, m.
         status : ActuatorStatus
         """
+        q, T, status, _, _ = self._target_errors(T_world_goal, look_distance)
+        return q, T, status
+
+    def _target_errors(
+        self, T_world_goal: FloatArray, look_distance: float
+    ) -> tuple[list[float], FloatArray, ActuatorStatus, float, float]:
+        """:meth:`target`, and how far its pose is from the goal: m, rad (0 when exact)."""
         if not self._is_psm:
             return self._ecm_target(T_world_goal, look_distance)
+        q, T, status = self._psm_target(T_world_goal, look_distance)
+        if status is ActuatorStatus.EXACT:
+            return q, T, status, 0.0, 0.0
+        return q, T, status, *_target_error_kernel(T, T_world_goal, 2.0)
+
+    def _psm_target(
+        self, T_world_goal: FloatArray, look_distance: float
+    ) -> tuple[list[float], FloatArray, ActuatorStatus]:
+        """:meth:`target` on the PSM: exact, the nearest reachable turn towards the port view."""
         q = self._exact(T_world_goal)
         if q is not None:
             self._k_prev = None
@@ -676,33 +702,36 @@ class CameraArm:
 
     def _ecm_target(
         self, T_world_goal: FloatArray, look_distance: float
-    ) -> tuple[list[float], FloatArray, ActuatorStatus]:
-        """:meth:`target` on the ECM: one compiled call (:func:`_ecm_target_kernel`).
+    ) -> tuple[list[float], FloatArray, ActuatorStatus, float, float]:
+        """:meth:`_target_errors` on the ECM: one compiled call (:func:`_ecm_target_kernel`).
 
         The 4-DoF scope's only view of the goal's look-at point is its port view; a roll
         beyond its limits is conceded too (the horizon tilts), as long as the view itself is
         reached. scipy's nearest in-limit position, when the IK needs it, is found here.
         """
         q = self._q
-        outcome, q_new, T = _ecm_target_kernel(
+        outcome, q_new, T, pos_err, ang_err = _ecm_target_kernel(
             self._ik_params, self._ik_consts, self._frames, self._p_world_rcm, T_world_goal,
             look_distance, q[3], 2.0,
         )  # fmt: skip
         if outcome == _TARGET_EXACT:
             self._k_prev = None
             T.setflags(write=False)
-            return list(q_new), T, ActuatorStatus.EXACT
+            return list(q_new), T, ActuatorStatus.EXACT, 0.0, 0.0
         if outcome == _TARGET_VIEW:
-            return list(q_new), T, ActuatorStatus.VIEW
+            return list(q_new), T, ActuatorStatus.VIEW, pos_err, ang_err
         if outcome == _TARGET_NEAREST:
             self._k_prev = None
-            return list(q_new), T, ActuatorStatus.NEAREST
+            return list(q_new), T, ActuatorStatus.NEAREST, pos_err, ang_err
+        found = None
         if outcome == _TARGET_PORT_SCIPY:  # T: the port view
             port = self.model.solve_unchecked(self._tip_goal(T), self._q)
             if port.position_error <= VIEW_POSITION_TOL_M:
                 T_reached = self._T_world_rcm @ port.T_rcm_tip @ self._T_tip_cam
-                return port.q.tolist(), T_reached, ActuatorStatus.VIEW
-        return self._nearest(T_world_goal)
+                found = (port.q.tolist(), T_reached, ActuatorStatus.VIEW)
+        if found is None:
+            found = self._nearest(T_world_goal)
+        return (*found, *_target_error_kernel(found[1], T_world_goal, 2.0))
 
     def _view_search(
         self, T_goal: FloatArray, look_distance: float, rotvec: tuple[float, float, float]
@@ -888,22 +917,20 @@ class CameraArm:
             and key == self._last_key
             and (last[2] is ActuatorStatus.EXACT or look_distance == self._last_look)
         ):
-            q_cmd, T_target, approach = last  # a held goal: same answer (exact: any distance)
+            # a held goal (the same bytes): the same answer (exact: at any distance)
+            q_cmd, T_target, approach, pos_err, ang_err = last
         else:
             try:
-                q_cmd, T_target, approach = self.target(T_goal, look_distance)
+                found = self._target_errors(T_goal, look_distance)
             except (ArithmeticError, ValueError, np.linalg.LinAlgError):
                 # a command no solver can digest (finite but absurd): brake where the arm is
                 T_goal = self._T_cam
-                q_cmd, T_target, approach = self.target(T_goal, look_distance)
+                found = self._target_errors(T_goal, look_distance)
+            q_cmd, T_target, approach, pos_err, ang_err = found
             self._last_key, self._last_look = key, look_distance
             if last is not None and self.via_port and _wrist_jump(self.kind, last[0], q_cmd):
                 self._via_port = True  # the target jumped across a reachability gap
-            self._last_target = (q_cmd, T_target, approach)
-        if approach is ActuatorStatus.EXACT:
-            pos_err = ang_err = 0.0
-        else:
-            pos_err, ang_err = _target_error_kernel(T_target, T_goal, 2.0)
+            self._last_target = found
         reachable = approach is ActuatorStatus.EXACT or (
             self.kind is ArmKind.ECM and approach is ActuatorStatus.VIEW
         )
