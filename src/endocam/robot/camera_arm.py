@@ -39,6 +39,7 @@ from numba import njit
 
 from endocam.blasfloat import dot3, matmul4, matvec3
 from endocam.camera import StereoCamera
+from endocam.control.safety import Workspace, cone_margin
 from endocam.geometry import UP, FloatArray, as_pose, invert_pose
 from endocam.kernels import _SMALL_ANGLE, cross, py_max, py_min, rotation_angle
 from endocam.pyfloat import dist3, hypot2
@@ -556,6 +557,8 @@ class CameraArm:
         self._brake_inp.current_acceleration = [0.0] * n  # every braking path starts so
         self._brake_traj = ruckig.Trajectory(n)
         self._safe = False  # the camera can stop inside the workspace
+        # the workspace whose cone and floor _stop_kernel has (None: none yet), and those
+        self._cone_of: tuple[WorkspaceBound | None, FloatArray | None] = (None, None)
         self._stop: list[float] = self._q.tolist()  # where the joints stop if braked now
         self.braked = 0  # steps on which the workspace made the arm brake
 
@@ -977,12 +980,19 @@ class CameraArm:
         ws = self.workspace
         assert ws is not None
         q, qd = self._arm._q, self._arm._qd  # (replaced, never written, as the arm moves)
-        stop_row, T_now, moving, slide, turn, to_rcm = _stop_kernel(
-            self.model.chain._param_array, self._pose_consts, self._stop_consts, q, qd
+        if ws is not self._cone_of[0]:  # the cone and floor of a Workspace, for the kernel
+            self._cone_of = (ws, _cone_consts(ws))
+        cone = self._cone_of[1]
+        stop_row, T_now, moving, slide, turn, to_rcm, m_cone = _stop_kernel(
+            self.model.chain._param_array, self._pose_consts, self._stop_consts, q, qd, cone
         )
         stop = stop_row.tolist()
         p = T_now[:3, 3].tolist()
-        margin = ws.margin(p)
+        if cone is None:
+            margin = ws.margin(p)
+        else:  # Workspace.margin: the cone and the floor (compiled), then the keep-out zone
+            keep_out = ws.keep_out  # type: ignore[attr-defined]
+            margin = m_cone if keep_out is None else min(m_cone, keep_out.margin(p))
         safe = margin >= 0.0
         if safe and moving:
             lever = to_rcm + slide + ARM_LEVER_SLACK_M
@@ -1093,16 +1103,22 @@ def _pose_kernel(params: FloatArray, c: FloatArray, q: FloatArray) -> FloatArray
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _stop_kernel(
-    params: FloatArray, c: FloatArray, joints: FloatArray, q: FloatArray, qd: FloatArray
-) -> tuple[FloatArray, FloatArray, bool, float, float, float]:
+    params: FloatArray,
+    c: FloatArray,
+    joints: FloatArray,
+    q: FloatArray,
+    qd: FloatArray,
+    cone: FloatArray | None,
+) -> tuple[FloatArray, FloatArray, bool, float, float, float, float]:
     """:meth:`CameraArm._stop_point`'s floats for joints ``q`` moving at ``qd`` (n,).
 
     ``joints`` (4, n): ``v²/2a`` factors (s²/rad or s²/m), prismatic flags (1.0), lower and
     upper limits. Returns the stopping point (each joint braked: ``q + qd·|qd|·k``, clipped
     into the limits as ``RcmArm.clamp_floats``), the camera pose now (4, 4), m
     (:func:`_pose_kernel`), whether any joint moves (a NaN velocity counts), the braking's
-    total slide (m) and turn (rad), and the camera's distance to the RCM (CPython's
-    ``math.dist``), m.
+    total slide (m) and turn (rad), the camera's distance to the RCM (CPython's
+    ``math.dist``), m, and its margin to the cone and the floor (``Workspace.margin`` without
+    the keep-out zone, m; ``cone``: :func:`_cone_consts`; NaN without).
     """
     n = q.shape[0]
     stop = np.empty(n)
@@ -1122,8 +1138,26 @@ def _stop_kernel(
             turn += abs(d)
     T_now = _pose_kernel(params, c, q)
     r = _POSE_RCM
-    to_rcm = dist3(T_now[0, 3], T_now[1, 3], T_now[2, 3], c[r], c[r + 1], c[r + 2])
-    return stop, T_now, moving, slide, turn, to_rcm
+    x, y, z = T_now[0, 3], T_now[1, 3], T_now[2, 3]
+    to_rcm = dist3(x, y, z, c[r], c[r + 1], c[r + 2])
+    margin = math.nan
+    if cone is not None:  # Python's min(cone.margin(p), p[2] - floor)
+        apex, axis = (cone[0], cone[1], cone[2]), (cone[3], cone[4], cone[5])
+        m = cone_margin(x, y, z, apex, axis, cone[6], cone[7], cone[8])
+        margin = py_min(m, z - cone[9])
+    return stop, T_now, moving, slide, turn, to_rcm, margin
+
+
+def _cone_consts(ws: WorkspaceBound) -> FloatArray | None:
+    """A ``control.safety.Workspace``'s cone (``ConeWorkspace.constants``) and floor (10,), m.
+
+    ``None`` for any other workspace (its own ``margin`` is asked).
+    """
+    if type(ws) is not Workspace:
+        return None
+    consts = np.array([*ws.cone.constants, ws.floor], dtype=float)
+    consts.setflags(write=False)
+    return consts
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
