@@ -396,15 +396,19 @@ def test_compiled_pose_and_stop_point_are_the_interpreters(kind: ArmKind) -> Non
         to_rcm = math.dist(T[:3, 3].tolist(), arm._p_rcm_list)
         params, consts = chain._param_array, arm._pose_consts
         ws = workspaces[i % len(workspaces)]
-        got = _stop_kernel(params, consts, arm._stop_consts, q, qd, _cone_consts(ws))
-        assert np.array_equal(got[0], stop, equal_nan=True)  # NaN: a NaN velocity's stop
-        assert got[1].tolist() == T.tolist()
-        assert got[2] == any(qd.tolist())
-        assert np.array_equal(got[3:6], (slide, turn, to_rcm), equal_nan=True)
+        stop_row, T_now = np.empty(len(q)), np.empty((4, 4))
+        got = _stop_kernel(
+            params, consts, arm._stop_consts, q, qd, _cone_consts(ws), stop_row, T_now
+        )
+        assert np.array_equal(stop_row, stop, equal_nan=True)  # NaN: a NaN velocity's stop
+        assert T_now.tolist() == T.tolist()
+        assert got[0] == any(qd.tolist())
+        assert np.array_equal(got[1:4], (slide, turn, to_rcm), equal_nan=True)
         # Workspace.margin without its keep-out zone: Python's min of the cone's and the floor's
         p = T[:3, 3].tolist()
         margin = min(ws.cone.margin(p), p[2] - ws.floor)
-        assert np.array_equal(got[6], margin, equal_nan=True)
-        assert math.isnan(_stop_kernel(params, consts, arm._stop_consts, q, qd, None)[6])
+        assert np.array_equal(got[4], margin, equal_nan=True)
+        no_cone = _stop_kernel(params, consts, arm._stop_consts, q, qd, None, stop_row, T_now)
+        assert math.isnan(no_cone[4])
         inside += margin >= 0.0
     assert 0 < inside < N_STOP_CHECKS

@@ -358,10 +358,12 @@ def _ecm_target_kernel(
     look_distance: float,
     seed3: float,
     two: float,
-) -> tuple[int, tuple[float, float, float, float], FloatArray, float, float]:
-    """:meth:`CameraArm.target` on the ECM: ``(outcome, q, T, position_error, angle_error)``.
+    T: FloatArray,
+) -> tuple[int, tuple[float, float, float, float], float, float]:
+    """:meth:`CameraArm.target` on the ECM: ``(outcome, q, position_error, angle_error)``.
 
-    ``outcome``: one of ``_TARGET_*``.
+    ``outcome``: one of ``_TARGET_*``; the pose ``T`` below is written into ``T`` (4, 4), the
+    caller's array (none to box).
 
     ``_TARGET_EXACT``: the goal ``T_goal`` (4, 4, world, m) is exact, ``q`` its joints (rad /
     m) and ``T`` a copy of it; ``_TARGET_VIEW``: the port view of the goal's look-at point
@@ -377,7 +379,8 @@ def _ecm_target_kernel(
     """
     ok, q = _ecm_exact_kernel(params, consts, _between12(frames, T_goal), seed3, two)
     if ok:
-        return _TARGET_EXACT, q, T_goal.copy(), 0.0, 0.0
+        T[:, :] = T_goal
+        return _TARGET_EXACT, q, 0.0, 0.0
     found, r0, r1, r2 = _port_rotvec_kernel(T_goal, look_distance, p_rcm)
     if found:
         T_port = _turned_kernel(T_goal, look_distance, r0, r1, r2, 1.0)
@@ -386,18 +389,20 @@ def _ecm_target_kernel(
             params, consts, goal, seed3, two, None
         )
         if outcome != _ECM_DONE:
-            return _TARGET_PORT_SCIPY, q, T_port, 0.0, 0.0
+            T[:, :] = T_port
+            return _TARGET_PORT_SCIPY, q, 0.0, 0.0
         if pos_err <= VIEW_POSITION_TOL_M:
-            T = _reached(frames, T12)
+            T[:, :] = _reached(frames, T12)
             e_pos, e_ang = _target_error_kernel(T, T_goal, two)
-            return _TARGET_VIEW, q, T, e_pos, e_ang
+            return _TARGET_VIEW, q, e_pos, e_ang
     goal = _tip_goal12(frames, T_goal)
     outcome, _, q, _, _, T12, _ = _ecm_solve_kernel(params, consts, goal, seed3, two, None)
     if outcome != _ECM_DONE:
-        return _TARGET_GOAL_SCIPY, q, T_goal.copy(), 0.0, 0.0
-    T = _reached(frames, T12)
+        T[:, :] = T_goal
+        return _TARGET_GOAL_SCIPY, q, 0.0, 0.0
+    T[:, :] = _reached(frames, T12)
     e_pos, e_ang = _target_error_kernel(T, T_goal, two)
-    return _TARGET_NEAREST, q, T, e_pos, e_ang
+    return _TARGET_NEAREST, q, e_pos, e_ang
 
 
 @njit(cache=True)  # compiled once, then loaded from the cache
@@ -520,6 +525,7 @@ class CameraArm:
         self._ik_params = self.model.chain._param_array
         self._ik_consts: FloatArray = self.model._consts  # type: ignore[attr-defined]
         self._q_out = np.empty(self.model.n_joints)
+        self._stop_row = np.empty(self.model.n_joints)  # _stop_kernel's stopping point
         self._arm = SimulatedArm(self.model, dt=dt, q0=natural_pose(self.model))
         self._q = self._arm.measured_js()[0]
         self._T_cam = self.camera_pose(self._q)
@@ -712,10 +718,10 @@ class CameraArm:
         beyond its limits is conceded too (the horizon tilts), as long as the view itself is
         reached. scipy's nearest in-limit position, when the IK needs it, is found here.
         """
-        q = self._q
-        outcome, q_new, T, pos_err, ang_err = _ecm_target_kernel(
+        q, T = self._q, np.empty((4, 4))
+        outcome, q_new, pos_err, ang_err = _ecm_target_kernel(
             self._ik_params, self._ik_consts, self._frames, self._p_world_rcm, T_world_goal,
-            look_distance, q[3], 2.0,
+            look_distance, q[3], 2.0, T,
         )  # fmt: skip
         if outcome == _TARGET_EXACT:
             self._k_prev = None
@@ -983,10 +989,12 @@ class CameraArm:
         if ws is not self._cone_of[0]:  # the cone and floor of a Workspace, for the kernel
             self._cone_of = (ws, _cone_consts(ws))
         cone = self._cone_of[1]
-        stop_row, T_now, moving, slide, turn, to_rcm, m_cone = _stop_kernel(
-            self.model.chain._param_array, self._pose_consts, self._stop_consts, q, qd, cone
-        )
-        stop = stop_row.tolist()
+        T_now = np.empty((4, 4))
+        moving, slide, turn, to_rcm, m_cone = _stop_kernel(
+            self.model.chain._param_array, self._pose_consts, self._stop_consts, q, qd, cone,
+            self._stop_row, T_now,
+        )  # fmt: skip
+        stop = self._stop_row.tolist()
         p = T_now[:3, 3].tolist()
         if cone is None:
             margin = ws.margin(p)
@@ -1109,19 +1117,21 @@ def _stop_kernel(
     q: FloatArray,
     qd: FloatArray,
     cone: FloatArray | None,
-) -> tuple[FloatArray, FloatArray, bool, float, float, float, float]:
+    stop: FloatArray,
+    T_now: FloatArray,
+) -> tuple[bool, float, float, float, float]:
     """:meth:`CameraArm._stop_point`'s floats for joints ``q`` moving at ``qd`` (n,).
 
     ``joints`` (4, n): ``v²/2a`` factors (s²/rad or s²/m), prismatic flags (1.0), lower and
-    upper limits. Returns the stopping point (each joint braked: ``q + qd·|qd|·k``, clipped
-    into the limits as ``RcmArm.clamp_floats``), the camera pose now (4, 4), m
-    (:func:`_pose_kernel`), whether any joint moves (a NaN velocity counts), the braking's
-    total slide (m) and turn (rad), the camera's distance to the RCM (CPython's
-    ``math.dist``), m, and its margin to the cone and the floor (``Workspace.margin`` without
-    the keep-out zone, m; ``cone``: :func:`_cone_consts`; NaN without).
+    upper limits. Writes the stopping point into ``stop`` (n,) (each joint braked:
+    ``q + qd·|qd|·k``, clipped into the limits as ``RcmArm.clamp_floats``) and the camera pose
+    now into ``T_now`` (4, 4), m (:func:`_pose_kernel`): arrays from the caller, none to box.
+    Returns whether any joint moves (a NaN velocity counts), the braking's total slide (m)
+    and turn (rad), the camera's distance to the RCM (CPython's ``math.dist``), m, and its
+    margin to the cone and the floor (``Workspace.margin`` without the keep-out zone, m;
+    ``cone``: :func:`_cone_consts`; NaN without).
     """
     n = q.shape[0]
-    stop = np.empty(n)
     moving = False
     slide = 0.0
     turn = 0.0
@@ -1136,7 +1146,7 @@ def _stop_kernel(
             slide += abs(d)
         else:
             turn += abs(d)
-    T_now = _pose_kernel(params, c, q)
+    T_now[:, :] = _pose_kernel(params, c, q)
     r = _POSE_RCM
     x, y, z = T_now[0, 3], T_now[1, 3], T_now[2, 3]
     to_rcm = dist3(x, y, z, c[r], c[r + 1], c[r + 2])
@@ -1145,7 +1155,7 @@ def _stop_kernel(
         apex, axis = (cone[0], cone[1], cone[2]), (cone[3], cone[4], cone[5])
         m = cone_margin(x, y, z, apex, axis, cone[6], cone[7], cone[8])
         margin = py_min(m, z - cone[9])
-    return stop, T_now, moving, slide, turn, to_rcm, margin
+    return moving, slide, turn, to_rcm, margin
 
 
 def _cone_consts(ws: WorkspaceBound) -> FloatArray | None:
