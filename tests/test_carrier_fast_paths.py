@@ -13,10 +13,11 @@ import pytest
 import ruckig
 from scipy.spatial.transform import Rotation
 
+import reference_carrier as ref_carrier
 from endocam.config import ExperimentConfig
 from endocam.geometry import make_pose
 from endocam.kernels import rotation_angle, so3_exp
-from endocam.robot.actuator import ArmKind
+from endocam.robot.actuator import ActuatorStatus, ArmKind
 from endocam.robot.arm import MotionStatus, SimulatedArm
 from endocam.robot.camera_arm import (
     _EPS_AXIS,
@@ -26,10 +27,12 @@ from endocam.robot.camera_arm import (
     VIEW_STEPS,
     CameraArm,
     _is_camera_command,
+    _look_at_matrix,
     _path_engage_kernel,
-    _port_rotvec,
-    _pose_angle_kernel,
-    _turned,
+    _port_rotvec_kernel,
+    _so3_exp,
+    _target_error_kernel,
+    _turned_kernel,
     arm_model,
     natural_pose,
 )
@@ -179,7 +182,7 @@ def test_path_engage_is_the_interpreted_test(kind: ArmKind) -> None:
 def _turned_reference(
     T: np.ndarray, look_distance: float, rotvec: np.ndarray, fraction: float
 ) -> np.ndarray:
-    """``camera_arm._turned`` as it was (numpy element-wise)."""
+    """``camera_arm._turned`` before r6 (numpy element-wise)."""
     R_turn = so3_exp((fraction * rotvec).tolist())
     z = T[:3, 2].tolist()
     z_t = [R_turn[i][0] * z[0] + R_turn[i][1] * z[1] + R_turn[i][2] * z[2] for i in range(3)]
@@ -188,21 +191,138 @@ def _turned_reference(
     return look_at_unchecked(p_t, c, T, T)
 
 
+def test_so3_exp_kernel_is_the_interpreted_one() -> None:
+    rng = np.random.default_rng(40)
+    for _ in range(20000):
+        r = rng.normal(0.0, 1.0, 3) * rng.choice([0.0, 1e-12, 1e-9, 1e-4, 0.1, 1.0, 3.0])
+        assert _so3_exp(*r.tolist()).tobytes() == np.array(so3_exp(r.tolist())).tobytes()
+
+
+def _special_goals(arm: CameraArm, rng: np.random.Generator) -> list[tuple[np.ndarray, float]]:
+    """Goals (4, 4) and look distances (m) on the port view's edge cases.
+
+    The look-at point at the port, the camera looking straight at it and straight away.
+    """
+    p = arm._p_world_rcm
+    out = []
+    for _ in range(20):
+        R = Rotation.random(random_state=rng).as_matrix()
+        look = float(rng.uniform(0.01, 0.2))
+        z = R[:, 2]
+        out.append((make_pose(R, p - look * z), look))  # looks at the port
+        out.append((make_pose(R, p - 2.0 * look * z), look))  # straight at it, beyond
+        out.append((make_pose(R, p + 0.5 * look * z), look))  # straight away from it
+    return out
+
+
 @pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
-def test_turned_view_is_the_numpy_one(kind: ArmKind) -> None:
+def test_port_view_kernels_are_the_numpy_ones(kind: ArmKind) -> None:
     arm = _arm(kind)
     rng = np.random.default_rng(28)
-    turned = 0
-    for T in _goals(arm, 29):
-        look = float(rng.uniform(0.001, 0.2))
-        rotvec = _port_rotvec(T, look, arm._p_world_rcm)
-        if rotvec is None:
+    turned = missing = 0
+    cases = [(T, float(rng.uniform(0.001, 0.2))) for T in _goals(arm, 29)]
+    for T, look in cases + _special_goals(arm, rng):
+        expected = ref_carrier.port_rotvec(T, look, arm._p_world_rcm)
+        found, r0, r1, r2 = _port_rotvec_kernel(T, look, arm._p_world_rcm)
+        assert found == (expected is not None)
+        if expected is None:
+            missing += 1
             continue
+        assert np.array([r0, r1, r2]).tobytes() == expected.tobytes()
         for fraction in (1.0, float(rng.integers(0, VIEW_STEPS + 1)) / VIEW_STEPS):
-            got = _turned(T, look, rotvec, fraction)
-            assert got.tobytes() == _turned_reference(T, look, rotvec, fraction).tobytes()
+            got = _turned_kernel(T, look, r0, r1, r2, fraction)
+            want = ref_carrier.turned(T, look, expected, fraction)
+            assert got.tobytes() == want.tobytes()
+            assert want.tobytes() == _turned_reference(T, look, expected, fraction).tobytes()
             turned += 1
-    assert turned > N_GOALS
+    assert turned > N_GOALS and missing > 0
+
+
+def test_look_at_matrix_is_the_interpreted_one() -> None:
+    rng = np.random.default_rng(41)
+    for i in range(5000):
+        T = make_pose(Rotation.random(random_state=rng).as_matrix(), rng.normal(0.0, 0.1, 3))
+        p = rng.normal(0.0, 0.1, 3)
+        scale = [1.0, 1e-10, 1e-8, 0.0][i % 4]
+        c = p + scale * rng.normal(0.0, 0.1, 3)
+        if i % 7 == 0:  # straight down or up: the roll of T is kept
+            c = p + np.array([0.0, 0.0, rng.choice([-1.0, 1.0])]) * rng.uniform(0.01, 0.1)
+            c[:2] += rng.normal(0.0, 1e-3, 2) * rng.choice([0.0, 1.0])
+        want = ref_carrier.look_at_unchecked(p, c, T, T)
+        got = _look_at_matrix(tuple(p.tolist()), tuple(c.tolist()), T)
+        assert got.tobytes() == want.tobytes()
+        assert look_at_unchecked(p, c, T, T).tobytes() == want.tobytes()
+
+
+def _twin_arms(kind: ArmKind) -> tuple[CameraArm, CameraArm]:
+    return _arm(kind), _arm(kind)
+
+
+def _same_answer(got: tuple, want: tuple) -> None:
+    assert got[0] == want[0]
+    assert np.asarray(got[1]).tobytes() == np.asarray(want[1]).tobytes()
+    assert got[2] is want[2]
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_target_is_the_interpreted_one(kind: ArmKind) -> None:
+    arm, ref = _twin_arms(kind)
+    rng = np.random.default_rng(42 if kind is ArmKind.PSM else 43)
+    model = arm.model
+    calls = {"solve": 0}
+    solve = model.solve_unchecked
+
+    def counted(T, seed):  # the nearest position (scipy) and the rest stay interpreted
+        calls["solve"] += 1
+        return solve(T, seed)
+
+    model.solve_unchecked = counted  # type: ignore[method-assign]
+    statuses: dict[ActuatorStatus, int] = {}
+    goals = _goals(arm, 44) + [T for T, _ in _special_goals(arm, rng)]
+    for i, T in enumerate(goals):
+        if i % 5 == 0:  # a new measured configuration (the IK's seed), and a cold search
+            q = model.clamp(natural_pose(model) + rng.uniform(-0.8, 0.8, model.n_joints))
+            arm._q, ref._q = q.copy(), q.copy()
+            arm._k_prev = ref._k_prev = None
+        if i % 3 == 0:  # far off: beyond the reach, out of the axes' limits
+            T = T.copy()
+            T[:3, 3] += rng.normal(0.0, 0.1, 3)
+        look = float(rng.uniform(0.01, 0.3))
+        for _ in range(2):  # then nearby: the warm search
+            want = ref_carrier.target(ref, T, look)
+            got = arm._target_errors(T, look)
+            _same_answer(got, want)
+            assert got[3:] == ref_carrier.target_errors(want, T)
+            assert arm._k_prev == ref._k_prev
+            statuses[got[2]] = statuses.get(got[2], 0) + 1
+            T = T.copy()
+            T[:3, 3] += rng.normal(0.0, 0.002, 3)
+    assert set(statuses) == set(ActuatorStatus)
+    if kind is ArmKind.ECM:
+        assert calls["solve"] > 0  # the nearest in-limit position (scipy) was needed
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_path_target_is_the_interpreted_one(kind: ArmKind) -> None:
+    arm, ref = _twin_arms(kind)
+    rng = np.random.default_rng(45 if kind is ArmKind.PSM else 46)
+    model = arm.model
+    goals = _goals(arm, 47)
+    taken = 0
+    for i, T_target in enumerate(goals):
+        q = model.clamp(natural_pose(model) + rng.uniform(-0.6, 0.6, model.n_joints))
+        arm._q, ref._q = q.copy(), q.copy()
+        T_cam = arm.camera_pose(q) if i % 2 else goals[rng.integers(len(goals))]
+        if i % 11 == 0:  # straight behind the look-at point: over the top
+            T_cam = T_target.copy()
+            T_cam[:3, 3] += (0.05 + 2.0 * 0.05) * T_target[:3, 2]
+        arm._T_cam, ref._T_cam = T_cam, T_cam
+        for look in (0.05, float(rng.uniform(0.001, 0.2))):
+            want = ref_carrier.path_target(ref, T_target, look)
+            got = arm._path_target(T_target, look)
+            assert got == want
+            taken += want is not None
+    assert 0 < taken < 2 * N_GOALS
 
 
 class _ReferenceArm(SimulatedArm):
@@ -280,12 +400,16 @@ def test_arm_cycle_is_the_interpreted_one(kind: ArmKind) -> None:
     assert stops > 0
 
 
-def test_pose_angle_is_the_interpreted_rotation_angle() -> None:
+def test_target_error_is_the_interpreted_one() -> None:
+    """``CameraArm.step``'s errors as they were: numpy's norm, the interpreted rotation angle."""
     rng = np.random.default_rng(31)
     for _ in range(5000):
         A = make_pose(Rotation.random(random_state=rng).as_matrix(), rng.normal(0.0, 0.1, 3))
         turn = rng.normal(0.0, 1.0, 3) * rng.choice([1e-9, 1e-4, 0.1, 3.0])
-        B = make_pose(Rotation.from_rotvec(turn).as_matrix() @ A[:3, :3], A[:3, 3])
-        expected = rotation_angle(A[:3, :3].tolist(), B[:3, :3].tolist())
-        assert _pose_angle_kernel(A, B, 2.0) == expected
-        assert _pose_angle_kernel(B, B, 2.0) == rotation_angle(B.tolist(), B.tolist())
+        shift = rng.normal(0.0, 0.01, 3) * rng.choice([0.0, 1e-9, 1.0])
+        B = make_pose(Rotation.from_rotvec(turn).as_matrix() @ A[:3, :3], A[:3, 3] + shift)
+        d = A[:3, 3] - B[:3, 3]
+        expected = (math.sqrt(d.dot(d)), rotation_angle(A[:3, :3].tolist(), B[:3, :3].tolist()))
+        assert _target_error_kernel(A, B, 2.0) == expected
+        assert expected[0] == float(np.linalg.norm(d))
+        assert _target_error_kernel(B, B, 2.0) == (0.0, rotation_angle(B.tolist(), B.tolist()))

@@ -9,12 +9,14 @@ import pytest
 
 from endocam.config import ExperimentConfig
 from endocam.control.registry import POLICIES
+from endocam.control.safety import ConeWorkspace, Workspace
 from endocam.geometry import invert_pose, make_pose
 from endocam.robot import PSM_MAX_VELOCITY
 from endocam.robot.actuator import ActuatorStatus, ArmKind
 from endocam.robot.camera_arm import (
     VIEW_BISECTIONS,
     CameraArm,
+    _cone_consts,
     _stop_kernel,
     natural_pose,
     view_towards_port,
@@ -368,6 +370,17 @@ def test_compiled_pose_and_stop_point_are_the_interpreters(kind: ArmKind) -> Non
     rows = tuple(tuple(r) for r in (chain.T_last_tip @ arm.T_tip_cam)[:3].tolist())
     rng = np.random.default_rng(21)
     span = arm.model.upper - arm.model.lower
+    p_rcm = arm.p_world_rcm
+    feature = arm.camera_pose(natural_pose(arm.model))[:3, 3]
+    workspaces = [  # about the arm's reach: points inside, outside, below the floor
+        Workspace(ConeWorkspace.from_rcm(p_rcm, feature + shift, height, radius), floor)
+        for shift, height, radius, floor in (
+            ((0.0, 0.0, 0.0), 0.3, 0.15, -math.inf),
+            ((0.02, -0.01, 0.0), 0.2, 0.1, float(feature[2])),
+            ((0.0, 0.05, -0.03), 0.5, 0.3, float(feature[2]) - 0.05),
+        )
+    ]
+    inside = 0
     for i in range(N_STOP_CHECKS):
         q = rng.uniform(arm.model.lower - 0.1 * span, arm.model.upper + 0.1 * span)
         qd = rng.normal(0.0, 1.0, len(q)) * (rng.random(len(q)) < 0.7)
@@ -382,8 +395,20 @@ def test_compiled_pose_and_stop_point_are_the_interpreters(kind: ArmKind) -> Non
         turn = sum(abs(d) for d, p in zip(delta, pri, strict=True) if not p)
         to_rcm = math.dist(T[:3, 3].tolist(), arm._p_rcm_list)
         params, consts = chain._param_array, arm._pose_consts
-        got = _stop_kernel(params, consts, arm._stop_consts, q, qd)
-        assert np.array_equal(got[0], stop, equal_nan=True)  # NaN: a NaN velocity's stop
-        assert got[1].tolist() == T.tolist()
-        assert got[2] == any(qd.tolist())
-        assert np.array_equal(got[3:], (slide, turn, to_rcm), equal_nan=True)
+        ws = workspaces[i % len(workspaces)]
+        stop_row, T_now = np.empty(len(q)), np.empty((4, 4))
+        got = _stop_kernel(
+            params, consts, arm._stop_consts, q, qd, _cone_consts(ws), stop_row, T_now
+        )
+        assert np.array_equal(stop_row, stop, equal_nan=True)  # NaN: a NaN velocity's stop
+        assert T_now.tolist() == T.tolist()
+        assert got[0] == any(qd.tolist())
+        assert np.array_equal(got[1:4], (slide, turn, to_rcm), equal_nan=True)
+        # Workspace.margin without its keep-out zone: Python's min of the cone's and the floor's
+        p = T[:3, 3].tolist()
+        margin = min(ws.cone.margin(p), p[2] - ws.floor)
+        assert np.array_equal(got[4], margin, equal_nan=True)
+        no_cone = _stop_kernel(params, consts, arm._stop_consts, q, qd, None, stop_row, T_now)
+        assert math.isnan(no_cone[4])
+        inside += margin >= 0.0
+    assert 0 < inside < N_STOP_CHECKS

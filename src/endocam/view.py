@@ -30,6 +30,7 @@ from endocam.kernels import Vec, cross, dot, norm, py_max, py_min, reject, scale
 __all__ = [
     "ROLL_HOLD_ANGLE",
     "ROLL_LEVEL_ANGLE",
+    "look_at_columns",
     "look_at_pose",
     "look_at_unchecked",
     "pose_from_columns",
@@ -184,6 +185,23 @@ def look_at_pose(
     return pose_from_columns(x, y, zz, vec(p))
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
+def look_at_columns(p: Vec, target: Vec, x_prev: Vec | None) -> tuple[bool, Vec, Vec, Vec]:
+    """:func:`look_at_unchecked`'s rotation: ``(found, x, y, z)``, the columns of ``R_world_cam``.
+
+    ``p``, ``target``: the camera and the point it looks at, world, m; ``x_prev``: the previous
+    pose's x axis (world) or ``None``. ``found`` is False (and the columns meaningless) when the
+    two points coincide (no direction to look along). Compiled kernels call it too (e.g. an
+    arm's conceded view, ``robot.camera_arm``): the same floats.
+    """
+    d = (target[0] - p[0], target[1] - p[1], target[2] - p[2])
+    length = norm(d)
+    if not length > 1e-9:
+        return False, d, d, d
+    x, y, z = rotation_columns(scaled(d, 1.0 / length), (0.0, 0.0, 1.0), x_prev)
+    return True, x, y, z
+
+
 def look_at_unchecked(
     p_cam: FloatArray, p_target: FloatArray, fallback: FloatArray, previous: FloatArray | None
 ) -> FloatArray:
@@ -192,11 +210,8 @@ def look_at_unchecked(
     Returns ``fallback`` (4, 4) when the two points coincide (no direction to look along).
     """
     p = vec(p_cam)
-    d = vec(p_target)
-    d = (d[0] - p[0], d[1] - p[1], d[2] - p[2])
-    length = norm(d)
-    if not length > 1e-9:
-        return fallback
     x_prev = None if previous is None else vec(previous[:3, 0])
-    x, y, z = rotation_columns(scaled(d, 1.0 / length), (0.0, 0.0, 1.0), x_prev)
+    found, x, y, z = look_at_columns(p, vec(p_target), x_prev)
+    if not found:
+        return fallback
     return pose_from_columns(x, y, z, p)

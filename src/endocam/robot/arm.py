@@ -133,7 +133,7 @@ def _finite_floats(x: object, n: int) -> list[float] | None:
             return None
         values = x.tolist()
     elif isinstance(x, list | tuple) and len(x) == n:
-        values = list(x)
+        values = x  # (read only: the floats below are a new list)
     else:
         return None
     try:
@@ -386,8 +386,10 @@ class SimulatedArm:
         MotionStatus
             Status after the last cycle (``LIMIT_STOP`` if any cycle hit a hard stop).
         """
-        if dt is None:
-            cycles = 1
+        if dt is None:  # one control cycle (the control loop's case)
+            if self._cycle():
+                self._motion_status = MotionStatus.LIMIT_STOP
+            return self._motion_status
         else:
             ratio = dt / self._dt if np.isfinite(dt) else np.nan
             cycles = round(ratio) if np.isfinite(ratio) else 0

@@ -30,15 +30,18 @@ tool tip (identity for the ECM, whose tip frame is its optical frame).
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
 import ruckig
 from numba import njit
 
+from endocam.blasfloat import dot3, matmul4, matvec3
 from endocam.camera import StereoCamera
+from endocam.control.safety import Workspace, cone_margin
 from endocam.geometry import UP, FloatArray, as_pose, invert_pose
-from endocam.kernels import cross, py_max, py_min, rotation_angle, so3_exp
+from endocam.kernels import _SMALL_ANGLE, cross, py_max, py_min, rotation_angle
 from endocam.pyfloat import dist3, hypot2
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import (
@@ -54,16 +57,19 @@ from endocam.robot.dh import (
     _compose_kernel,
     _points_kernel,
     _pose12_times_kernel,
-    chain_points,
     pose12_between,
     pose12_from_matrix,
 )
+from endocam.robot.ecm import _DONE as _ECM_DONE
 from endocam.robot.ecm import ECM
+from endocam.robot.ecm import _exact_kernel as _ecm_exact_kernel
+from endocam.robot.ecm import _solve_kernel as _ecm_solve_kernel
 from endocam.robot.kinematics import RcmArm
 from endocam.robot.psm import PSM
+from endocam.robot.psm import _exact_kernel as _psm_exact_kernel
 from endocam.task.config import TaskConfig
 from endocam.task.layout import FramingError, port_view
-from endocam.view import look_at_unchecked, rotation_looking_along, vec
+from endocam.view import look_at_columns, rotation_looking_along, vec
 
 __all__ = [
     "ARM_START_GAP",
@@ -151,27 +157,10 @@ def view_towards_port(
     (4, 4) ndarray
         The turned pose, m. ``T_world_cam`` itself when the look-at point is at the port.
     """
-    rotvec = _port_rotvec(T_world_cam, look_distance, p_world_rcm)
-    if rotvec is None:
+    found, r0, r1, r2 = _port_rotvec_kernel(T_world_cam, look_distance, p_world_rcm)
+    if not found:
         return np.array(T_world_cam, dtype=float)
-    return _turned(T_world_cam, look_distance, rotvec, fraction)
-
-
-def _port_rotvec(T: FloatArray, look_distance: float, p_rcm: FloatArray) -> FloatArray | None:
-    """Rotation vector (3,), rad, taking the optical axis onto the port direction."""
-    z = T[:3, 2]
-    v = T[:3, 3] + look_distance * z - p_rcm
-    norm_v = _norm(v)
-    if norm_v <= _EPS_AXIS:
-        return None
-    v = v / norm_v
-    axis = _cross(z.tolist(), v.tolist())
-    sin_t, cos_t = _norm(axis), float(z @ v)
-    if sin_t <= _EPS_AXIS:
-        if cos_t > 0.0:
-            return np.zeros(3)
-        axis, sin_t = T[:3, 1].copy(), 1.0  # looking straight at the port: pan about image y
-    return axis * (math.atan2(sin_t, cos_t) / sin_t)
+    return _turned_kernel(T_world_cam, look_distance, r0, r1, r2, fraction)
 
 
 def _norm(v: FloatArray) -> float:
@@ -183,20 +172,289 @@ def _norm(v: FloatArray) -> float:
     return math.sqrt(v.dot(v))
 
 
-def _cross(a: list[float], b: list[float]) -> FloatArray:
-    """``np.cross`` of two 3-vectors (the same products and differences) on Python floats."""
-    return np.array(cross((a[0], a[1], a[2]), (b[0], b[1], b[2])), dtype=float)
+# CameraArm._frames: the (4, 4, 4) poses its kernels take (m)
+_F_WORLD_RCM, _F_RCM_WORLD, _F_TIP_CAM, _F_CAM_TIP = 0, 1, 2, 3
 
 
-def _turned(T: FloatArray, look_distance: float, rotvec: FloatArray, fraction: float) -> FloatArray:
-    """``T`` moved about its look-at point by ``fraction`` of ``rotvec``, horizon re-levelled."""
-    R_turn = so3_exp([fraction * x for x in rotvec.tolist()])
-    t = T.tolist()  # plain floats: numpy's element-wise products and sums, the same floats
-    z = [t[0][2], t[1][2], t[2][2]]
-    z_t = [R_turn[i][0] * z[0] + R_turn[i][1] * z[1] + R_turn[i][2] * z[2] for i in range(3)]
-    c = [t[i][3] + look_distance * z[i] for i in range(3)]
-    p_t = [c[i] - look_distance * z_t[i] for i in range(3)]
-    return look_at_unchecked(np.array(p_t), np.array(c), T, T)
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _so3_exp(x: float, y: float, z: float) -> FloatArray:
+    """:func:`endocam.kernels.so3_exp` of the rotation vector ``(x, y, z)`` (rad): (3, 3).
+
+    The same floats (Rodrigues' formula, the same products in the same order), as an array.
+    """
+    a2 = x * x + y * y + z * z
+    if a2 < _SMALL_ANGLE * _SMALL_ANGLE:
+        s, c = 1.0, 0.5  # sin(a)/a and (1 − cos a)/a² to first order
+    else:
+        a = math.sqrt(a2)
+        s, c = math.sin(a) / a, (1.0 - math.cos(a)) / a2
+    R = np.empty((3, 3))
+    R[0, 0], R[0, 1], R[0, 2] = 1.0 - c * (y * y + z * z), c * x * y - s * z, c * x * z + s * y
+    R[1, 0], R[1, 1], R[1, 2] = c * x * y + s * z, 1.0 - c * (x * x + z * z), c * y * z - s * x
+    R[2, 0], R[2, 1], R[2, 2] = c * x * z - s * y, c * y * z + s * x, 1.0 - c * (x * x + y * y)
+    return R
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _port_rotvec_kernel(
+    T: FloatArray, look_distance: float, p_rcm: FloatArray
+) -> tuple[bool, float, float, float]:
+    """The rotation vector (rad) taking a camera's optical axis onto the port direction.
+
+    ``T`` (4, 4): the camera, world, m; ``p_rcm`` (3,): the port, world, m. ``(False, …)``
+    when the look-at point (``look_distance`` ahead on z, m) is at the port. numpy's floats
+    (``np.linalg.norm`` and ``@`` through :mod:`endocam.blasfloat`'s dot).
+    """
+    z0, z1, z2 = T[0, 2], T[1, 2], T[2, 2]
+    v0 = T[0, 3] + look_distance * z0 - p_rcm[0]
+    v1 = T[1, 3] + look_distance * z1 - p_rcm[1]
+    v2 = T[2, 3] + look_distance * z2 - p_rcm[2]
+    norm_v = math.sqrt(dot3(v0, v1, v2, v0, v1, v2))
+    if norm_v <= _EPS_AXIS:
+        return False, 0.0, 0.0, 0.0
+    v0, v1, v2 = v0 / norm_v, v1 / norm_v, v2 / norm_v
+    a0, a1, a2 = cross((z0, z1, z2), (v0, v1, v2))
+    sin_t, cos_t = math.sqrt(dot3(a0, a1, a2, a0, a1, a2)), dot3(z0, z1, z2, v0, v1, v2)
+    if sin_t <= _EPS_AXIS:
+        if cos_t > 0.0:
+            return True, 0.0, 0.0, 0.0
+        a0, a1, a2, sin_t = T[0, 1], T[1, 1], T[2, 1], 1.0  # straight at the port: pan about y
+    k = math.atan2(sin_t, cos_t) / sin_t
+    return True, a0 * k, a1 * k, a2 * k
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _look_at_matrix(
+    p: tuple[float, float, float], c: tuple[float, float, float], T: FloatArray
+) -> FloatArray:
+    """:func:`~endocam.view.look_at_unchecked` from ``p`` at ``c`` (world, m), rolled as ``T``.
+
+    A (4, 4) pose, m; a copy of ``T`` (4, 4) when the two points coincide.
+    """
+    found, x, y, z = look_at_columns(p, c, (T[0, 0], T[1, 0], T[2, 0]))
+    out = np.empty((4, 4))
+    if not found:
+        out[:] = T
+        return out
+    for i in range(3):
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x[i], y[i], z[i], p[i]
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
+    return out
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _turned_kernel(
+    T: FloatArray, look_distance: float, r0: float, r1: float, r2: float, fraction: float
+) -> FloatArray:
+    """``T`` (4, 4) moved about its look-at point by ``fraction`` of the rotation ``r`` (rad).
+
+    The look-at point is ``look_distance`` (m) ahead on the optical axis; the horizon is
+    levelled again (rolled as ``T`` near vertical). A new (4, 4) pose, world, m.
+    """
+    R = _so3_exp(fraction * r0, fraction * r1, fraction * r2)
+    z0, z1, z2 = T[0, 2], T[1, 2], T[2, 2]
+    zt0 = R[0, 0] * z0 + R[0, 1] * z1 + R[0, 2] * z2
+    zt1 = R[1, 0] * z0 + R[1, 1] * z1 + R[1, 2] * z2
+    zt2 = R[2, 0] * z0 + R[2, 1] * z1 + R[2, 2] * z2
+    c0 = T[0, 3] + look_distance * z0
+    c1 = T[1, 3] + look_distance * z1
+    c2 = T[2, 3] + look_distance * z2
+    p = (c0 - look_distance * zt0, c1 - look_distance * zt1, c2 - look_distance * zt2)
+    return _look_at_matrix(p, (c0, c1, c2), T)
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _between12(frames: FloatArray, T: FloatArray) -> Pose12:
+    """The tool tip's goal in the RCM frame (12 floats, m) of a camera pose ``T`` (4, 4), world.
+
+    :func:`~endocam.robot.dh.pose12_between` of ``T_rcm_world``, ``T``, ``T_cam_tip``.
+    """
+    A, B = frames[_F_RCM_WORLD], frames[_F_CAM_TIP]
+    pre12 = (
+        A[0, 0], A[0, 1], A[0, 2], A[1, 0], A[1, 1], A[1, 2], A[2, 0], A[2, 1], A[2, 2],
+        A[0, 3], A[1, 3], A[2, 3],
+    )  # fmt: skip
+    post = (
+        (B[0, 0], B[0, 1], B[0, 2], B[0, 3]),
+        (B[1, 0], B[1, 1], B[1, 2], B[1, 3]),
+        (B[2, 0], B[2, 1], B[2, 2], B[2, 3]),
+    )
+    return pose12_between(pre12, T, post)
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _exact_into(
+    psm: bool,
+    params: FloatArray,
+    consts: FloatArray,
+    frames: FloatArray,
+    T: FloatArray,
+    seed0: float,
+    seed3: float,
+    two: float,
+    out: FloatArray,
+) -> bool:
+    """:meth:`CameraArm._exact`: the exact joints of a camera pose ``T`` (4, 4), world, m.
+
+    The arm's compiled exact IK (the PSM's, ``psm`` True, or the ECM's; ``params``, ``consts``:
+    its chain's parameters and its constants; seeded by joints 0 and 3 of the measured ones,
+    rad; ``two``: 2.0) of the tip goal :func:`_between12`. True and the joints (rad / m) in
+    ``out`` (n,) if they exist; False (``out`` untouched) if not.
+    """
+    goal12 = _between12(frames, T)
+    if psm:
+        ok, q6 = _psm_exact_kernel(params, consts, goal12, seed0, seed3, two)
+        if ok:
+            for i in range(6):
+                out[i] = q6[i]
+        return ok
+    ok4, q4 = _ecm_exact_kernel(params, consts, goal12, seed3, two)
+    if ok4:
+        for i in range(4):
+            out[i] = q4[i]
+    return ok4
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _tip_goal12(frames: FloatArray, T: FloatArray) -> Pose12:
+    """``T_rcm_world @ T @ T_cam_tip`` (numpy's floats) as 12 floats, m: the tip's goal."""
+    A, B = np.empty((4, 4)), np.empty((4, 4))
+    matmul4(frames[_F_RCM_WORLD], T, A)
+    matmul4(A, frames[_F_CAM_TIP], B)
+    return (
+        B[0, 0], B[0, 1], B[0, 2], B[1, 0], B[1, 1], B[1, 2], B[2, 0], B[2, 1], B[2, 2],
+        B[0, 3], B[1, 3], B[2, 3],
+    )  # fmt: skip
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _reached(frames: FloatArray, T12: Pose12) -> FloatArray:
+    """``T_world_rcm @ T_rcm_tip @ T_tip_cam`` (numpy's floats): the camera (4, 4), world, m.
+
+    ``T12``: the tip in the RCM frame (12 floats, m).
+    """
+    T = np.empty((4, 4))
+    for i in range(3):
+        T[i, 0], T[i, 1], T[i, 2], T[i, 3] = T12[3 * i], T12[3 * i + 1], T12[3 * i + 2], T12[9 + i]
+    T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
+    A, out = np.empty((4, 4)), np.empty((4, 4))
+    matmul4(frames[_F_WORLD_RCM], T, A)
+    matmul4(A, frames[_F_TIP_CAM], out)
+    return out
+
+
+# _ecm_target_kernel's outcomes: the answer (exact, the port view, the nearest pose), or the
+# nearest in-limit position is needed (scipy, in Python) for the port view or for the goal
+_TARGET_EXACT, _TARGET_VIEW, _TARGET_NEAREST, _TARGET_PORT_SCIPY, _TARGET_GOAL_SCIPY = range(5)
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _ecm_target_kernel(
+    params: FloatArray,
+    consts: FloatArray,
+    frames: FloatArray,
+    p_rcm: FloatArray,
+    T_goal: FloatArray,
+    look_distance: float,
+    seed3: float,
+    two: float,
+    T: FloatArray,
+) -> tuple[int, tuple[float, float, float, float], float, float]:
+    """:meth:`CameraArm.target` on the ECM: ``(outcome, q, position_error, angle_error)``.
+
+    ``outcome``: one of ``_TARGET_*``; the pose ``T`` below is written into ``T`` (4, 4), the
+    caller's array (none to box).
+
+    ``_TARGET_EXACT``: the goal ``T_goal`` (4, 4, world, m) is exact, ``q`` its joints (rad /
+    m) and ``T`` a copy of it; ``_TARGET_VIEW``: the port view of the goal's look-at point
+    (``look_distance`` ahead, m; ``p_rcm`` (3,): the port, m) is reached (within
+    ``VIEW_POSITION_TOL_M``), ``q`` its joints and ``T`` the camera there; ``_TARGET_NEAREST``:
+    the nearest configuration of the goal, ``q`` and its camera ``T``. ``_TARGET_PORT_SCIPY``
+    (``T``: the port view) and ``_TARGET_GOAL_SCIPY``: the ECM's IK needs its nearest in-limit
+    position (scipy): the caller goes on from there. The ECM's compiled IK
+    (:func:`~endocam.robot.ecm._exact_kernel`, ``_solve_kernel``; ``seed3``: the measured
+    roll, rad; ``two``: 2.0) and numpy's products (:mod:`endocam.blasfloat`). Then how far
+    ``T`` is from the goal (:func:`_target_error_kernel`: m, rad; 0.0 but for the view and the
+    nearest pose).
+    """
+    ok, q = _ecm_exact_kernel(params, consts, _between12(frames, T_goal), seed3, two)
+    if ok:
+        T[:, :] = T_goal
+        return _TARGET_EXACT, q, 0.0, 0.0
+    found, r0, r1, r2 = _port_rotvec_kernel(T_goal, look_distance, p_rcm)
+    if found:
+        T_port = _turned_kernel(T_goal, look_distance, r0, r1, r2, 1.0)
+        goal = _tip_goal12(frames, T_port)
+        outcome, _, q, pos_err, _, T12, _ = _ecm_solve_kernel(
+            params, consts, goal, seed3, two, None
+        )
+        if outcome != _ECM_DONE:
+            T[:, :] = T_port
+            return _TARGET_PORT_SCIPY, q, 0.0, 0.0
+        if pos_err <= VIEW_POSITION_TOL_M:
+            T[:, :] = _reached(frames, T12)
+            e_pos, e_ang = _target_error_kernel(T, T_goal, two)
+            return _TARGET_VIEW, q, e_pos, e_ang
+    goal = _tip_goal12(frames, T_goal)
+    outcome, _, q, _, _, T12, _ = _ecm_solve_kernel(params, consts, goal, seed3, two, None)
+    if outcome != _ECM_DONE:
+        T[:, :] = T_goal
+        return _TARGET_GOAL_SCIPY, q, 0.0, 0.0
+    T[:, :] = _reached(frames, T12)
+    e_pos, e_ang = _target_error_kernel(T, T_goal, two)
+    return _TARGET_NEAREST, q, e_pos, e_ang
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _path_kernel(
+    psm: bool,
+    params: FloatArray,
+    consts: FloatArray,
+    frames: FloatArray,
+    T_cam: FloatArray,
+    T_target: FloatArray,
+    look_distance: float,
+    seed0: float,
+    seed3: float,
+    two: float,
+    out: FloatArray,
+) -> bool:
+    """:meth:`CameraArm._path_target`: whether the camera-space path is taken, its joints.
+
+    ``T_cam``, ``T_target`` (4, 4): the camera and its target, world, m; ``look_distance``:
+    m. True, with the exact joints (rad / m) of the path's next pose in ``out`` (n,), when
+    the path is taken (:func:`_path_engage_kernel`) and the arm reaches that pose exactly
+    (:func:`_exact_into`; ``psm``, ``params``, ``consts``, ``frames``, the seeds and ``two``
+    as there). numpy's floats for its products (:mod:`endocam.blasfloat`).
+    """
+    engage, r_cur, alpha, u0, u1, u2, c0, c1, c2 = _path_engage_kernel(
+        T_cam, T_target, look_distance
+    )
+    if not engage:
+        return False
+    g0, g1, g2 = -T_target[0, 2], -T_target[1, 2], -T_target[2, 2]
+    a0, a1, a2 = cross((u0, u1, u2), (g0, g1, g2))
+    sin_a = math.sqrt(dot3(a0, a1, a2, a0, a1, a2))
+    cos_a = dot3(u0, u1, u2, g0, g1, g2)
+    ang = math.atan2(sin_a, cos_a)
+    if sin_a > _EPS_AXIS:
+        k = alpha * ang / sin_a
+        r0, r1, r2 = a0 * k, a1 * k, a2 * k
+    elif cos_a > 0.0:
+        r0, r1, r2 = 0.0, 0.0, 0.0
+    else:  # opposite: over the top
+        k0, k1, k2 = cross((u0, u1, u2), (0.0, 0.0, 1.0))
+        k_norm = math.sqrt(dot3(k0, k1, k2, k0, k1, k2))
+        if not k_norm > _EPS_AXIS:
+            return False
+        k = alpha * ang / k_norm
+        r0, r1, r2 = k0 * k, k1 * k, k2 * k
+    R = _so3_exp(r0, r1, r2)
+    r = r_cur + alpha * (look_distance - r_cur)
+    w0, w1, w2 = matvec3(R, (u0, u1, u2))
+    p = (c0 + r * w0, c1 + r * w1, c2 + r * w2)
+    T_via = _look_at_matrix(p, (c0, c1, c2), T_target)
+    return _exact_into(psm, params, consts, frames, T_via, seed0, seed3, two, out)
 
 
 class CameraArm:
@@ -259,13 +517,24 @@ class CameraArm:
         self._pose_consts = np.array(
             [*self._world_rcm12, *T_last_cam[:3].ravel().tolist(), *self._p_rcm_list]
         )
+        # the kernels' arm state: its poses (_F_*), its IK's constants, an output row
+        self._frames = np.ascontiguousarray(
+            [self._T_world_rcm, self._T_rcm_world, self._T_tip_cam, self._T_cam_tip], dtype=float
+        )
+        self._is_psm = kind is ArmKind.PSM
+        self._ik_params = self.model.chain._param_array
+        self._ik_consts: FloatArray = self.model._consts  # type: ignore[attr-defined]
+        self._q_out = np.empty(self.model.n_joints)
+        self._stop_row = np.empty(self.model.n_joints)  # _stop_kernel's stopping point
         self._arm = SimulatedArm(self.model, dt=dt, q0=natural_pose(self.model))
         self._q = self._arm.measured_js()[0]
         self._T_cam = self.camera_pose(self._q)
         self._k_prev: int | None = None  # the last conceded turn, in VIEW_STEPS (warm start)
         self._last_key: bytes | None = None  # the last goal (bytes) and its look distance
         self._last_look = math.nan
-        self._last_target: tuple[list[float], FloatArray, ActuatorStatus] | None = None
+        # the last goal's answer: joints, target pose, status, position and angle errors
+        self._last_target: tuple[list[float], FloatArray, ActuatorStatus, float, float] | None
+        self._last_target = None
         self._via_port = False  # on the path through the port view after a target jump
         self._stalled: int | None = None  # a stalled joint (fault injection)
         self.workspace = workspace
@@ -291,8 +560,11 @@ class CameraArm:
         self._brake_inp.max_velocity = list(vmax)
         self._brake_inp.max_acceleration = list(amax)
         self._brake_inp.max_jerk = [math.inf] * n
+        self._brake_inp.current_acceleration = [0.0] * n  # every braking path starts so
         self._brake_traj = ruckig.Trajectory(n)
         self._safe = False  # the camera can stop inside the workspace
+        # the workspace whose cone and floor _stop_kernel has (None: none yet), and those
+        self._cone_of: tuple[WorkspaceBound | None, FloatArray | None] = (None, None)
         self._stop: list[float] = self._q.tolist()  # where the joints stop if braked now
         self.braked = 0  # steps on which the workspace made the arm brake
 
@@ -367,9 +639,17 @@ class CameraArm:
         return self._T_rcm_world @ T_world_cam @ self._T_cam_tip
 
     def _exact(self, T_world_cam: FloatArray) -> list[float] | None:
-        """The exact joints (rad / m) of a camera pose (4, 4), world, m; ``None`` if none."""
-        goal12 = pose12_between(self._rcm_world12, T_world_cam, self._cam_tip_rows)
-        return self.model.exact12_unchecked(goal12, self._q)
+        """The exact joints (rad / m) of a camera pose (4, 4), world, m; ``None`` if none.
+
+        One compiled call (:func:`_exact_into`), seeded by the measured joints.
+        """
+        q, out = self._q, self._q_out
+        if _exact_into(
+            self._is_psm, self._ik_params, self._ik_consts, self._frames, T_world_cam,
+            q[0], q[3], 2.0, out,
+        ):  # fmt: skip
+            return out.tolist()
+        return None
 
     def target(
         self, T_world_goal: FloatArray, look_distance: float
@@ -391,33 +671,79 @@ class CameraArm:
             The camera pose of ``q``'s goal: the goal, or the view put in its place, m.
         status : ActuatorStatus
         """
+        q, T, status, _, _ = self._target_errors(T_world_goal, look_distance)
+        return q, T, status
+
+    def _target_errors(
+        self, T_world_goal: FloatArray, look_distance: float
+    ) -> tuple[list[float], FloatArray, ActuatorStatus, float, float]:
+        """:meth:`target`, and how far its pose is from the goal: m, rad (0 when exact)."""
+        if not self._is_psm:
+            return self._ecm_target(T_world_goal, look_distance)
+        q, T, status = self._psm_target(T_world_goal, look_distance)
+        if status is ActuatorStatus.EXACT:
+            return q, T, status, 0.0, 0.0
+        return q, T, status, *_target_error_kernel(T, T_world_goal, 2.0)
+
+    def _psm_target(
+        self, T_world_goal: FloatArray, look_distance: float
+    ) -> tuple[list[float], FloatArray, ActuatorStatus]:
+        """:meth:`target` on the PSM: exact, the nearest reachable turn towards the port view."""
         q = self._exact(T_world_goal)
         if q is not None:
             self._k_prev = None
             T_target = np.array(T_world_goal, dtype=float)  # not the caller's array
             T_target.setflags(write=False)
             return q, T_target, ActuatorStatus.EXACT
-        rotvec = _port_rotvec(T_world_goal, look_distance, self._p_world_rcm)
-        if rotvec is not None:
-            if self.kind is ArmKind.ECM:
-                # the 4-DoF scope's only view of that point; a roll beyond its limits is
-                # conceded too (the horizon tilts), as long as the view itself is reached
-                T_port = _turned(T_world_goal, look_distance, rotvec, 1.0)
-                port = self.model.solve_unchecked(self._tip_goal(T_port), self._q)
-                if port.position_error <= VIEW_POSITION_TOL_M:
-                    T_reached = self._T_world_rcm @ port.T_rcm_tip @ self._T_tip_cam
-                    return port.q.tolist(), T_reached, ActuatorStatus.VIEW
-            else:
-                found = self._view_search(T_world_goal, look_distance, rotvec)
-                if found is not None:
-                    return found[0], found[1], ActuatorStatus.VIEW
+        found, r0, r1, r2 = _port_rotvec_kernel(T_world_goal, look_distance, self._p_world_rcm)
+        if found:
+            view = self._view_search(T_world_goal, look_distance, (r0, r1, r2))
+            if view is not None:
+                return view[0], view[1], ActuatorStatus.VIEW
+        return self._nearest(T_world_goal)
+
+    def _nearest(self, T_world_goal: FloatArray) -> tuple[list[float], FloatArray, ActuatorStatus]:
+        """The nearest configuration of a camera goal (4, 4), world, m, and its camera, m."""
         self._k_prev = None
         result = self.model.solve_unchecked(self._tip_goal(T_world_goal), self._q)
         T_near = self._T_world_rcm @ result.T_rcm_tip @ self._T_tip_cam
         return result.q.tolist(), T_near, ActuatorStatus.NEAREST
 
+    def _ecm_target(
+        self, T_world_goal: FloatArray, look_distance: float
+    ) -> tuple[list[float], FloatArray, ActuatorStatus, float, float]:
+        """:meth:`_target_errors` on the ECM: one compiled call (:func:`_ecm_target_kernel`).
+
+        The 4-DoF scope's only view of the goal's look-at point is its port view; a roll
+        beyond its limits is conceded too (the horizon tilts), as long as the view itself is
+        reached. scipy's nearest in-limit position, when the IK needs it, is found here.
+        """
+        q, T = self._q, np.empty((4, 4))
+        outcome, q_new, pos_err, ang_err = _ecm_target_kernel(
+            self._ik_params, self._ik_consts, self._frames, self._p_world_rcm, T_world_goal,
+            look_distance, q[3], 2.0, T,
+        )  # fmt: skip
+        if outcome == _TARGET_EXACT:
+            self._k_prev = None
+            T.setflags(write=False)
+            return list(q_new), T, ActuatorStatus.EXACT, 0.0, 0.0
+        if outcome == _TARGET_VIEW:
+            return list(q_new), T, ActuatorStatus.VIEW, pos_err, ang_err
+        if outcome == _TARGET_NEAREST:
+            self._k_prev = None
+            return list(q_new), T, ActuatorStatus.NEAREST, pos_err, ang_err
+        found = None
+        if outcome == _TARGET_PORT_SCIPY:  # T: the port view
+            port = self.model.solve_unchecked(self._tip_goal(T), self._q)
+            if port.position_error <= VIEW_POSITION_TOL_M:
+                T_reached = self._T_world_rcm @ port.T_rcm_tip @ self._T_tip_cam
+                found = (port.q.tolist(), T_reached, ActuatorStatus.VIEW)
+        if found is None:
+            found = self._nearest(T_world_goal)
+        return (*found, *_target_error_kernel(found[1], T_world_goal, 2.0))
+
     def _view_search(
-        self, T_goal: FloatArray, look_distance: float, rotvec: FloatArray
+        self, T_goal: FloatArray, look_distance: float, rotvec: tuple[float, float, float]
     ) -> tuple[list[float], FloatArray] | None:
         """A locally smallest reachable turn ``k / VIEW_STEPS`` towards the port view.
 
@@ -433,10 +759,11 @@ class CameraArm:
         boundary jumps).
         """
         cache: dict[int, tuple[list[float], FloatArray] | None] = {}
+        r0, r1, r2 = rotvec
 
         def reach(k: int) -> tuple[list[float], FloatArray] | None:
             if k not in cache:
-                T = _turned(T_goal, look_distance, rotvec, k / VIEW_STEPS)
+                T = _turned_kernel(T_goal, look_distance, r0, r1, r2, k / VIEW_STEPS)
                 q = self._exact(T)
                 cache[k] = None if q is None else (q, T)
             return cache[k]
@@ -500,34 +827,13 @@ class CameraArm:
         move towards it for one step, so a far target is reached along the path instead of the
         straight joint-space line (whose view swings away from ``c``).
         """
-        engage, r_cur, alpha, u0, u1, u2, c0, c1, c2 = _path_engage_kernel(
-            self._T_cam, T_target, look_distance
-        )
-        if not engage:
-            return None
-        u, c = [u0, u1, u2], [c0, c1, c2]
-        z_t = [float(T_target[0, 2]), float(T_target[1, 2]), float(T_target[2, 2])]
-        c_arr = np.array(c)
-        u_cur = np.array(u)
-        u_goal = -np.array(z_t)
-        axis = _cross(u, [-x for x in z_t])
-        sin_a = _norm(axis)
-        ang = math.atan2(sin_a, float(u_cur @ u_goal))
-        if sin_a > _EPS_AXIS:
-            rotvec = axis * (alpha * ang / sin_a)
-        elif u_cur @ u_goal > 0.0:
-            rotvec = np.zeros(3)
-        else:  # opposite: over the top
-            k = _cross(u, [0.0, 0.0, 1.0])
-            k_norm = _norm(k)
-            if not k_norm > _EPS_AXIS:
-                return None
-            rotvec = k * (alpha * ang / k_norm)
-        R = np.array(so3_exp(rotvec.tolist()))
-        r = r_cur + alpha * (look_distance - r_cur)
-        p = c_arr + r * (R @ u_cur)
-        T_via = look_at_unchecked(p, c_arr, T_target, T_target)
-        return self._exact(T_via)
+        q, out = self._q, self._q_out
+        if _path_kernel(
+            self._is_psm, self._ik_params, self._ik_consts, self._frames, self._T_cam, T_target,
+            look_distance, q[0], q[3], 2.0, out,
+        ):  # fmt: skip
+            return out.tolist()
+        return None
 
     def reset(self, T_world_cam: object, look_distance: float | None = None) -> FloatArray:
         """Place the arm, at rest, at the configuration nearest to a camera pose.
@@ -620,30 +926,28 @@ class CameraArm:
             and key == self._last_key
             and (last[2] is ActuatorStatus.EXACT or look_distance == self._last_look)
         ):
-            q_cmd, T_target, approach = last  # a held goal: same answer (exact: any distance)
+            # a held goal (the same bytes): the same answer (exact: at any distance)
+            q_cmd, T_target, approach, pos_err, ang_err = last
         else:
             try:
-                q_cmd, T_target, approach = self.target(T_goal, look_distance)
+                found = self._target_errors(T_goal, look_distance)
             except (ArithmeticError, ValueError, np.linalg.LinAlgError):
                 # a command no solver can digest (finite but absurd): brake where the arm is
                 T_goal = self._T_cam
-                q_cmd, T_target, approach = self.target(T_goal, look_distance)
+                found = self._target_errors(T_goal, look_distance)
+            q_cmd, T_target, approach, pos_err, ang_err = found
             self._last_key, self._last_look = key, look_distance
             if last is not None and self.via_port and _wrist_jump(self.kind, last[0], q_cmd):
                 self._via_port = True  # the target jumped across a reachability gap
-            self._last_target = (q_cmd, T_target, approach)
-        if approach is ActuatorStatus.EXACT:
-            pos_err = ang_err = 0.0
-        else:
-            pos_err = _norm(T_target[:3, 3] - T_goal[:3, 3])
-            ang_err = _pose_angle_kernel(T_target, T_goal, 2.0)
+            self._last_target = found
         reachable = approach is ActuatorStatus.EXACT or (
             self.kind is ArmKind.ECM and approach is ActuatorStatus.VIEW
         )
         if self.camera_path and approach is not ActuatorStatus.NEAREST:
             q_cmd = self._on_path(q_cmd, T_target, look_distance)
         if self.workspace is not None:
-            q_before, qd_before = self._arm.measured_js()
+            arm = self._arm  # (its arrays are replaced, never written, as it moves)
+            q_before, qd_before = arm._q, arm._qd
         if self._stalled is not None:
             q_cmd = list(q_cmd)
             q_cmd[self._stalled] = float(self._q[self._stalled])
@@ -681,13 +985,22 @@ class CameraArm:
         """
         ws = self.workspace
         assert ws is not None
-        q, qd = self._arm.measured_js()
-        stop_row, T_now, moving, slide, turn, to_rcm = _stop_kernel(
-            self.model.chain._param_array, self._pose_consts, self._stop_consts, q, qd
-        )
-        stop = stop_row.tolist()
+        q, qd = self._arm._q, self._arm._qd  # (replaced, never written, as the arm moves)
+        if ws is not self._cone_of[0]:  # the cone and floor of a Workspace, for the kernel
+            self._cone_of = (ws, _cone_consts(ws))
+        cone = self._cone_of[1]
+        T_now = np.empty((4, 4))
+        moving, slide, turn, to_rcm, m_cone = _stop_kernel(
+            self.model.chain._param_array, self._pose_consts, self._stop_consts, q, qd, cone,
+            self._stop_row, T_now,
+        )  # fmt: skip
+        stop = self._stop_row.tolist()
         p = T_now[:3, 3].tolist()
-        margin = ws.margin(p)
+        if cone is None:
+            margin = ws.margin(p)
+        else:  # Workspace.margin: the cone and the floor (compiled), then the keep-out zone
+            keep_out = ws.keep_out  # type: ignore[attr-defined]
+            margin = m_cone if keep_out is None else min(m_cone, keep_out.margin(p))
         safe = margin >= 0.0
         if safe and moving:
             lever = to_rcm + slide + ARM_LEVER_SLACK_M
@@ -707,8 +1020,7 @@ class CameraArm:
         inp = self._brake_inp
         inp.current_position = q
         inp.current_velocity = qd
-        inp.current_acceleration = [0.0] * len(q)
-        inp.target_position = stop
+        inp.target_position = stop  # (current_acceleration: 0, set once)
         if self._brake_otg.calculate(inp, self._brake_traj) not in (
             ruckig.Result.Working,
             ruckig.Result.Finished,
@@ -730,9 +1042,17 @@ class CameraArm:
                 self._last_cam_point,
             )
         else:  # a short path: fewer calls of ruckig's own sampler than reading the profiles
-            path = [traj.at_time(min(i * dt, duration))[0] for i in range(1, steps + 1)]
+            at_time = traj.at_time
+            path = [at_time(min(i * dt, duration))[0] for i in range(1, steps + 1)]
             path.append(stop)
-            points = chain_points(self.model.chain, path, self._world_rcm12, self._last_cam_point)
+            n = len(stop)
+            q_rows = np.fromiter(
+                itertools.chain.from_iterable(path), float, (steps + 1) * n
+            ).reshape(-1, n)
+            a3, b3, c3 = self._last_cam_point
+            points = _points_kernel(
+                self.model.chain._param_array, q_rows, self._world_rcm12, a3, b3, c3
+            )
         return ws.all_inside(points)
 
     def _keep_inside(self, q_before: FloatArray, qd_before: FloatArray) -> FloatArray | None:
@@ -791,19 +1111,27 @@ def _pose_kernel(params: FloatArray, c: FloatArray, q: FloatArray) -> FloatArray
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _stop_kernel(
-    params: FloatArray, c: FloatArray, joints: FloatArray, q: FloatArray, qd: FloatArray
-) -> tuple[FloatArray, FloatArray, bool, float, float, float]:
+    params: FloatArray,
+    c: FloatArray,
+    joints: FloatArray,
+    q: FloatArray,
+    qd: FloatArray,
+    cone: FloatArray | None,
+    stop: FloatArray,
+    T_now: FloatArray,
+) -> tuple[bool, float, float, float, float]:
     """:meth:`CameraArm._stop_point`'s floats for joints ``q`` moving at ``qd`` (n,).
 
     ``joints`` (4, n): ``v²/2a`` factors (s²/rad or s²/m), prismatic flags (1.0), lower and
-    upper limits. Returns the stopping point (each joint braked: ``q + qd·|qd|·k``, clipped
-    into the limits as ``RcmArm.clamp_floats``), the camera pose now (4, 4), m
-    (:func:`_pose_kernel`), whether any joint moves (a NaN velocity counts), the braking's
-    total slide (m) and turn (rad), and the camera's distance to the RCM (CPython's
-    ``math.dist``), m.
+    upper limits. Writes the stopping point into ``stop`` (n,) (each joint braked:
+    ``q + qd·|qd|·k``, clipped into the limits as ``RcmArm.clamp_floats``) and the camera pose
+    now into ``T_now`` (4, 4), m (:func:`_pose_kernel`): arrays from the caller, none to box.
+    Returns whether any joint moves (a NaN velocity counts), the braking's total slide (m)
+    and turn (rad), the camera's distance to the RCM (CPython's ``math.dist``), m, and its
+    margin to the cone and the floor (``Workspace.margin`` without the keep-out zone, m;
+    ``cone``: :func:`_cone_consts`; NaN without).
     """
     n = q.shape[0]
-    stop = np.empty(n)
     moving = False
     slide = 0.0
     turn = 0.0
@@ -818,10 +1146,28 @@ def _stop_kernel(
             slide += abs(d)
         else:
             turn += abs(d)
-    T_now = _pose_kernel(params, c, q)
+    T_now[:, :] = _pose_kernel(params, c, q)
     r = _POSE_RCM
-    to_rcm = dist3(T_now[0, 3], T_now[1, 3], T_now[2, 3], c[r], c[r + 1], c[r + 2])
-    return stop, T_now, moving, slide, turn, to_rcm
+    x, y, z = T_now[0, 3], T_now[1, 3], T_now[2, 3]
+    to_rcm = dist3(x, y, z, c[r], c[r + 1], c[r + 2])
+    margin = math.nan
+    if cone is not None:  # Python's min(cone.margin(p), p[2] - floor)
+        apex, axis = (cone[0], cone[1], cone[2]), (cone[3], cone[4], cone[5])
+        m = cone_margin(x, y, z, apex, axis, cone[6], cone[7], cone[8])
+        margin = py_min(m, z - cone[9])
+    return moving, slide, turn, to_rcm, margin
+
+
+def _cone_consts(ws: WorkspaceBound) -> FloatArray | None:
+    """A ``control.safety.Workspace``'s cone (``ConeWorkspace.constants``) and floor (10,), m.
+
+    ``None`` for any other workspace (its own ``margin`` is asked).
+    """
+    if type(ws) is not Workspace:
+        return None
+    consts = np.array([*ws.cone.constants, ws.floor], dtype=float)
+    consts.setflags(write=False)
+    return consts
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -891,13 +1237,21 @@ def _unit_clip(x: float) -> float:
     return py_max(-1.0, py_min(1.0, x))
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _pose_angle_kernel(T_a: FloatArray, T_b: FloatArray, two: float) -> float:
-    """:func:`~endocam.kernels.rotation_angle` of two poses (4, 4), rad, compiled.
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _target_error_kernel(
+    T_target: FloatArray, T_goal: FloatArray, two: float
+) -> tuple[float, float]:
+    """How far a target pose is from the goal (both (4, 4), world): m, and rad.
 
-    ``two``: 2.0, passed at run time (a constant exponent would be folded into a product).
+    numpy's ``np.linalg.norm`` of the positions' difference (its dot: :mod:`endocam.blasfloat`)
+    and :func:`~endocam.kernels.rotation_angle` of their rotations (``two``: 2.0, passed at run
+    time: a constant exponent would be folded into a product).
     """
-    return rotation_angle(_rotation_rows(T_a), _rotation_rows(T_b), two)
+    d0 = T_target[0, 3] - T_goal[0, 3]
+    d1 = T_target[1, 3] - T_goal[1, 3]
+    d2 = T_target[2, 3] - T_goal[2, 3]
+    pos_err = math.sqrt(dot3(d0, d1, d2, d0, d1, d2))
+    return pos_err, rotation_angle(_rotation_rows(T_target), _rotation_rows(T_goal), two)
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
