@@ -36,7 +36,7 @@ unit: $(STAMP)
 test: lint unit
 
 bench: $(STAMP)
-	$(VENV)/bin/pytest bench --benchmark-enable --benchmark-only -p no:cacheprovider -o addopts=""
+	$(VENV)/bin/pytest bench/bench_*.py --benchmark-enable --benchmark-only -p no:cacheprovider -o addopts=""
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache
