@@ -404,34 +404,46 @@ def _shortened_of(
     return d if code == 0 else d_next
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
+def _identity_into(T: FloatArray, twist: FloatArray) -> None:  # pragma: no cover - compiled
+    """Set ``T`` (4, 4) to the identity and ``twist`` (6,) to zero, in place."""
+    for i in range(4):
+        for j in range(4):
+            T[i, j] = 1.0 if i == j else 0.0
+    for i in range(6):
+        twist[i] = 0.0
+
+
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _plan_kernel(
     T_cam: FloatArray,
     T_ring: FloatArray,
     tips: FloatArray,
     previous: FloatArray,
-    buf: FloatArray,
-    count: np.ndarray,
-    spacing: int,
     t: float,
     check: bool,
     has_t_ring: bool,
     t_ring: float,
+    given: FloatArray,
+    d_f: float,
+    fresh: bool,
+    side: float,
+    planned: float,
+    plain: bool,
+    release: float,
+    view_out: FloatArray,
+    twist_out: FloatArray,
+    buf: FloatArray,
+    count: np.ndarray,
+    spacing: int,
     max_age: float,
     gate: FloatArray,
     bounds: FloatArray,
     horizon: float,
     dt: float,
     feedforward: bool,
-    given: FloatArray,
-    d_f: float,
-    fresh: bool,
-    side: float,
-    planned: float,
     params: FloatArray,
     out: FloatArray,
-    plain: bool,
-    release: float,
     has_guard: bool,
     pts: FloatArray,
     table: np.ndarray,
@@ -441,7 +453,7 @@ def _plan_kernel(
     ref: FloatArray,
     nref: np.ndarray,
     clearance: float,
-) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
+) -> None:  # pragma: no cover - compiled
     """:meth:`EndocamPolicy.step` from the input checks to the view and its twist.
 
     If ``check``: the input checks and the ring gate first (``policies.observed`` at ``t`` s,
@@ -470,9 +482,10 @@ def _plan_kernel(
     its side, its pose's cone margin (m), whether a twist was computed, the predicted ring
     centre (m) and normal, the view direction, whether the guard found the view clear,
     whether the move needs a detour and its way-point (m), the camera's position (m), the
-    checks' answer. Returns the view's pose (4, 4)
-    and the goal's twist from the view to the next step's (6,): m/s, rad/s, world
-    (meaningful when found, and when computed).
+    checks' answer. Writes the view's pose into ``view_out`` (4, 4) and the goal's twist from
+    the view to the next step's into ``twist_out`` (6,): m/s, rad/s, world (meaningful when
+    found, and when computed; else the identity and zeros). The caller's arrays, not returned
+    ones: numba unpickles the type of every array it returns (~1 us a call).
     """
     prm = params
     cone = cone_at(prm, _CONE)
@@ -481,7 +494,8 @@ def _plan_kernel(
         answer = observed(T_cam, T_ring, t, has_t_ring, t_ring, max_age, gate, bounds, cone, True)
         if answer != OBS_OK:
             out[_OUT_CHECK] = answer
-            return np.eye(4), np.zeros(6)
+            _identity_into(view_out, twist_out)
+            return
     for i in range(3):
         out[_OUT_CAM + i] = T_cam[i, 3]
     code = window_code_of(T_cam, tips, prm[_WINDOW : _WINDOW + 9])
@@ -528,11 +542,16 @@ def _plan_kernel(
     out[_OUT_TWIST] = out[_OUT_CLEARED] = out[_OUT_DETOUR] = 0.0
     for i in range(3):
         out[_OUT_P + i], out[_OUT_N + i], out[_OUT_U + i] = p_c[i], n[i], u[i]
-    twist = np.zeros(6)
     if not found:
-        return np.eye(4), twist
+        _identity_into(view_out, twist_out)
+        return
     x, y, z, p = _pose_of(p_c, u, d, True, z_prev, x_prev, half_b)
-    view = _rows_of(x, y, z, p)
+    view = view_out
+    for i in range(3):
+        view[i, 0], view[i, 1], view[i, 2], view[i, 3] = x[i], y[i], z[i], p[i]
+    view[3, 0], view[3, 1], view[3, 2], view[3, 3] = 0.0, 0.0, 0.0, 1.0
+    for i in range(6):
+        twist_out[i] = 0.0
     out[_OUT_MARGIN] = margin = cone_margin(
         p[0], p[1], p[2], cone[0], cone[1], cone[2], cone[3], cone[4]
     )
@@ -556,7 +575,7 @@ def _plan_kernel(
         for i in range(3):
             out[_OUT_VIA + i] = via[i]
     if not feedforward:
-        return view, twist
+        return
     if given.shape[0] == 0:
         p2, n2 = _ring_predict(buf, count, spacing, horizon + dt)
     else:
@@ -570,9 +589,8 @@ def _plan_kernel(
         x2, y2, z2, p2_cam = _pose_of(p2, u2, d, True, z, x, half_b)
         v = _twist_of(view, _rows_of(x2, y2, z2, p2_cam), dt)
         for i in range(6):
-            twist[i] = v[i]
+            twist_out[i] = v[i]
         out[_OUT_TWIST] = 1.0
-    return view, twist
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -610,6 +628,8 @@ class EndocamPolicy(_MovingPolicy):
         self._half_b = 0.0
         self._cleared_view: FloatArray | None = None  # this step's view, cleared by the kernel
         self._horizon = 0.0
+        self._plan_consts: tuple[object, ...] | None = None  # _plan_kernel's, per episode
+        self._given = False  # the predictor is the oracle's (its predictions are given)
         self.transfers = 0  # transfers started this episode (side changes and approaches)
 
     def reset(self, context: PolicyContext) -> None:
@@ -626,6 +646,7 @@ class EndocamPolicy(_MovingPolicy):
         self._gains = np.array([g_lin, g_lin, g_lin, g_ang, g_ang, g_ang])  # the twist's gains
         self._horizon = context.sensing_latency + tc.carrier_lead if tc.predict else 0.0
         self.transfers = 0
+        self._plan_consts = None  # rebuilt at the first step (after a subclass's reset)
         cfg, geometry = self.config, self._window_geometry
         assert geometry is not None  # set by super().reset()
         params = [0.0] * _N_PARAMS
@@ -688,68 +709,89 @@ class EndocamPolicy(_MovingPolicy):
         """:func:`_plan_kernel` for ``obs``, its camera and ring poses ``T_cam``, ``T_ring`` (4, 4).
 
         Returns its scalar results (``_OUT_*``; ``_OUT_CHECK``: the checks' answer, the rest
-        unset unless ``OBS_OK``), the view's pose (4, 4) and its twist (6,).
+        unset unless ``OBS_OK``), the view's pose (4, 4) and its twist (6,): new arrays each
+        step (the goal and the command keep them).
         """
-        ctx = self._ctx
-        assert ctx is not None  # set by reset()
-        pred = self._predictor
-        feedforward = self.tracker.feedforward and self._horizon > 0.0 and ctx.follows_twist
+        consts = self._plan_consts
+        if consts is None:
+            consts = self._plan_consts = self._plan_constants()
         given = _NO_PREDICTIONS
-        gate, t_ring, t = self._gate, obs.t_ring, float(obs.t)
+        t_ring, t = obs.t_ring, float(obs.t)
         has_t_ring = t_ring is not None
         t_ring = 0.0 if t_ring is None else float(t_ring)
-        max_age = self.config.ring_max_age
         check = True
-        if not isinstance(pred, RingPredictor):  # the oracle's: the true future
+        if self._given:  # the oracle's predictor: the true future
             answer = _observed_kernel(
-                T_cam, T_ring, t, has_t_ring, t_ring, max_age, gate.state, gate.bounds,
-                self._params, _CONE, True,
+                T_cam, T_ring, t, has_t_ring, t_ring, self.config.ring_max_age, self._gate.state,
+                self._gate.bounds, self._params, _CONE, True,
             )  # fmt: skip
             if answer != OBS_OK:
                 self._out[_OUT_CHECK] = answer
                 return self._out.tolist(), T_cam, np.zeros(6)
             check = False  # made
+            pred = self._predictor
             p_obs = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])
             n_obs = unit_or_none((T_ring[0, 2], T_ring[1, 2], T_ring[2, 2]))
             pred.push(obs.t, p_obs, n_obs)
             p1, n1 = pred.predict(self._horizon)
-            p2, n2 = pred.predict(self._horizon + ctx.dt)
+            p2, n2 = pred.predict(self._horizon + self._ctx_dt)
             given = np.array([*p1, *n1, *p2, *n2])
-            pred = self._ring  # unused
         tips = obs.p_world_tips
         if not (isinstance(tips, np.ndarray) and tips.ndim == 2):
             tips = np.asarray(tips, dtype=float).reshape(-1, 3)
-        view, twist = _plan_kernel(
+        view, twist = np.empty((4, 4)), np.empty(6)
+        _plan_kernel(
             T_cam,
             T_ring,
             tips,
             previous,
-            pred.buf,
-            pred.count,
-            pred.spacing,
             t,
             check,
             has_t_ring,
             t_ring,
-            max_age,
-            gate.state,
-            gate.bounds,
-            self._horizon,
-            ctx.dt,
-            feedforward,
             given,
             self.d_f,
             self._last_goal is None,
             self._side,
             self._preferred_side(),
-            self._params,
-            self._out,
             self._transfer is None,
             FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0,
-            self.guard is not None,
-            *(NO_GUARD if self.guard is None else self.guard.kernel_state),  # type: ignore[arg-type]
+            view,
+            twist,
+            *consts,
         )
         return self._out.tolist(), view, twist
+
+    def _plan_constants(self) -> tuple[object, ...]:
+        """:func:`_plan_kernel`'s arguments fixed for the episode, from ``buf`` on (a tuple).
+
+        Built at the first step after ``reset`` (a subclass's ``reset`` may replace the
+        predictor and the horizon after this class's); every array in it is updated in place
+        during the episode (the predictor's, the gate's, ``_params``, ``_out``, the guard's).
+        """
+        ctx = self._ctx
+        assert ctx is not None  # set by reset()
+        pred = self._predictor
+        self._given = not isinstance(pred, RingPredictor)
+        if self._given:
+            pred = self._ring  # unused: the oracle's predictions are given
+        feedforward = self.tracker.feedforward and self._horizon > 0.0 and ctx.follows_twist
+        gate = self._gate
+        return (
+            pred.buf,
+            pred.count,
+            pred.spacing,
+            self.config.ring_max_age,
+            gate.state,
+            gate.bounds,
+            self._horizon,
+            ctx.dt,
+            feedforward,
+            self._params,
+            self._out,
+            self.guard is not None,
+            *(NO_GUARD if self.guard is None else self.guard.kernel_state),
+        )
 
     # -- the step --------------------------------------------------------------------------
 
