@@ -656,10 +656,15 @@ class _MovingPolicy:
                     return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
                 cmd = wp
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
-        traced = None
-        if cleared and cmd is goal:  # the plain path: no way-points
-            traced = (bool(out[_OUT_DETOUR]), (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2]))
-        via = self._detoured(cmd, p_ring, p_now, traced)
+        if cleared and cmd is goal:  # the plain path: no way-points; the kernel traced the move
+            if out[_OUT_DETOUR]:
+                p_via = (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2])
+                via = self._detoured(cmd, p_ring, p_now, (True, p_via))
+            else:  # a straight move: what ``_detoured`` does with no way-point
+                self._p_detour, self._stalled = None, 0
+                via = None
+        else:
+            via = self._detoured(cmd, p_ring, p_now)
         if via is not None:
             cmd = via
             state, reason = TrackingState.PLANNING, DETOUR_REASON

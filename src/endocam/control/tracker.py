@@ -305,14 +305,16 @@ _NO_PREDICTIONS = np.zeros(0)  # _plan_kernel predicts itself
 _CONE = _WINDOW + 9  # apex (3), axis (3), tan_half, cos_half, height
 _RCM = _CONE + 9  # m, the camera arm's RCM (3)
 _JUMP = _RCM + 3  # m, jump_threshold
-_N_PARAMS = _JUMP + 1
+_CMD_FLOOR = _JUMP + 1  # m, the lowest commanded camera height (the last gate's floor)
+_N_PARAMS = _CMD_FLOOR + 1
 # _plan_kernel's scalar results (``out``), by index
 _OUT_D, _OUT_FOUND, _OUT_SIDE, _OUT_MARGIN, _OUT_TWIST = range(5)
 _OUT_P, _OUT_N, _OUT_U = 5, 8, 11  # ring centre (m), normal, view direction: 3 each
 _OUT_CLEARED, _OUT_DETOUR, _OUT_VIA = 14, 15, 16  # the guard's answers on the plain path
 _OUT_CAM = 19  # m, the observed camera position (3)
 _OUT_CHECK = 22  # the observation's checks (``policies.observed``: OBS_*)
-_N_OUT = 23
+_OUT_INSIDE = 23  # the last gate on the view: inside the cone and above the command floor
+_N_OUT = 24
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -482,7 +484,9 @@ def _plan_kernel(
     its side, its pose's cone margin (m), whether a twist was computed, the predicted ring
     centre (m) and normal, the view direction, whether the guard found the view clear,
     whether the move needs a detour and its way-point (m), the camera's position (m), the
-    checks' answer. Writes the view's pose into ``view_out`` (4, 4) and the goal's twist from
+    checks' answer, and the step's last gate on the view (:func:`_inside_of`: inside the cone,
+    at or above ``params[_CMD_FLOOR]``), which the step reads when the view is the command.
+    Writes the view's pose into ``view_out`` (4, 4) and the goal's twist from
     the view to the next step's into ``twist_out`` (6,): m/s, rad/s, world (meaningful when
     found, and when computed; else the identity and zeros). The caller's arrays, not returned
     ones: numba unpickles the type of every array it returns (~1 us a call).
@@ -539,7 +543,7 @@ def _plan_kernel(
     out[_OUT_D] = d
     out[_OUT_FOUND] = 1.0 if found else 0.0
     out[_OUT_SIDE] = s
-    out[_OUT_TWIST] = out[_OUT_CLEARED] = out[_OUT_DETOUR] = 0.0
+    out[_OUT_TWIST] = out[_OUT_CLEARED] = out[_OUT_DETOUR] = out[_OUT_INSIDE] = 0.0
     for i in range(3):
         out[_OUT_P + i], out[_OUT_N + i], out[_OUT_U + i] = p_c[i], n[i], u[i]
     if not found:
@@ -552,6 +556,8 @@ def _plan_kernel(
     view[3, 0], view[3, 1], view[3, 2], view[3, 3] = 0.0, 0.0, 0.0, 1.0
     for i in range(6):
         twist_out[i] = 0.0
+    # the last gate on the view, as the step asks it of a command (_inside_kernel's test)
+    out[_OUT_INSIDE] = 1.0 if _inside_of(view, prm, prm[_CMD_FLOOR]) else 0.0
     out[_OUT_MARGIN] = margin = cone_margin(
         p[0], p[1], p[2], cone[0], cone[1], cone[2], cone[3], cone[4]
     )
@@ -598,8 +604,14 @@ def _inside_kernel(T: FloatArray, params: FloatArray, floor: float) -> bool:  # 
     """Whether the pose ``T`` (4, 4), world, m, is inside the cone and at or above ``floor`` (m).
 
     ``ConeWorkspace.margin(p) >= 0`` (the cone stored in ``params``, :func:`_plan_kernel`'s)
-    and ``p[2] >= floor`` for its position ``p``.
+    and ``p[2] >= floor`` for its position ``p`` (:func:`_inside_of`).
     """
+    return _inside_of(T, params, floor)
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _inside_of(T: FloatArray, params: FloatArray, floor: float) -> bool:  # pragma: no cover
+    """:func:`_inside_kernel`'s test; :func:`_plan_kernel` makes it on its view too."""
     a, axis, tan_half, cos_half, height = cone_at(params, _CONE)
     p = (T[0, 3], T[1, 3], T[2, 3])
     return cone_margin(p[0], p[1], p[2], a, axis, tan_half, cos_half, height) >= 0.0 and (
@@ -661,6 +673,7 @@ class EndocamPolicy(_MovingPolicy):
         params[_CONE : _CONE + 9] = self.cone.constants
         params[_RCM : _RCM + 3] = np.asarray(context.p_world_rcm, dtype=float).tolist()
         params[_JUMP] = cfg.jump_threshold
+        params[_CMD_FLOOR] = self._cmd_floor
         self._params = np.array(params)
 
     # -- the goal (the maths: the compiled functions above) ---------------------------------
@@ -904,16 +917,21 @@ class EndocamPolicy(_MovingPolicy):
                 self.d_f = d_before
                 return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
             cmd = cleared
-        traced = None  # the kernel's trace of the move to the view, when it made it
         if out[_OUT_CLEARED] and cmd is goal and goal is self._cleared_view:
             # the plain path (no transfer, no freeze): the kernel traced the move to this pose
-            traced = (bool(out[_OUT_DETOUR]), (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2]))
-        via = self._detoured(cmd, p_c, p_cam, traced)
+            if out[_OUT_DETOUR]:
+                p_via = (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2])
+                via = self._detoured(cmd, p_c, p_cam, (True, p_via))
+            else:  # a straight move: what ``_detoured`` does with no way-point
+                self._p_detour, self._stalled = None, 0
+                via = None
+        else:
+            via = self._detoured(cmd, p_c, p_cam)
         if via is not None:
             cmd, twist = via, None
             state, reason = TrackingState.PLANNING, DETOUR_REASON
-        # last gate: never command outside the workspace
-        if not self._in_workspace(cmd):
+        # last gate: never command outside the workspace (the kernel's test of its own view)
+        if not (out[_OUT_INSIDE] if cmd is view else self._in_workspace(cmd)):
             self._side = side_before
             return self._freeze(
                 d_before, "command would leave the cone workspace or go below the floor"
