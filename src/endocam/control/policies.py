@@ -585,11 +585,8 @@ class _MovingPolicy:
         p_now = out[_OUT_CAM : _OUT_CAM + 3]
         # cleared by the kernel, with its trace to the goal: only for the very pose it checked
         # (a subclass's ``_goal`` may change it; then the guard checks it here)
-        cleared = (
-            out[_OUT_CLEARED] != 0.0
-            and goal is self._kernel_goal
-            and goal[:3, 3].tolist() == self._kernel_p
-        )
+        p_kernel = goal[:3, 3].tolist() if goal is self._kernel_goal else None
+        cleared = out[_OUT_CLEARED] != 0.0 and p_kernel == self._kernel_p
         if cleared:
             assert self.guard is not None
             goal = self.guard.passed(goal)
@@ -600,8 +597,11 @@ class _MovingPolicy:
             self._last_goal = None
             self._path = None
             return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
-        goal_rows = goal.tolist()
-        p_goal = [goal_rows[0][3], goal_rows[1][3], goal_rows[2][3]]
+        if p_kernel is not None and goal is self._kernel_goal:
+            p_goal = p_kernel  # the guard passed the kernel's goal itself (unchanged)
+        else:
+            goal_rows = goal.tolist()
+            p_goal = [goal_rows[0][3], goal_rows[1][3], goal_rows[2][3]]
         if goal is self._kernel_goal and p_goal == self._kernel_p:
             margin = out[_OUT_MARGIN]  # the kernel's ConeWorkspace.margin of this very pose
         else:
