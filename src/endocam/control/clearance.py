@@ -773,7 +773,7 @@ class ClearanceGuard:
         """
         c, now = p_world_pivot, p_world_now
         T = np.empty((4, 4))  # the adjusted pose, if any (a new array: the caller keeps it)
-        code = _apply_kernel(
+        code = _apply_kernel(  # type: ignore[call-arg]
             *self._state,
             np.asarray(T_world_cam, dtype=float),
             (float(c[0]), float(c[1]), float(c[2])),
@@ -814,7 +814,7 @@ class ClearanceGuard:
         """
         p, c, now = p_world, p_world_pivot, p_world_now
         T = np.empty((4, 4))  # the pose, if any (a new array: the caller keeps it)
-        code, fell_back = _look_at_kernel(
+        code, fell_back = _look_at_kernel(  # type: ignore[call-arg]
             *self._state,
             (float(p[0]), float(p[1]), float(p[2])),
             (float(c[0]), float(c[1]), float(c[2])),

@@ -457,7 +457,7 @@ class _MovingPolicy:
             self._path is None,
             FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0,
             goal,
-            *consts,
+            *consts,  # type: ignore[arg-type]
         )
         if not found:
             return None

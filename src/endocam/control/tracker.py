@@ -745,7 +745,7 @@ class EndocamPolicy(_MovingPolicy):
             pred = self._predictor
             p_obs = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])
             n_obs = unit_or_none((T_ring[0, 2], T_ring[1, 2], T_ring[2, 2]))
-            pred.push(obs.t, p_obs, n_obs)
+            pred.push(obs.t, p_obs, n_obs)  # type: ignore[arg-type]  # the oracle's: unread
             p1, n1 = pred.predict(self._horizon)
             p2, n2 = pred.predict(self._horizon + self._ctx_dt)
             given = np.array([*p1, *n1, *p2, *n2])
@@ -771,7 +771,7 @@ class EndocamPolicy(_MovingPolicy):
             FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0,
             view,
             twist,
-            *consts,
+            *consts,  # type: ignore[arg-type]
         )
         return self._out.tolist(), view, twist
 
