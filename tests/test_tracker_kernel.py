@@ -595,6 +595,38 @@ def test_the_last_gate_and_the_goals_margin_are_the_cones() -> None:
         assert checked > STEPS
 
 
+def test_the_plan_kernels_last_gate_on_its_view_is_the_trackers() -> None:
+    """``_plan_kernel``'s ``_OUT_INSIDE`` (the step's last gate when the view is the command)
+    is ``_inside_kernel`` of the view it wrote, for every view found in random episodes."""
+    answers = set()
+    for seed, height in enumerate((0.10, 0.25)):
+        cfg = ControllerConfig(cone_height=height, ring_max_speed=10.0, ring_max_rate=1000.0)
+        policy = EndocamPolicy(cfg)
+        plan_view = policy._plan_view
+        seen: list[tuple[list[float], np.ndarray]] = []
+
+        def spy(*args: object, plan_view=plan_view, seen=seen) -> object:  # type: ignore[no-untyped-def]
+            out, view, twist = plan_view(*args)
+            seen.append((out, view.copy()))
+            return out, view, twist
+
+        policy._plan_view = spy  # type: ignore[method-assign]
+        obs_seq = random_observations(20 + seed, wire=True)
+        T0 = obs_seq[0][1]
+        T_cam = look_at_pose(T0[:3, 3] + [0.03, 0.01, 0.04], T0[:3, 3])
+        policy.reset(PolicyContext(CAMERA, T_cam, T0, P_RCM, DT, LATENCY, wire=WIRE))
+        for t, T_ring, tips in obs_seq:
+            T_cam = policy.step(Observation(t, T_ring, T_cam, tips)).T_world_cam
+        floor = policy._cmd_floor
+        for out, view in seen:
+            if out[tracker._OUT_CHECK] != policies.OBS_OK or not out[tracker._OUT_FOUND]:
+                continue
+            want = bool(tracker._inside_kernel(view, policy._params, floor))
+            assert (out[tracker._OUT_INSIDE] == 1.0) == want
+            answers.add(want)
+    assert answers == {True, False}
+
+
 def test_the_orientation_waypoint_is_the_cleared_look_at() -> None:
     """``OrientationPolicy._cleared_waypoint`` (one compiled call) is ``_clear`` of
     ``_waypoint_pose``, as the step asked before: way-points near the wire, with back-off."""

@@ -583,13 +583,21 @@ def _apply_kernel(
     k_ref: FloatArray,
     k_nref: np.ndarray,
     k_clearance: float,
-) -> tuple[int, FloatArray]:  # pragma: no cover - compiled
-    """:func:`clear_pose` from Python (:meth:`ClearanceGuard.apply`)."""
-    return clear_pose(
+    out: FloatArray,
+) -> int:  # pragma: no cover - compiled
+    """:func:`clear_pose` from Python (:meth:`ClearanceGuard.apply`): its answer (``APPLY_*``).
+
+    An adjusted pose is written into ``out`` (4, 4), the caller's array (numba unpickles the
+    type of every array it returns, ~1 us a call).
+    """
+    code, cleared = clear_pose(
         pts, table, pool, meta, radius, ref, nref, clearance, T, pivot, has_now, now, back_off,
         escape, kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref,
         k_clearance,
     )  # fmt: skip
+    if code == APPLY_ADJUSTED:
+        out[:, :] = cleared
+    return code
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -622,14 +630,17 @@ def _look_at_kernel(
     k_ref: FloatArray,
     k_nref: np.ndarray,
     k_clearance: float,
-) -> tuple[int, bool, FloatArray]:  # pragma: no cover - compiled
-    """:meth:`ClearanceGuard.apply_look_at`: ``(APPLY_* or APPLY_INFEASIBLE, fallen back, pose)``.
+    out: FloatArray,
+) -> tuple[int, bool]:  # pragma: no cover - compiled
+    """:meth:`ClearanceGuard.apply_look_at`: ``(APPLY_* or APPLY_INFEASIBLE, fallen back)``.
 
     The pose at ``p`` (m) looking at ``pivot`` (m) with a level horizon, its roll from
     ``previous`` (4, 4) (``view.look_at_unchecked``: ``fallback`` (4, 4) when the two
     points coincide; then "fallen back"); if ``check``, ``APPLY_INFEASIBLE`` when ``p`` is
     not feasible (:func:`_feasible`); then :func:`clear_pose` of the pose (the other
-    arguments its).
+    arguments its). The pose :func:`clear_pose` gives (``APPLY_CLEAR``: the look-at pose,
+    unless fallen back; ``APPLY_ADJUSTED``: the cleared one) is written into ``out`` (4, 4),
+    the caller's array (numba unpickles the type of every array it returns).
     """
     d = (pivot[0] - p[0], pivot[1] - p[1], pivot[2] - p[2])
     length = norm(d)
@@ -645,13 +656,15 @@ def _look_at_kernel(
     if check and not _feasible(
         kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref, k_clearance, p
     ):
-        return APPLY_INFEASIBLE, fell_back, T
+        return APPLY_INFEASIBLE, fell_back
     code, cleared = clear_pose(
         pts, table, pool, meta, radius, ref, nref, clearance, T, pivot, has_now, now, back_off,
         escape, kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref,
         k_clearance,
     )  # fmt: skip
-    return code, fell_back, cleared
+    if code == APPLY_ADJUSTED or (code == APPLY_CLEAR and not fell_back):
+        out[:, :] = cleared
+    return code, fell_back
 
 
 class ClearanceGuard:
@@ -759,7 +772,8 @@ class ClearanceGuard:
             (non-finite input, or no clear feasible rotation up to ``MAX_ESCAPE_ANGLE``).
         """
         c, now = p_world_pivot, p_world_now
-        code, T = _apply_kernel(
+        T = np.empty((4, 4))  # the adjusted pose, if any (a new array: the caller keeps it)
+        code = _apply_kernel(  # type: ignore[call-arg]
             *self._state,
             np.asarray(T_world_cam, dtype=float),
             (float(c[0]), float(c[1]), float(c[2])),
@@ -768,6 +782,7 @@ class ClearanceGuard:
             float(back_off),
             self._escape,
             *self._feasible_args(workspace),  # type: ignore[arg-type]
+            T,
         )
         if code == APPLY_CLEAR:
             return T_world_cam
@@ -798,7 +813,8 @@ class ClearanceGuard:
         else :meth:`apply`'s answer. One compiled call (:func:`_look_at_kernel`).
         """
         p, c, now = p_world, p_world_pivot, p_world_now
-        code, fell_back, T = _look_at_kernel(
+        T = np.empty((4, 4))  # the pose, if any (a new array: the caller keeps it)
+        code, fell_back = _look_at_kernel(  # type: ignore[call-arg]
             *self._state,
             (float(p[0]), float(p[1]), float(p[2])),
             (float(c[0]), float(c[1]), float(c[2])),
@@ -810,6 +826,7 @@ class ClearanceGuard:
             float(back_off),
             self._escape,
             *self._feasible_args(workspace),  # type: ignore[arg-type]
+            T,
         )
         if code == APPLY_CLEAR:
             return fallback if fell_back else T

@@ -245,18 +245,19 @@ def _step_kernel(
     T_ring: FloatArray,
     tips: FloatArray,
     previous: FloatArray,
-    T0: FloatArray,
     t: float,
     has_t_ring: bool,
     t_ring: float,
+    d_f: float,
+    plain: bool,
+    release: float,
+    goal: FloatArray,
+    T0: FloatArray,
     max_age: float,
     gate: FloatArray,
     bounds: FloatArray,
-    d_f: float,
     params: FloatArray,
     out: FloatArray,
-    plain: bool,
-    release: float,
     has_guard: bool,
     pts: FloatArray,
     table: np.ndarray,
@@ -266,15 +267,15 @@ def _step_kernel(
     ref: FloatArray,
     nref: np.ndarray,
     clearance: float,
-) -> tuple[float, bool, FloatArray]:  # pragma: no cover - compiled
-    """The moving policies' checks, working distance and goal: (``d_f`` m, found, goal (4, 4)).
+) -> tuple[float, bool]:  # pragma: no cover - compiled
+    """The moving policies' checks, working distance and goal: (``d_f`` m, found).
 
     ``T_cam``, ``T_ring`` (4, 4) the observed camera and ring poses, world, m; ``tips`` (K, 3)
     world, m; ``previous`` (4, 4) the last goal or the camera; ``T0`` (4, 4) the centering
     goal's orientation; ``d_f`` m; ``params`` (``_N_PARAMS``,) the policy's constants. First the
     input checks and the ring gate (:func:`observed` at ``t`` s, the ring captured at ``t_ring``
     s unless not ``has_t_ring``, ``max_age`` s; the gate's ``state`` and ``bounds``): an
-    observation they refuse gives ``out[_OUT_CHECK]`` its reason and ``(d_f, False, T0)``,
+    observation they refuse gives ``out[_OUT_CHECK]`` its reason and ``(d_f, False)``,
     nothing else done. Then the windows' rule (``window_code``, ``adjusted_distance``), then the
     goal at the new distance: the centering one (the ring centre on the initial optical axis) or
     the orientation one (:func:`orientation_goal`; not found: a degenerate normal). The
@@ -286,6 +287,8 @@ def _step_kernel(
     what the interpreter would ask next: whether the goal is clear (``ClearanceGuard.apply``'s
     query; the ring centre its pivot) and, if so, whether the move from the camera to it needs
     a detour (``ClearanceGuard.detour``); a goal not clear leaves the guard's cache as it was.
+    The goal (4, 4), world, m, is written into ``goal``, the caller's array (numba unpickles
+    the type of every array it returns, ~1 us a call); meaningful when found.
     ``out`` (``_N_OUT``,): whether the guard found the goal clear, whether the move needs a
     detour, and its way-point (m); the ring centre and camera position observed (m); the
     checks' answer.
@@ -298,12 +301,15 @@ def _step_kernel(
     out[_OUT_CLEARED] = out[_OUT_DETOUR] = 0.0
     out[_OUT_MARGIN] = math.nan
     if check != OBS_OK:
-        return d_f, False, T0
+        return d_f, False
     for i in range(3):
         out[_OUT_RING + i], out[_OUT_CAM + i] = T_ring[i, 3], T_cam[i, 3]
     code = window_code_of(T_cam, tips, prm[_WINDOW : _WINDOW + 9])
     d = adjusted_distance(d_f, code, prm[_D_MIN], prm[_D_MAX], prm[_D_STEP])
-    T = T0.copy()
+    T = goal
+    for i in range(4):
+        for j in range(4):
+            T[i, j] = T0[i, j]
     found = True
     if prm[_KIND] == 0.0:  # camera = ring − d z0 + (b/2) x0
         for i in range(3):
@@ -314,14 +320,14 @@ def _step_kernel(
             T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
         T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
     if not found:
-        return d, found, T
+        return d, found
     g = (T[0, 3], T[1, 3], T[2, 3])
     cone = cone_at(prm, _CONE)
     out[_OUT_MARGIN] = margin = cone_margin(
         g[0], g[1], g[2], cone[0], cone[1], cone[2], cone[3], cone[4]
     )
     if not (has_guard and plain):
-        return d, found, T
+        return d, found
     c = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])  # the guard's pivot: the ring centre
     if margin >= release and not (
         dist3(g[0], g[1], g[2], previous[0, 3], previous[1, 3], previous[2, 3]) > prm[_JUMP]
@@ -334,7 +340,7 @@ def _step_kernel(
         out[_OUT_DETOUR] = 1.0 if found_via else 0.0
         for i in range(3):
             out[_OUT_VIA + i] = via[i]
-    return d, found, T
+    return d, found
 
 
 class FixedPolicy:
@@ -413,6 +419,7 @@ class _MovingPolicy:
         self._kernel_goal: FloatArray | None = None  # the goal _step_kernel last gave
         self._kernel_p: list[float] = []  # its position, m, as the kernel checked it
         self._T0 = np.eye(4)  # the centering goal's orientation
+        self._kernel_consts: tuple[object, ...] | None = None  # _step_kernel's, at step 1
 
     @property
     def cone(self) -> ConeWorkspace:
@@ -433,31 +440,48 @@ class _MovingPolicy:
         if not (isinstance(tips, np.ndarray) and tips.ndim == 2):
             tips = np.asarray(tips, dtype=float).reshape(-1, 3)
         previous = self._last_goal if self._last_goal is not None else T_cam
-        guard, gate, t_ring = self.guard, self._gate, obs.t_ring
-        self.d_f, found, goal = _step_kernel(
+        consts = self._kernel_consts
+        if consts is None:
+            consts = self._kernel_consts = self._step_constants()
+        t_ring = obs.t_ring
+        goal = np.empty((4, 4))  # a new array each step: the goal and the command keep it
+        self.d_f, found = _step_kernel(
             T_cam,
             T_ring,
             tips,
             previous,
-            self._T0,
             float(obs.t),
             t_ring is not None,
             0.0 if t_ring is None else float(t_ring),
-            self.config.ring_max_age,
-            gate.state,
-            gate.bounds,
             self.d_f,
-            self._params,
-            self._step_out,
             self._path is None,
             FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0,
-            guard is not None,
-            *(NO_GUARD if guard is None else guard.kernel_state),  # type: ignore[arg-type]
+            goal,
+            *consts,  # type: ignore[arg-type]
         )
         if not found:
             return None
         self._kernel_goal, self._kernel_p = goal, goal[:3, 3].tolist()
         return goal
+
+    def _step_constants(self) -> tuple[object, ...]:
+        """:func:`_step_kernel`'s arguments fixed for the episode, from ``T0`` on (a tuple).
+
+        Built at the first step after ``reset`` (a subclass's ``reset`` sets ``_T0``); every
+        array in it is updated in place during the episode (the gate's, ``_params``,
+        ``_step_out``, the guard's).
+        """
+        guard, gate = self.guard, self._gate
+        return (
+            self._T0,
+            self.config.ring_max_age,
+            gate.state,
+            gate.bounds,
+            self._params,
+            self._step_out,
+            guard is not None,
+            *(NO_GUARD if guard is None else guard.kernel_state),
+        )
 
     def _clear(
         self, T_world_cam: FloatArray, p_world_pivot: Sequence[float], p_world_now: Sequence[float]
@@ -561,11 +585,8 @@ class _MovingPolicy:
         p_now = out[_OUT_CAM : _OUT_CAM + 3]
         # cleared by the kernel, with its trace to the goal: only for the very pose it checked
         # (a subclass's ``_goal`` may change it; then the guard checks it here)
-        cleared = (
-            out[_OUT_CLEARED] != 0.0
-            and goal is self._kernel_goal
-            and goal[:3, 3].tolist() == self._kernel_p
-        )
+        p_kernel = goal[:3, 3].tolist() if goal is self._kernel_goal else None
+        cleared = out[_OUT_CLEARED] != 0.0 and p_kernel == self._kernel_p
         if cleared:
             assert self.guard is not None
             goal = self.guard.passed(goal)
@@ -576,8 +597,11 @@ class _MovingPolicy:
             self._last_goal = None
             self._path = None
             return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
-        goal_rows = goal.tolist()
-        p_goal = [goal_rows[0][3], goal_rows[1][3], goal_rows[2][3]]
+        if p_kernel is not None and goal is self._kernel_goal:
+            p_goal = p_kernel  # the guard passed the kernel's goal itself (unchanged)
+        else:
+            goal_rows = goal.tolist()
+            p_goal = [goal_rows[0][3], goal_rows[1][3], goal_rows[2][3]]
         if goal is self._kernel_goal and p_goal == self._kernel_p:
             margin = out[_OUT_MARGIN]  # the kernel's ConeWorkspace.margin of this very pose
         else:
@@ -632,10 +656,15 @@ class _MovingPolicy:
                     return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
                 cmd = wp
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
-        traced = None
-        if cleared and cmd is goal:  # the plain path: no way-points
-            traced = (bool(out[_OUT_DETOUR]), (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2]))
-        via = self._detoured(cmd, p_ring, p_now, traced)
+        if cleared and cmd is goal:  # the plain path: no way-points; the kernel traced the move
+            if out[_OUT_DETOUR]:
+                p_via = (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2])
+                via = self._detoured(cmd, p_ring, p_now, (True, p_via))
+            else:  # a straight move: what ``_detoured`` does with no way-point
+                self._p_detour, self._stalled = None, 0
+                via = None
+        else:
+            via = self._detoured(cmd, p_ring, p_now)
         if via is not None:
             cmd = via
             state, reason = TrackingState.PLANNING, DETOUR_REASON

@@ -305,14 +305,16 @@ _NO_PREDICTIONS = np.zeros(0)  # _plan_kernel predicts itself
 _CONE = _WINDOW + 9  # apex (3), axis (3), tan_half, cos_half, height
 _RCM = _CONE + 9  # m, the camera arm's RCM (3)
 _JUMP = _RCM + 3  # m, jump_threshold
-_N_PARAMS = _JUMP + 1
+_CMD_FLOOR = _JUMP + 1  # m, the lowest commanded camera height (the last gate's floor)
+_N_PARAMS = _CMD_FLOOR + 1
 # _plan_kernel's scalar results (``out``), by index
 _OUT_D, _OUT_FOUND, _OUT_SIDE, _OUT_MARGIN, _OUT_TWIST = range(5)
 _OUT_P, _OUT_N, _OUT_U = 5, 8, 11  # ring centre (m), normal, view direction: 3 each
 _OUT_CLEARED, _OUT_DETOUR, _OUT_VIA = 14, 15, 16  # the guard's answers on the plain path
 _OUT_CAM = 19  # m, the observed camera position (3)
 _OUT_CHECK = 22  # the observation's checks (``policies.observed``: OBS_*)
-_N_OUT = 23
+_OUT_INSIDE = 23  # the last gate on the view: inside the cone and above the command floor
+_N_OUT = 24
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -404,34 +406,46 @@ def _shortened_of(
     return d if code == 0 else d_next
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
+def _identity_into(T: FloatArray, twist: FloatArray) -> None:  # pragma: no cover - compiled
+    """Set ``T`` (4, 4) to the identity and ``twist`` (6,) to zero, in place."""
+    for i in range(4):
+        for j in range(4):
+            T[i, j] = 1.0 if i == j else 0.0
+    for i in range(6):
+        twist[i] = 0.0
+
+
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _plan_kernel(
     T_cam: FloatArray,
     T_ring: FloatArray,
     tips: FloatArray,
     previous: FloatArray,
-    buf: FloatArray,
-    count: np.ndarray,
-    spacing: int,
     t: float,
     check: bool,
     has_t_ring: bool,
     t_ring: float,
+    given: FloatArray,
+    d_f: float,
+    fresh: bool,
+    side: float,
+    planned: float,
+    plain: bool,
+    release: float,
+    view_out: FloatArray,
+    twist_out: FloatArray,
+    buf: FloatArray,
+    count: np.ndarray,
+    spacing: int,
     max_age: float,
     gate: FloatArray,
     bounds: FloatArray,
     horizon: float,
     dt: float,
     feedforward: bool,
-    given: FloatArray,
-    d_f: float,
-    fresh: bool,
-    side: float,
-    planned: float,
     params: FloatArray,
     out: FloatArray,
-    plain: bool,
-    release: float,
     has_guard: bool,
     pts: FloatArray,
     table: np.ndarray,
@@ -441,7 +455,7 @@ def _plan_kernel(
     ref: FloatArray,
     nref: np.ndarray,
     clearance: float,
-) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
+) -> None:  # pragma: no cover - compiled
     """:meth:`EndocamPolicy.step` from the input checks to the view and its twist.
 
     If ``check``: the input checks and the ring gate first (``policies.observed`` at ``t`` s,
@@ -470,9 +484,12 @@ def _plan_kernel(
     its side, its pose's cone margin (m), whether a twist was computed, the predicted ring
     centre (m) and normal, the view direction, whether the guard found the view clear,
     whether the move needs a detour and its way-point (m), the camera's position (m), the
-    checks' answer. Returns the view's pose (4, 4)
-    and the goal's twist from the view to the next step's (6,): m/s, rad/s, world
-    (meaningful when found, and when computed).
+    checks' answer, and the step's last gate on the view (:func:`_inside_of`: inside the cone,
+    at or above ``params[_CMD_FLOOR]``), which the step reads when the view is the command.
+    Writes the view's pose into ``view_out`` (4, 4) and the goal's twist from
+    the view to the next step's into ``twist_out`` (6,): m/s, rad/s, world (meaningful when
+    found, and when computed; else the identity and zeros). The caller's arrays, not returned
+    ones: numba unpickles the type of every array it returns (~1 us a call).
     """
     prm = params
     cone = cone_at(prm, _CONE)
@@ -481,7 +498,8 @@ def _plan_kernel(
         answer = observed(T_cam, T_ring, t, has_t_ring, t_ring, max_age, gate, bounds, cone, True)
         if answer != OBS_OK:
             out[_OUT_CHECK] = answer
-            return np.eye(4), np.zeros(6)
+            _identity_into(view_out, twist_out)
+            return
     for i in range(3):
         out[_OUT_CAM + i] = T_cam[i, 3]
     code = window_code_of(T_cam, tips, prm[_WINDOW : _WINDOW + 9])
@@ -525,14 +543,21 @@ def _plan_kernel(
     out[_OUT_D] = d
     out[_OUT_FOUND] = 1.0 if found else 0.0
     out[_OUT_SIDE] = s
-    out[_OUT_TWIST] = out[_OUT_CLEARED] = out[_OUT_DETOUR] = 0.0
+    out[_OUT_TWIST] = out[_OUT_CLEARED] = out[_OUT_DETOUR] = out[_OUT_INSIDE] = 0.0
     for i in range(3):
         out[_OUT_P + i], out[_OUT_N + i], out[_OUT_U + i] = p_c[i], n[i], u[i]
-    twist = np.zeros(6)
     if not found:
-        return np.eye(4), twist
+        _identity_into(view_out, twist_out)
+        return
     x, y, z, p = _pose_of(p_c, u, d, True, z_prev, x_prev, half_b)
-    view = _rows_of(x, y, z, p)
+    view = view_out
+    for i in range(3):
+        view[i, 0], view[i, 1], view[i, 2], view[i, 3] = x[i], y[i], z[i], p[i]
+    view[3, 0], view[3, 1], view[3, 2], view[3, 3] = 0.0, 0.0, 0.0, 1.0
+    for i in range(6):
+        twist_out[i] = 0.0
+    # the last gate on the view, as the step asks it of a command (_inside_kernel's test)
+    out[_OUT_INSIDE] = 1.0 if _inside_of(view, prm, prm[_CMD_FLOOR]) else 0.0
     out[_OUT_MARGIN] = margin = cone_margin(
         p[0], p[1], p[2], cone[0], cone[1], cone[2], cone[3], cone[4]
     )
@@ -556,7 +581,7 @@ def _plan_kernel(
         for i in range(3):
             out[_OUT_VIA + i] = via[i]
     if not feedforward:
-        return view, twist
+        return
     if given.shape[0] == 0:
         p2, n2 = _ring_predict(buf, count, spacing, horizon + dt)
     else:
@@ -570,9 +595,8 @@ def _plan_kernel(
         x2, y2, z2, p2_cam = _pose_of(p2, u2, d, True, z, x, half_b)
         v = _twist_of(view, _rows_of(x2, y2, z2, p2_cam), dt)
         for i in range(6):
-            twist[i] = v[i]
+            twist_out[i] = v[i]
         out[_OUT_TWIST] = 1.0
-    return view, twist
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -580,8 +604,14 @@ def _inside_kernel(T: FloatArray, params: FloatArray, floor: float) -> bool:  # 
     """Whether the pose ``T`` (4, 4), world, m, is inside the cone and at or above ``floor`` (m).
 
     ``ConeWorkspace.margin(p) >= 0`` (the cone stored in ``params``, :func:`_plan_kernel`'s)
-    and ``p[2] >= floor`` for its position ``p``.
+    and ``p[2] >= floor`` for its position ``p`` (:func:`_inside_of`).
     """
+    return _inside_of(T, params, floor)
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _inside_of(T: FloatArray, params: FloatArray, floor: float) -> bool:  # pragma: no cover
+    """:func:`_inside_kernel`'s test; :func:`_plan_kernel` makes it on its view too."""
     a, axis, tan_half, cos_half, height = cone_at(params, _CONE)
     p = (T[0, 3], T[1, 3], T[2, 3])
     return cone_margin(p[0], p[1], p[2], a, axis, tan_half, cos_half, height) >= 0.0 and (
@@ -610,6 +640,8 @@ class EndocamPolicy(_MovingPolicy):
         self._half_b = 0.0
         self._cleared_view: FloatArray | None = None  # this step's view, cleared by the kernel
         self._horizon = 0.0
+        self._plan_consts: tuple[object, ...] | None = None  # _plan_kernel's, per episode
+        self._given = False  # the predictor is the oracle's (its predictions are given)
         self.transfers = 0  # transfers started this episode (side changes and approaches)
 
     def reset(self, context: PolicyContext) -> None:
@@ -626,6 +658,7 @@ class EndocamPolicy(_MovingPolicy):
         self._gains = np.array([g_lin, g_lin, g_lin, g_ang, g_ang, g_ang])  # the twist's gains
         self._horizon = context.sensing_latency + tc.carrier_lead if tc.predict else 0.0
         self.transfers = 0
+        self._plan_consts = None  # rebuilt at the first step (after a subclass's reset)
         cfg, geometry = self.config, self._window_geometry
         assert geometry is not None  # set by super().reset()
         params = [0.0] * _N_PARAMS
@@ -640,6 +673,7 @@ class EndocamPolicy(_MovingPolicy):
         params[_CONE : _CONE + 9] = self.cone.constants
         params[_RCM : _RCM + 3] = np.asarray(context.p_world_rcm, dtype=float).tolist()
         params[_JUMP] = cfg.jump_threshold
+        params[_CMD_FLOOR] = self._cmd_floor
         self._params = np.array(params)
 
     # -- the goal (the maths: the compiled functions above) ---------------------------------
@@ -688,68 +722,89 @@ class EndocamPolicy(_MovingPolicy):
         """:func:`_plan_kernel` for ``obs``, its camera and ring poses ``T_cam``, ``T_ring`` (4, 4).
 
         Returns its scalar results (``_OUT_*``; ``_OUT_CHECK``: the checks' answer, the rest
-        unset unless ``OBS_OK``), the view's pose (4, 4) and its twist (6,).
+        unset unless ``OBS_OK``), the view's pose (4, 4) and its twist (6,): new arrays each
+        step (the goal and the command keep them).
         """
-        ctx = self._ctx
-        assert ctx is not None  # set by reset()
-        pred = self._predictor
-        feedforward = self.tracker.feedforward and self._horizon > 0.0 and ctx.follows_twist
+        consts = self._plan_consts
+        if consts is None:
+            consts = self._plan_consts = self._plan_constants()
         given = _NO_PREDICTIONS
-        gate, t_ring, t = self._gate, obs.t_ring, float(obs.t)
+        t_ring, t = obs.t_ring, float(obs.t)
         has_t_ring = t_ring is not None
         t_ring = 0.0 if t_ring is None else float(t_ring)
-        max_age = self.config.ring_max_age
         check = True
-        if not isinstance(pred, RingPredictor):  # the oracle's: the true future
+        if self._given:  # the oracle's predictor: the true future
             answer = _observed_kernel(
-                T_cam, T_ring, t, has_t_ring, t_ring, max_age, gate.state, gate.bounds,
-                self._params, _CONE, True,
+                T_cam, T_ring, t, has_t_ring, t_ring, self.config.ring_max_age, self._gate.state,
+                self._gate.bounds, self._params, _CONE, True,
             )  # fmt: skip
             if answer != OBS_OK:
                 self._out[_OUT_CHECK] = answer
                 return self._out.tolist(), T_cam, np.zeros(6)
             check = False  # made
+            pred = self._predictor
             p_obs = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])
             n_obs = unit_or_none((T_ring[0, 2], T_ring[1, 2], T_ring[2, 2]))
-            pred.push(obs.t, p_obs, n_obs)
+            pred.push(obs.t, p_obs, n_obs)  # type: ignore[arg-type]  # the oracle's: unread
             p1, n1 = pred.predict(self._horizon)
-            p2, n2 = pred.predict(self._horizon + ctx.dt)
+            p2, n2 = pred.predict(self._horizon + self._ctx_dt)
             given = np.array([*p1, *n1, *p2, *n2])
-            pred = self._ring  # unused
         tips = obs.p_world_tips
         if not (isinstance(tips, np.ndarray) and tips.ndim == 2):
             tips = np.asarray(tips, dtype=float).reshape(-1, 3)
-        view, twist = _plan_kernel(
+        view, twist = np.empty((4, 4)), np.empty(6)
+        _plan_kernel(
             T_cam,
             T_ring,
             tips,
             previous,
-            pred.buf,
-            pred.count,
-            pred.spacing,
             t,
             check,
             has_t_ring,
             t_ring,
-            max_age,
-            gate.state,
-            gate.bounds,
-            self._horizon,
-            ctx.dt,
-            feedforward,
             given,
             self.d_f,
             self._last_goal is None,
             self._side,
             self._preferred_side(),
-            self._params,
-            self._out,
             self._transfer is None,
             FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0,
-            self.guard is not None,
-            *(NO_GUARD if self.guard is None else self.guard.kernel_state),  # type: ignore[arg-type]
+            view,
+            twist,
+            *consts,  # type: ignore[arg-type]
         )
         return self._out.tolist(), view, twist
+
+    def _plan_constants(self) -> tuple[object, ...]:
+        """:func:`_plan_kernel`'s arguments fixed for the episode, from ``buf`` on (a tuple).
+
+        Built at the first step after ``reset`` (a subclass's ``reset`` may replace the
+        predictor and the horizon after this class's); every array in it is updated in place
+        during the episode (the predictor's, the gate's, ``_params``, ``_out``, the guard's).
+        """
+        ctx = self._ctx
+        assert ctx is not None  # set by reset()
+        pred = self._predictor
+        self._given = not isinstance(pred, RingPredictor)
+        if self._given:
+            pred = self._ring  # unused: the oracle's predictions are given
+        feedforward = self.tracker.feedforward and self._horizon > 0.0 and ctx.follows_twist
+        gate = self._gate
+        return (
+            pred.buf,
+            pred.count,
+            pred.spacing,
+            self.config.ring_max_age,
+            gate.state,
+            gate.bounds,
+            self._horizon,
+            ctx.dt,
+            feedforward,
+            self._params,
+            self._out,
+            self.guard is not None,
+            *(NO_GUARD if self.guard is None else self.guard.kernel_state),
+        )
 
     # -- the step --------------------------------------------------------------------------
 
@@ -862,16 +917,21 @@ class EndocamPolicy(_MovingPolicy):
                 self.d_f = d_before
                 return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
             cmd = cleared
-        traced = None  # the kernel's trace of the move to the view, when it made it
         if out[_OUT_CLEARED] and cmd is goal and goal is self._cleared_view:
             # the plain path (no transfer, no freeze): the kernel traced the move to this pose
-            traced = (bool(out[_OUT_DETOUR]), (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2]))
-        via = self._detoured(cmd, p_c, p_cam, traced)
+            if out[_OUT_DETOUR]:
+                p_via = (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2])
+                via = self._detoured(cmd, p_c, p_cam, (True, p_via))
+            else:  # a straight move: what ``_detoured`` does with no way-point
+                self._p_detour, self._stalled = None, 0
+                via = None
+        else:
+            via = self._detoured(cmd, p_c, p_cam)
         if via is not None:
             cmd, twist = via, None
             state, reason = TrackingState.PLANNING, DETOUR_REASON
-        # last gate: never command outside the workspace
-        if not self._in_workspace(cmd):
+        # last gate: never command outside the workspace (the kernel's test of its own view)
+        if not (out[_OUT_INSIDE] if cmd is view else self._in_workspace(cmd)):
             self._side = side_before
             return self._freeze(
                 d_before, "command would leave the cone workspace or go below the floor"

@@ -286,43 +286,51 @@ def run_episode(
 
     T_cam = np.empty((n, 4, 4))
     T_cmd = np.empty((n, 4, 4))
-    d_f = np.empty(n)
-    state = np.empty(n, dtype=object)
+    d_f: list[float] = []
+    state: list[str] = []
     reason: list[str] = []
     joint_names = actuator.joint_names
     jointed = len(joint_names) > 0  # a carrier with joints logs them and the view it concedes
     joints = np.empty((n, len(joint_names)))
-    goal_err = np.empty((n, 2))
+    pos_err: list[float] = []
+    ori_err: list[float] = []
     q_now = actuator.q
     chunk = max(1, n // 100)
     reach_offset: FloatArray | None = None
-    t_s, t_ring_s = t.tolist(), t_ring.tolist()  # plain floats, and bound methods: n times
-    policy_step, actuator_step, log_reason = policy.step, actuator.step, reason.append
+    # per step: plain floats, row views made in one go, and bound methods (n times each)
+    t_s, t_ring_s = t.tolist(), t_ring.tolist()
+    sensed, tips_k = list(T_sensed), list(tips)
+    policy_step, actuator_step = policy.step, actuator.step
+    log_d_f, log_state, log_reason = d_f.append, state.append, reason.append
+    make_obs = tuple.__new__  # Observation(...) without its Python-level __new__: no checks
     for k in range(n):
         T_cam[k] = T_now
+        T_sensed_k = sensed[k]
         cmd = policy_step(
-            Observation(t_s[k], T_sensed[k], T_now, tips[k], reach_offset, t_ring_s[k])
+            make_obs(Observation, (t_s[k], T_sensed_k, T_now, tips_k[k], reach_offset, t_ring_s[k]))
         )
-        T_cmd[k] = cmd.T_world_cam
-        d_f[k] = cmd.d_f
+        T_goal, cmd_state, cmd_d_f, cmd_reason, cmd_twist = cmd
+        T_cmd[k] = T_goal
+        log_d_f(cmd_d_f)
         if jointed:  # the pivot of a conceded view; a carrier without joints concedes none
             joints[k] = q_now
-            look = _look_distance(cmd.T_world_cam, T_sensed[k], cmd.d_f)
+            look = _look_distance(T_goal, T_sensed_k, cmd_d_f)
         else:
-            look = cmd.d_f
+            look = cmd_d_f
         if step_faults is None:
-            out = actuator_step(cmd.T_world_cam, look, cmd.twist)
+            out = actuator_step(T_goal, look, cmd_twist)
         else:
-            out = actuator_step(*step_faults.command(k, cmd.T_world_cam, cmd.twist, look))
+            out = actuator_step(*step_faults.command(k, T_goal, cmd_twist, look))
         if jointed:
-            reach_offset = out.T_world_target[:3, 3] - cmd.T_world_cam[:3, 3]
-            goal_err[k] = (out.position_error, out.orientation_error)
-        if not out.reachable and cmd.state not in _SAFETY_STATES:
-            state[k] = UNREACHABLE
+            reach_offset = out.T_world_target[:3, 3] - T_goal[:3, 3]
+            pos_err.append(out.position_error)
+            ori_err.append(out.orientation_error)
+        if not out.reachable and cmd_state not in _SAFETY_STATES:
+            log_state(UNREACHABLE)
             log_reason(_unreachable_reason(kind, out))
         else:
-            state[k] = cmd.state.value
-            log_reason(cmd.reason)
+            log_state(cmd_state.value)
+            log_reason(cmd_reason)
         T_now, q_now = out.T_world_cam, out.q
         if progress is not None and (k + 1) % chunk == 0:
             progress(chunk)
@@ -336,17 +344,17 @@ def run_episode(
         T_world_ring_sensed=T_sensed,
         T_world_cam=T_cam,
         T_world_cmd=T_cmd,
-        state=state.astype(str),
+        state=np.array(state, dtype=str),
         reason=reason,
-        d_f=d_f,
+        d_f=np.array(d_f, dtype=float),
         p_world_tips=tips,
         contact=contact_at(touches, t),
         clearance=clearance,
         joints=joints if jointed else None,
         joint_names=joint_names,
         arm=kind.value,
-        goal_position_error=goal_err[:, 0] if jointed else None,
-        goal_orientation_error=goal_err[:, 1] if jointed else None,
+        goal_position_error=np.array(pos_err, dtype=float) if jointed else None,
+        goal_orientation_error=np.array(ori_err, dtype=float) if jointed else None,
         fault=schedule.labels() if schedule is not None else None,
     )
     return EpisodeResult(
