@@ -1044,7 +1044,8 @@ class CameraArm:
             at_time = traj.at_time
             flat: list[float] = []
             for i in range(1, steps + 1):
-                flat += at_time(min(i * dt, duration))[0]
+                t = i * dt
+                flat += at_time(duration if duration < t else t)[0]  # min(t, duration)
             flat += stop
             q_rows = float_rows(flat, n)
             rows, stop_row = _NO_ROWS, q_rows[steps]
