@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from endocam.blasfloat import dot3, fma, matmul3, matmul4, matvec3, vecmat3
+from endocam.blasfloat import dot3, fma, matmul3, matmul4, matvec3, tmatmul3, vecmat3
 
 N_RANDOM = 100_000  # operands per shape
 SPECIAL = np.array([0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan, 5e-324, 1e308])
@@ -73,6 +73,15 @@ def _matmul4_all(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return out
 
 
+@njit(cache=False)
+def _tmatmul3_all(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A[:3, :3].T @ B`` per operand: a pose's rotation block transposed, B (3, m)."""
+    out = np.empty((A.shape[0], 3, B.shape[2]))
+    for i in range(A.shape[0]):
+        tmatmul3(A[i, :3, :3], B[i], out[i])
+    return out
+
+
 def _zero_rhs(b: np.ndarray) -> np.ndarray:
     b = b.copy()
     b[:50] = 0.0
@@ -85,6 +94,20 @@ CASES: list[tuple[str, tuple[int, ...], tuple[int, ...], Callable, Callable]] = 
     ("v @ R (3,)(3, 3)", (3,), (3, 3), lambda v, R: v @ R, _vecmat3_all),
     ("A @ B (3, 3)", (3, 3), (3, 3), lambda A, B: A @ B, _matmul3_all),
     ("A @ B (4, 4)", (4, 4), (4, 4), lambda A, B: A @ B, _matmul4_all),
+    (
+        "A.T @ B (3, 3)",
+        (4, 4),
+        (4, 4),
+        lambda A, B: A[:3, :3].T @ B[:3, :3],
+        lambda A, B: _tmatmul3_all(A, B[:, :3, :3]),
+    ),
+    (
+        "A.T @ B (3, 3)(3, 6)",
+        (4, 4),
+        (6, 6),
+        lambda A, B: A[:3, :3].T @ B[3:],
+        lambda A, B: _tmatmul3_all(A, B[:, 3:]),
+    ),
 ]
 
 

@@ -17,7 +17,7 @@ import pytest
 import ruckig
 
 from endocam.config import ExperimentConfig
-from endocam.control.safety import ConeWorkspace, Workspace
+from endocam.control.safety import NO_WORKSPACE, ConeWorkspace, Workspace
 from endocam.robot import camera_arm
 from endocam.robot.actuator import ArmKind
 from endocam.robot.arm import (
@@ -37,9 +37,15 @@ from endocam.robot.braking import (
     profile_extrema,
     profile_rows,
 )
-from endocam.robot.camera_arm import CameraArm, _braking_points_kernel, natural_pose
+from endocam.robot.camera_arm import (
+    _NO_ROWS,
+    CameraArm,
+    _braking_inside_kernel,
+    natural_pose,
+)
 from endocam.robot.cartesian import CartesianLimiter, MotionLimits, _box_corners
 from endocam.robot.dh import chain_points
+from endocam.task.wire import Wire
 
 N_STATES = 1500  # count: random states per configuration
 DTS = (0.01, 0.001, 0.0333)  # s: control periods sampled
@@ -190,15 +196,37 @@ def test_arm_braking_points_are_chain_points_of_the_path(kind: ArmKind) -> None:
         )
         path = _at_time_path(traj, 0.01).tolist()
         expected = chain_points(model.chain, [*path, stop], arm._world_rcm12, arm._last_cam_point)
-        got = _braking_points_kernel(
+        got = np.empty((len(path) + 1, 3))
+        q_rows = np.empty((len(path) + 1, model.n_joints))
+        assert _braking_inside_kernel(
+            *NO_WORKSPACE,
+            False,
             model.chain._param_array,
             profile_rows(traj),
             traj.duration,
             0.01,
-            len(path),
             np.array(stop),
             arm._world_rcm12,
             arm._last_cam_point,
+            q_rows,
+            got,
+        )
+        assert got.tobytes() == expected.tobytes()
+        assert q_rows.tobytes() == np.array([*path, stop]).tobytes()
+        given = np.array([*path, stop])  # the joints given (ruckig's at_time): the same points
+        got[:] = math.nan
+        _braking_inside_kernel(
+            *NO_WORKSPACE,
+            False,
+            model.chain._param_array,
+            _NO_ROWS,
+            traj.duration,
+            0.01,
+            given[-1],
+            arm._world_rcm12,
+            arm._last_cam_point,
+            given,
+            got,
         )
         assert got.tobytes() == expected.tobytes()
 
@@ -239,6 +267,40 @@ def test_brakes_inside_asks_the_same_points_either_way(
     for a, b in zip(asked[0.0].points, asked[1e9].points, strict=True):
         assert a.tobytes() == b.tobytes()
     assert len(asked[0.0].points) == len(states)
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_brakes_inside_is_the_workspaces_answer_on_the_path(
+    kind: ArmKind, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A ``Workspace`` is asked inside the braking kernel: its ``all_inside`` of the path's
+    points (``chain_points`` of ruckig's ``at_time`` path), the same answer and keep-out cache."""
+    cfg = ExperimentConfig()
+    wire = Wire(cfg.task.wire)
+    rcm = np.array(cfg.task.scene.rcm_position)
+    feature = wire.point(0.5 * wire.length)
+    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
+    arm = CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
+    model = arm.model
+    vmax = np.array(PSM_MAX_VELOCITY if kind is ArmKind.PSM else ECM_MAX_VELOCITY)
+    rng = np.random.default_rng(16)
+    answers = set()
+    for read_steps in (0.0, 1e9):  # always from the profiles / always by at_time
+        monkeypatch.setattr(camera_arm, "PROFILE_READ_STEPS", read_steps)
+        compiled = cfg.controller.workspace(rcm, feature, wire)
+        reference = cfg.controller.workspace(rcm, feature, wire)  # its own keep-out cache
+        arm.workspace = compiled
+        for _ in range(300):
+            q = model.clamp(natural_pose(model) + rng.uniform(-0.5, 0.5, model.n_joints))
+            qd = rng.uniform(-1.0, 1.0, model.n_joints) * vmax * rng.uniform(0.0, 1.0)
+            stop = model.clamp(q + qd * np.abs(qd) * np.array(arm._half_inv_acc)).tolist()
+            inside = arm._brakes_inside(q.tolist(), qd.tolist(), stop)
+            path = _at_time_path(arm._brake_traj, 0.01).tolist()
+            points = chain_points(model.chain, [*path, stop], arm._world_rcm12, arm._last_cam_point)
+            assert inside == reference.all_inside(points)
+            assert compiled.keep_out.refs == reference.keep_out.refs  # type: ignore[union-attr]
+            answers.add(inside)
+    assert answers == {True, False}
 
 
 def _floor_at(z_min: float) -> Workspace:

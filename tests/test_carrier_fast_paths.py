@@ -25,6 +25,7 @@ from endocam.robot.camera_arm import (
     PATH_ENGAGE_M,
     PATH_LEAD_M,
     VIEW_STEPS,
+    WRIST_JUMP_RAD,
     CameraArm,
     _is_camera_command,
     _look_at_matrix,
@@ -33,6 +34,7 @@ from endocam.robot.camera_arm import (
     _so3_exp,
     _target_error_kernel,
     _turned_kernel,
+    _wrist_jump,
     arm_model,
     natural_pose,
 )
@@ -413,3 +415,21 @@ def test_target_error_is_the_interpreted_one() -> None:
         assert _target_error_kernel(A, B, 2.0) == expected
         assert expected[0] == float(np.linalg.norm(d))
         assert _target_error_kernel(B, B, 2.0) == (0.0, rotation_angle(B.tolist(), B.tolist()))
+
+
+def test_wrist_jump_is_the_interpreted_max() -> None:
+    """``_wrist_jump`` unrolled: the answer of ``max([|a - b| ...]) > WRIST_JUMP_RAD``.
+
+    Python's ``max`` keeps its first item unless a later one compares greater, so a NaN
+    first wins and a NaN later loses: the unrolled comparisons keep that order.
+    """
+    rng = np.random.default_rng(41)
+    special = [0.0, 1.0, math.nan, math.inf, -math.inf]
+    for _ in range(5000):
+        a, b = rng.normal(0.0, 0.8, 6).tolist(), rng.normal(0.0, 0.8, 6).tolist()
+        for q in (a, b):
+            if rng.random() < 0.3:
+                q[int(rng.integers(3, 6))] = special[int(rng.integers(0, len(special)))]
+        expected = max([abs(x - y) for x, y in zip(a[3:], b[3:], strict=True)]) > WRIST_JUMP_RAD
+        assert _wrist_jump(ArmKind.PSM, a, b) == expected
+        assert not _wrist_jump(ArmKind.ECM, a[:4], b[:4])

@@ -21,6 +21,7 @@ from endocam.robot.dh import (
     chain_forward,
     chain_points,
     compose_links,
+    geometric_jacobian,
     link_transform,
     pose12_from_matrix,
     pose12_point,
@@ -34,6 +35,8 @@ from endocam.robot.kinematics import (
 )
 from endocam.robot.psm import PSM_CHAIN
 from reference_ecm import InterpretedECM
+from reference_psm import geometric_jacobian as interpreted_jacobian
+from reference_psm import pose_residual, pose_residual_jac
 
 EPS = np.finfo(np.float64).eps
 ATOL_M = 1e-9  # m: FK / IK agreement on positions (sub-nanometre)
@@ -122,6 +125,35 @@ def test_compiled_compose_gives_the_interpreters_floats(arm: PSM | ECM) -> None:
         expected = _compose_kernel.py_func(chain._param_array, tuple(q), start, stop, T0)
         assert compose_links(chain, q, start, stop, T0) == expected
     assert compose_links(chain, [0] * n) == compose_links(chain, [0.0] * n)  # ints: floats
+
+
+def _bits(x: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(x, dtype=np.float64).view(np.int64)
+
+
+@pytest.mark.parametrize("arm", [PSM_ARM, ECM_ARM], ids=["psm", "ecm"])
+def test_compiled_jacobian_and_residuals_give_the_interpreters_floats(arm: PSM | ECM) -> None:
+    """The nearest-feasible solve's compiled callbacks are the replaced numpy code, bit for bit.
+
+    ``geometric_jacobian`` (``dh.jacobian_into``) and ``RcmArm._pose_residual`` /
+    ``_pose_residual_jac`` against ``tests/reference_psm.py``, on random joints (inside and
+    beyond the limits), goal poses and weights.
+    """
+    rng = np.random.default_rng(11)
+    chain, n = arm.chain, arm.n_joints
+    for k in range(N_COMPILED):
+        q = _random_q(arm, rng) if k % 2 else rng.uniform(-4.0, 4.0, n)
+        T_goal = np.eye(4)
+        T_goal[:3, :3] = Rotation.random(random_state=rng.integers(2**32)).as_matrix()
+        T_goal[:3, 3] = rng.normal(scale=0.1, size=3)
+        if k % 7 == 0:  # the goal at the current pose: zero orientation error
+            T_goal = chain_forward(chain, q)
+        weight = float(rng.uniform(0.0, 1.0)) if k % 3 else ORIENTATION_WEIGHT_M_PER_RAD
+        assert (_bits(geometric_jacobian(chain, q)) == _bits(interpreted_jacobian(chain, q))).all()
+        got = arm._pose_residual(q, T_goal, weight)
+        assert (_bits(got) == _bits(pose_residual(chain, q, T_goal, weight))).all()
+        got = arm._pose_residual_jac(q, T_goal, weight)
+        assert (_bits(got) == _bits(pose_residual_jac(chain, q, T_goal, weight))).all()
 
 
 @pytest.mark.parametrize("arm", [PSM_ARM, ECM_ARM], ids=["psm", "ecm"])

@@ -13,7 +13,9 @@ rounds differently in the last bit now and then, and the logs drift (``docs/conv
   (the zero matters for signs only: all-negative-zero products sum to ``+0.0``);
 - ``R @ v``, a 3×3 matrix times a 3-vector (``dgemv``, transposed kernel): each row's entry is
   ``fma(r[2], v[2], fma(r[0], v[0], r[1] * v[1])) + 0.0``;
-- ``v @ R``, a 3-vector times a 3×3 matrix: the ``ddot`` order over each column.
+- ``v @ R``, a 3-vector times a 3×3 matrix: the ``ddot`` order over each column;
+- ``A.T @ B``, a 3×3 matrix's transpose (a view, e.g. ``T[:3, :3].T``) times a (3, m) matrix
+  (``dgemm`` with the first operand transposed; probed for m = 3 and 6): the ``ddot`` order too.
 
 ``fma`` is LLVM's ``llvm.fma.f64``: one rounding on every CPU (a library call where the CPU has
 no FMA unit), so the kernels' floats do not depend on the machine. Which order numpy's BLAS uses
@@ -32,7 +34,7 @@ from typing import Any
 from numba import njit, types
 from numba.extending import intrinsic
 
-__all__ = ["dot3", "fma", "matmul3", "matmul4", "matvec3", "vecmat3"]
+__all__ = ["dot3", "fma", "matmul3", "matmul4", "matvec3", "tmatmul3", "vecmat3"]
 
 
 def _fma_typing(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
@@ -97,3 +99,14 @@ def matmul4(A: Any, B: Any, out: Any) -> None:
             s = fma(A[r, 1], B[1, c], s)
             s = fma(A[r, 2], B[2, c], s)
             out[r, c] = fma(A[r, 3], B[3, c], s)
+
+
+@njit(cache=True)
+def tmatmul3(A: Any, B: Any, out: Any) -> None:
+    """``A.T @ B`` of a (3, 3) and a (3, m) array as numpy computes it, into ``out`` (3, m).
+
+    ``out`` must not alias ``A`` or ``B``.
+    """
+    for r in range(3):
+        for c in range(B.shape[1]):
+            out[r, c] = _fma(A[2, r], B[2, c], _fma(A[1, r], B[1, c], _fma(A[0, r], B[0, c], 0.0)))

@@ -27,7 +27,7 @@ from numba import njit
 
 from endocam.geometry import FloatArray
 
-__all__ = ["path_positions", "profile_extrema", "profile_rows"]
+__all__ = ["float_rows", "path_positions", "profile_extrema", "profile_rows"]
 
 # offsets in a profile row (module docstring)
 _P, _V, _A, _J, _T = 0, 8, 16, 24, 31
@@ -56,9 +56,17 @@ def profile_rows(trajectory: object) -> FloatArray:
             flat += [brake.duration, *brake.t, *brake.p, *brake.v, *brake.a, *brake.j]
         else:
             flat += _NO_BRAKE
+    return float_rows(flat, ROW_LENGTH)
+
+
+def float_rows(flat: list[float], width: int) -> FloatArray:
+    """Python floats as a writable (len(flat) / width, width) array: the same floats.
+
+    Packed as native doubles (cheaper than ``np.array`` or ``np.fromiter`` of a list).
+    """
     n = len(flat)
     packed = _PACKED.get(n) or _PACKED.setdefault(n, struct.Struct(f"{n}d"))
-    return np.frombuffer(bytearray(packed.pack(*flat))).reshape(-1, ROW_LENGTH)
+    return np.frombuffer(bytearray(packed.pack(*flat))).reshape(-1, width)
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)

@@ -30,8 +30,8 @@ tool tip (identity for the ECM, whose tip frame is its optical frame).
 
 from __future__ import annotations
 
-import itertools
 import math
+from typing import cast
 
 import numpy as np
 import ruckig
@@ -39,7 +39,13 @@ from numba import njit
 
 from endocam.blasfloat import dot3, matmul4, matvec3
 from endocam.camera import StereoCamera
-from endocam.control.safety import Workspace, cone_margin
+from endocam.control.safety import (
+    NO_WORKSPACE,
+    Workspace,
+    WorkspaceState,
+    cone_margin,
+    workspace_all_inside,
+)
 from endocam.geometry import UP, FloatArray, as_pose, invert_pose
 from endocam.kernels import _SMALL_ANGLE, cross, py_max, py_min, rotation_angle
 from endocam.pyfloat import dist3, hypot2
@@ -51,7 +57,7 @@ from endocam.robot.arm import (
     PSM_MAX_VELOCITY,
     SimulatedArm,
 )
-from endocam.robot.braking import path_positions, profile_rows
+from endocam.robot.braking import ROW_LENGTH, float_rows, path_positions, profile_rows
 from endocam.robot.dh import (
     Pose12,
     _compose_kernel,
@@ -1029,31 +1035,28 @@ class CameraArm:
         traj, dt = self._brake_traj, self._dt
         duration = traj.duration
         steps = math.ceil(duration / dt - 1e-9)
+        n = len(stop)
         # every control step of the path, then where it stops; the same floats either way
         if steps > PROFILE_READ_STEPS * len(q):  # read the profiles once, sample compiled
-            points = _braking_points_kernel(
-                self.model.chain._param_array,
-                profile_rows(traj),
-                duration,
-                dt,
-                steps,
-                np.array(stop),
-                self._world_rcm12,
-                self._last_cam_point,
-            )
+            rows, stop_row = profile_rows(traj), np.array(stop)
+            q_rows = np.empty((steps + 1, n))
         else:  # a short path: fewer calls of ruckig's own sampler than reading the profiles
             at_time = traj.at_time
-            path = [at_time(min(i * dt, duration))[0] for i in range(1, steps + 1)]
-            path.append(stop)
-            n = len(stop)
-            q_rows = np.fromiter(
-                itertools.chain.from_iterable(path), float, (steps + 1) * n
-            ).reshape(-1, n)
-            a3, b3, c3 = self._last_cam_point
-            points = _points_kernel(
-                self.model.chain._param_array, q_rows, self._world_rcm12, a3, b3, c3
-            )
-        return ws.all_inside(points)
+            flat: list[float] = []
+            for i in range(1, steps + 1):
+                t = i * dt
+                flat += at_time(duration if duration < t else t)[0]  # min(t, duration)
+            flat += stop
+            q_rows = float_rows(flat, n)
+            rows, stop_row = _NO_ROWS, q_rows[steps]
+        points = np.empty((steps + 1, 3))
+        compiled = type(ws) is Workspace  # its query in the same call; any other: its own
+        state = cast(WorkspaceState, ws.kernel_state) if compiled else NO_WORKSPACE
+        inside = _braking_inside_kernel(
+            *state, compiled, self.model.chain._param_array, rows, duration, dt, stop_row,
+            self._world_rcm12, self._last_cam_point, q_rows, points,
+        )  # fmt: skip
+        return bool(inside) if compiled else ws.all_inside(points)
 
     def _keep_inside(self, q_before: FloatArray, qd_before: FloatArray) -> FloatArray | None:
         """Undo a joint step that could take the camera out; brake along a checked one.
@@ -1170,28 +1173,55 @@ def _cone_consts(ws: WorkspaceBound) -> FloatArray | None:
     return consts
 
 
+_NO_ROWS = np.empty((0, ROW_LENGTH))  # _braking_inside_kernel's rows of a path read by at_time
+
+
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _braking_points_kernel(
+def _braking_inside_kernel(
+    cone: FloatArray,
+    floor: float,
+    keep: bool,
+    pts: FloatArray,
+    table: np.ndarray,
+    pool: np.ndarray,
+    meta: np.ndarray,
+    radius: float,
+    ref: FloatArray,
+    nref: np.ndarray,
+    clearance: float,
+    check: bool,
     params: FloatArray,
     rows: FloatArray,
     duration: float,
     dt: float,
-    steps: int,
     stop: FloatArray,
     T0: Pose12,
     point: tuple[float, float, float],
-) -> FloatArray:
-    """The camera's positions along a braking path: (steps + 1, 3), world, m.
+    q_rows: FloatArray,
+    points: FloatArray,
+) -> bool:
+    """The camera's positions along a braking path, and whether the workspace holds them all.
 
-    The joints at every control step of the ruckig trajectory ``rows`` (n, 49) of duration
-    ``duration`` (s, control period ``dt``; :func:`~endocam.robot.braking.path_positions`),
-    then at ``stop`` (n,), rad / m; each through :func:`~endocam.robot.dh.chain_points`'s
-    product (``T0``: the RCM in world, ``point``: the camera in the last link's frame, m).
+    The workspace ``state`` first (``control.safety.Workspace.kernel_state``; with ``check``
+    False it is not asked, and the answer is True). The joints ``q_rows`` (steps + 1, n),
+    rad / m: given (ruckig's ``at_time`` at every control step, then ``stop``), or, when
+    ``rows`` (n, 49) has rows, written here: the ruckig trajectory ``rows`` of duration
+    ``duration`` (s, control period ``dt``) sampled at every control step
+    (:func:`~endocam.robot.braking.path_positions`), then ``stop`` (n,). Writes the camera's
+    positions into ``points`` (steps + 1, 3), world, m (:func:`~endocam.robot.dh.chain_points`'s
+    product; ``T0``: the RCM in world, ``point``: the camera in the last link's frame, m), and
+    returns ``Workspace.all_inside(points)`` (:func:`~endocam.control.safety.workspace_all_inside`).
     """
-    q_rows = np.empty((steps + 1, stop.shape[0]))
-    q_rows[:steps] = path_positions(rows, duration, dt, steps)
-    q_rows[steps] = stop
-    return _points_kernel(params, q_rows, T0, point[0], point[1], point[2])
+    steps = q_rows.shape[0] - 1
+    if rows.shape[0] > 0:
+        q_rows[:steps] = path_positions(rows, duration, dt, steps)
+        q_rows[steps] = stop
+    points[:, :] = _points_kernel(params, q_rows, T0, point[0], point[1], point[2])
+    if not check:
+        return True
+    return workspace_all_inside(
+        cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance, points
+    )
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -1288,9 +1318,16 @@ def _wrist_jump(kind: ArmKind, q_before: list[float], q_after: list[float]) -> b
     """Whether a PSM's wrist (roll, pitch, yaw) target moved more than ``WRIST_JUMP_RAD``."""
     if kind is not ArmKind.PSM:
         return False
-    return (
-        max([abs(a - b) for a, b in zip(q_before[3:], q_after[3:], strict=True)]) > WRIST_JUMP_RAD
-    )
+    _, _, _, a3, a4, a5 = q_before  # the PSM's six joints
+    _, _, _, b3, b4, b5 = q_after
+    jump = abs(a3 - b3)  # Python's max of the three, in its order (a NaN first stays)
+    d = abs(a4 - b4)
+    if d > jump:
+        jump = d
+    d = abs(a5 - b5)
+    if d > jump:
+        jump = d
+    return jump > WRIST_JUMP_RAD
 
 
 # m: the start view keeps the camera at least this far beyond the port (the RCM, in the body

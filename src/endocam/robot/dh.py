@@ -25,6 +25,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
+from endocam.blasfloat import matmul4
 from endocam.geometry import FloatArray
 
 __all__ = [
@@ -39,6 +40,7 @@ __all__ = [
     "compose_links",
     "flat_rows",
     "geometric_jacobian",
+    "jacobian_into",
     "link_transform",
     "pose12_between",
     "pose12_from_matrix",
@@ -494,7 +496,8 @@ def geometric_jacobian(chain: DHChain, q: FloatArray) -> FloatArray:
 
     Rows ``0:3`` are the linear velocity of the tip origin (m/s per joint unit/s), rows
     ``3:6`` the angular velocity (rad/s per joint unit/s), both expressed in the base frame.
-    In modified DH, joint ``i`` moves about / along the z axis of link frame ``i``.
+    In modified DH, joint ``i`` moves about / along the z axis of link frame ``i``. Compiled
+    (:func:`jacobian_into`).
 
     Parameters
     ----------
@@ -508,15 +511,49 @@ def geometric_jacobian(chain: DHChain, q: FloatArray) -> FloatArray:
     J : (6, n) ndarray
         ``[v; ω] = J @ qd``.
     """
-    frames = chain_frames(chain, q)
-    p_tip = frames[-1, :3, 3]
-    n = chain.n_joints
-    J = np.zeros((6, n))
-    for i, link in enumerate(chain.links):
-        z = frames[i, :3, 2]
-        if link.joint_type is JointType.REVOLUTE:
-            J[:3, i] = np.cross(z, p_tip - frames[i, :3, 3])
-            J[3:, i] = z
-        else:
-            J[:3, i] = z
+    J = np.empty((6, chain.n_joints))
+    jacobian_into(chain._param_array, chain.T_last_tip, q, J)
     return J
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def jacobian_into(params: FloatArray, T_last_tip: FloatArray, q: FloatArray, J: FloatArray) -> None:
+    """The geometric Jacobian (6, n) of the chain's tip at ``q`` (n,), into ``J``.
+
+    ``params``: the chain's (n, 7) parameter array (``DHChain._param_array``); ``T_last_tip``
+    (4, 4), m. The floats of the interpreted form (``tests/reference_psm.py``): the link frames
+    as numpy's ``T @ link_transform(...)`` from the identity (``blasfloat.matmul4``), the tip
+    ``T_n @ T_last_tip``, and ``np.cross(z_i, p_tip - o_i)`` (``a1 b2 - a2 b1``, ...).
+    """
+    n = params.shape[0]
+    frames = np.empty((n, 4, 4))
+    T = np.eye(4)
+    L = np.zeros((4, 4))
+    L[3, 3] = 1.0
+    for i in range(n):
+        ca, sa, a_len = params[i, 0], params[i, 1], params[i, 2]
+        d, theta = params[i, 3], params[i, 4]
+        if params[i, _REVOLUTE_COLUMN] != 0.0:
+            theta = q[i] + params[i, 5]
+        else:
+            d = q[i] + params[i, 5]
+        ct, st = math.cos(theta), math.sin(theta)
+        L[0, 0], L[0, 1], L[0, 3] = ct, -st, a_len
+        L[1, 0], L[1, 1], L[1, 2], L[1, 3] = ca * st, ca * ct, -sa, -sa * d
+        L[2, 0], L[2, 1], L[2, 2], L[2, 3] = sa * st, sa * ct, ca, ca * d
+        matmul4(T, L, frames[i])
+        T = frames[i]
+    tip = np.empty((4, 4))
+    matmul4(T, T_last_tip, tip)
+    p0, p1, p2 = tip[0, 3], tip[1, 3], tip[2, 3]
+    for i in range(n):
+        z0, z1, z2 = frames[i, 0, 2], frames[i, 1, 2], frames[i, 2, 2]
+        if params[i, _REVOLUTE_COLUMN] != 0.0:
+            b0, b1, b2 = p0 - frames[i, 0, 3], p1 - frames[i, 1, 3], p2 - frames[i, 2, 3]
+            J[0, i] = z1 * b2 - z2 * b1
+            J[1, i] = z2 * b0 - z0 * b2
+            J[2, i] = z0 * b1 - z1 * b0
+            J[3, i], J[4, i], J[5, i] = z0, z1, z2
+        else:
+            J[0, i], J[1, i], J[2, i] = z0, z1, z2
+            J[3, i], J[4, i], J[5, i] = 0.0, 0.0, 0.0

@@ -14,15 +14,19 @@ import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
 
+from endocam.blasfloat import fma, tmatmul3
 from endocam.geometry import FloatArray, as_finite_array, as_pose, invert_pose, so3_log
 from endocam.kernels import so3_log as so3_log_rows
 from endocam.robot.dh import (
+    IDENTITY12,
     DHChain,
     JointType,
     Pose12,
+    _compose_kernel,
     chain_forward,
     chain_frames,
     geometric_jacobian,
+    jacobian_into,
     pose12_to_matrix,
 )
 from endocam.robot.ik import (
@@ -106,6 +110,72 @@ def branch_in_limits(angle: float, reference: float, lower: float, upper: float)
             chosen, error, found = a, e, True
         k += 1.0
     return chosen
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _residual_into(
+    params: FloatArray,
+    T_last_tip: FloatArray,
+    q: FloatArray,
+    T_goal: FloatArray,
+    weight: float,
+    out: FloatArray,
+) -> None:
+    """The nearest-feasible solve's residual (6,) at ``q`` (n,), into ``out``, m.
+
+    ``[p(q) - p_goal, w · so3_log(R_goal^T R(q))]`` with ``T(q)`` the chain's tip pose
+    (``params``: ``DHChain._param_array``; ``T_last_tip`` (4, 4)) and ``T_goal`` (4, 4), RCM
+    frame, m; ``weight`` m/rad. The floats of the interpreted form (``tests/reference_psm.py``):
+    ``chain_forward``'s product, numpy's ``T_goal[:3, :3].T @ T[:3, :3]`` (``blasfloat.tmatmul3``).
+    """
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = _compose_kernel(
+        params, q, 0, params.shape[0], IDENTITY12
+    )
+    R = np.empty((3, 3))
+    tip = T_last_tip
+    for c in range(3):  # pose12_to_matrix's product with the tip offset
+        a, b, d = tip[0, c], tip[1, c], tip[2, c]
+        R[0, c] = r00 * a + r01 * b + r02 * d
+        R[1, c] = r10 * a + r11 * b + r12 * d
+        R[2, c] = r20 * a + r21 * b + r22 * d
+    a3, b3, c3 = tip[0, 3], tip[1, 3], tip[2, 3]
+    out[0] = r00 * a3 + r01 * b3 + r02 * c3 + px - T_goal[0, 3]
+    out[1] = r10 * a3 + r11 * b3 + r12 * c3 + py - T_goal[1, 3]
+    out[2] = r20 * a3 + r21 * b3 + r22 * c3 + pz - T_goal[2, 3]
+    M = np.empty((3, 3))
+    tmatmul3(T_goal, R, M)
+    rot = so3_log_rows(
+        (
+            (M[0, 0], M[0, 1], M[0, 2]),
+            (M[1, 0], M[1, 1], M[1, 2]),
+            (M[2, 0], M[2, 1], M[2, 2]),
+        )
+    )
+    out[3], out[4], out[5] = weight * rot[0], weight * rot[1], weight * rot[2]
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def _residual_jac_into(
+    params: FloatArray,
+    T_last_tip: FloatArray,
+    q: FloatArray,
+    T_goal: FloatArray,
+    weight: float,
+    out: FloatArray,
+) -> None:
+    """Jacobian (6, n) of :func:`_residual_into` at ``q``, into ``out``.
+
+    ``[J_v; w · R_goal^T J_ω]`` with ``J`` the geometric Jacobian (``dh.jacobian_into``); the
+    product as numpy's ``T_goal[:3, :3].T @ J[3:]`` (``blasfloat.tmatmul3``'s sums), column by
+    column in place (plain loops: a fraction of the compile time of slices and a temporary).
+    """
+    jacobian_into(params, T_last_tip, q, out)
+    for c in range(params.shape[0]):
+        w0, w1, w2 = out[3, c], out[4, c], out[5, c]
+        for r in range(3):
+            out[3 + r, c] = weight * fma(
+                T_goal[2, r], w2, fma(T_goal[1, r], w1, fma(T_goal[0, r], w0, 0.0))
+            )
 
 
 class RcmArm(abc.ABC):
@@ -422,19 +492,23 @@ class RcmArm(abc.ABC):
         return q
 
     def _pose_residual(self, q: FloatArray, T_goal: FloatArray, weight: float) -> FloatArray:
-        T = chain_forward(self._chain, q)
-        # rotation vector of R_goal^T R on floats: scipy's Rotation costs ~0.2 ms per call, too
-        # slow inside the control loop's nearest-feasible solve
-        rot_err = np.array(so3_log_rows((T_goal[:3, :3].T @ T[:3, :3]).tolist()))
-        return np.concatenate([T[:3, 3] - T_goal[:3, 3], weight * rot_err])
+        """``[p(q) - p_goal, w · rotvec(R_goal^T R(q))]`` (6,), m (:func:`_residual_into`).
+
+        A new array per call: scipy's solver keeps the residuals it was given.
+        """
+        out = np.empty(6)
+        _residual_into(self._chain._param_array, self._chain.T_last_tip, q, T_goal, weight, out)
+        return out
 
     def _pose_residual_jac(self, q: FloatArray, T_goal: FloatArray, weight: float) -> FloatArray:
-        """Jacobian of :meth:`_pose_residual` (position rows exact, rotation rows first order).
+        """Jacobian (6, n) of :meth:`_pose_residual` (position rows exact, rotation first order).
 
-        The rotation rows ``R_goal^T J_ω`` are exact at zero orientation error.
+        The rotation rows ``R_goal^T J_ω`` are exact at zero orientation error. Compiled
+        (:func:`_residual_jac_into`); a new array per call.
         """
-        J = geometric_jacobian(self._chain, q)
-        return np.vstack([J[:3], weight * (T_goal[:3, :3].T @ J[3:])])
+        out = np.empty((6, self.n_joints))
+        _residual_jac_into(self._chain._param_array, self._chain.T_last_tip, q, T_goal, weight, out)
+        return out
 
     def nearest_feasible(
         self,
