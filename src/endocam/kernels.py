@@ -32,6 +32,7 @@ __all__ = [
     "rotation_angle",
     "scaled",
     "so3_exp",
+    "so3_exp_entries",
     "so3_log",
     "tmatmul",
     "unit_checked",
@@ -138,20 +139,37 @@ def so3_log(R: Sequence[Sequence[float]]) -> list[float]:
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
-def so3_exp(theta: Sequence[float]) -> Rows:
-    """Rotation matrix (rows) of a rotation vector (3,), rad (Rodrigues' formula)."""
-    x, y, z = theta
+def so3_exp_entries(
+    x: float, y: float, z: float
+) -> tuple[float, float, float, float, float, float, float, float, float]:
+    """The rotation matrix of the rotation vector ``(x, y, z)`` (rad), row by row: 9 floats.
+
+    Rodrigues' formula; :func:`so3_exp` and the compiled callers that fill an array share it.
+    """
     a2 = x * x + y * y + z * z
     if a2 < _SMALL_ANGLE * _SMALL_ANGLE:
         s, c = 1.0, 0.5  # sin(a)/a and (1 − cos a)/a² to first order
     else:
         a = math.sqrt(a2)
         s, c = math.sin(a) / a, (1.0 - math.cos(a)) / a2
-    return [
-        [1.0 - c * (y * y + z * z), c * x * y - s * z, c * x * z + s * y],
-        [c * x * y + s * z, 1.0 - c * (x * x + z * z), c * y * z - s * x],
-        [c * x * z - s * y, c * y * z + s * x, 1.0 - c * (x * x + y * y)],
-    ]
+    return (
+        1.0 - c * (y * y + z * z),
+        c * x * y - s * z,
+        c * x * z + s * y,
+        c * x * y + s * z,
+        1.0 - c * (x * x + z * z),
+        c * y * z - s * x,
+        c * x * z - s * y,
+        c * y * z + s * x,
+        1.0 - c * (x * x + y * y),
+    )
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def so3_exp(theta: Sequence[float]) -> Rows:
+    """Rotation matrix (rows) of a rotation vector (3,), rad (Rodrigues' formula)."""
+    e = so3_exp_entries(theta[0], theta[1], theta[2])
+    return [[e[0], e[1], e[2]], [e[3], e[4], e[5]], [e[6], e[7], e[8]]]
 
 
 @register_jitable  # also callable from compiled kernels (the same source)

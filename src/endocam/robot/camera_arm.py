@@ -47,7 +47,7 @@ from endocam.control.safety import (
     workspace_all_inside,
 )
 from endocam.geometry import UP, FloatArray, as_pose, invert_pose
-from endocam.kernels import _SMALL_ANGLE, cross, py_max, py_min, rotation_angle
+from endocam.kernels import cross, py_max, py_min, rotation_angle, so3_exp_entries
 from endocam.pyfloat import dist3, hypot2
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import (
@@ -184,20 +184,12 @@ _F_WORLD_RCM, _F_RCM_WORLD, _F_TIP_CAM, _F_CAM_TIP = 0, 1, 2, 3
 
 @njit(cache=True)  # compiled once, then loaded from the cache
 def _so3_exp(x: float, y: float, z: float) -> FloatArray:
-    """:func:`endocam.kernels.so3_exp` of the rotation vector ``(x, y, z)`` (rad): (3, 3).
-
-    The same floats (Rodrigues' formula, the same products in the same order), as an array.
-    """
-    a2 = x * x + y * y + z * z
-    if a2 < _SMALL_ANGLE * _SMALL_ANGLE:
-        s, c = 1.0, 0.5  # sin(a)/a and (1 − cos a)/a² to first order
-    else:
-        a = math.sqrt(a2)
-        s, c = math.sin(a) / a, (1.0 - math.cos(a)) / a2
+    """:func:`endocam.kernels.so3_exp` of the rotation vector ``(x, y, z)`` (rad): (3, 3) array."""
+    e = so3_exp_entries(x, y, z)
     R = np.empty((3, 3))
-    R[0, 0], R[0, 1], R[0, 2] = 1.0 - c * (y * y + z * z), c * x * y - s * z, c * x * z + s * y
-    R[1, 0], R[1, 1], R[1, 2] = c * x * y + s * z, 1.0 - c * (x * x + z * z), c * y * z - s * x
-    R[2, 0], R[2, 1], R[2, 2] = c * x * z - s * y, c * y * z + s * x, 1.0 - c * (x * x + y * y)
+    R[0, 0], R[0, 1], R[0, 2] = e[0], e[1], e[2]
+    R[1, 0], R[1, 1], R[1, 2] = e[3], e[4], e[5]
+    R[2, 0], R[2, 1], R[2, 2] = e[6], e[7], e[8]
     return R
 
 
