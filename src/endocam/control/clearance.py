@@ -52,7 +52,7 @@ from numba import njit
 from numba.extending import register_jitable
 
 from endocam.camera import SCOPE_RADIUS
-from endocam.control.cone import cone_margin
+from endocam.control.cone import cone_floor_margin
 from endocam.geometry import FloatArray
 from endocam.kernels import Vec, cross, dot, norm, py_max, py_min, reject, scaled, unit_checked
 from endocam.pyfloat import dist3
@@ -373,8 +373,7 @@ def _feasible(
     if kind == 0:
         return True
     x, y, z = pos
-    cone = ((ws[0], ws[1], ws[2]), (ws[3], ws[4], ws[5]))
-    m = py_min(cone_margin(x, y, z, cone[0], cone[1], ws[6], ws[7], ws[8]), z - ws[9])
+    m = cone_floor_margin(x, y, z, ws, ws[9])
     if keep:
         d = _distance(
             k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref, k_clearance, x, y, z, 0.0

@@ -11,9 +11,10 @@ import math
 
 from numba.extending import register_jitable
 
+from endocam.geometry import FloatArray
 from endocam.kernels import py_min
 
-__all__ = ["cone_margin"]
+__all__ = ["cone_floor_margin", "cone_margin"]
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -42,3 +43,16 @@ def cone_margin(
     if not math.isfinite(h + radial):
         return math.nan
     return py_min(py_min(lateral, height - h), h)  # Python's min(lateral, height - h, h)
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def cone_floor_margin(x: float, y: float, z: float, cone: FloatArray, floor: float) -> float:
+    """``Workspace.margin`` without its keep-out zone: Python's ``min(cone margin, z − floor)``, m.
+
+    ``(x, y, z)``: the point, world, m; ``cone`` (≥ 9,): ``ConeWorkspace.constants`` (apex,
+    unit axis, tan and cos of the half-angle, height); ``floor``: the lowest z, world, m. NaN
+    for a non-finite point.
+    """
+    apex = (cone[0], cone[1], cone[2])
+    axis = (cone[3], cone[4], cone[5])
+    return py_min(cone_margin(x, y, z, apex, axis, cone[6], cone[7], cone[8]), z - floor)

@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from endocam.camera import MIN_DEPTH, StereoCamera
 from endocam.control.clearance import CACHE_SIZE, _distance, _first_outside
-from endocam.control.cone import cone_margin
+from endocam.control.cone import cone_floor_margin, cone_margin
 from endocam.geometry import FloatArray, as_vector3, unit_vector
 from endocam.kernels import py_max, py_min
 from endocam.pyfloat import dist3
@@ -267,8 +267,7 @@ def workspace_margin(
     less the clearance: one query at most, the cache updated as ``ClearanceGuard.margin``
     does), Python's ``min`` order; NaN for a non-finite point.
     """
-    apex, axis, tan_half, cos_half, height = cone_at(cone, 0)
-    m = py_min(cone_margin(x, y, z, apex, axis, tan_half, cos_half, height), z - floor)
+    m = cone_floor_margin(x, y, z, cone, floor)
     if keep:
         zone = workspace_keep_out_margin(
             cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance, x, y, z

@@ -39,11 +39,11 @@ from numba import njit
 
 from endocam.blasfloat import dot3, matmul4, matvec3
 from endocam.camera import StereoCamera
+from endocam.control.cone import cone_floor_margin
 from endocam.control.safety import (
     NO_WORKSPACE,
     Workspace,
     WorkspaceState,
-    cone_margin,
     workspace_all_inside,
 )
 from endocam.geometry import UP, FloatArray, as_pose, invert_pose
@@ -1147,9 +1147,7 @@ def _stop_kernel(
     to_rcm = dist3(x, y, z, c[r], c[r + 1], c[r + 2])
     margin = math.nan
     if cone is not None:  # Python's min(cone.margin(p), p[2] - floor)
-        apex, axis = (cone[0], cone[1], cone[2]), (cone[3], cone[4], cone[5])
-        m = cone_margin(x, y, z, apex, axis, cone[6], cone[7], cone[8])
-        margin = py_min(m, z - cone[9])
+        margin = cone_floor_margin(x, y, z, cone, cone[9])
     return moving, slide, turn, to_rcm, margin
 
 
