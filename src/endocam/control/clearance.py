@@ -57,7 +57,7 @@ from endocam.geometry import FloatArray
 from endocam.kernels import Vec, cross, dot, norm, py_max, py_min, reject, scaled, unit_checked
 from endocam.pyfloat import dist3
 from endocam.task.wire import Wire, _surface_query
-from endocam.view import rotation_columns
+from endocam.view import look_at_columns, rotation_columns
 
 if TYPE_CHECKING:  # (safety imports this module's kernels)
     from endocam.control.safety import Workspace
@@ -641,13 +641,11 @@ def _look_at_kernel(
     unless fallen back; ``APPLY_ADJUSTED``: the cleared one) is written into ``out`` (4, 4),
     the caller's array (numba unpickles the type of every array it returns).
     """
-    d = (pivot[0] - p[0], pivot[1] - p[1], pivot[2] - p[2])
-    length = norm(d)
-    fell_back = not length > 1e-9
+    x_prev = (previous[0, 0], previous[1, 0], previous[2, 0])
+    found, x, y, z = look_at_columns(p, pivot, x_prev)
+    fell_back = not found
     T = fallback
-    if not fell_back:
-        x_prev = (previous[0, 0], previous[1, 0], previous[2, 0])
-        x, y, z = rotation_columns(scaled(d, 1.0 / length), (0.0, 0.0, 1.0), x_prev)
+    if found:
         T = np.empty((4, 4))
         for i in range(3):
             T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
