@@ -136,3 +136,50 @@ def test_workspace_queries_are_the_interpreted_ones() -> None:
         answers.add(inside)
         assert compiled.keep_out.refs == interpreted.keep_out.refs  # type: ignore[union-attr]
     assert answers == {True, False}
+
+
+FLOOR_TOLERANCE = 1e-4  # m: a braked stop settles within ruckig's round-off of the wall (0.1 mm)
+
+
+def test_a_workspace_given_later_is_the_one_the_stop_check_keeps() -> None:
+    """Reassigning ``workspace`` moves the wall the camera brakes at, not the one it was built with.
+
+    The second workspace's floor is 5 mm under the camera; the target is 5 mm under that floor.
+    """
+    ws_a, _, feature = _workspaces("cone")
+    assert ws_a is not None
+    start = make_pose(np.eye(3), feature + np.array([0.0, 0.0, 0.03]))
+    ws_b = Workspace(ws_a.cone, float(start[2, 3]) - 0.005, ws_a.keep_out)
+    lim = CartesianLimiter(MotionLimits(), 0.01, ws_a)
+    lim.workspace = ws_b
+    lim.reset(start)
+    target = make_pose(np.eye(3), feature + np.array([0.0, 0.0, -0.005]))
+    for _ in range(200):
+        T = lim.step(target)
+    assert T[2, 3] >= ws_b.floor - FLOOR_TOLERANCE
+    assert lim.braked > 0
+
+
+def test_a_workspace_the_compiled_check_cannot_honour_is_refused() -> None:
+    """A ``Workspace`` subclass (its own ``margin``) would be checked as a plain one: refused."""
+    ws, _, _ = _workspaces("cone")
+    assert ws is not None
+
+    class Stricter(Workspace):
+        def margin(self, p_world: object) -> float:
+            return -1.0
+
+    with pytest.raises(TypeError, match="workspace"):
+        CartesianLimiter(MotionLimits(), 0.01, Stricter(ws.cone, ws.floor, ws.keep_out))
+
+
+@pytest.mark.parametrize("garbage", ["lost", object(), [["a"] * 4] * 4])
+def test_a_command_that_is_not_numbers_is_rejected_and_the_camera_held(garbage: object) -> None:
+    ws, _, feature = _workspaces("cone")
+    lim = CartesianLimiter(MotionLimits(), 0.01, ws)
+    start = make_pose(np.eye(3), feature + np.array([0.0, 0.0, 0.03]))
+    lim.reset(start)
+    T = lim.step(garbage)  # type: ignore[arg-type]  (it raised TypeError / ValueError)
+    np.testing.assert_array_equal(T, start)  # at rest on its last valid target: held there
+    T = lim.step(start, twist=garbage)  # type: ignore[arg-type]
+    np.testing.assert_array_equal(T, start)

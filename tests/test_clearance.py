@@ -16,8 +16,9 @@ from endocam.control import clearance
 from endocam.control.clearance import WIRE_CLEARANCE, ClearanceGuard
 from endocam.control.goal import goal_pose
 from endocam.control.policies import DETOUR_REASON, STALL_STEPS, WIRE_REASON, OrientationPolicy
+from endocam.control.safety import Workspace
 from endocam.control.types import Observation, PolicyContext, TrackingState
-from endocam.geometry import invert_pose
+from endocam.geometry import invert_pose, make_pose
 from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import EpisodeSpec, run_episode
 from endocam.runner.experiments import paper_paths
@@ -593,3 +594,22 @@ def test_a_detour_never_deadlocks_on_the_zones_edge() -> None:
         longest = max(longest, run)
     assert longest <= STILL_STEPS_ALLOWED
     assert np.mean(log.state == TrackingState.TRACKING.value) > 0.5  # it tracks the ring
+
+
+def test_a_workspace_the_compiled_check_cannot_honour_is_refused() -> None:
+    """A ``Workspace`` subclass with its own ``margin`` would be checked as a plain one: refused."""
+    cfg = ExperimentConfig()
+    wire = Wire(cfg.task.wire)
+    rcm, feature = np.array(cfg.task.scene.rcm_position), wire.point(0.5 * wire.length)
+    ws = cfg.controller.workspace(rcm, feature, wire)
+
+    class Stricter(Workspace):
+        def margin(self, p_world: object) -> float:
+            return -1.0
+
+    guard = ClearanceGuard(wire, WIRE_CLEARANCE)
+    T = make_pose(np.eye(3), feature + np.array([0.0, 0.0, 0.05]))
+    pivot = (float(feature[0]), float(feature[1]), float(feature[2]))
+    assert guard.apply(T, pivot, ws) is not None  # the plain Workspace is taken
+    with pytest.raises(TypeError, match="workspace"):
+        guard.apply(T, pivot, Stricter(ws.cone, ws.floor, ws.keep_out))

@@ -839,6 +839,13 @@ class ClearanceGuard:
         if workspace is None:
             return (0, np.zeros(10), False, *_NO_KEEP_OUT)
         if workspace is not self._workspace:
+            from endocam.control.safety import Workspace  # (safety imports this module)
+
+            if type(workspace) is not Workspace:  # a subclass's own margin would go unasked
+                raise TypeError(
+                    "workspace: the guard's feasibility check is compiled for a "
+                    f"control.safety.Workspace, got {type(workspace).__name__}"
+                )
             keep_out = workspace.keep_out
             if keep_out is not None and not isinstance(keep_out, ClearanceGuard):
                 raise TypeError("a workspace's keep-out zone must be a ClearanceGuard")

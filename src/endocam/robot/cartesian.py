@@ -33,6 +33,7 @@ from ruckig import (
 from endocam.camera import StereoCamera
 from endocam.control.safety import (
     NO_WORKSPACE,
+    Workspace,
     WorkspaceState,
     workspace_all_inside,
     workspace_keep_out_margin,
@@ -448,28 +449,45 @@ class CartesianLimiter:
         self._buf = np.zeros(18)  # ruckig's positions and target velocity (_prepare)
         self._moving_target = False  # the last step had a target velocity
         self.status = _FINISHED
-        self.workspace = workspace
+        self._workspace: WorkspaceBound | None = None
+        self._ws_state: WorkspaceState = NO_WORKSPACE
+        self.workspace = workspace  # (checked, and its compiled state taken, by the setter)
         self._safe = False  # the camera can brake to rest inside the workspace
         self.braked = 0  # steps on which the workspace made the camera brake
-        self._ws_state: WorkspaceState = NO_WORKSPACE
-        if workspace is not None:
-            self._ws_state = workspace.kernel_state
-            self._stop_otg = Ruckig(3)  # the braking path of the position DoFs (extrema)
-            self._stop_inp = InputParameter(3)
-            self._stop_inp.control_interface = ControlInterface.Velocity
-            self._stop_inp.synchronization = Synchronization.No
-            self._stop_inp.max_velocity = self._inp.max_velocity[:3]
-            self._stop_inp.max_acceleration = self._inp.max_acceleration[:3]
-            self._stop_inp.max_jerk = self._inp.max_jerk[:3]
-            self._stop_traj = Trajectory(3)
-            self._brake_otg = Ruckig(6, dt)  # one braking step of all six DoFs
-            self._brake_inp = InputParameter(6)
-            self._brake_inp.control_interface = ControlInterface.Velocity
-            self._brake_inp.synchronization = Synchronization.No
-            self._brake_inp.max_velocity = self._inp.max_velocity
-            self._brake_inp.max_acceleration = self._inp.max_acceleration
-            self._brake_inp.max_jerk = self._inp.max_jerk
-            self._brake_out = OutputParameter(6)
+        # the braking machinery, ready for a workspace given now or later
+        self._stop_otg = Ruckig(3)  # the braking path of the position DoFs (extrema)
+        self._stop_inp = InputParameter(3)
+        self._stop_inp.control_interface = ControlInterface.Velocity
+        self._stop_inp.synchronization = Synchronization.No
+        self._stop_inp.max_velocity = self._inp.max_velocity[:3]
+        self._stop_inp.max_acceleration = self._inp.max_acceleration[:3]
+        self._stop_inp.max_jerk = self._inp.max_jerk[:3]
+        self._stop_traj = Trajectory(3)
+        self._brake_otg = Ruckig(6, dt)  # one braking step of all six DoFs
+        self._brake_inp = InputParameter(6)
+        self._brake_inp.control_interface = ControlInterface.Velocity
+        self._brake_inp.synchronization = Synchronization.No
+        self._brake_inp.max_velocity = self._inp.max_velocity
+        self._brake_inp.max_acceleration = self._inp.max_acceleration
+        self._brake_inp.max_jerk = self._inp.max_jerk
+        self._brake_out = OutputParameter(6)
+
+    @property
+    def workspace(self) -> WorkspaceBound | None:
+        """Where the camera may be (a ``control.safety.Workspace``), or ``None`` for anywhere."""
+        return self._workspace
+
+    @workspace.setter
+    def workspace(self, workspace: WorkspaceBound | None) -> None:
+        # The stop check is compiled for a Workspace's cone, floor and keep-out zone: another
+        # type (a subclass with its own margin, say) would be checked as if it were one.
+        if workspace is not None and type(workspace) is not Workspace:
+            raise TypeError(
+                "workspace: the free camera's stop check is compiled for a "
+                f"control.safety.Workspace, got {type(workspace).__name__}"
+            )
+        self._workspace = workspace
+        self._ws_state = NO_WORKSPACE if workspace is None else workspace.kernel_state
 
     def _can_stop_inside(self, p: list[float], v: list[float], a: list[float]) -> bool:
         """Whether a camera at ``p`` (m) moving with ``v``, ``a`` (world) can brake inside."""
@@ -568,13 +586,19 @@ class CartesianLimiter:
         """
         T_new = T_world_target
         if type(T_new) is not np.ndarray or T_new.dtype is not _F64:
-            T_new = np.asarray(T_world_target, dtype=float)
+            try:
+                T_new = np.asarray(T_world_target, dtype=float)
+            except (TypeError, ValueError):  # not numbers at all: rejected like a NaN target
+                T_new = _NOT_A_POSE
         flat = T_new.reshape(16) if T_new.size == 16 else _NOT_A_POSE
         tw = _NO_TWIST
         if twist is not None:
             tw = twist
             if type(tw) is not np.ndarray or tw.dtype is not _F64 or tw.ndim != 1:
-                tw = np.ravel(np.asarray(twist, dtype=float))
+                try:
+                    tw = np.ravel(np.asarray(twist, dtype=float))
+                except (TypeError, ValueError):  # not numbers: no twist, as a NaN one
+                    tw = _NO_TWIST
         code = _prepare(
             flat, self._target_flat, self._arrived_at, tw, self._T, self._vmax, self._buf
         )
