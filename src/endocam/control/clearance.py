@@ -82,7 +82,9 @@ _EPS = 1e-9  # unitless, shorter directions are degenerate
 # _apply_kernel's answers: the pose itself, a backed-off or rotated one, none clear, not finite
 APPLY_CLEAR, APPLY_ADJUSTED, APPLY_BLOCKED, APPLY_NOT_FINITE = range(4)
 APPLY_INFEASIBLE = 4  # _look_at_kernel: the pose's position is outside the workspace
-_NO_KEEP_OUT = (  # _apply_kernel's keep-out arguments without one (unread)
+# A compiled caller's guard arguments without a wire model (unread): the types of a wire's
+# ``ClearanceGuard.kernel_state`` (``Wire.query_state``, radius, the Lipschitz cache, clearance)
+NO_GUARD = (
     np.zeros((1, 3)),
     np.full((2, 5), -1, dtype=np.int64),
     np.zeros(1, dtype=np.int32),
@@ -837,7 +839,7 @@ class ClearanceGuard:
     def _feasible_args(self, workspace: Workspace | None) -> tuple[object, ...]:
         """:func:`_apply_kernel`'s workspace arguments (``kind`` … ``k_clearance``)."""
         if workspace is None:
-            return (0, np.zeros(10), False, *_NO_KEEP_OUT)
+            return (0, np.zeros(10), False, *NO_GUARD)
         if workspace is not self._workspace:
             from endocam.control.safety import Workspace  # (safety imports this module)
 
@@ -850,7 +852,7 @@ class ClearanceGuard:
             if keep_out is not None and not isinstance(keep_out, ClearanceGuard):
                 raise TypeError("a workspace's keep-out zone must be a ClearanceGuard")
             ws = np.array([*workspace.cone.constants, workspace.floor])
-            keep = _NO_KEEP_OUT if keep_out is None else keep_out.kernel_state
+            keep = NO_GUARD if keep_out is None else keep_out.kernel_state
             self._workspace = workspace
             self._workspace_args = (1, ws, keep_out is not None, *keep)
         return self._workspace_args

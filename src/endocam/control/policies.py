@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
-from endocam.control.clearance import CACHE_SIZE, ClearanceGuard, _cleared_move
+from endocam.control.clearance import NO_GUARD, ClearanceGuard, _cleared_move
 from endocam.control.config import ControllerConfig, SideRule
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
@@ -92,19 +92,6 @@ CHECK_REASONS = (
     "ring pose degenerate (zero normal)",
     GATE_REASON,
 )  # the hold's reason per OBS_* answer
-# _step_kernel's and the tracker's guard arguments without a wire model (unread): the types
-# of a wire's ``ClearanceGuard.kernel_state`` (``Wire.query_state``, radius, the Lipschitz
-# cache, clearance)
-NO_GUARD = (
-    np.zeros((1, 3)),
-    np.full((2, 5), -1, dtype=np.int64),
-    np.zeros(1, dtype=np.int32),
-    np.array([0, 1], dtype=np.int64),
-    0.0,
-    np.zeros((CACHE_SIZE, 4)),
-    np.zeros(1, dtype=np.int64),
-    0.0,
-)
 
 
 @register_jitable  # also callable from compiled kernels (the same source)

@@ -22,7 +22,7 @@ from numba.extending import register_jitable
 from numpy.typing import ArrayLike, NDArray
 
 from endocam.camera import MIN_DEPTH, StereoCamera
-from endocam.control.clearance import CACHE_SIZE, _distance, _first_outside
+from endocam.control.clearance import NO_GUARD, _distance, _first_outside
 from endocam.control.cone import cone_floor_margin, cone_margin
 from endocam.geometry import FloatArray, as_vector3, unit_vector
 from endocam.kernels import py_max, py_min
@@ -228,19 +228,9 @@ WorkspaceState = tuple[
     IntArray,
     float,
 ]
-_NO_KEEP_OUT = (
-    np.zeros((1, 3)),
-    np.full((1, 5), -1, dtype=np.int64),
-    np.zeros(2, dtype=np.int32),
-    np.zeros(2, dtype=np.int64),
-    0.0,
-    np.zeros((CACHE_SIZE, 4)),
-    np.zeros(1, dtype=np.int64),
-    0.0,
-)
 
 
-NO_WORKSPACE = cast(WorkspaceState, (np.zeros(9), 0.0, False, *_NO_KEEP_OUT))
+NO_WORKSPACE = cast(WorkspaceState, (np.zeros(9), 0.0, False, *NO_GUARD))
 """A compiled caller's placeholder for no workspace (never read: it asks no query then)."""
 
 
@@ -360,7 +350,7 @@ class Workspace:
 
     def __post_init__(self) -> None:
         keep = self.keep_out is not None
-        zone = self.keep_out.kernel_state if self.keep_out is not None else _NO_KEEP_OUT
+        zone = self.keep_out.kernel_state if self.keep_out is not None else NO_GUARD
         cone = self.cone._constants
         state = cast(WorkspaceState, (cone, float(self.floor), keep, *zone))
         object.__setattr__(self, "_state", state)
