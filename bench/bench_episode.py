@@ -19,7 +19,7 @@ import pytest
 from pytest_benchmark.fixture import BenchmarkFixture
 
 from endocam.config import ExperimentConfig
-from endocam.control.registry import POLICIES
+from endocam.registry import POLICIES
 from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import EpisodeSpec, run_episode
 from endocam.runner.experiments import ground_truth

@@ -30,7 +30,6 @@ from ruckig import (
     Trajectory,
 )
 
-from endocam.control.safety import ConeWorkspace, KeepOut, cone_margin
 from endocam.geometry import FloatArray
 from endocam.kernels import Rows, matmul, so3_exp, so3_log, tmatmul
 from endocam.robot.actuator import WorkspaceBound
@@ -46,6 +45,8 @@ from endocam.robot.cartesian import (
     _snap,
     _stop_bound,
 )
+from endocam.workspace.cone import ConeWorkspace, cone_margin
+from endocam.workspace.keepout import KeepOut
 
 
 def _has_brake(rows: FloatArray) -> bool:

@@ -17,7 +17,6 @@ import pytest
 import ruckig
 
 from endocam.config import ExperimentConfig
-from endocam.control.safety import NO_WORKSPACE, ConeWorkspace, Workspace
 from endocam.robot import camera_arm
 from endocam.robot.actuator import ArmKind
 from endocam.robot.arm import (
@@ -46,6 +45,8 @@ from endocam.robot.camera_arm import (
 from endocam.robot.cartesian import CartesianLimiter, MotionLimits, _box_corners
 from endocam.robot.dh import chain_points
 from endocam.task.wire import Wire
+from endocam.workspace.cone import ConeWorkspace
+from endocam.workspace.region import NO_WORKSPACE, Workspace
 
 N_STATES = 1500  # count: random states per configuration
 DTS = (0.01, 0.001, 0.0333)  # s: control periods sampled

@@ -17,10 +17,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from endocam.config import ExperimentConfig
-from endocam.control.safety import Workspace, cone_margin
 from endocam.geometry import make_pose
 from endocam.robot.cartesian import CartesianLimiter, MotionLimits
 from endocam.task.wire import Wire
+from endocam.workspace.cone import cone_margin
+from endocam.workspace.region import Workspace
 from reference_cartesian import InterpretedLimiter, InterpretedWorkspace
 
 N_STEPS = 2500  # count: control steps per workspace

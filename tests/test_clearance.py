@@ -16,7 +16,6 @@ from endocam.control import clearance
 from endocam.control.clearance import WIRE_CLEARANCE, ClearanceGuard
 from endocam.control.goal import goal_pose
 from endocam.control.policies import DETOUR_REASON, STALL_STEPS, WIRE_REASON, OrientationPolicy
-from endocam.control.safety import Workspace
 from endocam.control.types import Observation, PolicyContext, TrackingState
 from endocam.geometry import invert_pose, make_pose
 from endocam.robot.actuator import ArmKind
@@ -26,6 +25,7 @@ from endocam.task.config import WireConfig
 from endocam.task.trajectory import TrajectoryKind
 from endocam.task.wire import Wire
 from endocam.view import look_at_pose, look_at_unchecked, pose_from_columns, rotation_columns
+from endocam.workspace.region import Workspace
 
 GRID = np.linspace(0.1, 0.9, 81)  # unitless, ring positions as fractions of the wire's length
 ROUND_M = 1e-9  # m, round-off of a rebuilt pose

@@ -14,7 +14,6 @@ from hypothesis import strategies as st
 
 from endocam.config import ExperimentConfig
 from endocam.control.config import ControllerConfig
-from endocam.control.safety import ConeWorkspace, Workspace
 from endocam.faults import (
     FAULT_NAMES,
     FaultsConfig,
@@ -28,6 +27,8 @@ from endocam.runner.check import check_run
 from endocam.runner.episode import EpisodeSpec, run_episode
 from endocam.runner.outputs import write_run
 from endocam.task.trajectory import TrajectoryKind
+from endocam.workspace.cone import ConeWorkspace
+from endocam.workspace.region import Workspace
 
 DT = 0.01  # s: the default control period
 N = 1000  # control steps of a 10 s schedule

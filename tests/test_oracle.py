@@ -10,12 +10,12 @@ import pytest
 from endocam.config import CameraConfig, ExperimentConfig
 from endocam.control.config import ControllerConfig, TrackerConfig
 from endocam.control.oracle import OracleConfig, OraclePolicy, plan_sides
-from endocam.control.safety import ConeWorkspace
 from endocam.control.tracker import EndocamPolicy
 from endocam.control.types import Observation, PolicyContext, TrackingState
 from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import EpisodeSpec, run_episode
 from endocam.task.trajectory import TrajectoryKind
+from endocam.workspace.cone import ConeWorkspace
 
 DT = 0.01  # s, control period
 LATENCY = 0.05  # s, the causal policies' sensing delay (the episode's default)

@@ -10,7 +10,6 @@ import pytest
 from endocam import StereoCamera, look_at_pose
 from endocam.control.safety import (
     D_F_STEP,
-    ConeWorkspace,
     ImageWindows,
     WindowStatus,
     _first_outside_kernel,
@@ -18,6 +17,7 @@ from endocam.control.safety import (
     window_status,
 )
 from endocam.geometry import transform_points
+from endocam.workspace.cone import ConeWorkspace
 
 ATOL_M = 1e-12  # m, round-off at 0.1 m scale
 N_PATHS = 2000  # count: random point sequences checked, compiled vs scalar

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from endocam.config import ExperimentConfig
-from endocam.control.registry import POLICIES
-from endocam.control.safety import ConeWorkspace, Workspace
 from endocam.geometry import invert_pose, make_pose
+from endocam.registry import POLICIES
 from endocam.robot import PSM_MAX_VELOCITY
 from endocam.robot.actuator import ActuatorStatus, ArmKind
 from endocam.robot.camera_arm import (
@@ -26,6 +25,8 @@ from endocam.robot.kinematics import LIMIT_SLACK
 from endocam.runner.episode import UNREACHABLE, EpisodeResult, EpisodeSpec, episode_arm, run_episode
 from endocam.runner.outputs import episode_columns
 from endocam.task.trajectory import TrajectoryKind
+from endocam.workspace.cone import ConeWorkspace
+from endocam.workspace.region import Workspace
 
 ATOL_M = 1e-9  # m: logged camera position vs FK(logged q), round-off only
 ATOL_R = 1e-9  # 1: logged rotation-matrix entries vs FK(logged q)

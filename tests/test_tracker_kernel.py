@@ -29,7 +29,6 @@ from endocam.control.goal import goal_pose_unchecked
 from endocam.control.oracle import OraclePolicy
 from endocam.control.policies import CenteringPolicy, OrientationPolicy, _MovingPolicy
 from endocam.control.safety import (
-    ConeWorkspace,
     ImageWindows,
     WindowGeometry,
     WindowStatus,
@@ -41,6 +40,7 @@ from endocam.control.types import CameraCommand, Observation, PolicyContext
 from endocam.task.config import WireConfig
 from endocam.task.wire import Wire
 from endocam.view import look_at_pose, rotation_columns
+from endocam.workspace.cone import ConeWorkspace
 
 DT = 0.01  # s, control period
 LATENCY = 0.05  # s, sensing delay

@@ -22,12 +22,14 @@ __all__ = [
     "Rows",
     "Vec",
     "cross",
+    "dist3",
     "dot",
+    "dot3",
     "finite_rows",
     "matmul",
+    "matmul4_into",
+    "matvec3",
     "norm",
-    "py_max",
-    "py_min",
     "reject",
     "rotation_angle",
     "scaled",
@@ -35,8 +37,10 @@ __all__ = [
     "so3_exp_entries",
     "so3_log",
     "tmatmul",
+    "tmatmul3_into",
     "unit_checked",
     "unit_or_none",
+    "wrap_angle",
 ]
 
 Vec = tuple[float, float, float]
@@ -84,21 +88,6 @@ def unit_or_none(a: Vec, eps: float = 1e-9) -> Vec | None:
     """``a`` normalised, or ``None`` if its length is ≤ ``eps`` (unitless) or not finite."""
     ok, u = unit_checked(a, eps)
     return u if ok else None
-
-
-@register_jitable  # also callable from compiled kernels (the same source)
-def py_min(a: float, b: float) -> float:
-    """Python's ``min(a, b)`` of two floats: ``b`` only if ``b < a`` (ties and NaN: ``a``).
-
-    Numba's ``min`` may answer a tie of signed zeros or a NaN otherwise.
-    """
-    return b if b < a else a
-
-
-@register_jitable  # also callable from compiled kernels (the same source)
-def py_max(a: float, b: float) -> float:
-    """Python's ``max(a, b)`` of two floats: ``b`` only if ``b > a`` (ties and NaN: ``a``)."""
-    return b if b > a else a
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -195,19 +184,13 @@ def tmatmul(A: Sequence[Sequence[float]], B: Sequence[Sequence[float]]) -> Rows:
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
-def rotation_angle(
-    A: Sequence[Sequence[float]], B: Sequence[Sequence[float]], two: float = 2.0
-) -> float:
+def rotation_angle(A: Sequence[Sequence[float]], B: Sequence[Sequence[float]]) -> float:
     """Angle of the relative rotation ``A^T B`` of two rotations (rows), rad, in [0, π].
 
     ``atan2(|sin|, cos)`` from the skew and trace parts of ``M = A^T B``: accurate near 0 and π
     (``arccos`` of the trace is not). ``A`` and ``B`` may hold more columns or rows (a
     (4, 4) pose's rows); only the top-left 3×3 is read.
 
-    ``two`` is the exponent of the squares (2.0): CPython computes ``x ** 2`` with the C
-    library's ``pow``, which rounds ``x²`` differently from ``x * x`` in ~0.1 % of cases, so a
-    compiled kernel passes ``two`` in at run time (the compiler would fold a constant 2 into
-    ``x * x``) and gets libm's ``pow`` too.
     """
     a0, a1, a2, b0, b1, b2 = A[0], A[1], A[2], B[0], B[1], B[2]
     # M_ij = sum_k A_ki B_kj, written out (no call per entry: this runs several times a step)
@@ -220,7 +203,8 @@ def rotation_angle(
     m20 = a0[2] * b0[0] + a1[2] * b1[0] + a2[2] * b2[0]
     m21 = a0[2] * b0[1] + a1[2] * b1[1] + a2[2] * b2[1]
     m22 = a0[2] * b0[2] + a1[2] * b1[2] + a2[2] * b2[2]
-    s = 0.5 * math.sqrt((m21 - m12) ** two + (m02 - m20) ** two + (m10 - m01) ** two)
+    s0, s1, s2 = m21 - m12, m02 - m20, m10 - m01
+    s = 0.5 * math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
     c = 0.5 * (m00 + m11 + m22 - 1.0)
     return math.atan2(s, c)
 
@@ -239,3 +223,55 @@ def finite_rows(T: object) -> Rows | None:
     if not math.isfinite(math.fsum(rows[0] + rows[1] + rows[2] + rows[3])):
         return None  # any NaN or inf makes the sum non-finite
     return rows
+
+
+# Small array products and distances for compiled kernels: plain arithmetic, pinned to numpy
+# (``@``, ``np.linalg.norm``) and Python's ``math`` by a tolerance (tests/test_kernels.py).
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def dot3(a0: float, a1: float, a2: float, b0: float, b1: float, b2: float) -> float:
+    """``a · b`` of two 3-vectors given by their components."""
+    return a0 * b0 + a1 * b1 + a2 * b2
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def dist3(ax: float, ay: float, az: float, bx: float, by: float, bz: float) -> float:
+    """Euclidean distance between the points ``a`` and ``b`` (units of the points)."""
+    dx, dy, dz = ax - bx, ay - by, az - bz
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def matvec3(R: np.ndarray, v: Sequence[float]) -> Vec:
+    """``R @ v``: ``R`` a (3, 3) array (or larger, top-left read), ``v`` any 3-indexable."""
+    return (
+        R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2],
+        R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2],
+        R[2, 0] * v[0] + R[2, 1] * v[1] + R[2, 2] * v[2],
+    )
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def matmul4_into(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
+    """``out = A @ B`` of two (4, 4) arrays; ``out`` (4, 4) must not alias ``A`` or ``B``."""
+    for r in range(4):
+        for c in range(4):
+            out[r, c] = (
+                A[r, 0] * B[0, c] + A[r, 1] * B[1, c] + A[r, 2] * B[2, c] + A[r, 3] * B[3, c]
+            )
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def tmatmul3_into(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
+    """``out = A[:3, :3].T @ B`` for ``B`` (3, m); ``out`` (3, m) must not alias either."""
+    for r in range(3):
+        for c in range(B.shape[1]):
+            out[r, c] = A[0, r] * B[0, c] + A[1, r] * B[1, c] + A[2, r] * B[2, c]
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def wrap_angle(angle: float) -> float:
+    """``angle`` wrapped into [−π, π], rad (``math.remainder(angle, 2π)`` up to ties at ±π)."""
+    two_pi = 2.0 * math.pi
+    return angle - two_pi * math.floor(angle / two_pi + 0.5)

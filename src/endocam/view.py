@@ -25,7 +25,7 @@ from numba.extending import register_jitable
 from numpy.typing import ArrayLike
 
 from endocam.geometry import UP, FloatArray, as_vector3, unit_vector
-from endocam.kernels import Vec, cross, dot, norm, py_max, py_min, reject, scaled
+from endocam.kernels import Vec, cross, dot, norm, reject, scaled
 
 __all__ = [
     "ROLL_HOLD_ANGLE",
@@ -99,7 +99,7 @@ def rotation_columns(z: Vec, up: Vec, x_prev: Vec | None) -> tuple[Vec, Vec, Vec
         # Signed roll φ from the level horizon to the reference, about z.
         phi = math.atan2(dot(cross(x_level, x_ref), z), dot(x_level, x_ref))
         phi_max = math.pi * (1.0 - _smoothstep((c - _SIN_HOLD) / (_SIN_LEVEL - _SIN_HOLD)))
-        phi = py_min(py_max(phi, -phi_max), phi_max)
+        phi = min(max(phi, -phi_max), phi_max)
         y_level = cross(z, x_level)
         cp, sp = math.cos(phi), math.sin(phi)
         x = (

@@ -6,7 +6,7 @@ import argparse
 
 
 def _policies(args: argparse.Namespace) -> int:
-    from endocam.control.registry import POLICIES
+    from endocam.registry import POLICIES
 
     for name, entry in POLICIES.items():
         print(f"{name:14s} {entry.summary}")

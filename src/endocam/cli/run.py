@@ -16,7 +16,7 @@ from endocam.cli.common import (
     with_faults,
 )
 from endocam.config import ExperimentConfig
-from endocam.control.registry import POLICIES
+from endocam.registry import POLICIES
 from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import DEFAULT_SEED
 from endocam.task.config import MAX_CONTROL_POINTS

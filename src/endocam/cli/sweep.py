@@ -6,7 +6,7 @@ import argparse
 from typing import Any
 
 from endocam.cli.common import ARM_CHOICES, UsageError, integer, load_config_arg, out_dir
-from endocam.control.registry import POLICIES
+from endocam.registry import POLICIES
 from endocam.runner.pool import DEFAULT_WORKERS
 from endocam.task.trajectory import TrajectoryKind
 

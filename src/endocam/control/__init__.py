@@ -8,9 +8,7 @@ from endocam.control.policies import (
     FixedPolicy,
     OrientationPolicy,
 )
-from endocam.control.registry import POLICIES, make_policy
 from endocam.control.safety import (
-    ConeWorkspace,
     ImageWindows,
     WindowStatus,
     adjust_working_distance,
@@ -23,6 +21,8 @@ from endocam.control.types import (
     PolicyContext,
     TrackingState,
 )
+from endocam.registry import POLICIES, make_policy
+from endocam.workspace.cone import ConeWorkspace
 
 __all__ = [
     "POLICIES",

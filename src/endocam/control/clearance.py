@@ -29,7 +29,7 @@ Paths: a command may be clear while the straight move to it is not (the camera o
 the wire, the goal on the other). :meth:`ClearanceGuard.detour` sphere-traces that move and, if
 it is blocked, gives a way-point that slides along the zone's surface; the policies command it
 (state ``planning``). The carriers keep the camera itself out of the zone
-(``control.safety.Workspace.keep_out``), braking like at the cone and the floor.
+(``workspace.region.Workspace.keep_out``), braking like at the cone and the floor.
 
 Cost: the distance is 1-Lipschitz, so a pose within ``d_ref − c`` of the last queried position
 ``p_ref`` (distance ``d_ref``) is clear without a query; only then is
@@ -45,26 +45,27 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
 from endocam.camera import SCOPE_RADIUS
-from endocam.control.cone import cone_floor_margin
 from endocam.geometry import FloatArray
-from endocam.kernels import Vec, cross, dot, norm, py_max, py_min, reject, scaled, unit_checked
-from endocam.pyfloat import dist3
-from endocam.task.wire import Wire, _surface_query
+from endocam.kernels import Vec, cross, dot, norm, reject, scaled, unit_checked
+from endocam.task.wire import Wire, surface_query
 from endocam.view import look_at_columns, rotation_columns
-
-if TYPE_CHECKING:  # (safety imports this module's kernels)
-    from endocam.control.safety import Workspace
+from endocam.workspace.keepout import (
+    CACHE_SIZE,
+    KeepOutState,
+    keep_out_distance,
+    keep_out_first_outside,
+    remember,
+)
+from endocam.workspace.region import NO_WORKSPACE, Workspace, WorkspaceState, workspace_margin
 
 CLEARANCE_MARGIN = 2.0e-3  # m, beyond the scope's radius: the carriers' tracking deviation
 WIRE_CLEARANCE = SCOPE_RADIUS + CLEARANCE_MARGIN  # m, ControllerConfig.wire_clearance default
-CACHE_SIZE = 2  # count, queries kept for the Lipschitz bound (the goal's and the camera's)
 AIM_BEYOND = 2.0e-4  # m, a rotated pose aims this far beyond the clearance, so the chord of a
 # step (≤ 2 mm) between two such poses stays clear of the zone (sag L²/8R ≈ 0.06 mm, R ≈ 9 mm)
 MAX_ESCAPE_ANGLE = math.radians(90.0)  # rad, largest rotation about the pivot that is tried
@@ -82,87 +83,6 @@ _EPS = 1e-9  # unitless, shorter directions are degenerate
 # _apply_kernel's answers: the pose itself, a backed-off or rotated one, none clear, not finite
 APPLY_CLEAR, APPLY_ADJUSTED, APPLY_BLOCKED, APPLY_NOT_FINITE = range(4)
 APPLY_INFEASIBLE = 4  # _look_at_kernel: the pose's position is outside the workspace
-# A compiled caller's guard arguments without a wire model (unread): the types of a wire's
-# ``ClearanceGuard.kernel_state`` (``Wire.query_state``, radius, the Lipschitz cache, clearance)
-NO_GUARD = (
-    np.zeros((1, 3)),
-    np.full((2, 5), -1, dtype=np.int64),
-    np.zeros(1, dtype=np.int32),
-    np.array([0, 1], dtype=np.int64),
-    0.0,
-    np.zeros((CACHE_SIZE, 4)),
-    np.zeros(1, dtype=np.int64),
-    0.0,
-)
-
-
-# The guard's queries, compiled. ``state`` below is ``ClearanceGuard._state``: the wire's
-# nearest-point search (``Wire.query_state``: points (M, 3), m, and its cell cache), the tube
-# radius, m, the Lipschitz cache (``ref`` (CACHE_SIZE, 4): point, m, and surface distance, m,
-# newest first; ``nref`` (1,): rows in use) and the clearance, m. The floats are the
-# interpreter's: no fast-math, CPython's ``math.dist`` (``endocam.pyfloat.dist3``), the vector
-# helpers of ``endocam.kernels`` compiled from their own source.
-
-
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _remember(ref: FloatArray, nref: np.ndarray, x: float, y: float, z: float, d: float) -> None:
-    """Keep a query, point ``(x, y, z)``, m, surface distance ``d``, m: the newest first."""
-    for r in range(ref.shape[0] - 1, 0, -1):
-        for c in range(4):
-            ref[r, c] = ref[r - 1, c]
-    ref[0, 0], ref[0, 1], ref[0, 2], ref[0, 3] = x, y, z, d
-    nref[0] = min(nref[0] + 1, ref.shape[0])
-
-
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _distance(
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
-    x: float,
-    y: float,
-    z: float,
-    exact_below: float,
-) -> float:
-    """:meth:`ClearanceGuard.distance` of ``(x, y, z)``, m (``state`` above), m."""
-    if not math.isfinite(x + y + z):
-        return math.nan
-    for r in range(nref[0]):
-        bound = ref[r, 3] - dist3(x, y, z, ref[r, 0], ref[r, 1], ref[r, 2])
-        if bound >= clearance + exact_below:
-            return bound  # a lower bound that already clears
-    _, dist = _surface_query(pts, table, pool, meta, x, y, z)
-    d = dist - radius
-    _remember(ref, nref, x, y, z, d)
-    return d
-
-
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _first_outside(
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
-    p: FloatArray,
-    count: int,
-) -> int:
-    """:meth:`ClearanceGuard.first_outside` of the rows ``p[:count]`` (N, 3), m."""
-    for i in range(count):
-        d = _distance(
-            pts, table, pool, meta, radius, ref, nref, clearance, p[i, 0], p[i, 1], p[i, 2], 0.0
-        )
-        if not d - clearance >= 0.0:
-            return i
-    return count
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -176,20 +96,13 @@ def _wire_point(
     z: float,
 ) -> Vec:
     """The search point nearest to ``(x, y, z)``, m (:meth:`Wire.nearest_surface`'s), m."""
-    k, _ = _surface_query(pts, table, pool, meta, x, y, z)
+    k, _ = surface_query(pts, table, pool, meta, x, y, z)
     return (pts[k, 0], pts[k, 1], pts[k, 2])
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _trace(
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
+    zone: KeepOutState,
     a: Vec,
     b: Vec,
 ) -> tuple[bool, Vec]:
@@ -198,6 +111,7 @@ def _trace(
     ``(False, a)`` when it does not enter. Sphere tracing (module docstring); a start on the
     zone's edge moving out (away from its nearest wire point) creeps on.
     """
+    pts, table, pool, meta, _, _, _, clearance = zone
     seg = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
     length = norm(seg)
     if not math.isfinite(length) or length <= _EPS:
@@ -205,10 +119,7 @@ def _trace(
     t = 0.0
     x = a
     for _ in range(MAX_ESCAPE_STEPS):
-        free = (
-            _distance(pts, table, pool, meta, radius, ref, nref, clearance, x[0], x[1], x[2], 0.0)
-            - clearance
-        )
+        free = keep_out_distance(zone, x[0], x[1], x[2], 0.0) - clearance
         if not free > DETOUR_TOL:
             if not free >= -DETOUR_TOL:
                 return True, x
@@ -237,7 +148,7 @@ def _lifted(
 
     ``(False, p)``: no way out (on the centre line).
     """
-    k, dist = _surface_query(pts, table, pool, meta, p[0], p[1], p[2])
+    k, dist = surface_query(pts, table, pool, meta, p[0], p[1], p[2])
     d = dist - radius
     want = clearance + DETOUR_PUSH
     if d >= want:
@@ -251,14 +162,7 @@ def _lifted(
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _detour(
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
+    zone: KeepOutState,
     a: Vec,
     b: Vec,
 ) -> tuple[bool, Vec]:
@@ -266,10 +170,11 @@ def _detour(
 
     ``(False, a)`` when the straight move keeps the clearance.
     """
-    blocked, x = _trace(pts, table, pool, meta, radius, ref, nref, clearance, a, b)
+    pts, table, pool, meta, radius, _, _, clearance = zone
+    blocked, x = _trace(zone, a, b)
     if not blocked:
         return False, a
-    k, _ = _surface_query(pts, table, pool, meta, x[0], x[1], x[2])
+    k, _ = surface_query(pts, table, pool, meta, x[0], x[1], x[2])
     q = (pts[k, 0], pts[k, 1], pts[k, 2])
     hi, lo = min(k + 1, pts.shape[0] - 1), max(k - 1, 0)
     has_out, out = unit_checked((x[0] - q[0], x[1] - q[1], x[2] - q[2]))
@@ -305,27 +210,18 @@ def _detour(
         p = (x[0] + scale * move[0], x[1] + scale * move[1], x[2] + scale * move[2])
         ok, via = _lifted(pts, table, pool, meta, radius, clearance, p)
         if ok:
-            blocked, _ = _trace(pts, table, pool, meta, radius, ref, nref, clearance, a, via)
+            blocked, _ = _trace(zone, a, via)
             if not blocked:
                 return True, via
     # no clear slide: straight out of the zone, away from the wire
-    short = clearance - _distance(
-        pts, table, pool, meta, radius, ref, nref, clearance, x[0], x[1], x[2], 0.0
-    )
+    short = clearance - keep_out_distance(zone, x[0], x[1], x[2], 0.0)
     lift = DETOUR_PUSH + (short if short > 0.0 else 0.0)  # Python's max(0.0, short)
     return True, (x[0] + lift * out[0], x[1] + lift * out[1], x[2] + lift * out[2])
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _cleared_move(
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
+def cleared_move(
+    zone: KeepOutState,
     p: Vec,
     pivot: Vec,
     now: Vec,
@@ -337,20 +233,21 @@ def _cleared_move(
     the ``pivot``, m) with ``detour``'s answer for the move from ``now`` (m) to it; else
     ``(False, False, now)``, the cache left as it was (the caller asks ``apply`` itself).
     """
+    _, _, _, _, _, ref, nref, clearance = zone
     if not math.isfinite(p[0] + p[1] + p[2] + (pivot[0] + pivot[1] + pivot[2])):
         return False, False, now
     saved, n_saved = ref.copy(), nref[0]
-    surface = _distance(pts, table, pool, meta, radius, ref, nref, clearance, p[0], p[1], p[2], 0.0)
+    surface = keep_out_distance(zone, p[0], p[1], p[2], 0.0)
     if not surface >= clearance:
         ref[:, :] = saved
         nref[0] = n_saved
         return False, False, now
-    found, via = _detour(pts, table, pool, meta, radius, ref, nref, clearance, now, p)
+    found, via = _detour(zone, now, p)
     return True, found, via
 
 
 # The guard's search for a clear pose (``ClearanceGuard.apply``), compiled. ``feasible`` below:
-# whether a camera position may be commanded, ``control.safety.Workspace.margin`` ≥ 0 (the
+# whether a camera position may be commanded, ``workspace.region.Workspace.margin`` ≥ 0 (the
 # cone, the floor and the workspace's own keep-out guard, whose cache it updates), or
 # everywhere (``kind`` 0). ``ws``: the cone's constants (9,) (``ConeWorkspace.constants``) and
 # the floor, m; ``keep``: whether the workspace has a keep-out zone, then its guard's state.
@@ -359,29 +256,13 @@ def _cleared_move(
 @register_jitable  # also callable from compiled kernels (the same source)
 def _feasible(
     kind: int,
-    ws: FloatArray,
-    keep: bool,
-    k_pts: FloatArray,
-    k_table: np.ndarray,
-    k_pool: np.ndarray,
-    k_meta: np.ndarray,
-    k_radius: float,
-    k_ref: FloatArray,
-    k_nref: np.ndarray,
-    k_clearance: float,
+    ws: WorkspaceState,
     pos: Vec,
 ) -> bool:
     """Whether ``pos`` (m) is feasible: ``Workspace.margin(pos) >= 0`` (``kind`` 1), or True."""
     if kind == 0:
         return True
-    x, y, z = pos
-    m = cone_floor_margin(x, y, z, ws, ws[9])
-    if keep:
-        d = _distance(
-            k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref, k_clearance, x, y, z, 0.0
-        )
-        m = py_min(m, d - k_clearance)
-    return m >= 0.0
+    return workspace_margin(ws, pos[0], pos[1], pos[2]) >= 0.0
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -398,11 +279,11 @@ def _newton(pts: FloatArray, short: float, pos: Vec, k: int, velocity: Vec) -> f
     conservative = short / speed if speed > _EPS else short
     length = norm(g)
     if not length > _EPS:
-        return py_max(conservative, 1e-7)
+        return max(conservative, 1e-7)
     rate = dot(g, velocity) / length
     if rate * NEWTON_GAIN <= speed:
-        return py_max(NEWTON_GAIN * conservative, 1e-7)
-    return py_max(py_max(short / rate, conservative), 1e-7)  # Python's max of the three
+        return max(NEWTON_GAIN * conservative, 1e-7)
+    return max(max(short / rate, conservative), 1e-7)  # Python's max of the three
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -419,14 +300,7 @@ def _rotate(v: Vec, k: Vec, c: float, s: float) -> Vec:
 
 @register_jitable  # also callable from compiled kernels (the same source)
 def clear_pose(
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
+    zone: KeepOutState,
     T: FloatArray,
     pivot: Vec,
     has_now: bool,
@@ -434,16 +308,7 @@ def clear_pose(
     back_off: float,
     escape: FloatArray,
     kind: int,
-    ws: FloatArray,
-    keep: bool,
-    k_pts: FloatArray,
-    k_table: np.ndarray,
-    k_pool: np.ndarray,
-    k_meta: np.ndarray,
-    k_radius: float,
-    k_ref: FloatArray,
-    k_nref: np.ndarray,
-    k_clearance: float,
+    ws: WorkspaceState,
 ) -> tuple[int, FloatArray]:
     """:meth:`ClearanceGuard.apply` of the pose ``T`` (4, 4): ``(APPLY_*, pose (4, 4))``.
 
@@ -455,13 +320,12 @@ def clear_pose(
     clear feasible pose; ``APPLY_NOT_FINITE``: a non-finite pose or pivot. The interpreter's
     floats and queries in its order (docs/conventions.md, "Compiled kernels").
     """
+    pts, table, pool, meta, radius, ref, nref, clearance = zone
     c = pivot
     p = (T[0, 3], T[1, 3], T[2, 3])
     if not math.isfinite(p[0] + p[1] + p[2] + (0.0 + c[0] + c[1] + c[2])):
         return APPLY_NOT_FINITE, T
-    if _distance(pts, table, pool, meta, radius, ref, nref, clearance, p[0], p[1], p[2], 0.0) >= (
-        clearance
-    ):
+    if keep_out_distance(zone, p[0], p[1], p[2], 0.0) >= (clearance):
         escape[0] = 0.0
         return APPLY_CLEAR, T
     target = clearance + AIM_BEYOND
@@ -471,15 +335,14 @@ def clear_pose(
         s = 0.0
         for _ in range(MAX_ESCAPE_STEPS):
             pos = (p[0] - s * z[0], p[1] - s * z[1], p[2] - s * z[2])
-            k, dist = _surface_query(pts, table, pool, meta, pos[0], pos[1], pos[2])
+            k, dist = surface_query(pts, table, pool, meta, pos[0], pos[1], pos[2])
             d = dist - radius
             if d >= target:
                 if not _feasible(
-                    kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref,
-                    k_clearance, pos,
+                    kind, ws, pos,
                 ):  # fmt: skip
                     break
-                _remember(ref, nref, pos[0], pos[1], pos[2], d)
+                remember(ref, nref, pos[0], pos[1], pos[2], d)
                 out = T.copy()
                 for i in range(3):
                     out[i, 3] = pos[i]
@@ -500,7 +363,7 @@ def clear_pose(
     # the escape directions ⟂ u, best first: the remembered one, else towards the camera
     # now, else the distance's gradient (away from the nearest wire point); then the
     # perpendiculars and the opposite
-    k_near, _ = _surface_query(pts, table, pool, meta, p[0], p[1], p[2])
+    k_near, _ = surface_query(pts, table, pool, meta, p[0], p[1], p[2])
     q = (pts[k_near, 0], pts[k_near, 1], pts[k_near, 2])
     candidates = [(p[0] - q[0], p[1] - q[1], p[2] - q[2]), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)]
     if has_now:
@@ -533,13 +396,12 @@ def clear_pose(
                 c[1] + a * xc[1] + b * yc[1] + w * zc[1],
                 c[2] + a * xc[2] + b * yc[2] + w * zc[2],
             )
-            near, dist = _surface_query(pts, table, pool, meta, pos[0], pos[1], pos[2])
+            near, dist = surface_query(pts, table, pool, meta, pos[0], pos[1], pos[2])
             d = dist - radius
             if d >= target and _feasible(
-                kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref,
-                k_clearance, pos,
+                kind, ws, pos,
             ):  # fmt: skip
-                _remember(ref, nref, pos[0], pos[1], pos[2], d)
+                remember(ref, nref, pos[0], pos[1], pos[2], d)
                 escape[0], escape[1], escape[2], escape[3] = 1.0, e[0], e[1], e[2]
                 out = np.empty((4, 4))
                 for i in range(3):
@@ -551,7 +413,7 @@ def clear_pose(
                 step = _newton(pts, target - d, pos, near, cross(k_axis, rel_pos))
             else:
                 step = MIN_ESCAPE_STEP
-            theta += py_max(step, MIN_ESCAPE_STEP * 0.1)
+            theta += max(step, MIN_ESCAPE_STEP * 0.1)
             if theta > MAX_ESCAPE_ANGLE:
                 break
     return APPLY_BLOCKED, T
@@ -559,14 +421,7 @@ def clear_pose(
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _apply_kernel(
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
+    zone: KeepOutState,
     T: FloatArray,
     pivot: Vec,
     has_now: bool,
@@ -574,16 +429,7 @@ def _apply_kernel(
     back_off: float,
     escape: FloatArray,
     kind: int,
-    ws: FloatArray,
-    keep: bool,
-    k_pts: FloatArray,
-    k_table: np.ndarray,
-    k_pool: np.ndarray,
-    k_meta: np.ndarray,
-    k_radius: float,
-    k_ref: FloatArray,
-    k_nref: np.ndarray,
-    k_clearance: float,
+    ws: WorkspaceState,
     out: FloatArray,
 ) -> int:  # pragma: no cover - compiled
     """:func:`clear_pose` from Python (:meth:`ClearanceGuard.apply`): its answer (``APPLY_*``).
@@ -592,9 +438,8 @@ def _apply_kernel(
     type of every array it returns, ~1 us a call).
     """
     code, cleared = clear_pose(
-        pts, table, pool, meta, radius, ref, nref, clearance, T, pivot, has_now, now, back_off,
-        escape, kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref,
-        k_clearance,
+        zone, T, pivot, has_now, now, back_off,
+        escape, kind, ws,
     )  # fmt: skip
     if code == APPLY_ADJUSTED:
         out[:, :] = cleared
@@ -603,14 +448,7 @@ def _apply_kernel(
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _look_at_kernel(
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
+    zone: KeepOutState,
     p: Vec,
     pivot: Vec,
     fallback: FloatArray,
@@ -621,16 +459,7 @@ def _look_at_kernel(
     back_off: float,
     escape: FloatArray,
     kind: int,
-    ws: FloatArray,
-    keep: bool,
-    k_pts: FloatArray,
-    k_table: np.ndarray,
-    k_pool: np.ndarray,
-    k_meta: np.ndarray,
-    k_radius: float,
-    k_ref: FloatArray,
-    k_nref: np.ndarray,
-    k_clearance: float,
+    ws: WorkspaceState,
     out: FloatArray,
 ) -> tuple[int, bool]:  # pragma: no cover - compiled
     """:meth:`ClearanceGuard.apply_look_at`: ``(APPLY_* or APPLY_INFEASIBLE, fallen back)``.
@@ -652,14 +481,11 @@ def _look_at_kernel(
         for i in range(3):
             T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
         T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
-    if check and not _feasible(
-        kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref, k_clearance, p
-    ):
+    if check and not _feasible(kind, ws, p):
         return APPLY_INFEASIBLE, fell_back
     code, cleared = clear_pose(
-        pts, table, pool, meta, radius, ref, nref, clearance, T, pivot, has_now, now, back_off,
-        escape, kind, ws, keep, k_pts, k_table, k_pool, k_meta, k_radius, k_ref, k_nref,
-        k_clearance,
+        zone, T, pivot, has_now, now, back_off,
+        escape, kind, ws,
     )  # fmt: skip
     if code == APPLY_ADJUSTED or (code == APPLY_CLEAR and not fell_back):
         out[:, :] = cleared
@@ -684,10 +510,12 @@ class ClearanceGuard:
         self.clearance = float(clearance)
         self._ref = np.zeros((CACHE_SIZE, 4))  # the last queries: point (m), distance (m)
         self._nref = np.zeros(1, dtype=np.int64)  # rows of _ref in use, newest first
-        self._state = (*wire.query_state, wire.radius, self._ref, self._nref, self.clearance)
+        self._state = KeepOutState(
+            *wire.query_state, wire.radius, self._ref, self._nref, self.clearance
+        )
         self._escape = np.zeros(4)  # the direction of the last rotation: flag, unit (3,), world
         self._workspace: Workspace | None = None  # the last workspace given to apply()
-        self._workspace_args: tuple[object, ...] = ()  # its _apply_kernel arguments
+        self._workspace_args: tuple[int, WorkspaceState] = (0, NO_WORKSPACE)  # _apply_kernel's
         self.adjusted = 0  # poses rotated this episode
         self.blocked = 0  # poses with no clear, feasible rotation this episode
 
@@ -706,7 +534,7 @@ class ClearanceGuard:
         bound is returned without a query. NaN for a non-finite position. Compiled
         (:func:`_distance`).
         """
-        return _distance(*self._state, p_world[0], p_world[1], p_world[2], exact_below)
+        return keep_out_distance(self._state, p_world[0], p_world[1], p_world[2], exact_below)
 
     @property
     def refs(self) -> list[tuple[list[float], float]]:
@@ -728,7 +556,7 @@ class ClearanceGuard:
         one compiled call (:func:`_first_outside`): the cache ends as those calls leave it.
         """
         p = np.ascontiguousarray(p_world, dtype=float).reshape(-1, 3)
-        return _first_outside(*self._state, p, count)
+        return keep_out_first_outside(self._state, p, count)
 
     def is_clear(self, p_world: list[float]) -> bool:
         """Whether a camera position (3,), world, m, keeps the clearance (NaN: not clear)."""
@@ -772,15 +600,15 @@ class ClearanceGuard:
         """
         c, now = p_world_pivot, p_world_now
         T = np.empty((4, 4))  # the adjusted pose, if any (a new array: the caller keeps it)
-        code = _apply_kernel(  # type: ignore[call-arg]
-            *self._state,
+        code = _apply_kernel(
+            self._state,
             np.asarray(T_world_cam, dtype=float),
             (float(c[0]), float(c[1]), float(c[2])),
             now is not None,
             (0.0, 0.0, 0.0) if now is None else (float(now[0]), float(now[1]), float(now[2])),
             float(back_off),
             self._escape,
-            *self._feasible_args(workspace),  # type: ignore[arg-type]
+            *self._feasible_args(workspace),
             T,
         )
         if code == APPLY_CLEAR:
@@ -813,8 +641,8 @@ class ClearanceGuard:
         """
         p, c, now = p_world, p_world_pivot, p_world_now
         T = np.empty((4, 4))  # the pose, if any (a new array: the caller keeps it)
-        code, fell_back = _look_at_kernel(  # type: ignore[call-arg]
-            *self._state,
+        code, fell_back = _look_at_kernel(
+            self._state,
             (float(p[0]), float(p[1]), float(p[2])),
             (float(c[0]), float(c[1]), float(c[2])),
             fallback,
@@ -824,7 +652,7 @@ class ClearanceGuard:
             (0.0, 0.0, 0.0) if now is None else (float(now[0]), float(now[1]), float(now[2])),
             float(back_off),
             self._escape,
-            *self._feasible_args(workspace),  # type: ignore[arg-type]
+            *self._feasible_args(workspace),
             T,
         )
         if code == APPLY_CLEAR:
@@ -836,29 +664,25 @@ class ClearanceGuard:
             self.blocked += 1
         return None
 
-    def _feasible_args(self, workspace: Workspace | None) -> tuple[object, ...]:
-        """:func:`_apply_kernel`'s workspace arguments (``kind`` … ``k_clearance``)."""
+    def _feasible_args(self, workspace: Workspace | None) -> tuple[int, WorkspaceState]:
+        """:func:`_apply_kernel`'s workspace arguments: ``kind`` (0: none, 1: asked), the state."""
         if workspace is None:
-            return (0, np.zeros(10), False, *NO_GUARD)
+            return (0, NO_WORKSPACE)
         if workspace is not self._workspace:
-            from endocam.control.safety import Workspace  # (safety imports this module)
-
             if type(workspace) is not Workspace:  # a subclass's own margin would go unasked
                 raise TypeError(
                     "workspace: the guard's feasibility check is compiled for a "
-                    f"control.safety.Workspace, got {type(workspace).__name__}"
+                    f"workspace.region.Workspace, got {type(workspace).__name__}"
                 )
             keep_out = workspace.keep_out
             if keep_out is not None and not isinstance(keep_out, ClearanceGuard):
                 raise TypeError("a workspace's keep-out zone must be a ClearanceGuard")
-            ws = np.array([*workspace.cone.constants, workspace.floor])
-            keep = NO_GUARD if keep_out is None else keep_out.kernel_state
             self._workspace = workspace
-            self._workspace_args = (1, ws, keep_out is not None, *keep)
+            self._workspace_args = (1, workspace.kernel_state)
         return self._workspace_args
 
     @property
-    def kernel_state(self) -> tuple[object, ...]:
+    def kernel_state(self) -> KeepOutState:
         """The arguments compiled callers pass to :func:`_distance` / :func:`_detour` first.
 
         ``Wire.query_state``'s arrays, the tube radius (m), the Lipschitz cache (``ref``
@@ -895,7 +719,7 @@ class ClearanceGuard:
         """
         a, b = p_world_now, p_world_cmd
         found, via = _detour(
-            *self._state,
+            self._state,
             (float(a[0]), float(a[1]), float(a[2])),
             (float(b[0]), float(b[1]), float(b[2])),
         )

@@ -11,16 +11,10 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from endocam.control.clearance import WIRE_CLEARANCE, ClearanceGuard
 from endocam.control.goal import SIDE_HYSTERESIS
-from endocam.control.safety import (
-    CONE_BASE_RADIUS,
-    CONE_HEIGHT,
-    D_F_STEP,
-    ConeWorkspace,
-    ImageWindows,
-    RingGate,
-    Workspace,
-)
+from endocam.control.safety import D_F_STEP, ImageWindows, RingGate
 from endocam.task.wire import Wire
+from endocam.workspace.cone import CONE_BASE_RADIUS, CONE_HEIGHT, ConeWorkspace
+from endocam.workspace.region import Workspace
 
 __all__ = ["ControllerConfig", "SideRule", "TrackerConfig", "Transfer"]
 

@@ -40,7 +40,7 @@ from numba.extending import register_jitable
 from numpy.typing import ArrayLike
 
 from endocam.geometry import UP, FloatArray, as_vector3, unit_vector
-from endocam.kernels import Vec, dot, py_max, py_min, scaled
+from endocam.kernels import Vec, dot, scaled
 from endocam.view import pose_from_columns, rotation_columns, vec
 
 SIDE_HYSTERESIS = math.radians(25.0)  # rad, tip below horizontal before a side change
@@ -103,7 +103,7 @@ def goal_columns(
     sin_h = math.sin(side_hysteresis)
     if min_height > -math.inf and not has_toward:
         # Keeping the previous side may not take the camera below ``min_height``.
-        sin_h = py_max(0.0, py_min(sin_h, (dot(p_c, up) - min_height) / d_f))
+        sin_h = max(0.0, min(sin_h, (dot(p_c, up) - min_height) / d_f))
     if has_previous:
         s = choose_side(n, ref, z_prev, sin_h)
     else:

@@ -23,20 +23,15 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
-from endocam.control.clearance import NO_GUARD, ClearanceGuard, _cleared_move
+from endocam.control.clearance import ClearanceGuard, cleared_move
 from endocam.control.config import ControllerConfig, SideRule
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.safety import (
     CLOCK_TOL,
     STALE_REASON,
-    Cone,
-    ConeWorkspace,
     WindowGeometry,
-    Workspace,
     adjusted_distance,
-    cone_at,
-    cone_margin,
     gate_commit,
     gate_decide,
     window_code_of,
@@ -48,9 +43,11 @@ from endocam.control.types import (
     TrackingState,
 )
 from endocam.geometry import UP, FloatArray
-from endocam.kernels import Vec, finite_rows, unit_checked
-from endocam.pyfloat import dist3
+from endocam.kernels import Vec, dist3, finite_rows, unit_checked
 from endocam.view import look_at_unchecked
+from endocam.workspace.cone import Cone, ConeWorkspace, cone_at, cone_margin
+from endocam.workspace.keepout import NO_KEEP_OUT, KeepOutState
+from endocam.workspace.region import Workspace
 
 _UP = (0.0, 0.0, 1.0)  # world up as plain floats
 FREEZE_RELEASE_MARGIN = 1e-3  # m, how far back inside the cone the goal must be to unfreeze
@@ -246,14 +243,7 @@ def _step_kernel(
     params: FloatArray,
     out: FloatArray,
     has_guard: bool,
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
+    zone: KeepOutState,
 ) -> tuple[float, bool]:  # pragma: no cover - compiled
     """The moving policies' checks, working distance and goal: (``d_f`` m, found).
 
@@ -320,9 +310,7 @@ def _step_kernel(
         dist3(g[0], g[1], g[2], previous[0, 3], previous[1, 3], previous[2, 3]) > prm[_JUMP]
     ):
         now = (T_cam[0, 3], T_cam[1, 3], T_cam[2, 3])
-        cleared, found_via, via = _cleared_move(
-            pts, table, pool, meta, radius, ref, nref, clearance, g, c, now
-        )
+        cleared, found_via, via = cleared_move(zone, g, c, now)
         out[_OUT_CLEARED] = 1.0 if cleared else 0.0
         out[_OUT_DETOUR] = 1.0 if found_via else 0.0
         for i in range(3):
@@ -467,7 +455,7 @@ class _MovingPolicy:
             self._params,
             self._step_out,
             guard is not None,
-            *(NO_GUARD if guard is None else guard.kernel_state),
+            NO_KEEP_OUT if guard is None else guard.kernel_state,
         )
 
     def _clear(

@@ -48,7 +48,7 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
-from endocam.control.clearance import _cleared_move
+from endocam.control.clearance import cleared_move
 from endocam.control.config import ControllerConfig, SideRule, Transfer
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
@@ -57,7 +57,6 @@ from endocam.control.policies import (
     CHECK_REASONS,
     DETOUR_REASON,
     FREEZE_RELEASE_MARGIN,
-    NO_GUARD,
     OBS_CAMERA,
     OBS_OK,
     RING_REASON,
@@ -67,18 +66,22 @@ from endocam.control.policies import (
     observed,
     pose_array,
 )
-from endocam.control.safety import (
-    Cone,
-    adjusted_distance,
-    cone_at,
-    cone_margin,
-    window_code_of,
-)
+from endocam.control.safety import adjusted_distance, window_code_of
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
 from endocam.geometry import UP, FloatArray
-from endocam.kernels import Vec, cross, dot, finite_rows, norm, unit_checked, unit_or_none
-from endocam.pyfloat import dist3, hypot2
+from endocam.kernels import (
+    Vec,
+    cross,
+    dist3,
+    dot,
+    finite_rows,
+    norm,
+    unit_checked,
+    unit_or_none,
+)
 from endocam.view import look_at_unchecked, pose_from_columns
+from endocam.workspace.cone import Cone, cone_at, cone_margin
+from endocam.workspace.keepout import NO_KEEP_OUT, KeepOutState
 
 _EPS = 1e-9  # unitless: shorter directions are degenerate
 ORBIT_DONE_ANGLE = math.radians(1.0)  # rad: an orbit this close to its goal direction ends
@@ -225,7 +228,7 @@ def _view_of(
     if u[2] < c:
         if c > 1.0:
             return False, u, err, 0.0
-        horiz = hypot2(u[0], u[1])
+        horiz = math.hypot(u[0], u[1])
         if not horiz > _EPS:
             return False, u, err, 0.0
         k = math.sqrt(1.0 - c * c) / horiz
@@ -447,14 +450,7 @@ def _plan_kernel(
     params: FloatArray,
     out: FloatArray,
     has_guard: bool,
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
+    zone: KeepOutState,
 ) -> None:  # pragma: no cover - compiled
     """:meth:`EndocamPolicy.step` from the input checks to the view and its twist.
 
@@ -573,9 +569,7 @@ def _plan_kernel(
         # the command unless the guard turns it. ``ClearanceGuard.apply``'s check, then (if
         # clear) ``detour``'s trace from the camera; not clear: the cache is put back, the
         # interpreter asks again.
-        cleared, found_via, via = _cleared_move(
-            pts, table, pool, meta, radius, ref, nref, clearance, p, p_c, p_cam
-        )
+        cleared, found_via, via = cleared_move(zone, p, p_c, p_cam)
         out[_OUT_CLEARED] = 1.0 if cleared else 0.0
         out[_OUT_DETOUR] = 1.0 if found_via else 0.0
         for i in range(3):
@@ -803,7 +797,7 @@ class EndocamPolicy(_MovingPolicy):
             self._params,
             self._out,
             self.guard is not None,
-            *(NO_GUARD if self.guard is None else self.guard.kernel_state),
+            NO_KEEP_OUT if self.guard is None else self.guard.kernel_state,
         )
 
     # -- the step --------------------------------------------------------------------------

@@ -13,9 +13,9 @@ from typing import Protocol
 
 import numpy as np
 
-from endocam.control.registry import POLICIES, make_policy
 from endocam.control.types import Observation
 from endocam.envs.wire_chaser import WireChaserEnv, pose_from7
+from endocam.registry import POLICIES, make_policy
 
 AGENT_POLICIES = tuple(name for name, entry in POLICIES.items() if entry.arm is None)
 """Policies that run on the environment's carrier (``orientation-ecm`` needs the ECM)."""

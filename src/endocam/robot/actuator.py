@@ -79,7 +79,7 @@ class ActuatorStep(NamedTuple):
 
 
 class WorkspaceBound(Protocol):
-    """Where a carrier may put the camera (``control.safety.Workspace``: cone, floor, wire)."""
+    """Where a carrier may put the camera (``workspace.region.Workspace``: cone, floor, wire)."""
 
     @property
     def convex(self) -> bool:
@@ -103,7 +103,7 @@ class WorkspaceBound(Protocol):
 
     @property
     def kernel_state(self) -> tuple[Any, ...]:
-        """The arguments its compiled queries take first (``control.safety.workspace_margin``).
+        """The arguments its compiled queries take first (``workspace.region.workspace_margin``).
 
         The free camera's compiled stop check asks the workspace through them.
         """

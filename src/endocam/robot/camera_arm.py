@@ -31,24 +31,22 @@ tool tip (identity for the ECM, whose tip frame is its optical frame).
 from __future__ import annotations
 
 import math
-from typing import cast
 
 import numpy as np
 import ruckig
 from numba import njit
 
-from endocam.blasfloat import dot3, matmul4, matvec3
 from endocam.camera import StereoCamera
-from endocam.control.cone import cone_floor_margin
-from endocam.control.safety import (
-    NO_WORKSPACE,
-    Workspace,
-    WorkspaceState,
-    workspace_all_inside,
-)
 from endocam.geometry import UP, FloatArray, as_pose, invert_pose
-from endocam.kernels import cross, py_max, py_min, rotation_angle, so3_exp_entries
-from endocam.pyfloat import dist3, hypot2
+from endocam.kernels import (
+    cross,
+    dist3,
+    dot3,
+    matmul4_into,
+    matvec3,
+    rotation_angle,
+    so3_exp_entries,
+)
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
 from endocam.robot.arm import (
     ECM_MAX_ACCELERATION,
@@ -76,6 +74,13 @@ from endocam.robot.psm import _exact_kernel as _psm_exact_kernel
 from endocam.task.config import TaskConfig
 from endocam.task.layout import FramingError, port_view
 from endocam.view import look_at_columns, rotation_looking_along, vec
+from endocam.workspace.cone import cone_floor_margin
+from endocam.workspace.region import (
+    NO_WORKSPACE,
+    Workspace,
+    WorkspaceState,
+    workspace_all_inside,
+)
 
 __all__ = [
     "ARM_START_GAP",
@@ -289,7 +294,6 @@ def _exact_into(
     T: FloatArray,
     seed0: float,
     seed3: float,
-    two: float,
     out: FloatArray,
 ) -> bool:
     """:meth:`CameraArm._exact`: the exact joints of a camera pose ``T`` (4, 4), world, m.
@@ -301,12 +305,12 @@ def _exact_into(
     """
     goal12 = _between12(frames, T)
     if psm:
-        ok, q6 = _psm_exact_kernel(params, consts, goal12, seed0, seed3, two)
+        ok, q6 = _psm_exact_kernel(params, consts, goal12, seed0, seed3)
         if ok:
             for i in range(6):
                 out[i] = q6[i]
         return ok
-    ok4, q4 = _ecm_exact_kernel(params, consts, goal12, seed3, two)
+    ok4, q4 = _ecm_exact_kernel(params, consts, goal12, seed3)
     if ok4:
         for i in range(4):
             out[i] = q4[i]
@@ -317,8 +321,8 @@ def _exact_into(
 def _tip_goal12(frames: FloatArray, T: FloatArray) -> Pose12:
     """``T_rcm_world @ T @ T_cam_tip`` (numpy's floats) as 12 floats, m: the tip's goal."""
     A, B = np.empty((4, 4)), np.empty((4, 4))
-    matmul4(frames[_F_RCM_WORLD], T, A)
-    matmul4(A, frames[_F_CAM_TIP], B)
+    matmul4_into(frames[_F_RCM_WORLD], T, A)
+    matmul4_into(A, frames[_F_CAM_TIP], B)
     return (
         B[0, 0], B[0, 1], B[0, 2], B[1, 0], B[1, 1], B[1, 2], B[2, 0], B[2, 1], B[2, 2],
         B[0, 3], B[1, 3], B[2, 3],
@@ -336,8 +340,8 @@ def _reached(frames: FloatArray, T12: Pose12) -> FloatArray:
         T[i, 0], T[i, 1], T[i, 2], T[i, 3] = T12[3 * i], T12[3 * i + 1], T12[3 * i + 2], T12[9 + i]
     T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
     A, out = np.empty((4, 4)), np.empty((4, 4))
-    matmul4(frames[_F_WORLD_RCM], T, A)
-    matmul4(A, frames[_F_TIP_CAM], out)
+    matmul4_into(frames[_F_WORLD_RCM], T, A)
+    matmul4_into(A, frames[_F_TIP_CAM], out)
     return out
 
 
@@ -355,7 +359,6 @@ def _ecm_target_kernel(
     T_goal: FloatArray,
     look_distance: float,
     seed3: float,
-    two: float,
     T: FloatArray,
 ) -> tuple[int, tuple[float, float, float, float], float, float]:
     """:meth:`CameraArm.target` on the ECM: ``(outcome, q, position_error, angle_error)``.
@@ -375,7 +378,7 @@ def _ecm_target_kernel(
     ``T`` is from the goal (:func:`_target_error_kernel`: m, rad; 0.0 but for the view and the
     nearest pose).
     """
-    ok, q = _ecm_exact_kernel(params, consts, _between12(frames, T_goal), seed3, two)
+    ok, q = _ecm_exact_kernel(params, consts, _between12(frames, T_goal), seed3)
     if ok:
         T[:, :] = T_goal
         return _TARGET_EXACT, q, 0.0, 0.0
@@ -383,23 +386,21 @@ def _ecm_target_kernel(
     if found:
         T_port = _turned_kernel(T_goal, look_distance, r0, r1, r2, 1.0)
         goal = _tip_goal12(frames, T_port)
-        outcome, _, q, pos_err, _, T12, _ = _ecm_solve_kernel(
-            params, consts, goal, seed3, two, None
-        )
+        outcome, _, q, pos_err, _, T12, _ = _ecm_solve_kernel(params, consts, goal, seed3, None)
         if outcome != _ECM_DONE:
             T[:, :] = T_port
             return _TARGET_PORT_SCIPY, q, 0.0, 0.0
         if pos_err <= VIEW_POSITION_TOL_M:
             T[:, :] = _reached(frames, T12)
-            e_pos, e_ang = _target_error_kernel(T, T_goal, two)
+            e_pos, e_ang = _target_error_kernel(T, T_goal)
             return _TARGET_VIEW, q, e_pos, e_ang
     goal = _tip_goal12(frames, T_goal)
-    outcome, _, q, _, _, T12, _ = _ecm_solve_kernel(params, consts, goal, seed3, two, None)
+    outcome, _, q, _, _, T12, _ = _ecm_solve_kernel(params, consts, goal, seed3, None)
     if outcome != _ECM_DONE:
         T[:, :] = T_goal
         return _TARGET_GOAL_SCIPY, q, 0.0, 0.0
     T[:, :] = _reached(frames, T12)
-    e_pos, e_ang = _target_error_kernel(T, T_goal, two)
+    e_pos, e_ang = _target_error_kernel(T, T_goal)
     return _TARGET_NEAREST, q, e_pos, e_ang
 
 
@@ -414,7 +415,6 @@ def _path_kernel(
     look_distance: float,
     seed0: float,
     seed3: float,
-    two: float,
     out: FloatArray,
 ) -> bool:
     """:meth:`CameraArm._path_target`: whether the camera-space path is taken, its joints.
@@ -452,7 +452,7 @@ def _path_kernel(
     w0, w1, w2 = matvec3(R, (u0, u1, u2))
     p = (c0 + r * w0, c1 + r * w1, c2 + r * w2)
     T_via = _look_at_matrix(p, (c0, c1, c2), T_target)
-    return _exact_into(psm, params, consts, frames, T_via, seed0, seed3, two, out)
+    return _exact_into(psm, params, consts, frames, T_via, seed0, seed3, out)
 
 
 class CameraArm:
@@ -644,7 +644,7 @@ class CameraArm:
         q, out = self._q, self._q_out
         if _exact_into(
             self._is_psm, self._ik_params, self._ik_consts, self._frames, T_world_cam,
-            q[0], q[3], 2.0, out,
+            q[0], q[3], out,
         ):  # fmt: skip
             return out.tolist()
         return None
@@ -681,7 +681,7 @@ class CameraArm:
         q, T, status = self._psm_target(T_world_goal, look_distance)
         if status is ActuatorStatus.EXACT:
             return q, T, status, 0.0, 0.0
-        return q, T, status, *_target_error_kernel(T, T_world_goal, 2.0)
+        return q, T, status, *_target_error_kernel(T, T_world_goal)
 
     def _psm_target(
         self, T_world_goal: FloatArray, look_distance: float
@@ -719,7 +719,7 @@ class CameraArm:
         q, T = self._q, np.empty((4, 4))
         outcome, q_new, pos_err, ang_err = _ecm_target_kernel(
             self._ik_params, self._ik_consts, self._frames, self._p_world_rcm, T_world_goal,
-            look_distance, q[3], 2.0, T,
+            look_distance, q[3], T,
         )  # fmt: skip
         if outcome == _TARGET_EXACT:
             self._k_prev = None
@@ -738,7 +738,7 @@ class CameraArm:
                 found = (port.q.tolist(), T_reached, ActuatorStatus.VIEW)
         if found is None:
             found = self._nearest(T_world_goal)
-        return (*found, *_target_error_kernel(found[1], T_world_goal, 2.0))
+        return (*found, *_target_error_kernel(found[1], T_world_goal))
 
     def _view_search(
         self, T_goal: FloatArray, look_distance: float, rotvec: tuple[float, float, float]
@@ -828,7 +828,7 @@ class CameraArm:
         q, out = self._q, self._q_out
         if _path_kernel(
             self._is_psm, self._ik_params, self._ik_consts, self._frames, self._T_cam, T_target,
-            look_distance, q[0], q[3], 2.0, out,
+            look_distance, q[0], q[3], out,
         ):  # fmt: skip
             return out.tolist()
         return None
@@ -1043,9 +1043,9 @@ class CameraArm:
             rows, stop_row = _NO_ROWS, q_rows[steps]
         points = np.empty((steps + 1, 3))
         compiled = type(ws) is Workspace  # its query in the same call; any other: its own
-        state = cast(WorkspaceState, ws.kernel_state) if compiled else NO_WORKSPACE
+        state = ws.kernel_state if isinstance(ws, Workspace) and compiled else NO_WORKSPACE
         inside = _braking_inside_kernel(
-            *state, compiled, self.model.chain._param_array, rows, duration, dt, stop_row,
+            state, compiled, self.model.chain._param_array, rows, duration, dt, stop_row,
             self._world_rcm12, self._last_cam_point, q_rows, points,
         )  # fmt: skip
         return bool(inside) if compiled else ws.all_inside(points)
@@ -1152,7 +1152,7 @@ def _stop_kernel(
 
 
 def _cone_consts(ws: WorkspaceBound) -> FloatArray | None:
-    """A ``control.safety.Workspace``'s cone (``ConeWorkspace.constants``) and floor (10,), m.
+    """A ``workspace.region.Workspace``'s cone (``ConeWorkspace.constants``) and floor (10,), m.
 
     ``None`` for any other workspace (its own ``margin`` is asked).
     """
@@ -1168,17 +1168,7 @@ _NO_ROWS = np.empty((0, ROW_LENGTH))  # _braking_inside_kernel's rows of a path 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _braking_inside_kernel(
-    cone: FloatArray,
-    floor: float,
-    keep: bool,
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
+    ws: WorkspaceState,
     check: bool,
     params: FloatArray,
     rows: FloatArray,
@@ -1192,7 +1182,7 @@ def _braking_inside_kernel(
 ) -> bool:
     """The camera's positions along a braking path, and whether the workspace holds them all.
 
-    The workspace ``state`` first (``control.safety.Workspace.kernel_state``; with ``check``
+    The workspace ``state`` first (``workspace.region.Workspace.kernel_state``; with ``check``
     False it is not asked, and the answer is True). The joints ``q_rows`` (steps + 1, n),
     rad / m: given (ruckig's ``at_time`` at every control step, then ``stop``), or, when
     ``rows`` (n, 49) has rows, written here: the ruckig trajectory ``rows`` of duration
@@ -1200,7 +1190,7 @@ def _braking_inside_kernel(
     (:func:`~endocam.robot.braking.path_positions`), then ``stop`` (n,). Writes the camera's
     positions into ``points`` (steps + 1, 3), world, m (:func:`~endocam.robot.dh.chain_points`'s
     product; ``T0``: the RCM in world, ``point``: the camera in the last link's frame, m), and
-    returns ``Workspace.all_inside(points)`` (:func:`~endocam.control.safety.workspace_all_inside`).
+    returns ``Workspace.all_inside(points)`` (``workspace.region.workspace_all_inside``).
     """
     steps = q_rows.shape[0] - 1
     if rows.shape[0] > 0:
@@ -1209,9 +1199,7 @@ def _braking_inside_kernel(
     points[:, :] = _points_kernel(params, q_rows, T0, point[0], point[1], point[2])
     if not check:
         return True
-    return workspace_all_inside(
-        cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance, points
-    )
+    return workspace_all_inside(ws, points)
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -1239,7 +1227,7 @@ def _path_engage_kernel(
     aim = math.acos(_unit_clip(cos_aim))
     cos_t = -(u0 * z0 + u1 * z1 + u2 * z2)
     ang = math.acos(_unit_clip(cos_t))  # coarse: only compared with the thresholds
-    travel = hypot2(look_distance - r_cur, 0.5 * (r_cur + look_distance) * ang)
+    travel = math.hypot(look_distance - r_cur, 0.5 * (r_cur + look_distance) * ang)
     if travel <= PATH_ENGAGE_M and aim <= PATH_ENGAGE_AIM_RAD:
         return False, r_cur, 0.0, u0, u1, u2, c0, c1, c2
     alpha = 1.0
@@ -1254,13 +1242,11 @@ def _path_engage_kernel(
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _unit_clip(x: float) -> float:
     """Python's ``max(-1.0, min(1.0, x))`` (a NaN gives 1.0, as there)."""
-    return py_max(-1.0, py_min(1.0, x))
+    return max(-1.0, min(1.0, x))
 
 
 @njit(cache=True)  # compiled once, then loaded from the cache
-def _target_error_kernel(
-    T_target: FloatArray, T_goal: FloatArray, two: float
-) -> tuple[float, float]:
+def _target_error_kernel(T_target: FloatArray, T_goal: FloatArray) -> tuple[float, float]:
     """How far a target pose is from the goal (both (4, 4), world): m, and rad.
 
     numpy's ``np.linalg.norm`` of the positions' difference (its dot: :mod:`endocam.blasfloat`)
@@ -1271,7 +1257,7 @@ def _target_error_kernel(
     d1 = T_target[1, 3] - T_goal[1, 3]
     d2 = T_target[2, 3] - T_goal[2, 3]
     pos_err = math.sqrt(dot3(d0, d1, d2, d0, d1, d2))
-    return pos_err, rotation_angle(_rotation_rows(T_target), _rotation_rows(T_goal), two)
+    return pos_err, rotation_angle(_rotation_rows(T_target), _rotation_rows(T_goal))
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)

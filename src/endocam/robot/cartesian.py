@@ -31,7 +31,14 @@ from ruckig import (
 )
 
 from endocam.camera import StereoCamera
-from endocam.control.safety import (
+from endocam.geometry import FloatArray, as_pose
+from endocam.kernels import matmul, so3_exp, so3_log, tmatmul
+from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
+from endocam.robot.arm import MotionStatus
+from endocam.robot.braking import has_brake, path_positions, profile_extrema, profile_rows
+from endocam.task.config import TaskConfig
+from endocam.task.layout import overview_camera_pose, task_centre
+from endocam.workspace.region import (
     NO_WORKSPACE,
     Workspace,
     WorkspaceState,
@@ -39,13 +46,6 @@ from endocam.control.safety import (
     workspace_keep_out_margin,
     workspace_margin,
 )
-from endocam.geometry import FloatArray, as_pose
-from endocam.kernels import matmul, py_max, py_min, so3_exp, so3_log, tmatmul
-from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
-from endocam.robot.arm import MotionStatus
-from endocam.robot.braking import has_brake, path_positions, profile_extrema, profile_rows
-from endocam.task.config import TaskConfig
-from endocam.task.layout import overview_camera_pose, task_centre
 
 
 class MotionLimits(BaseModel):
@@ -193,7 +193,7 @@ def _prepare(
             buf[16] = T[0, 1] * w3 + T[1, 1] * w4 + T[2, 1] * w5
             buf[17] = T[0, 2] * w3 + T[1, 2] * w4 + T[2, 2] * w5
             for i in range(6):
-                buf[12 + i] = py_min(py_max(buf[12 + i], -vmax[i]), vmax[i])
+                buf[12 + i] = min(max(buf[12 + i], -vmax[i]), vmax[i])
             code |= _TARGET_MOVING
     same = True
     for i in range(16):
@@ -243,17 +243,7 @@ def _next_pose(
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _advance(
-    cone: FloatArray,
-    floor: float,
-    keep: bool,
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
+    ws: WorkspaceState,
     out: FloatArray,
     T: FloatArray,
     flat: FloatArray,
@@ -289,24 +279,14 @@ def _advance(
         x, y, z = flat[3], flat[7], flat[11]
         v0, v1, v2, a0, a1, a2 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     return _stop_start(
-        cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance,
+        ws,
         x, y, z, v0, v1, v2, a0, a1, a2, V, A, J,
     )  # fmt: skip
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _stop_start(
-    cone: FloatArray,
-    floor: float,
-    keep: bool,
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
+    ws: WorkspaceState,
     x: float,
     y: float,
     z: float,
@@ -323,13 +303,11 @@ def _stop_start(
     """The stop check's start: 1 it can stop inside, 0 it cannot, 2 ask the braking path.
 
     A camera at ``(x, y, z)`` (m) moving with ``v`` (m/s), ``a`` (m/s²), world, in the
-    workspace ``state`` (``control.safety.Workspace.kernel_state``): at rest, its margin
+    workspace ``state`` (``workspace.region.Workspace.kernel_state``): at rest, its margin
     decides; farther inside than :func:`_stop_bound` (limits ``V``, ``A``, ``J``), yes. Also
     returns that bound, m.
     """
-    margin = workspace_margin(
-        cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance, x, y, z
-    )
+    margin = workspace_margin(ws, x, y, z)
     if not (v0 != 0.0 or v1 != 0.0 or v2 != 0.0 or a0 != 0.0 or a1 != 0.0 or a2 != 0.0):
         return (1 if margin >= 0.0 else 0), 0.0
     bound = _stop_bound(v0, v1, v2, a0, a1, a2, V, A, J)
@@ -340,17 +318,7 @@ def _stop_start(
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _path_inside(
-    cone: FloatArray,
-    floor: float,
-    keep: bool,
-    pts: FloatArray,
-    table: np.ndarray,
-    pool: np.ndarray,
-    meta: np.ndarray,
-    radius: float,
-    ref: FloatArray,
-    nref: np.ndarray,
-    clearance: float,
+    ws: WorkspaceState,
     rows: FloatArray,
     duration: float,
     dt: float,
@@ -369,28 +337,19 @@ def _path_inside(
     step (:func:`~endocam.robot.braking.path_positions`).
     """
     corners = _box_corners(rows)
-    if not workspace_all_inside(
-        cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance, corners
-    ):
+    if not workspace_all_inside(ws, corners):
         return False
     # The box holds the profiles, not a brake pre-trajectory before them (a state beyond the
     # limits): then the path itself is checked too.
     braked = has_brake(rows)
-    if not keep and not braked:
+    if not ws.keep and not braked:
         return True  # a convex region holding the path's box's corners holds the path
-    if not braked and (
-        workspace_keep_out_margin(
-            cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance, x, y, z
-        )
-        > bound
-    ):
+    if not braked and (workspace_keep_out_margin(ws, x, y, z) > bound):
         return True  # farther from the keep-out zone than the braking can carry it
     # a keep-out zone (the wire's) or a brake: the braking path itself, at every control step
     steps = math.ceil(duration / dt - 1e-9)
     path = path_positions(rows, duration, dt, steps)
-    return workspace_all_inside(
-        cone, floor, keep, pts, table, pool, meta, radius, ref, nref, clearance, path
-    )
+    return workspace_all_inside(ws, path)
 
 
 class CartesianLimiter:
@@ -406,7 +365,7 @@ class CartesianLimiter:
     The Python around ruckig is compiled: the target's finite check, its rotation vector and
     the clipped target velocity (:func:`_prepare`), the next pose and the start of the stop
     check (:func:`_advance`), the braking path's check (:func:`_path_inside`), with the
-    workspace's compiled queries (``control.safety.workspace_margin`` and the others).
+    workspace's compiled queries (``workspace.region.workspace_margin`` and the others).
 
     Parameters
     ----------
@@ -415,7 +374,7 @@ class CartesianLimiter:
     dt : float
         Control period, s.
     workspace : WorkspaceBound, optional
-        Where the camera may be (``control.safety.Workspace``).
+        Where the camera may be (``workspace.region.Workspace``).
     """
 
     def __init__(
@@ -474,7 +433,7 @@ class CartesianLimiter:
 
     @property
     def workspace(self) -> WorkspaceBound | None:
-        """Where the camera may be (a ``control.safety.Workspace``), or ``None`` for anywhere."""
+        """Where the camera may be (a ``workspace.region.Workspace``), or ``None`` for anywhere."""
         return self._workspace
 
     @workspace.setter
@@ -484,7 +443,7 @@ class CartesianLimiter:
         if workspace is not None and type(workspace) is not Workspace:
             raise TypeError(
                 "workspace: the free camera's stop check is compiled for a "
-                f"control.safety.Workspace, got {type(workspace).__name__}"
+                f"workspace.region.Workspace, got {type(workspace).__name__}"
             )
         self._workspace = workspace
         self._ws_state = NO_WORKSPACE if workspace is None else workspace.kernel_state
@@ -493,7 +452,7 @@ class CartesianLimiter:
         """Whether a camera at ``p`` (m) moving with ``v``, ``a`` (world) can brake inside."""
         V, A, J = self._stop_limits
         code, bound = _stop_start(
-            *self._ws_state, p[0], p[1], p[2], v[0], v[1], v[2], a[0], a[1], a[2], V, A, J
+            self._ws_state, p[0], p[1], p[2], v[0], v[1], v[2], a[0], a[1], a[2], V, A, J
         )
         return code == 1 if code != 2 else self._path_inside(p, v, a, bound)
 
@@ -512,7 +471,7 @@ class CartesianLimiter:
         traj = self._stop_traj
         rows = profile_rows(traj)
         return bool(
-            _path_inside(*self._ws_state, rows, traj.duration, self.dt, p[0], p[1], p[2], bound)
+            _path_inside(self._ws_state, rows, traj.duration, self.dt, p[0], p[1], p[2], bound)
         )
 
     def _brake(self) -> FloatArray:
@@ -526,7 +485,7 @@ class CartesianLimiter:
             raise RuntimeError("ruckig failed to brake")
         x, y, z, rx, ry, rz = self._brake_out.new_position
         _advance(
-            *self._ws_state, self._T_next, T, self._target_flat, False, False,
+            self._ws_state, self._T_next, T, self._target_flat, False, False,
             x, y, z, rx, ry, rz, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
         )  # fmt: skip
         self._T, self._T_next = self._T_next, T
@@ -635,7 +594,7 @@ class CartesianLimiter:
         check = self.workspace is not None
         V, A, J = self._stop_limits
         code, bound = _advance(
-            *self._ws_state, self._T_next, self._T, flat, arriving, check,
+            self._ws_state, self._T_next, self._T, flat, arriving, check,
             new[0], new[1], new[2], new[3], new[4], new[5],
             v[0], v[1], v[2], a[0], a[1], a[2], V, A, J,
         )  # fmt: skip

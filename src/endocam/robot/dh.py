@@ -25,8 +25,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
-from endocam.blasfloat import matmul4
 from endocam.geometry import FloatArray
+from endocam.kernels import matmul4_into
 
 __all__ = [
     "IDENTITY12",
@@ -541,10 +541,10 @@ def jacobian_into(params: FloatArray, T_last_tip: FloatArray, q: FloatArray, J: 
         L[0, 0], L[0, 1], L[0, 3] = ct, -st, a_len
         L[1, 0], L[1, 1], L[1, 2], L[1, 3] = ca * st, ca * ct, -sa, -sa * d
         L[2, 0], L[2, 1], L[2, 2], L[2, 3] = sa * st, sa * ct, ca, ca * d
-        matmul4(T, L, frames[i])
+        matmul4_into(T, L, frames[i])
         T = frames[i]
     tip = np.empty((4, 4))
-    matmul4(T, T_last_tip, tip)
+    matmul4_into(T, T_last_tip, tip)
     p0, p1, p2 = tip[0, 3], tip[1, 3], tip[2, 3]
     for i in range(n):
         z0, z1, z2 = frames[i, 0, 2], frames[i, 1, 2], frames[i, 2, 2]

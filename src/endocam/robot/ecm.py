@@ -35,8 +35,7 @@ from numba import njit
 from scipy.optimize import least_squares
 
 from endocam.geometry import FloatArray, invert_pose
-from endocam.kernels import cross, dot, norm
-from endocam.pyfloat import remainder
+from endocam.kernels import cross, dot, norm, wrap_angle
 from endocam.robot.dh import (
     IDENTITY12,
     DHChain,
@@ -116,8 +115,8 @@ def clamp_angle_to_limits(angle: float, reference: float, lower: float, upper: f
     if lower - LIMIT_SLACK <= chosen <= upper + LIMIT_SLACK:
         inside = lower if lower > chosen else chosen  # Python's max(chosen, lower)
         return upper if upper < inside else inside  # Python's min(inside, upper)
-    to_lower = abs(remainder(lower - angle, 2.0 * math.pi))
-    to_upper = abs(remainder(upper - angle, 2.0 * math.pi))
+    to_lower = abs(wrap_angle(lower - angle))
+    to_upper = abs(wrap_angle(upper - angle))
     return lower if to_lower <= to_upper else upper
 
 
@@ -167,7 +166,7 @@ def _best_roll(
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _aim(
-    params: FloatArray, c: FloatArray, goal: Pose12, two: float
+    params: FloatArray, c: FloatArray, goal: Pose12
 ) -> tuple[tuple[float, float, float], tuple[float, float, float], float, bool, Pose12]:
     """Joints aiming the optical axis at the goal, unclamped, and the roll that fits best.
 
@@ -188,7 +187,7 @@ def _aim(
     q = (math.atan2(s0, -s2), -math.asin(s1_in), r - c[_C_SHAFT])
     # reachable with unlimited joints iff the best roll on the unclamped axis is exact
     theta4, R_free, T_rcm_3 = _best_roll(params, c, goal, q[0], q[1], q[2])
-    exact = pose12_error(goal, R_free, two)[1] <= _EXACT_TOL_RAD
+    exact = pose12_error(goal, R_free)[1] <= _EXACT_TOL_RAD
     return q, (p0, p1, p2), theta4, exact, T_rcm_3
 
 
@@ -206,7 +205,7 @@ def _roll(params: FloatArray, c: FloatArray, theta4: float, seed3: float) -> tup
     """The roll joint for θ4 (rad) within its limits, and False if it had to be clamped."""
     offset, lower, upper = params[3, 5], c[_C_LOWER + 3], c[_C_UPPER + 3]
     q3 = clamp_angle_to_limits(theta4 - offset, seed3, lower, upper)
-    return q3, abs(remainder(q3 + offset - theta4, 2.0 * math.pi)) <= LIMIT_SLACK
+    return q3, abs(wrap_angle(q3 + offset - theta4)) <= LIMIT_SLACK
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -253,7 +252,6 @@ def _solve_kernel(
     c: FloatArray,
     goal: Pose12,
     seed3: float,
-    two: float,
     near: tuple[float, float, float] | None,
 ) -> tuple[
     int, int, tuple[float, float, float, float], float, float, Pose12, tuple[float, float, float]
@@ -265,7 +263,7 @@ def _solve_kernel(
     ``p_goal`` the goal position of the last DH frame (m); the caller finds the nearest
     in-limit yaw, pitch, insertion and calls again with them as ``near``.
     """
-    q_axis, p_goal, theta4, exact, T_rcm_3 = _aim(params, c, goal, two)
+    q_axis, p_goal, theta4, exact, T_rcm_3 = _aim(params, c, goal)
     q = (q_axis[0], q_axis[1], q_axis[2], 0.0)
     clamped = False
     if not _axis_in_limits(c, q_axis):
@@ -278,7 +276,7 @@ def _solve_kernel(
     clamped = clamped or not roll_ok
     q, T12 = _clamped_forward(params, c, (q[0], q[1], q[2], q3), q_axis, T_rcm_3)
     status = 2 if not exact else (1 if clamped else 0)
-    pos_err, ang_err = pose12_error(goal, T12, two)
+    pos_err, ang_err = pose12_error(goal, T12)
     if status == 0 and not (pos_err <= IK_POSITION_TOL_M and ang_err <= IK_ORIENTATION_TOL_RAD):
         status = 2
     return _DONE, status, q, pos_err, ang_err, T12, p_goal
@@ -286,7 +284,7 @@ def _solve_kernel(
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _exact_kernel(
-    params: FloatArray, c: FloatArray, goal: Pose12, seed3: float, two: float
+    params: FloatArray, c: FloatArray, goal: Pose12, seed3: float
 ) -> tuple[bool, tuple[float, float, float, float]]:
     """:meth:`ECM.exact12_unchecked`, compiled: ``(True, q)`` for an ``OK`` solve."""
     none = (0.0, 0.0, 0.0, 0.0)
@@ -296,14 +294,14 @@ def _exact_kernel(
         z = (g[2], g[5], g[8])
         if math.atan2(norm(cross(z, p)), dot(z, p)) > _AXIS_MISS_RAD:
             return False, none  # the optical axis clearly misses the RCM
-    q_axis, _, theta4, exact, T_rcm_3 = _aim(params, c, goal, two)
+    q_axis, _, theta4, exact, T_rcm_3 = _aim(params, c, goal)
     if not (exact and _axis_in_limits(c, q_axis)):
         return False, none
     q3, roll_ok = _roll(params, c, theta4, seed3)
     if not roll_ok:
         return False, none
     q, T12 = _clamped_forward(params, c, (q_axis[0], q_axis[1], q_axis[2], q3), q_axis, T_rcm_3)
-    pos_err, ang_err = pose12_error(goal, T12, two)
+    pos_err, ang_err = pose12_error(goal, T12)
     return pos_err <= IK_POSITION_TOL_M and ang_err <= IK_ORIENTATION_TOL_RAD, q
 
 
@@ -359,7 +357,7 @@ class ECM(RcmArm):
             but for the nearest in-limit position of an axis out of its limits (scipy).
         """
         goal = pose12_from_matrix(T_goal)
-        args = (self._chain._param_array, self._consts, goal, float(seed[3]), 2.0)
+        args = (self._chain._param_array, self._consts, goal, float(seed[3]))
         outcome, status, q, pos_err, ang_err, T12, p_goal = _solve_kernel(*args, None)
         if outcome == _NEED_NEAREST:
             q_clip = self.clamp(np.array(q))[:3]
@@ -376,7 +374,7 @@ class ECM(RcmArm):
         times per step, mostly of goals the 4-DoF scope cannot reach. One compiled call
         (:func:`_exact_kernel`).
         """
-        ok, q = _exact_kernel(self._chain._param_array, self._consts, goal12, float(seed[3]), 2.0)
+        ok, q = _exact_kernel(self._chain._param_array, self._consts, goal12, float(seed[3]))
         return list(q) if ok else None
 
     def _nearest_position(self, p_goal: FloatArray, q0: FloatArray) -> FloatArray:

@@ -138,9 +138,7 @@ def pose_error(T_goal: FloatArray, T: FloatArray) -> tuple[float, float]:
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
-def pose12_error(
-    goal: tuple[float, ...], pose: tuple[float, ...], two: float = 2.0
-) -> tuple[float, float]:
+def pose12_error(goal: tuple[float, ...], pose: tuple[float, ...]) -> tuple[float, float]:
     """:func:`pose_error` of two 12-float poses (rotation row-major, then translation).
 
     The float form used in control loops (``endocam.robot.dh.Pose12``).
@@ -160,7 +158,7 @@ def pose12_error(
         Angle between the rotations, rad.
     """
     angle = rotation_angle(
-        (goal[0:3], goal[3:6], goal[6:9]), (pose[0:3], pose[3:6], pose[6:9]), two
+        (goal[0:3], goal[3:6], goal[6:9]), (pose[0:3], pose[3:6], pose[6:9])
     )  # the rotations' rows as slices: cheaper than unpacking and re-packing twelve floats
     dx, dy, dz = goal[9] - pose[9], goal[10] - pose[10], goal[11] - pose[11]
     return math.sqrt(dx * dx + dy * dy + dz * dz), angle

@@ -14,9 +14,9 @@ import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
 
-from endocam.blasfloat import fma, tmatmul3
 from endocam.geometry import FloatArray, as_finite_array, as_pose, invert_pose, so3_log
 from endocam.kernels import so3_log as so3_log_rows
+from endocam.kernels import tmatmul3_into
 from endocam.robot.dh import (
     IDENTITY12,
     DHChain,
@@ -143,7 +143,7 @@ def _residual_into(
     out[1] = r10 * a3 + r11 * b3 + r12 * c3 + py - T_goal[1, 3]
     out[2] = r20 * a3 + r21 * b3 + r22 * c3 + pz - T_goal[2, 3]
     M = np.empty((3, 3))
-    tmatmul3(T_goal, R, M)
+    tmatmul3_into(T_goal, R, M)
     rot = so3_log_rows(
         (
             (M[0, 0], M[0, 1], M[0, 2]),
@@ -166,16 +166,14 @@ def _residual_jac_into(
     """Jacobian (6, n) of :func:`_residual_into` at ``q``, into ``out``.
 
     ``[J_v; w · R_goal^T J_ω]`` with ``J`` the geometric Jacobian (``dh.jacobian_into``); the
-    product as numpy's ``T_goal[:3, :3].T @ J[3:]`` (``blasfloat.tmatmul3``'s sums), column by
+    product ``T_goal[:3, :3].T @ J[3:]`` column by
     column in place (plain loops: a fraction of the compile time of slices and a temporary).
     """
     jacobian_into(params, T_last_tip, q, out)
     for c in range(params.shape[0]):
         w0, w1, w2 = out[3, c], out[4, c], out[5, c]
         for r in range(3):
-            out[3 + r, c] = weight * fma(
-                T_goal[2, r], w2, fma(T_goal[1, r], w1, fma(T_goal[0, r], w0, 0.0))
-            )
+            out[3 + r, c] = weight * (T_goal[0, r] * w0 + T_goal[1, r] * w1 + T_goal[2, r] * w2)
 
 
 class RcmArm(abc.ABC):

@@ -29,7 +29,6 @@ import numpy as np
 from numba import njit
 
 from endocam.geometry import FloatArray, invert_pose
-from endocam.pyfloat import hypot2
 from endocam.robot.dh import (
     IDENTITY12,
     DHChain,
@@ -196,7 +195,7 @@ class PSM(RcmArm):
         One compiled call (:func:`_exact_kernel`).
         """
         ok, q = _exact_kernel(
-            self._chain._param_array, self._consts, goal12, float(seed[0]), float(seed[3]), 2.0
+            self._chain._param_array, self._consts, goal12, float(seed[0]), float(seed[3])
         )
         return list(q) if ok else None
 
@@ -265,7 +264,7 @@ def _closed_form_kernel(
     v0 = a00 * z0 + a10 * z1 + a20 * z2
     v1 = a01 * z0 + a11 * z1 + a21 * z2
     v2 = a02 * z0 + a12 * z1 + a22 * z2
-    theta5 = math.atan2(-hypot2(v0, v1), -v2)  # sin θ5 < 0 inside the limits
+    theta5 = math.atan2(-math.hypot(v0, v1), -v2)  # sin θ5 < 0 inside the limits
     theta4 = math.atan2(v1, v0)
     q4 = branch_in_limits(theta4 - params[3, 5], seed3, lower[3], upper[3])
     q5 = branch_in_limits(theta5 - params[4, 5], 0.0, lower[4], upper[4])
@@ -288,7 +287,7 @@ def _closed_form_kernel(
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _exact_kernel(
-    params: FloatArray, c: FloatArray, goal: Pose12, seed0: float, seed3: float, two: float
+    params: FloatArray, c: FloatArray, goal: Pose12, seed0: float, seed3: float
 ) -> tuple[bool, tuple[float, ...]]:
     """:meth:`PSM.exact12_unchecked`, compiled: ``(True, q)`` for an exact, in-limit solution.
 
@@ -299,7 +298,7 @@ def _exact_kernel(
     found, q, T12 = _closed_form_kernel(params, c, goal, seed0, seed3)
     if not found:
         return False, q
-    pos_err, ang_err = pose12_error(goal, T12, two)
+    pos_err, ang_err = pose12_error(goal, T12)
     if not (pos_err <= IK_POSITION_TOL_M and ang_err <= IK_ORIENTATION_TOL_RAD):
         return False, q
     inside = True

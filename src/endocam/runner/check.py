@@ -7,7 +7,7 @@ them) and checks, step by step:
     the camera never below the tissue plane plus its minimum height
     (``ControllerConfig.min_camera_height``, world z);
 ``cone``
-    the camera and its command inside the cone workspace (``control.safety.ConeWorkspace`` of
+    the camera and its command inside the cone workspace (``workspace.cone.ConeWorkspace`` of
     ``scene.json``'s cone) in every autonomous state (:data:`AUTONOMOUS_STATES`), once the
     camera has entered it (an arm's start view may lie outside: the first approach);
 ``joint_position``, ``joint_velocity``, ``joint_acceleration``
@@ -58,7 +58,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from endocam.config import ExperimentConfig
-from endocam.control.safety import Workspace
 from endocam.control.types import TrackingState
 from endocam.faults import OBSERVATION_INVALID_FAULTS, fault_names
 from endocam.geometry import FloatArray, R_from_quat_wxyz, so3_log
@@ -72,6 +71,7 @@ from endocam.robot.arm import (
 from endocam.robot.camera_arm import CameraArm, arm_model
 from endocam.runner.episode import UNREACHABLE
 from endocam.task.wire import Wire
+from endocam.workspace.region import Workspace
 
 SCENE_JSON = "scene.json"
 EPISODE_CSV = "episode.csv"

@@ -18,13 +18,12 @@ from functools import cached_property
 import numpy as np
 from numba import njit
 
-from endocam.blasfloat import dot3
 from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
-from endocam.control.registry import POLICIES, make_policy
 from endocam.control.types import Observation, PolicyContext, TrackingState
 from endocam.faults import StepFaults, apply_observation_faults, fault_schedule
 from endocam.geometry import FloatArray
+from endocam.kernels import dot3
 from endocam.metrics import (
     center_error_3d,
     image_centering_error,
@@ -32,6 +31,7 @@ from endocam.metrics import (
     ring_out_of_view,
     saturate_image_error,
 )
+from endocam.registry import POLICIES, make_policy
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
 from endocam.robot.carriers import make_actuator
 from endocam.task.config import MAX_CONTROL_POINTS

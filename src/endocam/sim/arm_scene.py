@@ -48,7 +48,7 @@ from endocam.sim.scene import (
     JAW_WIDTH,
     WRIST_RADIUS_FRACTION,
     GeomSpec,
-    _add_geom,
+    add_geom,
     add_mocap_link,
 )
 from endocam.task.config import InstrumentConfig
@@ -228,5 +228,5 @@ def add_camera_arm(
     for link in links:
         add_mocap_link(spec, link.body, link.geoms, group=GROUP_LINK)
     if kind is ArmKind.PSM:
-        _add_geom(spec.body(CAMERA_BODY), camera_body_geom(camera), GROUP_LINK)
+        add_geom(spec.body(CAMERA_BODY), camera_body_geom(camera), GROUP_LINK)
     return links

@@ -107,7 +107,7 @@ _GEOM_TYPES = {
 }
 
 
-def _add_geom(body: mujoco.MjsBody, g: GeomSpec, group: int) -> mujoco.MjsGeom:
+def add_geom(body: mujoco.MjsBody, g: GeomSpec, group: int) -> mujoco.MjsGeom:
     if g.kind not in _GEOM_TYPES:
         raise ValueError(f"geom kind must be one of {sorted(_GEOM_TYPES)}, got {g.kind!r}")
     size = list(g.size) + [0.0] * (3 - len(g.size))
@@ -161,7 +161,7 @@ def add_mocap_link(
         name=name, mocap=True, pos=T[:3, 3].tolist(), quat=quat_wxyz_from_R(T[:3, :3]).tolist()
     )
     for g in geoms:
-        _add_geom(body, g, group)
+        add_geom(body, g, group)
     return body
 
 
@@ -512,7 +512,7 @@ def _add_ring_and_psm1(spec: mujoco.MjSpec, task_cfg: TaskConfig) -> None:
         conaffinity=0,
     )
     x_end = ring.major_radius + ring.handle_length
-    _add_geom(
+    add_geom(
         body,
         GeomSpec(
             "ring_handle",
@@ -526,5 +526,5 @@ def _add_ring_and_psm1(spec: mujoco.MjSpec, task_cfg: TaskConfig) -> None:
     tip = psm1_tip_in_ring(ring, ins)
     geoms = _instrument_geoms("psm1", float(tip[0]), 0.0, 2.0 * ring.handle_radius, ins)
     for g in geoms:
-        _add_geom(body, g, GROUP_INSTRUMENT)
+        add_geom(body, g, GROUP_INSTRUMENT)
     body.add_site(name=TIP_SITES[0], pos=tip.tolist(), size=[1e-3, 0, 0], group=5)

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from numba import njit
@@ -40,12 +40,26 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import elementwise, minimize_scalar
 
 from endocam.geometry import FloatArray, as_pose, as_vector3
-from endocam.kernels import py_max
 from endocam.task.config import RingConfig
 from endocam.task.wire import Wire
 
-if TYPE_CHECKING:  # trajectory builds legible paths from the clearance: imports this module
-    from endocam.task.trajectory import RingTrajectory
+
+class RingPath(Protocol):
+    """What touch detection reads of a ring's path (``task.trajectory.RingTrajectory`` is one)."""
+
+    @property
+    def duration(self) -> float:
+        """Length of the path, s."""
+        ...
+
+    def poses(self, ts: ArrayLike) -> FloatArray:
+        """Ring poses (N, 4, 4), world, m, at the times ``ts`` (N,), s."""
+        ...
+
+    def max_point_speed(self, ts: ArrayLike, radius: float) -> float:
+        """Largest speed over ``ts`` (s) of any point within ``radius`` (m) of the centre, m/s."""
+        ...
+
 
 DEFAULT_TOUCH_DT = 2.0e-3  # s, base clearance sampling step (see TrajectoryConfig)
 DEPTH_TOL = 1.0e-6  # m, touches shallower than this may go unseen between samples
@@ -137,36 +151,32 @@ class TouchReport:
 
 @register_jitable  # inlined into the compiled kernels below (the same source)
 def _circle_distance(
-    dx: float, dy: float, dz: float, n0: float, n1: float, n2: float, major: float, two: float
+    dx: float, dy: float, dz: float, n0: float, n1: float, n2: float, major: float
 ) -> float:
     """Distance, m, of ``c + (dx, dy, dz)`` to the core circle (centre ``c``, normal ``n``).
 
-    ``√(h² + (ρ − R)²)`` with ``h = d·n``, ``ρ² = |d|² − h²`` (clamped at 0), summed left to
-    right as numpy summed them component-wise (no fast-math: docs/conventions.md, "Compiled
-    kernels"). ``two`` is the square's form, read at run time: ``0.0`` for ``(ρ − R) * (ρ − R)``
-    (numpy arrays' ``** 2`` is ``square``), ``2.0`` for libm's ``pow(ρ − R, 2.0)`` (numpy
-    scalars' ``** 2``, as the one-pose refinement computed it).
+    ``√(h² + (ρ − R)²)`` with ``h = d·n``, ``ρ² = |d|² − h²`` (clamped at 0), m.
     """
     h = dx * n0 + dy * n1 + dz * n2
-    rho = math.sqrt(py_max(dx * dx + dy * dy + dz * dz - h * h, 0.0))
+    rho = math.sqrt(max(dx * dx + dy * dy + dz * dz - h * h, 0.0))
     e = rho - major
-    return math.sqrt(h * h + (e * e if two == 0.0 else e**two))
+    return math.sqrt(h * h + e * e)
 
 
 @njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
 def _core_distance_kernel(
-    p: FloatArray, c: FloatArray, n: FloatArray, k: NDArray[np.intp], major: float, two: float
+    p: FloatArray, c: FloatArray, n: FloatArray, k: NDArray[np.intp], major: float
 ) -> FloatArray:
     """Distances, m, from points ``p`` (N, 3) to the core circles ``k`` (N,) of ``c``, ``n``.
 
     Circle ``k[i]`` has centre ``c[k[i]]`` and unit normal ``n[k[i]]`` ((M, 3) each, m) and
-    radius ``major`` (m); ``two`` as in :func:`_circle_distance`.
+    radius ``major`` (m).
     """
     out = np.empty(p.shape[0])
     for i in range(p.shape[0]):
         j = k[i]
         dx, dy, dz = p[i, 0] - c[j, 0], p[i, 1] - c[j, 1], p[i, 2] - c[j, 2]
-        out[i] = _circle_distance(dx, dy, dz, n[j, 0], n[j, 1], n[j, 2], major, two)
+        out[i] = _circle_distance(dx, dy, dz, n[j, 0], n[j, 1], n[j, 2], major)
     return out
 
 
@@ -207,7 +217,7 @@ def _coarse_kernel(
 ) -> NDArray[np.intp]:
     """:func:`_coarse_minimiser`'s loop: per pose, the first least core distance's index.
 
-    Each distance is :func:`_circle_distance`'s float (``two`` 0). Branch and bound, with the
+    Each distance is :func:`_circle_distance`'s. Branch and bound, with the
     same answer as the full scan: the middle offset's distance is the first bound; a point
     ``d`` (m) from the circle puts the points of the next ``u`` offsets at least
     ``d − u · reach`` from it (a distance to a set is 1-Lipschitz), so those that cannot come
@@ -230,7 +240,7 @@ def _coarse_kernel(
             i = base + a
             k = min(max(start[i] + offsets[mid], 0), last)
             dx, dy, dz = x[k] - c[i, 0], y[k] - c[i, 1], z[k] - c[i, 2]
-            best_d[a] = _circle_distance(dx, dy, dz, n[i, 0], n[i, 1], n[i, 2], major, 0.0)
+            best_d[a] = _circle_distance(dx, dy, dz, n[i, 0], n[i, 1], n[i, 2], major)
             best_k[a], best_col[a], col[a] = k, mid, 0
         busy = lanes
         while busy > 0:
@@ -244,7 +254,7 @@ def _coarse_kernel(
                     i = base + a
                     k = min(max(start[i] + offsets[j], 0), last)
                     dx, dy, dz = x[k] - c[i, 0], y[k] - c[i, 1], z[k] - c[i, 2]
-                    d = _circle_distance(dx, dy, dz, n[i, 0], n[i, 1], n[i, 2], major, 0.0)
+                    d = _circle_distance(dx, dy, dz, n[i, 0], n[i, 1], n[i, 2], major)
                     if d < best_d[a] or (d == best_d[a] and j < best_col[a]):
                         best_k[a], best_col[a], best_d[a] = k, j, d
                     q = (d - best_d[a] - _SKIP_MARGIN) / reach
@@ -344,12 +354,12 @@ def _refine(
         k = np.array([i], dtype=np.intp)
 
         def one(s: float, k: NDArray[np.intp] = k) -> float:
-            return float(_core_distance_kernel(wire.point(s)[None], c, n, k, major, 2.0)[0])
+            return float(_core_distance_kernel(wire.point(s)[None], c, n, k, major)[0])
 
         res = minimize_scalar(
             one, bounds=(s_all[lo[i]], s_all[hi[i]]), method="bounded", options={"xatol": X_TOL}
         )
-        if res.fun <= _core_distance_kernel(pts[g[i : i + 1]], c, n, k, major, 2.0)[0]:
+        if res.fun <= _core_distance_kernel(pts[g[i : i + 1]], c, n, k, major)[0]:
             s_best[i] = float(res.x)
     inner = np.flatnonzero((g > 0) & (g < m - 1) & ~scalar)
     if inner.size:
@@ -357,7 +367,7 @@ def _refine(
         # values come from the search polyline (the same spline values, bit for bit)
         brackets = (s_all[lo[inner]], s_best[inner], s_all[hi[inner]])
         known = [
-            (x, _core_distance_kernel(pts[j], c, n, inner, major, 0.0))
+            (x, _core_distance_kernel(pts[j], c, n, inner, major))
             for x, j in zip(brackets, (lo[inner], g[inner], hi[inner]), strict=True)
         ]
 
@@ -369,7 +379,7 @@ def _refine(
                     return f
             known.clear()  # past the bracket: every later call is evaluated
             p = wire.points(s.ravel())
-            return _core_distance_kernel(p, c, n, k.ravel(), major, 0.0).reshape(s.shape)
+            return _core_distance_kernel(p, c, n, k.ravel(), major).reshape(s.shape)
 
         res = elementwise.find_minimum(
             objective,
@@ -490,7 +500,7 @@ def clearance(
 
 
 def touch_events(
-    trajectory: RingTrajectory,
+    trajectory: RingPath,
     wire: Wire,
     ring_cfg: RingConfig,
     dt: float = DEFAULT_TOUCH_DT,
@@ -499,7 +509,7 @@ def touch_events(
 
     Parameters
     ----------
-    trajectory : RingTrajectory
+    trajectory : RingPath
     wire : Wire
     ring_cfg : RingConfig
     dt : float
@@ -539,7 +549,7 @@ def touch_events(
 
 
 def _events(
-    trajectory: RingTrajectory,
+    trajectory: RingPath,
     wire: Wire,
     ring_cfg: RingConfig,
     t: FloatArray,

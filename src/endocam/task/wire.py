@@ -71,7 +71,7 @@ def _cell_key(v: float) -> int:
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _surface_query(
+def surface_query(
     pts: FloatArray,
     table: np.ndarray,
     pool: np.ndarray,
@@ -176,13 +176,13 @@ class Wire:
         self._search_s = np.linspace(0.0, self._length, n_search)
         self._search_pts = self._spline(self._search_s)
         self._tree = cKDTree(self._search_pts)
-        # the nearest_surface cell cache (_surface_query): table, pool, meta
+        # the nearest_surface cell cache (surface_query): table, pool, meta
         self._table = np.full((_TABLE, 5), -1, dtype=np.int64)
         self._pool = np.empty(max(_POOL, 2 * n_search), dtype=np.int32)
         self._pool[:n_search] = np.arange(n_search)
         self._meta = np.array([0, n_search], dtype=np.int64)
         self.query_state = (self._search_pts, self._table, self._pool, self._meta)
-        """The arrays compiled kernels pass to :func:`_surface_query` (read-only use)."""
+        """The arrays compiled kernels pass to :func:`surface_query` (read-only use)."""
 
     @property
     def length(self) -> float:
@@ -298,7 +298,7 @@ class Wire:
         The control loop's query on plain floats: ``p_world`` (3,) in world, m. Near the wire
         the candidates of its 2 mm grid cell (cached) are searched instead of the KD-tree, with
         the same answer, bit for bit (``tests/test_task_wire.py``), by compiled kernels
-        (:func:`_surface_query`; ~1 µs a query near the wire, ``bench/bench_clearance.py``);
+        (:func:`surface_query`; ~1 µs a query near the wire, ``bench/bench_clearance.py``);
         far from it every search point is tried (a few µs). Every candidate of a cell lies
         within ``d(c) + h√3`` of its centre ``c`` (``_ball_kernel``), so the argmin over them
         is the tree's answer; cells farther than ``_CELL_RANGE`` from the wire search all the
@@ -306,7 +306,7 @@ class Wire:
         :meth:`surface_distance` (≤ 0.125 mm over); the index points into
         :attr:`search_points`.
         """
-        j, dist = _surface_query(*self.query_state, p_world[0], p_world[1], p_world[2])
+        j, dist = surface_query(*self.query_state, p_world[0], p_world[1], p_world[2])
         return dist - self.cfg.radius, j
 
     def forget_cells(self) -> None:
