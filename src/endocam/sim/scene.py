@@ -108,6 +108,7 @@ _GEOM_TYPES = {
 
 
 def add_geom(body: mujoco.MjsBody, g: GeomSpec, group: int) -> mujoco.MjsGeom:
+    """Add the geom ``g`` (sizes in m) to ``body`` in the visual ``group``; returns it."""
     if g.kind not in _GEOM_TYPES:
         raise ValueError(f"geom kind must be one of {sorted(_GEOM_TYPES)}, got {g.kind!r}")
     size = list(g.size) + [0.0] * (3 - len(g.size))
