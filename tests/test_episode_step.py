@@ -7,15 +7,10 @@ import pytest
 
 from endocam.config import ExperimentConfig
 from endocam.robot.actuator import ArmKind
-from endocam.runner.step import (
-    EpisodeLoop,
-    SetPoint,
-    episode_world,
-    look_distance,
-    start_carrier,
-)
+from endocam.runner.step import EpisodeLoop, SetPoint, episode_world, start_carrier
 from endocam.task.trajectory import TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
+from endocam.view import look_distance
 
 DURATION = 0.2  # s: a few control steps
 CONFIG = ExperimentConfig.model_validate({"task": {"trajectory": {"duration": DURATION}}})

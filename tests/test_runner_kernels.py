@@ -1,4 +1,4 @@
-"""The episode loop's look distance against the numpy formula it compiles (a tolerance)."""
+"""The episode loop's look distance (endocam.view) against the numpy formula (a tolerance)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from endocam.runner.step import MIN_LOOK_M, look_distance
+from endocam.view import MIN_LOOK_M, look_distance
 
 N_OPERANDS = 20_000  # count: random pose pairs, over six decades of scale
 RTOL = 1e-12  # unitless: a 3-term dot product's round-off relative to its terms' magnitude

@@ -64,15 +64,10 @@ from endocam.metrics import (
 from endocam.robot.actuator import Actuator, ArmKind
 from endocam.robot.arm import PSM_MAX_VELOCITY
 from endocam.robot.camera_arm import CameraArm
-from endocam.runner.step import (
-    EpisodeLoop,
-    SetPoint,
-    episode_world,
-    look_distance,
-    start_carrier,
-)
+from endocam.runner.step import EpisodeLoop, SetPoint, episode_world, start_carrier
 from endocam.task.trajectory import RingTrajectory, TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
+from endocam.view import look_distance
 
 ENV_ID = "endocam/WireChaser-v0"
 _SQRT3 = math.sqrt(3.0)
@@ -322,7 +317,7 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         d_f : float
             The command's working distance, m. The PSM's conceded view turns about the point
             the command looks at: the sensed ring's depth along the command's axis, else
-            ``d_f`` (:func:`endocam.runner.step.look_distance`, as the episode loop tells the
+            ``d_f`` (:func:`endocam.view.look_distance`, as the episode loop tells the
             carrier).
         """
         if self.arm is ArmKind.FREE:

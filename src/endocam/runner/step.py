@@ -18,22 +18,19 @@ from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
 import numpy as np
-from numba import njit
 
 from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
 from endocam.control.types import Observation
 from endocam.faults import StepFaults
 from endocam.geometry import FloatArray
-from endocam.kernels import dot3
 from endocam.robot.actuator import Actuator, ActuatorStep, ArmKind
 from endocam.robot.carriers import make_actuator
 from endocam.task.instruments import instrument_tips
 from endocam.task.trajectory import RingTrajectory, capture_times
 from endocam.task.wire import Wire
+from endocam.view import look_distance
 from endocam.workspace.region import Workspace
-
-MIN_LOOK_M = 1e-3  # m: a ring closer than this along the optical axis gives no look-at point
 
 
 @dataclass(frozen=True)
@@ -250,7 +247,7 @@ class EpisodeLoop:
         """One control period: the carrier heads for ``command``; the world moves on one row.
 
         The carrier is told the command's pose, its velocity and the distance to the point it
-        looks at (:func:`look_distance` of the sensed ring; a carrier without joints pivots no
+        looks at (:func:`endocam.view.look_distance` of the sensed ring; a carrier without joints pivots no
         view and is told ``d_f``).
         """
         k = self.k
@@ -269,20 +266,3 @@ class EpisodeLoop:
         self.T_world_cam, self.q = out.T_world_cam, out.q
         self.k = k + 1
         return record
-
-
-@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
-def look_distance(
-    T_world_cmd: FloatArray, T_world_ring: FloatArray, d_f: float
-) -> float:  # pragma: no cover - compiled
-    """Depth of the (sensed) ring centre along a commanded optical axis, m; else ``d_f``.
-
-    The nearest feasible view of a command turns about the point the command looks at: the
-    ring centre for the tracking goal (at ``d_f``) and for the way-point poses (farther).
-    ``T_world_cmd``, ``T_world_ring`` (4, 4), world, m. The depth is
-    ``(T_world_ring[:3, 3] - T_world_cmd[:3, 3]) · T_world_cmd[:3, 2]``; a depth below
-    ``MIN_LOOK_M`` or not finite gives ``d_f``.
-    """
-    R, C = T_world_ring, T_world_cmd
-    depth = dot3(R[0, 3] - C[0, 3], R[1, 3] - C[1, 3], R[2, 3] - C[2, 3], C[0, 2], C[1, 2], C[2, 2])
-    return depth if depth > MIN_LOOK_M and math.isfinite(depth) else d_f
