@@ -11,6 +11,7 @@ import math
 import numpy as np
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
+from numba import njit
 from scipy.spatial.transform import Rotation
 
 from endocam import geometry, kernels
@@ -154,3 +155,80 @@ def test_image_edge_rule_is_half_open() -> None:
     u = np.array([0.0, k.width - 1e-9, k.width, -1e-9, math.nan])
     v = np.full(5, 1.0)
     np.testing.assert_array_equal(inside_image(k, u, v), [True, True, False, False, False])
+
+
+# The small array kernels of compiled code (endocam.kernels), compiled here as the kernels that
+# inline them are, against numpy and math.
+ATOL_PRODUCT = 1e-12  # unitless: entries of products of order-1 matrices (a few ulp of 10)
+
+
+@njit(cache=False)
+def _compiled_products(
+    a: np.ndarray, b: np.ndarray, A: np.ndarray, B: np.ndarray, M: np.ndarray
+) -> tuple[float, float, tuple[float, float, float], np.ndarray, np.ndarray]:
+    out4 = np.empty((4, 4))
+    kernels.matmul4_into(A, B, out4)
+    out3 = np.empty((3, M.shape[1]))
+    kernels.tmatmul3_into(A, M, out3)
+    return (
+        kernels.dot3(a[0], a[1], a[2], b[0], b[1], b[2]),
+        kernels.dist3(a[0], a[1], a[2], b[0], b[1], b[2]),
+        kernels.matvec3(A, b),
+        out4,
+        out3,
+    )
+
+
+@njit(cache=False)
+def _compiled_wrap(angle: float) -> float:
+    return kernels.wrap_angle(angle)
+
+
+@settings(max_examples=200, deadline=None)
+@given(seeds)
+def test_array_kernels_match_numpy(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    scale = 10.0 ** float(rng.integers(-3, 2))  # m: from millimetres to tens of metres
+    a, b = rng.normal(size=3) * scale, rng.normal(size=3) * scale
+    A, B = rng.normal(size=(4, 4)), rng.normal(size=(4, 4))
+    M = rng.normal(size=(3, int(rng.integers(1, 6))))
+    tol = ATOL_PRODUCT * scale * scale  # m²: a product of two lengths
+    tol_m = ATOL_PRODUCT * scale  # m: a distance, a rotated vector
+    for form in ("python", "compiled"):
+        if form == "python":
+            d = kernels.dot3(*a, *b)
+            r = kernels.dist3(*a, *b)
+            v = kernels.matvec3(A, b)
+            out4, out3 = np.empty((4, 4)), np.empty((3, M.shape[1]))
+            kernels.matmul4_into(A, B, out4)
+            kernels.tmatmul3_into(A, M, out3)
+        else:
+            d, r, v, out4, out3 = _compiled_products(a, b, A, B, M)
+        assert math.isclose(d, float(a @ b), rel_tol=0.0, abs_tol=tol)
+        assert math.isclose(r, math.dist(a, b), rel_tol=0.0, abs_tol=tol_m)
+        assert math.isclose(r, float(np.linalg.norm(a - b)), rel_tol=0.0, abs_tol=tol_m)
+        np.testing.assert_allclose(v, A[:3, :3] @ b, rtol=0.0, atol=tol_m)
+        np.testing.assert_allclose(out4, A @ B, rtol=0.0, atol=ATOL_PRODUCT)
+        np.testing.assert_allclose(out3, A[:3, :3].T @ M, rtol=0.0, atol=ATOL_PRODUCT)
+
+
+WRAP_ATOL_RAD = 1e-12  # rad: round-off of angle − 2π k for |angle| up to ~100 rad
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-100.0, 100.0, allow_nan=False, allow_infinity=False))
+@example(math.pi)
+@example(-math.pi)
+@example(3 * math.pi)
+@example(0.0)
+def test_wrap_angle_is_math_remainder(angle: float) -> None:
+    want = math.remainder(angle, 2.0 * math.pi)
+    for got in (kernels.wrap_angle(angle), _compiled_wrap(angle)):
+        assert -math.pi - WRAP_ATOL_RAD <= got <= math.pi + WRAP_ATOL_RAD
+        if abs(abs(want) - math.pi) < 1e-9:  # a tie at ±π: either end is the same angle
+            assert math.isclose(abs(got), math.pi, abs_tol=WRAP_ATOL_RAD)
+        else:
+            assert math.isclose(got, want, rel_tol=0.0, abs_tol=WRAP_ATOL_RAD)
+        # the same direction as the angle it wraps
+        assert math.isclose(math.cos(got), math.cos(angle), abs_tol=WRAP_ATOL_RAD)
+        assert math.isclose(math.sin(got), math.sin(angle), abs_tol=WRAP_ATOL_RAD)

@@ -247,8 +247,8 @@ class EpisodeLoop:
         """One control period: the carrier heads for ``command``; the world moves on one row.
 
         The carrier is told the command's pose, its velocity and the distance to the point it
-        looks at (:func:`endocam.view.look_distance` of the sensed ring; a carrier without joints pivots no
-        view and is told ``d_f``).
+        looks at (:func:`endocam.view.look_distance` of the sensed ring; a carrier without
+        joints pivots no view and is told ``d_f``).
         """
         k = self.k
         if k >= len(self._t):
