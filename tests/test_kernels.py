@@ -6,12 +6,13 @@ The kernel rule (docs/conventions.md): every hot-path float kernel has a numpy c
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 
 import numpy as np
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
-from numba import njit
 from scipy.spatial.transform import Rotation
 
 from endocam import geometry, kernels
@@ -162,8 +163,7 @@ def test_image_edge_rule_is_half_open() -> None:
 ATOL_PRODUCT = 1e-12  # unitless: entries of products of order-1 matrices (a few ulp of 10)
 
 
-@njit(cache=False)
-def _compiled_products(
+def _products(
     a: np.ndarray, b: np.ndarray, A: np.ndarray, B: np.ndarray, M: np.ndarray
 ) -> tuple[float, float, tuple[float, float, float], np.ndarray, np.ndarray]:
     out4 = np.empty((4, 4))
@@ -179,9 +179,20 @@ def _compiled_products(
     )
 
 
-@njit(cache=False)
-def _compiled_wrap(angle: float) -> float:
+def _wrap(angle: float) -> float:
     return kernels.wrap_angle(angle)
+
+
+@functools.cache
+def _compiled(fn: Callable[..., object]) -> Callable[..., object]:
+    """``fn`` compiled as the kernels that inline the small kernels are (not cached on disk).
+
+    numba is imported here, after endocam: importing endocam first points numba's cache at
+    endocam's folder (endocam._numba_cache).
+    """
+    from numba import njit
+
+    return njit(cache=False)(fn)
 
 
 @settings(max_examples=200, deadline=None)
@@ -203,7 +214,7 @@ def test_array_kernels_match_numpy(seed: int) -> None:
             kernels.matmul4_into(A, B, out4)
             kernels.tmatmul3_into(A, M, out3)
         else:
-            d, r, v, out4, out3 = _compiled_products(a, b, A, B, M)
+            d, r, v, out4, out3 = _compiled(_products)(a, b, A, B, M)  # type: ignore[misc]
         assert math.isclose(d, float(a @ b), rel_tol=0.0, abs_tol=tol)
         assert math.isclose(r, math.dist(a, b), rel_tol=0.0, abs_tol=tol_m)
         assert math.isclose(r, float(np.linalg.norm(a - b)), rel_tol=0.0, abs_tol=tol_m)
@@ -223,7 +234,7 @@ WRAP_ATOL_RAD = 1e-12  # rad: round-off of angle − 2π k for |angle| up to ~10
 @example(0.0)
 def test_wrap_angle_is_math_remainder(angle: float) -> None:
     want = math.remainder(angle, 2.0 * math.pi)
-    for got in (kernels.wrap_angle(angle), _compiled_wrap(angle)):
+    for got in (kernels.wrap_angle(angle), _compiled(_wrap)(angle)):
         assert -math.pi - WRAP_ATOL_RAD <= got <= math.pi + WRAP_ATOL_RAD
         if abs(abs(want) - math.pi) < 1e-9:  # a tie at ±π: either end is the same angle
             assert math.isclose(abs(got), math.pi, abs_tol=WRAP_ATOL_RAD)

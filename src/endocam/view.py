@@ -195,7 +195,7 @@ def look_at_columns(p: Vec, target: Vec, x_prev: Vec | None) -> tuple[bool, Vec,
     ``p``, ``target``: the camera and the point it looks at, world, m; ``x_prev``: the previous
     pose's x axis (world) or ``None``. ``found`` is False (and the columns meaningless) when the
     two points coincide (no direction to look along). Compiled kernels call it too (e.g. an
-    arm's conceded view, ``robot.camera_arm``): the same floats.
+    arm's conceded view, ``robot.camera_arm``): the same source.
     """
     d = (target[0] - p[0], target[1] - p[1], target[2] - p[2])
     length = norm(d)
