@@ -6,7 +6,9 @@ The kernel rule (docs/conventions.md): every hot-path float kernel has a numpy c
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 
 import numpy as np
 from hypothesis import example, given, settings
@@ -154,3 +156,90 @@ def test_image_edge_rule_is_half_open() -> None:
     u = np.array([0.0, k.width - 1e-9, k.width, -1e-9, math.nan])
     v = np.full(5, 1.0)
     np.testing.assert_array_equal(inside_image(k, u, v), [True, True, False, False, False])
+
+
+# The small array kernels of compiled code (endocam.kernels), compiled here as the kernels that
+# inline them are, against numpy and math.
+ATOL_PRODUCT = 1e-12  # unitless: entries of products of order-1 matrices (a few ulp of 10)
+
+
+def _products(
+    a: np.ndarray, b: np.ndarray, A: np.ndarray, B: np.ndarray, M: np.ndarray
+) -> tuple[float, float, tuple[float, float, float], np.ndarray, np.ndarray]:
+    out4 = np.empty((4, 4))
+    kernels.matmul4_into(A, B, out4)
+    out3 = np.empty((3, M.shape[1]))
+    kernels.tmatmul3_into(A, M, out3)
+    return (
+        kernels.dot3(a[0], a[1], a[2], b[0], b[1], b[2]),
+        kernels.dist3(a[0], a[1], a[2], b[0], b[1], b[2]),
+        kernels.matvec3(A, b),
+        out4,
+        out3,
+    )
+
+
+def _wrap(angle: float) -> float:
+    return kernels.wrap_angle(angle)
+
+
+@functools.cache
+def _compiled(fn: Callable[..., object]) -> Callable[..., object]:
+    """``fn`` compiled as the kernels that inline the small kernels are (not cached on disk).
+
+    numba is imported here, after endocam: importing endocam first points numba's cache at
+    endocam's folder (endocam._numba_cache).
+    """
+    from numba import njit
+
+    return njit(cache=False)(fn)
+
+
+@settings(max_examples=200, deadline=None)
+@given(seeds)
+def test_array_kernels_match_numpy(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    scale = 10.0 ** float(rng.integers(-3, 2))  # m: from millimetres to tens of metres
+    a, b = rng.normal(size=3) * scale, rng.normal(size=3) * scale
+    A, B = rng.normal(size=(4, 4)), rng.normal(size=(4, 4))
+    M = rng.normal(size=(3, int(rng.integers(1, 6))))
+    tol = ATOL_PRODUCT * scale * scale  # m²: a product of two lengths
+    tol_m = ATOL_PRODUCT * scale  # m: a distance, a rotated vector
+    for form in ("python", "compiled"):
+        if form == "python":
+            d = kernels.dot3(*a, *b)
+            r = kernels.dist3(*a, *b)
+            v = kernels.matvec3(A, b)
+            out4, out3 = np.empty((4, 4)), np.empty((3, M.shape[1]))
+            kernels.matmul4_into(A, B, out4)
+            kernels.tmatmul3_into(A, M, out3)
+        else:
+            d, r, v, out4, out3 = _compiled(_products)(a, b, A, B, M)  # type: ignore[misc]
+        assert math.isclose(d, float(a @ b), rel_tol=0.0, abs_tol=tol)
+        assert math.isclose(r, math.dist(a, b), rel_tol=0.0, abs_tol=tol_m)
+        assert math.isclose(r, float(np.linalg.norm(a - b)), rel_tol=0.0, abs_tol=tol_m)
+        np.testing.assert_allclose(v, A[:3, :3] @ b, rtol=0.0, atol=tol_m)
+        np.testing.assert_allclose(out4, A @ B, rtol=0.0, atol=ATOL_PRODUCT)
+        np.testing.assert_allclose(out3, A[:3, :3].T @ M, rtol=0.0, atol=ATOL_PRODUCT)
+
+
+WRAP_ATOL_RAD = 1e-12  # rad: round-off of angle − 2π k for |angle| up to ~100 rad
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-100.0, 100.0, allow_nan=False, allow_infinity=False))
+@example(math.pi)
+@example(-math.pi)
+@example(3 * math.pi)
+@example(0.0)
+def test_wrap_angle_is_math_remainder(angle: float) -> None:
+    want = math.remainder(angle, 2.0 * math.pi)
+    for got in (kernels.wrap_angle(angle), _compiled(_wrap)(angle)):
+        assert -math.pi - WRAP_ATOL_RAD <= got <= math.pi + WRAP_ATOL_RAD
+        if abs(abs(want) - math.pi) < 1e-9:  # a tie at ±π: either end is the same angle
+            assert math.isclose(abs(got), math.pi, abs_tol=WRAP_ATOL_RAD)
+        else:
+            assert math.isclose(got, want, rel_tol=0.0, abs_tol=WRAP_ATOL_RAD)
+        # the same direction as the angle it wraps
+        assert math.isclose(math.cos(got), math.cos(angle), abs_tol=WRAP_ATOL_RAD)
+        assert math.isclose(math.sin(got), math.sin(angle), abs_tol=WRAP_ATOL_RAD)

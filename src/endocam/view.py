@@ -21,18 +21,21 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 from numba.extending import register_jitable
 from numpy.typing import ArrayLike
 
 from endocam.geometry import UP, FloatArray, as_vector3, unit_vector
-from endocam.kernels import Vec, cross, dot, norm, reject, scaled
+from endocam.kernels import Vec, cross, dot, dot3, norm, reject, scaled
 
 __all__ = [
+    "MIN_LOOK_M",
     "ROLL_HOLD_ANGLE",
     "ROLL_LEVEL_ANGLE",
     "look_at_columns",
     "look_at_pose",
     "look_at_unchecked",
+    "look_distance",
     "pose_from_columns",
     "rotation_columns",
     "rotation_looking_along",
@@ -192,7 +195,7 @@ def look_at_columns(p: Vec, target: Vec, x_prev: Vec | None) -> tuple[bool, Vec,
     ``p``, ``target``: the camera and the point it looks at, world, m; ``x_prev``: the previous
     pose's x axis (world) or ``None``. ``found`` is False (and the columns meaningless) when the
     two points coincide (no direction to look along). Compiled kernels call it too (e.g. an
-    arm's conceded view, ``robot.camera_arm``): the same floats.
+    arm's conceded view, ``robot.camera_arm``): the same source.
     """
     d = (target[0] - p[0], target[1] - p[1], target[2] - p[2])
     length = norm(d)
@@ -215,3 +218,23 @@ def look_at_unchecked(
     if not found:
         return fallback
     return pose_from_columns(x, y, z, p)
+
+
+MIN_LOOK_M = 1e-3  # m: a ring closer than this along the optical axis gives no look-at point
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
+def look_distance(
+    T_world_cmd: FloatArray, T_world_ring: FloatArray, d_f: float
+) -> float:  # pragma: no cover - compiled
+    """Depth of the (sensed) ring centre along a commanded optical axis, m; else ``d_f``.
+
+    The nearest feasible view of a command turns about the point the command looks at: the
+    ring centre for the tracking goal (at ``d_f``) and for the way-point poses (farther).
+    ``T_world_cmd``, ``T_world_ring`` (4, 4), world, m. The depth is
+    ``(T_world_ring[:3, 3] - T_world_cmd[:3, 3]) · T_world_cmd[:3, 2]``; a depth below
+    ``MIN_LOOK_M`` or not finite gives ``d_f``.
+    """
+    R, C = T_world_ring, T_world_cmd
+    depth = dot3(R[0, 3] - C[0, 3], R[1, 3] - C[1, 3], R[2, 3] - C[2, 3], C[0, 2], C[1, 2], C[2, 2])
+    return depth if depth > MIN_LOOK_M and math.isfinite(depth) else d_f

@@ -64,16 +64,10 @@ from endocam.metrics import (
 from endocam.robot.actuator import Actuator, ArmKind
 from endocam.robot.arm import PSM_MAX_VELOCITY
 from endocam.robot.camera_arm import CameraArm
-from endocam.robot.carriers import make_actuator
-from endocam.task.instruments import instrument_tips
-from endocam.task.layout import overview_camera_pose
-from endocam.task.trajectory import (
-    RingTrajectory,
-    TrajectoryKind,
-    capture_times,
-    make_trajectory,
-)
+from endocam.runner.step import EpisodeLoop, SetPoint, episode_world, start_carrier
+from endocam.task.trajectory import RingTrajectory, TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
+from endocam.view import look_distance
 
 ENV_ID = "endocam/WireChaser-v0"
 _SQRT3 = math.sqrt(3.0)
@@ -181,7 +175,6 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             obs["image"] = spaces.Box(0, 255, shape=(k.height, k.width, 3), dtype=np.uint8)
         self.observation_space = spaces.Dict(obs)  # type: ignore[assignment]
         self._scene: Any = None
-        self._k = 0
 
     # ------------------------------------------------------------------ episode
     def reset(
@@ -198,38 +191,22 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             exp.task, self.config.trajectory, self.config.control_points, traj_seed, wire=self.wire
         )
         self.trajectory_seed = int(traj_seed)
-        t = np.arange(self.n_steps, dtype=float) * self.dt
-        self._t = t
-        self._T_ring = self.trajectory.poses(t)
-        self._t_ring = capture_times(t, exp.episode.sensing_latency)
-        self._T_sensed = self.trajectory.poses(self._t_ring)
-        self._tips = instrument_tips(exp.task, t, self._T_ring)
-        self._T_overview = overview_camera_pose(exp.task, self.camera)
+        self.world = episode_world(exp, self.trajectory)
         self._p_rcm = np.array(exp.task.scene.rcm_position)
-        # the episode loop's workspace: the carriers keep the camera in its cone and above its floor
-        workspace = exp.controller.workspace(self._p_rcm, self._T_sensed[0][:3, 3], self.wire)
-        self.cone = workspace.cone
-        self.actuator: Actuator = make_actuator(
-            self.arm,
-            exp.episode.limits,
-            exp.episode.T_tip_cam,
-            exp.task.scene.T_world_rcm,
-            self.dt,
-            workspace,
-        )
-        start, look = self.actuator.start_view(exp.task, self.camera)
-        self._T_cam = self.actuator.reset(start, look)
-        self._q = self.actuator.q
-        self._setpoint = self._T_cam.copy()  # the free camera's set point
-        self._q_setpoint = np.array(self._q)  # the PSM's joint set point
-        self._k = 0
+        # the runner's carrier: it keeps the camera in its cone, above its floor, off the wire
+        carrier = start_carrier(exp, self.arm, self.camera, self.wire, self.world)
+        self.cone = carrier.workspace.cone
+        self.actuator: Actuator = carrier.actuator
+        self.loop = EpisodeLoop(self.world, carrier)
+        self._setpoint = carrier.T_world_cam.copy()  # the free camera's set point
+        self._q_setpoint = np.array(self.loop.q)  # the PSM's joint set point
         return self._observation(), {"t": 0.0, "trajectory_seed": self.trajectory_seed}
 
     def step(
         self, action: np.ndarray
     ) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         """One control period: move the set point by the action, the carrier follows it."""
-        if self._k >= self.n_steps - 1:
+        if self.loop.k >= self.n_steps - 1:
             raise RuntimeError("the episode has ended: call reset()")
         events: list[SafetyEvent] = []
         a = np.asarray(action, dtype=float).reshape(-1)
@@ -241,41 +218,40 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             a = np.clip(a, -1.0, 1.0)
         velocity = a * self._scale
         if self.arm is ArmKind.FREE:
-            self._step_free(velocity, events)
+            T_set = self._step_free(velocity, events)
         else:
-            self._step_psm(velocity, events)
-        self._k += 1
+            T_set = self._step_psm(velocity, events)
+        # the carrier heads for the set point at rest: a set point that stops is not overshot
+        self.loop.step(SetPoint(T_set, self.config.experiment.controller.d_f))
         img, mm, deg = self._errors()
         cfg = self.config
         unsafe = bool(events)
         reward = -(cfg.weight_per_px * img + cfg.weight_per_mm * mm + cfg.weight_per_deg * deg)
         reward -= cfg.safety_penalty if unsafe else 0.0
         info = {
-            "t": float(self._t[self._k]),
+            "t": float(self.world.t[self.loop.k]),
             "safety": tuple(e.value for e in events),
             "unsafe": unsafe,
             "image_error_px": img,
             "center_error_mm": mm,
             "orientation_error_deg": deg,
         }
-        truncated = self._k >= self.n_steps - 1
+        truncated = self.loop.k >= self.n_steps - 1
         return self._observation(), float(reward), False, truncated, info
 
     def _inside(self, T_world_cam: FloatArray) -> bool:
         return self.cone.contains(T_world_cam[:3, 3])
 
-    def _step_free(self, twist: FloatArray, events: list[SafetyEvent]) -> None:
+    def _step_free(self, twist: FloatArray, events: list[SafetyEvent]) -> FloatArray:
         S = self._setpoint
         moved = make_pose(so3_exp(twist[3:] * self.dt) @ S[:3, :3], S[:3, 3] + twist[:3] * self.dt)
         if not self._inside(moved):
             events.append(SafetyEvent.OUTSIDE_CONE)
             moved = S
         self._setpoint = moved
-        # the carrier heads for the set point at rest: a set point that stops is not overshot
-        out = self.actuator.step(moved, self.config.experiment.controller.d_f)
-        self._T_cam, self._q = out.T_world_cam, out.q
+        return moved
 
-    def _step_psm(self, qd: FloatArray, events: list[SafetyEvent]) -> None:
+    def _step_psm(self, qd: FloatArray, events: list[SafetyEvent]) -> FloatArray:
         arm = self.actuator
         assert isinstance(arm, CameraArm)
         wanted = self._q_setpoint + qd * self.dt
@@ -288,29 +264,28 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             clipped = self._q_setpoint
             T_set = arm.camera_pose(clipped)
         self._q_setpoint = clipped
-        out = arm.step(T_set, self.config.experiment.controller.d_f)
-        self._T_cam, self._q = out.T_world_cam, out.q
+        return T_set
 
     def _errors(self) -> tuple[float, float, float]:
         """The paper's three errors now: image px (saturated), 3D mm (left eye), deg."""
-        k = self._k
-        T_cam = self._T_cam[None]
-        p_ring = self._T_ring[k : k + 1, :3, 3]
+        k, world = self.loop.k, self.world
+        T_cam = self.loop.T_world_cam[None]
+        p_ring = world.T_world_ring[k : k + 1, :3, 3]
         raw = image_centering_error(self.camera, T_cam, p_ring)
         out = ring_out_of_view(self.camera, T_cam, p_ring)
         img = float(saturate_image_error(self.camera, raw, out)[0])
         mm = 1e3 * float(center_error_3d(T_cam @ self.camera.T_cam_left, p_ring)[0])
-        deg = math.degrees(float(orientation_error(T_cam, self._T_ring[k : k + 1, :3, 2])[0]))
+        deg = math.degrees(float(orientation_error(T_cam, world.T_world_ring[k : k + 1, :3, 2])[0]))
         return img, mm, deg
 
     def _observation(self) -> dict[str, np.ndarray]:
-        k = self._k
+        k, world = self.loop.k, self.world
         obs = {
-            "time": np.array([self._t[k]]),
-            "ring_pose": pose7(self._T_sensed[k]),
-            "ring_time": np.array([self._t_ring[k]]),
-            "camera_pose": pose7(self._T_cam),
-            "tool_tips": np.array(self._tips[k], dtype=float),
+            "time": np.array([world.t[k]]),
+            "ring_pose": pose7(world.T_world_ring_sensed[k]),
+            "ring_time": np.array([world.t_ring[k]]),
+            "camera_pose": pose7(self.loop.T_world_cam),
+            "tool_tips": np.array(world.p_world_tips[k], dtype=float),
         }
         if self.config.image_observation:
             obs["image"] = self._render()
@@ -321,8 +296,8 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         """What a built-in policy is told at reset, as in an episode (``future``: the oracle)."""
         return PolicyContext(
             self.camera,
-            self._T_cam.copy(),
-            self._T_sensed[0],
+            self.loop.T_world_cam.copy(),
+            self.world.T_world_ring_sensed[0],
             self._p_rcm,
             self.dt,
             self.config.experiment.episode.sensing_latency,
@@ -332,15 +307,18 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             wire=self.wire,
         )
 
-    def action_towards(self, T_world_cmd: FloatArray, look_distance: float) -> np.ndarray:
+    def action_towards(self, T_world_cmd: FloatArray, d_f: float) -> np.ndarray:
         """(6,) the action that moves the set point to a commanded camera pose (clipped).
 
         Parameters
         ----------
         T_world_cmd : (4, 4)
             Commanded camera pose, world, optical frame, m.
-        look_distance : float
-            Distance to the point the command looks at, m (the PSM's conceded-view pivot).
+        d_f : float
+            The command's working distance, m. The PSM's conceded view turns about the point
+            the command looks at: the sensed ring's depth along the command's axis, else
+            ``d_f`` (:func:`endocam.view.look_distance`, as the episode loop tells the
+            carrier).
         """
         if self.arm is ArmKind.FREE:
             S = self._setpoint
@@ -350,7 +328,9 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         else:
             arm = self.actuator
             assert isinstance(arm, CameraArm)
-            q_goal, _, _ = arm.target(np.asarray(T_world_cmd, dtype=float), look_distance)
+            T_cmd = np.asarray(T_world_cmd, dtype=float)
+            look = look_distance(T_cmd, self.world.T_world_ring_sensed[self.loop.k], d_f)
+            q_goal, _, _ = arm.target(T_cmd, look)
             velocity = (np.array(q_goal) - self._q_setpoint) / self.dt
         return np.clip(velocity / self._scale, -1.0, 1.0)
 
@@ -361,12 +341,12 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         if self._scene is None:
             exp = self.config.experiment
             self._scene = WireChaserScene(exp.task, self.camera, arm=self.arm)
-        k = self._k
-        self._scene.set_ring_pose(self._T_ring[k])
-        self._scene.set_psm2_tip(self._tips[k, 1])
-        self._scene.set_camera_pose(self._T_cam)
+        k = self.loop.k
+        self._scene.set_ring_pose(self.world.T_world_ring[k])
+        self._scene.set_psm2_tip(self.world.p_world_tips[k, 1])
+        self._scene.set_camera_pose(self.loop.T_world_cam)
         if self.arm is not ArmKind.FREE:
-            self._scene.set_arm_joints(self._q)
+            self._scene.set_arm_joints(self.loop.q)
         return np.array(self._scene.render("left"), dtype=np.uint8)
 
     def render(self) -> np.ndarray | None:

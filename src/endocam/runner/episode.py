@@ -12,18 +12,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
-from numba import njit
 
 from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
-from endocam.control.types import Observation, PolicyContext, TrackingState
+from endocam.control.types import CameraCommand, PolicyContext, TrackingState
 from endocam.faults import StepFaults, apply_observation_faults, fault_schedule
 from endocam.geometry import FloatArray
-from endocam.kernels import dot3
 from endocam.metrics import (
     center_error_3d,
     image_centering_error,
@@ -33,12 +31,11 @@ from endocam.metrics import (
 )
 from endocam.registry import POLICIES, make_policy
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
-from endocam.robot.carriers import make_actuator
+from endocam.runner.step import EpisodeLoop, StepRecord, episode_world, start_carrier
 from endocam.task.config import MAX_CONTROL_POINTS
-from endocam.task.instruments import instrument_tips
 from endocam.task.layout import overview_camera_pose
 from endocam.task.touches import TouchReport, touch_events
-from endocam.task.trajectory import RingTrajectory, TrajectoryKind, capture_times, make_trajectory
+from endocam.task.trajectory import RingTrajectory, TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
 
 UNREACHABLE = "unreachable"
@@ -243,22 +240,12 @@ def run_episode(
         )
     ep = config.episode
     dt = 1.0 / ep.control_rate
-    n = math.floor(trajectory.duration / dt + 1e-9) + 1
-    t = np.arange(n, dtype=float) * dt
-    T_ring = trajectory.poses(t)
-    t_ring = capture_times(t, ep.sensing_latency)  # when each sensed pose was captured, s
-    T_sensed = trajectory.poses(t_ring)
-    tips = instrument_tips(config.task, t, T_ring)
-
+    world = episode_world(config, trajectory)
+    n, t, T_ring = world.n, world.t, world.T_world_ring
     T_overview = overview_camera_pose(config.task, camera)
-    p_rcm = np.array(config.task.scene.rcm_position)
     kind = episode_arm(config, spec.policy)
-    # the policy's cone and floor, and the wire's clearance zone (the carriers keep out of it)
-    workspace = config.controller.workspace(p_rcm, T_sensed[0][:3, 3], wire)
-    actuator = make_actuator(
-        kind, ep.limits, ep.T_tip_cam, config.task.scene.T_world_rcm, dt, workspace
-    )
-    T_now = actuator.reset(*actuator.start_view(config.task, camera))
+    carrier = start_carrier(config, kind, camera, wire, world)
+    actuator = carrier.actuator
     schedule = None
     step_faults: StepFaults | None = None
     if config.faults.any:  # faults: the observations rewritten here, a hook in the loop
@@ -266,15 +253,21 @@ def run_episode(
             config.faults, n, dt, arm=kind is not ArmKind.FREE, joints=len(actuator.joint_names)
         )
         T_sensed, tips, t_ring = apply_observation_faults(
-            schedule, t, T_sensed, tips, trajectory.poses, ep.sensing_latency
+            schedule,
+            t,
+            world.T_world_ring_sensed,
+            world.p_world_tips,
+            trajectory.poses,
+            ep.sensing_latency,
         )
+        world = replace(world, T_world_ring_sensed=T_sensed, p_world_tips=tips, t_ring=t_ring)
         step_faults = StepFaults(schedule, actuator.stall) if schedule.steps_faulty else None
     policy.reset(
         PolicyContext(
             camera,
-            T_now,
-            T_sensed[0],
-            p_rcm,
+            carrier.T_world_cam,
+            world.T_world_ring_sensed[0],
+            np.array(config.task.scene.rcm_position),
             dt,
             ep.sensing_latency,
             future=trajectory.poses,  # the true trajectory: only non-causal policies read it
@@ -284,77 +277,37 @@ def run_episode(
         )
     )
 
-    T_cam = np.empty((n, 4, 4))
-    T_cmd = np.empty((n, 4, 4))
-    d_f: list[float] = []
-    state: list[str] = []
-    reason: list[str] = []
-    joint_names = actuator.joint_names
-    jointed = len(joint_names) > 0  # a carrier with joints logs them and the view it concedes
-    joints = np.empty((n, len(joint_names)))
-    pos_err: list[float] = []
-    ori_err: list[float] = []
-    q_now = actuator.q
+    loop = EpisodeLoop(world, carrier, step_faults)
+    log = _Recorder(n, kind, len(actuator.joint_names))
     chunk = max(1, n // 100)
-    reach_offset: FloatArray | None = None
-    # per step: plain floats, row views made in one go, and bound methods (n times each)
-    t_s, t_ring_s = t.tolist(), t_ring.tolist()
-    sensed, tips_k = list(T_sensed), list(tips)
-    policy_step, actuator_step = policy.step, actuator.step
-    log_d_f, log_state, log_reason = d_f.append, state.append, reason.append
-    make_obs = tuple.__new__  # Observation(...) without its Python-level __new__: no checks
+    observe, policy_step, loop_step, record = loop.observation, policy.step, loop.step, log.record
     for k in range(n):
-        T_cam[k] = T_now
-        T_sensed_k = sensed[k]
-        cmd = policy_step(
-            make_obs(Observation, (t_s[k], T_sensed_k, T_now, tips_k[k], reach_offset, t_ring_s[k]))
-        )
-        T_goal, cmd_state, cmd_d_f, cmd_reason, cmd_twist = cmd
-        T_cmd[k] = T_goal
-        log_d_f(cmd_d_f)
-        if jointed:  # the pivot of a conceded view; a carrier without joints concedes none
-            joints[k] = q_now
-            look = _look_distance(T_goal, T_sensed_k, cmd_d_f)
-        else:
-            look = cmd_d_f
-        if step_faults is None:
-            out = actuator_step(T_goal, look, cmd_twist)
-        else:
-            out = actuator_step(*step_faults.command(k, T_goal, cmd_twist, look))
-        if jointed:
-            reach_offset = out.T_world_target[:3, 3] - T_goal[:3, 3]
-            pos_err.append(out.position_error)
-            ori_err.append(out.orientation_error)
-        if not out.reachable and cmd_state not in _SAFETY_STATES:
-            log_state(UNREACHABLE)
-            log_reason(_unreachable_reason(kind, out))
-        else:
-            log_state(cmd_state.value)
-            log_reason(cmd_reason)
-        T_now, q_now = out.T_world_cam, out.q
+        cmd = policy_step(observe())
+        record(cmd, loop_step(cmd))
         if progress is not None and (k + 1) % chunk == 0:
             progress(chunk)
     if progress is not None and n % chunk:
         progress(n % chunk)
 
     clearance = np.interp(t, touches.t, touches.clearance)
-    log = EpisodeLog(
+    jointed = log.jointed
+    episode_log = EpisodeLog(
         t=t,
         T_world_ring=T_ring,
-        T_world_ring_sensed=T_sensed,
-        T_world_cam=T_cam,
-        T_world_cmd=T_cmd,
-        state=np.array(state, dtype=str),
-        reason=reason,
-        d_f=np.array(d_f, dtype=float),
-        p_world_tips=tips,
+        T_world_ring_sensed=world.T_world_ring_sensed,
+        T_world_cam=log.T_cam,
+        T_world_cmd=log.T_cmd,
+        state=np.array(log.state, dtype=str),
+        reason=log.reason,
+        d_f=np.array(log.d_f, dtype=float),
+        p_world_tips=world.p_world_tips,
         contact=contact_at(touches, t),
         clearance=clearance,
-        joints=joints if jointed else None,
-        joint_names=joint_names,
+        joints=log.joints if jointed else None,
+        joint_names=actuator.joint_names,
         arm=kind.value,
-        goal_position_error=np.array(pos_err, dtype=float) if jointed else None,
-        goal_orientation_error=np.array(ori_err, dtype=float) if jointed else None,
+        goal_position_error=np.array(log.pos_err, dtype=float) if jointed else None,
+        goal_orientation_error=np.array(log.ori_err, dtype=float) if jointed else None,
         fault=schedule.labels() if schedule is not None else None,
     )
     return EpisodeResult(
@@ -364,35 +317,48 @@ def run_episode(
         trajectory=trajectory,
         wire=wire,
         touches=touches,
-        log=log,
+        log=episode_log,
         T_world_overview=T_overview,
-        image_error=image_centering_error(camera, T_cam, T_ring[:, :3, 3]),
-        center_error=center_error_3d(T_cam @ camera.T_cam_left, T_ring[:, :3, 3]),
-        orientation_error=orientation_error(T_cam, T_ring[:, :3, 2]),
+        image_error=image_centering_error(camera, log.T_cam, T_ring[:, :3, 3]),
+        center_error=center_error_3d(log.T_cam @ camera.T_cam_left, T_ring[:, :3, 3]),
+        orientation_error=orientation_error(log.T_cam, T_ring[:, :3, 2]),
     )
 
 
-_MIN_LOOK_M = 1e-3  # m: a ring closer than this along the optical axis gives no look-at point
-
-
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _look_distance(
-    T_world_cmd: FloatArray, T_world_ring: FloatArray, d_f: float
-) -> float:  # pragma: no cover - compiled
-    """Depth of the (sensed) ring centre along a commanded optical axis, m; else ``d_f``.
-
-    The nearest feasible view of a command turns about the point the command looks at: the
-    ring centre for the tracking goal (at ``d_f``) and for the way-point poses (farther).
-    ``T_world_cmd``, ``T_world_ring`` (4, 4), world, m. The depth is numpy's
-    ``(T_world_ring[:3, 3] - T_world_cmd[:3, 3]) @ T_world_cmd[:3, 2]`` (BLAS ``ddot``:
-    :func:`endocam.blasfloat.dot3`), the same float (``tests/test_runner_kernels.py``).
-    """
-    R, C = T_world_ring, T_world_cmd
-    depth = dot3(R[0, 3] - C[0, 3], R[1, 3] - C[1, 3], R[2, 3] - C[2, 3], C[0, 2], C[1, 2], C[2, 2])
-    return depth if depth > _MIN_LOOK_M and math.isfinite(depth) else d_f
-
-
 _SAFETY_STATES = (TrackingState.FROZEN_OUTSIDE_CONE, TrackingState.LOST_TRACKING)
+
+
+class _Recorder:
+    """The runner's log, filled a row per :class:`StepRecord` (n steps, J joints)."""
+
+    def __init__(self, n: int, kind: ArmKind, joints: int) -> None:
+        self.kind = kind
+        self.jointed = joints > 0  # a carrier with joints logs them and the view it concedes
+        self.T_cam = np.empty((n, 4, 4))
+        self.T_cmd = np.empty((n, 4, 4))
+        self.joints = np.empty((n, joints))
+        self.d_f: list[float] = []
+        self.state: list[str] = []
+        self.reason: list[str] = []
+        self.pos_err: list[float] = []
+        self.ori_err: list[float] = []
+
+    def record(self, cmd: CameraCommand, rec: StepRecord) -> None:
+        """Log step ``rec.k``: the camera before it, the policy's command, the carrier's answer."""
+        k, out = rec.k, rec.carrier
+        self.T_cam[k] = rec.T_world_cam
+        self.T_cmd[k] = cmd.T_world_cam
+        self.d_f.append(cmd.d_f)
+        if self.jointed:
+            self.joints[k] = rec.q
+            self.pos_err.append(out.position_error)
+            self.ori_err.append(out.orientation_error)
+        if not out.reachable and cmd.state not in _SAFETY_STATES:
+            self.state.append(UNREACHABLE)
+            self.reason.append(_unreachable_reason(self.kind, out))
+        else:
+            self.state.append(cmd.state.value)
+            self.reason.append(cmd.reason)
 
 
 def episode_arm(config: ExperimentConfig, policy: str) -> ArmKind:

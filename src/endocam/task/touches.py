@@ -40,6 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import elementwise, minimize_scalar
 
 from endocam.geometry import FloatArray, as_pose, as_vector3
+from endocam.kernels import dot3
 from endocam.task.config import RingConfig
 from endocam.task.wire import Wire
 
@@ -269,16 +270,10 @@ def _coarse_kernel(
 def _contact_point(
     p_wire: FloatArray, T_world_ring: FloatArray, ring_cfg: RingConfig, wire_radius: float
 ) -> tuple[FloatArray, FloatArray]:
-    """Clearance (N,), m, and contact points (N, 3), m, for wire points (N, 3) and poses.
-
-    The height over the ring plane is numpy's ``einsum`` (its own summation order); the rest
-    is :func:`_contact_kernel`.
-    """
-    h = np.einsum("ij,ij->i", p_wire - T_world_ring[:, :3, 3], T_world_ring[:, :3, 2])
+    """Clearance (N,), m, and contact points (N, 3), m, for wire points (N, 3) and poses."""
     return _contact_kernel(
         np.ascontiguousarray(p_wire),
         np.ascontiguousarray(T_world_ring),
-        h,
         ring_cfg.major_radius,
         ring_cfg.minor_radius,
         wire_radius,
@@ -287,15 +282,15 @@ def _contact_point(
 
 @njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
 def _contact_kernel(
-    p: FloatArray, T: FloatArray, h: FloatArray, major: float, minor: float, wire_radius: float
+    p: FloatArray, T: FloatArray, major: float, minor: float, wire_radius: float
 ) -> tuple[FloatArray, FloatArray]:
-    """:func:`_contact_point` after the heights ``h`` (N,), m: clearances and contact points.
+    """:func:`_contact_point`'s loop: clearances (N,) and contact points (N, 3), m.
 
-    Per pose, the interpreted arrays' floats (no fast-math: docs/conventions.md, "Compiled
-    kernels"): the radial direction ``d − h n`` (along the ring's x axis on its axis), its norm
-    ``√((x² + y²) + z²)`` as ``np.linalg.norm`` sums it, the core point ``q = c + (R d) / ρ``,
-    the gap ``q − p`` and its norm (along ``n`` when ``p`` is on the core circle), the clearance
-    ``(|q − p| − r) − r_w`` and the contact point ``p + (gap / |gap|) (r_w + clearance / 2)``.
+    Per pose (centre ``c``, normal ``n``, wire point ``p``, ``d = p − c``): the height
+    ``h = d · n``, the radial direction ``d − h n`` (the ring's x axis when ``p`` is on its
+    axis) and its length ``ρ``, the core point ``q = c + R (d − h n) / ρ``, the gap ``q − p``
+    (along ``n`` when ``p`` is on the core circle), the clearance ``|q − p| − r − r_w`` and the
+    contact point ``p + (gap / |gap|) (r_w + clearance / 2)``.
     """
     count = p.shape[0]
     clearance = np.empty(count)
@@ -304,15 +299,15 @@ def _contact_kernel(
         c0, c1, c2 = T[i, 0, 3], T[i, 1, 3], T[i, 2, 3]
         n0, n1, n2 = T[i, 0, 2], T[i, 1, 2], T[i, 2, 2]
         p0, p1, p2 = p[i, 0], p[i, 1], p[i, 2]
-        hi = h[i]
+        hi = dot3(p0 - c0, p1 - c1, p2 - c2, n0, n1, n2)
         r0, r1, r2 = (p0 - c0) - hi * n0, (p1 - c1) - hi * n1, (p2 - c2) - hi * n2
-        rho = math.sqrt((r0 * r0 + r1 * r1) + r2 * r2)
+        rho = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
         if rho < _EPS:
             r0, r1, r2, rho = T[i, 0, 0], T[i, 1, 0], T[i, 2, 0], 1.0
         g0 = (c0 + major * r0 / rho) - p0
         g1 = (c1 + major * r1 / rho) - p1
         g2 = (c2 + major * r2 / rho) - p2
-        dist = math.sqrt((g0 * g0 + g1 * g1) + g2 * g2)
+        dist = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
         cl = dist - minor - wire_radius
         if dist < _EPS:
             g0, g1, g2, dist = n0, n1, n2, 1.0
@@ -339,7 +334,7 @@ def _refine(
     them when there are at most ``_SCALAR_LIMIT``, where it is cheaper than the array method);
     the others are refined together by one ``find_minimum``. Each pose's result depends only on
     its own inputs and its method (scipy's elementwise solvers iterate each element on its
-    own), so any batch of poses gives each the same bits. ``c``, ``n`` are C-contiguous.
+    own), not on the batch it is refined in. ``c``, ``n`` are C-contiguous.
     """
     s_all = wire.search_arc_length
     pts = wire.search_points
@@ -363,8 +358,8 @@ def _refine(
             s_best[i] = float(res.x)
     inner = np.flatnonzero((g > 0) & (g < m - 1) & ~scalar)
     if inner.size:
-        # the minimiser's first three calls are at the bracket (lo, g, hi): search points, whose
-        # values come from the search polyline (the same spline values, bit for bit)
+        # the minimiser's first calls are at the bracket (lo, g, hi): search points, whose
+        # distances are computed here from the search polyline (the spline at those arc lengths)
         brackets = (s_all[lo[inner]], s_best[inner], s_all[hi[inner]])
         known = [
             (x, _core_distance_kernel(pts[j], c, n, inner, major))
@@ -562,7 +557,7 @@ def _events(
 
     The root finder's first two calls are at the brackets' ends, samples whose clearance is
     known: they are answered from ``c`` when each sample was refined by the method
-    (``scalar`` (K,)) that call would use, hence with the same bits.
+    (``scalar`` (K,)) that call would use, so a fresh computation would give the same values.
     """
     flag = np.concatenate([[False], in_contact, [False]]).astype(np.int8)
     starts = np.flatnonzero(np.diff(flag) == 1)

@@ -43,9 +43,7 @@ def _nearest_kernel(
     """The nearest candidate to ``(x, y, z)``, m: its row of ``pts`` (M, 3), m, and distance, m.
 
     The candidates are the rows ``idx[start:start + count]``, in that order; the first of
-    least squared distance wins (as ``argmin``). The distance is summed as the KD-tree sums
-    it, ``√(a² + b² + c²)`` left to right, so the result is the tree's bit for bit (no
-    fast-math: docs/conventions.md "Compiled kernels").
+    least squared distance wins (as ``argmin``). The distance is ``√(a² + b² + c²)``.
     """
     best = idx[start]
     best_d2 = math.inf
@@ -297,7 +295,7 @@ class Wire:
 
         The control loop's query on plain floats: ``p_world`` (3,) in world, m. Near the wire
         the candidates of its 2 mm grid cell (cached) are searched instead of the KD-tree, with
-        the same answer, bit for bit (``tests/test_task_wire.py``), by compiled kernels
+        the tree's answer (``tests/test_task_wire.py``), by compiled kernels
         (:func:`surface_query`; ~1 µs a query near the wire, ``bench/bench_clearance.py``);
         far from it every search point is tried (a few µs). Every candidate of a cell lies
         within ``d(c) + h√3`` of its centre ``c`` (``_ball_kernel``), so the argmin over them
