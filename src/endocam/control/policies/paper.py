@@ -23,46 +23,35 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
-from endocam.control.clearance import ClearanceGuard, cleared_move
+from endocam.control.checks import (
+    CAMERA_REASON,
+    CHECK_REASONS,
+    MIN_NORMAL,
+    OBS_CAMERA,
+    OBS_OK,
+    RING_REASON,
+    observed,
+    pose_array,
+)
+from endocam.control.clearance import cleared_move
 from endocam.control.config import ControllerConfig, SideRule
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
-from endocam.control.safety import (
-    CLOCK_TOL,
-    STALE_REASON,
-    WindowGeometry,
-    adjusted_distance,
-    gate_commit,
-    gate_decide,
-    window_code_of,
+from endocam.control.policies.base import (
+    DETOUR_REASON,
+    FREEZE_RELEASE_MARGIN,
+    WIRE_REASON,
+    MovingPolicy,
 )
-from endocam.control.types import (
-    CameraCommand,
-    Observation,
-    PolicyContext,
-    TrackingState,
-)
+from endocam.control.safety import adjusted_distance, window_code_of
+from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
 from endocam.geometry import UP, FloatArray
-from endocam.kernels import Vec, dist3, finite_rows, unit_checked
+from endocam.kernels import Vec, dist3, finite_rows
 from endocam.view import look_at_unchecked
-from endocam.workspace.cone import Cone, ConeWorkspace, cone_at, cone_margin
+from endocam.workspace.cone import cone_at, cone_margin
 from endocam.workspace.keepout import NO_KEEP_OUT, KeepOutState
-from endocam.workspace.region import Workspace
 
-_UP = (0.0, 0.0, 1.0)  # world up as plain floats
-FREEZE_RELEASE_MARGIN = 1e-3  # m, how far back inside the cone the goal must be to unfreeze
-LIFT_TOL = 1e-4  # m, resolution of the cone-limited way-point height
-_MIN_NORMAL = 1e-9  # unitless, a ring normal shorter than this is degenerate
-GATE_REASON = "ring pose rejected by the observation gate (moved too fast); holding"
-DETOUR_REASON = "detouring around the wire's clearance zone"
-CAMERA_REASON = "camera pose not finite; holding"
-RING_REASON = "ring pose missing or not finite"
-WIRE_REASON = "no view of the ring keeps the wire clearance inside the workspace; holding"
-STALL_STEPS = 10  # control steps a detouring camera may stand still before it steps out
-STALL_TOL_M = 1e-9  # m, a camera that moved less than this in a step stood still
-
-
-# _step_kernel's parameters (``_MovingPolicy._params``), by index
+# _step_kernel's parameters (``MovingPolicy._params``), by index
 _WINDOW = 0  # the 9 constants of window_code
 _D_MIN, _D_MAX, _D_STEP = 9, 10, 11  # m, the working distance's range and step
 _KIND = 12  # 0.0: the centering goal, 1.0: the orientation goal
@@ -73,114 +62,12 @@ _Z0, _SHIFT = 19, 22  # the centering goal's optical axis (3) and left-eye shift
 _CONE = 25  # the cone: apex (3), m; axis (3); tan and cos of the half-angle; height, m
 _JUMP = 34  # m, jump_threshold
 _N_PARAMS = 35
-# _step_kernel's results (``_MovingPolicy._out``): the guard's answers on the plain path
+# _step_kernel's results (``MovingPolicy._out``): the guard's answers on the plain path
 _OUT_CLEARED, _OUT_DETOUR, _OUT_VIA = 0, 1, 2  # clear, detour, its way-point (3), m
 _OUT_RING, _OUT_CAM = 5, 8  # m, the observed ring centre and camera position (3 each)
 _OUT_CHECK = 11  # the observation's check (``observed``: OBS_*)
 _OUT_MARGIN = 12  # m, the goal's cone margin (``ConeWorkspace.margin``)
 _N_OUT = 13
-# ``observed``'s answers: the observation is usable, or why not
-OBS_OK, OBS_CAMERA, OBS_RING, OBS_STALE, OBS_DEGENERATE, OBS_GATE = range(6)
-CHECK_REASONS = (
-    "",
-    CAMERA_REASON,
-    RING_REASON,
-    STALE_REASON,
-    "ring pose degenerate (zero normal)",
-    GATE_REASON,
-)  # the hold's reason per OBS_* answer
-
-
-@register_jitable  # also callable from compiled kernels (the same source)
-def finite_pose(T: FloatArray) -> bool:
-    """Whether every entry of ``T`` (4, 4) is finite (``kernels.finite_rows``' test)."""
-    for i in range(4):
-        for j in range(4):
-            if not math.isfinite(T[i, j]):
-                return False
-    return True
-
-
-@register_jitable  # also callable from compiled kernels (the same source)
-def observed(
-    T_cam: FloatArray,
-    T_ring: FloatArray,
-    t: float,
-    has_t_ring: bool,
-    t_ring: float,
-    max_age: float,
-    gate: FloatArray,
-    bounds: FloatArray,
-    cone: Cone,
-    unit_normal: bool,
-) -> int:
-    """The policies' input checks in their order, the ring gate last: ``OBS_OK`` or why not.
-
-    ``T_cam``, ``T_ring`` (4, 4) the observed camera and ring poses, world, m: not finite,
-    ``OBS_CAMERA`` / ``OBS_RING``. The ring pose captured at ``t_ring`` (s; unstamped: not
-    ``has_t_ring``) is stale at ``t`` (s) beyond ``max_age`` (s) or ``CLOCK_TOL`` in the
-    future (``safety.is_stale``): ``OBS_STALE``. ``unit_normal`` (the tracker): the gate gets
-    the unit normal, and a degenerate one is ``OBS_DEGENERATE``; else (the moving policies)
-    the gate gets the normal as observed and a degenerate one passes (the goal reports it).
-    The gate (``safety.RingGate``: its ``state`` and ``bounds``; re-acquired only inside the
-    ``cone``): ``OBS_GATE`` when it rejects.
-    """
-    if not finite_pose(T_cam):
-        return OBS_CAMERA
-    if not finite_pose(T_ring):
-        return OBS_RING
-    if has_t_ring:
-        age = t - t_ring
-        if not (-CLOCK_TOL <= age <= max_age):
-            return OBS_STALE
-    n = (T_ring[0, 2], T_ring[1, 2], T_ring[2, 2])
-    if unit_normal:
-        ok, n = unit_checked(n)
-        if not ok:
-            return OBS_DEGENERATE
-    elif not dist3(n[0], n[1], n[2], 0.0, 0.0, 0.0) > _MIN_NORMAL:  # math.hypot(*n)
-        return OBS_OK
-    x = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3], n[0], n[1], n[2])
-    decision = gate_decide(gate, bounds, t, x)
-    ok = decision == 1
-    if decision == 2:  # re-acquired only inside the workspace (ConeWorkspace.contains)
-        a, axis, tan_half, cos_half, height = cone
-        margin = cone_margin(x[0], x[1], x[2], a, axis, tan_half, cos_half, height)
-        ok = math.isfinite(margin) and margin >= 0.0
-    gate_commit(gate, t, x, ok)
-    return OBS_OK if ok else OBS_GATE
-
-
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _observed_kernel(
-    T_cam: FloatArray,
-    T_ring: FloatArray,
-    t: float,
-    has_t_ring: bool,
-    t_ring: float,
-    max_age: float,
-    gate: FloatArray,
-    bounds: FloatArray,
-    params: FloatArray,
-    i_cone: int,
-    unit_normal: bool,
-) -> int:  # pragma: no cover - compiled
-    """:func:`observed` from Python, the cone stored from ``params[i_cone]`` (the oracle's)."""
-    cone = cone_at(params, i_cone)
-    return observed(T_cam, T_ring, t, has_t_ring, t_ring, max_age, gate, bounds, cone, unit_normal)
-
-
-def pose_array(T: object) -> FloatArray | None:
-    """``T`` as a (4, 4) float array (itself when it is one), or ``None`` (missing, wrong shape).
-
-    The boundary from an observation into the compiled checks (:func:`observed`).
-    """
-    if type(T) is np.ndarray and T.dtype == np.float64 and T.shape == (4, 4):
-        return T
-    if T is None:
-        return None
-    arr = np.asarray(T, dtype=float)
-    return arr if arr.shape == (4, 4) else None
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -196,7 +83,7 @@ def orientation_goal(
     n = (T_ring[0, 2], T_ring[1, 2], T_ring[2, 2])
     norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
     up = (0.0, 0.0, 1.0)
-    if not norm > _MIN_NORMAL:
+    if not norm > MIN_NORMAL:
         return False, (up, up, up, up)
     n = (n[0] / norm, n[1] / norm, n[2] / norm)
     p_c = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])
@@ -205,7 +92,7 @@ def orientation_goal(
         r = (params[_RCM], params[_RCM + 1], params[_RCM + 2])
         d = (r[0] - p_c[0], r[1] - p_c[1], r[2] - p_c[2])
         norm_d = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        if norm_d > _MIN_NORMAL:  # a ring at the port itself keeps the paper's rule
+        if norm_d > MIN_NORMAL:  # a ring at the port itself keeps the paper's rule
             has_toward, toward = True, (d[0] / norm_d, d[1] / norm_d, d[2] / norm_d)
     columns = goal_columns(
         p_c,
@@ -338,48 +225,15 @@ class FixedPolicy:
         return CameraCommand(self._T, TrackingState.HOLDING, self.config.d_f)
 
 
-class _MovingPolicy:
-    """Shared machinery of the moving policies: safety rules and way-point following."""
+class PaperPolicy(MovingPolicy):
+    """The paper's moving policies' step (conditions II, III): checks, goal, freeze, way-points."""
 
-    name = "moving"
-
-    def __init__(self, config: ControllerConfig | None = None) -> None:
-        self.config = config or ControllerConfig()
-        self._windows = self.config.windows
-        self._window_geometry: WindowGeometry | None = None
-        self._ctx: PolicyContext | None = None
-        self._cone: ConeWorkspace | None = None
-        self._workspace: Workspace | None = None
-        self.guard: ClearanceGuard | None = None  # the wire clearance, given a wire model
-        self.d_f = self.config.d_f
-        self._last_goal: FloatArray | None = None  # last unplanned goal (jump detection)
-        self._last_goal_p: list[float] = []  # its position as plain floats
-        self._last_cmd: FloatArray | None = None  # last commanded pose (last safe pose)
-        self._frozen_T: FloatArray | None = None
-        self._path: WaypointPath | None = None
-        self._s = 0.0
-        self._gate = self.config.ring_gate()
+    name = "paper"
 
     def reset(self, context: PolicyContext) -> None:
-        """Fix the cone axis from the RCM to the ring's initial position; clear all memory."""
-        self._ctx = context
-        self._window_geometry = WindowGeometry.of(context.camera, self._windows)
-        self._workspace = self.config.workspace(
-            context.p_world_rcm, context.T_world_ring[:3, 3], context.wire
-        )
-        self._cone = self._workspace.cone
-        self.guard = None
-        if context.wire is not None:
-            self.guard = ClearanceGuard(context.wire, self.config.wire_clearance)
-        self.d_f = self.config.d_f
-        self._last_goal = None
-        self._last_cmd = np.array(context.T_world_cam, dtype=float)
-        self._frozen_T = None
-        self._path = None
-        self._s = 0.0
-        self._gate.reset(cone=self._cone)
-        self._p_detour: Sequence[float] | None = None  # the camera at the last detour step, m
-        self._stalled = 0  # detour steps the camera has stood still
+        """Also the compiled step's constants (``_params``) for the episode."""
+        super().reset(context)
+        assert self._window_geometry is not None and self._cone is not None  # set by reset()
         cfg = self.config
         params = [0.0] * _N_PARAMS
         params[_WINDOW : _WINDOW + 9] = self._window_geometry.constants
@@ -395,13 +249,6 @@ class _MovingPolicy:
         self._kernel_p: list[float] = []  # its position, m, as the kernel checked it
         self._T0 = np.eye(4)  # the centering goal's orientation
         self._kernel_consts: tuple[object, ...] | None = None  # _step_kernel's, at step 1
-
-    @property
-    def cone(self) -> ConeWorkspace:
-        """The cone workspace fixed at reset."""
-        if self._cone is None:
-            raise RuntimeError("call reset() before using the policy")
-        return self._cone
 
     def _goal(self, obs: Observation, T_cam: FloatArray, T_ring: FloatArray) -> FloatArray | None:
         """Check ``obs``, set the working distance for its tips, then give the goal (4, 4).
@@ -457,70 +304,6 @@ class _MovingPolicy:
             guard is not None,
             NO_KEEP_OUT if guard is None else guard.kernel_state,
         )
-
-    def _clear(
-        self, T_world_cam: FloatArray, p_world_pivot: Sequence[float], p_world_now: Sequence[float]
-    ) -> FloatArray | None:
-        """A pose to command kept ``wire_clearance`` from the wire (``control.clearance``).
-
-        ``T_world_cam`` (4, 4) itself when clear or without a wire model; else moved back along
-        its optical axis (the look distance grows up to ``d_max``) or, if that does not clear,
-        rotated about ``p_world_pivot`` (3,), the ring centre, world, m, towards the camera at
-        ``p_world_now`` (3,), m; ``None``: no clear feasible view.
-        """
-        guard = self.guard
-        if guard is None:
-            return T_world_cam
-        pivot = (p_world_pivot[0], p_world_pivot[1], p_world_pivot[2])
-        now = (p_world_now[0], p_world_now[1], p_world_now[2])
-        back_off = max(0.0, self.config.d_max - self.d_f)  # the look distance may grow first
-        return guard.apply(T_world_cam, pivot, self._workspace, now, back_off)
-
-    def _detoured(
-        self,
-        T_world_cmd: FloatArray,
-        p_world_pivot: Sequence[float],
-        p_world_now: Sequence[float],
-        traced: tuple[bool, Vec] | None = None,
-    ) -> FloatArray | None:
-        """A way-point pose around the wire if the straight move to the command crosses it.
-
-        ``None``: the move from the camera at ``p_world_now`` (3,), m, to ``T_world_cmd``
-        (4, 4) keeps the clearance (or there is no wire model). The way-point pose looks at
-        ``p_world_pivot`` (3,), the ring centre, world, m, with a level horizon, and passes the
-        clearance guard itself.
-
-        ``traced``: ``ClearanceGuard.detour``'s answer for this move, (found, way-point), when
-        a compiled step asked it already. The way-point pose, the workspace's check of the
-        way-point and the guard are one compiled call (``ClearanceGuard.apply_look_at``).
-        """
-        guard = self.guard
-        if guard is None:
-            return None
-        if traced is None:
-            via = guard.detour(p_world_now, T_world_cmd[:3, 3].tolist())
-        else:
-            via = traced[1] if traced[0] else None
-        before, self._p_detour = self._p_detour, p_world_now
-        if via is None:
-            self._p_detour, self._stalled = None, 0
-            return None
-        still = before is not None and math.dist(before, p_world_now) <= STALL_TOL_M
-        self._stalled = self._stalled + 1 if still else 0
-        if self._stalled >= STALL_STEPS:  # refused at the zone's edge: straight out first
-            via = guard.step_out(p_world_now) or via
-        # the way-point pose (``look_at_unchecked``), if feasible, through the guard (``_clear``)
-        assert self._workspace is not None and self._last_cmd is not None  # set by reset()
-        pivot = (p_world_pivot[0], p_world_pivot[1], p_world_pivot[2])
-        now = (p_world_now[0], p_world_now[1], p_world_now[2])
-        back_off = max(0.0, self.config.d_max - self.d_f)  # as _clear's
-        return guard.apply_look_at(
-            via, pivot, T_world_cmd, self._last_cmd, self._workspace, now, back_off
-        )
-
-    def _hold(self, state: TrackingState, reason: str) -> CameraCommand:
-        assert self._last_cmd is not None
-        return CameraCommand(self._last_cmd, state, self.d_f, reason)
 
     def step(self, obs: Observation) -> CameraCommand:
         """Input checks, working distance, goal, cone freeze, way-points — in that order.
@@ -646,29 +429,6 @@ class _MovingPolicy:
         self._last_cmd = cmd
         return CameraCommand(cmd, state, self.d_f, reason)
 
-    def _lift(self, p_world: list[float]) -> float:
-        """Way-point height above ``p_world``: ``d_wp``, lowered so the way-point stays in the cone.
-
-        The cone is convex, so with both way-points and both ends inside it the whole path is
-        inside. A point already outside the cone (the camera at its start pose, say) gets no
-        lift: the camera then heads straight for the raised goal way-point, into the cone.
-        """
-        d_wp = self.config.d_wp
-        cone = self.cone
-        x, y, z = p_world
-        if cone.margin([x, y, z + d_wp]) >= 0.0:
-            return d_wp
-        if not cone.margin(p_world) >= 0.0:
-            return 0.0
-        lo, hi = 0.0, d_wp  # inside at lo, outside at hi: bisect to LIFT_TOL
-        while hi - lo > LIFT_TOL:
-            mid = 0.5 * (lo + hi)
-            if cone.margin([x, y, z + mid]) >= 0.0:
-                lo = mid
-            else:
-                hi = mid
-        return lo
-
     def _waypoint_pose(self, p: FloatArray, T_ring: FloatArray, goal: FloatArray) -> FloatArray:
         """Pose at a way-point: look at the ring centre with a level horizon."""
         return look_at_unchecked(p, T_ring[:3, 3], goal, self._last_cmd)
@@ -689,8 +449,38 @@ class _MovingPolicy:
         return self._clear(self._waypoint_pose(p, T_ring, goal), p_ring, p_now)
 
 
-class _LookingPolicy(_MovingPolicy):
-    """A moving policy whose way-point poses look at the ring centre (``_waypoint_pose``)."""
+class CenteringPolicy(PaperPolicy):
+    """Condition II: keep the initial orientation, put the ring centre on the optical axis."""
+
+    name = "centering"
+
+    def reset(self, context: PolicyContext) -> None:
+        """Also fix the orientation it keeps and the offset of the eye it centres."""
+        super().reset(context)
+        R0 = np.asarray(context.T_world_cam, dtype=float)[:3, :3]
+        self._T0 = np.eye(4)
+        self._T0[:3, :3] = R0
+        half_b = 0.5 * context.camera.baseline if self.config.centre_left_eye else 0.0
+        # camera = ring − d z0 + (b/2) x0: the left eye, b/2 along −x, on the ring's line
+        self._params[_KIND] = 0.0
+        self._params[_Z0 : _Z0 + 3] = R0[:, 2]
+        self._params[_SHIFT : _SHIFT + 3] = half_b * R0[:, 0]
+
+    def _waypoint_pose(self, p: FloatArray, T_ring: FloatArray, goal: FloatArray) -> FloatArray:
+        T = goal.copy()  # orientation stays fixed on the way too
+        T[:3, 3] = p
+        return T
+
+
+class OrientationPolicy(PaperPolicy):
+    """Condition III: the paper's orientation-aware camera (goal on the ring normal)."""
+
+    name = "orientation"
+
+    def reset(self, context: PolicyContext) -> None:
+        """Also select the orientation goal (:func:`orientation_goal`)."""
+        super().reset(context)
+        self._params[_KIND] = 1.0
 
     def _cleared_waypoint(
         self,
@@ -719,40 +509,6 @@ class _LookingPolicy(_MovingPolicy):
         )
 
 
-class CenteringPolicy(_MovingPolicy):
-    """Condition II: keep the initial orientation, put the ring centre on the optical axis."""
-
-    name = "centering"
-
-    def reset(self, context: PolicyContext) -> None:
-        """Also fix the orientation it keeps and the offset of the eye it centres."""
-        super().reset(context)
-        R0 = np.asarray(context.T_world_cam, dtype=float)[:3, :3]
-        self._T0 = np.eye(4)
-        self._T0[:3, :3] = R0
-        half_b = 0.5 * context.camera.baseline if self.config.centre_left_eye else 0.0
-        # camera = ring − d z0 + (b/2) x0: the left eye, b/2 along −x, on the ring's line
-        self._params[_KIND] = 0.0
-        self._params[_Z0 : _Z0 + 3] = R0[:, 2]
-        self._params[_SHIFT : _SHIFT + 3] = half_b * R0[:, 0]
-
-    def _waypoint_pose(self, p: FloatArray, T_ring: FloatArray, goal: FloatArray) -> FloatArray:
-        T = goal.copy()  # orientation stays fixed on the way too
-        T[:3, 3] = p
-        return T
-
-
-class OrientationPolicy(_LookingPolicy):
-    """Condition III: the paper's orientation-aware camera (goal on the ring normal)."""
-
-    name = "orientation"
-
-    def reset(self, context: PolicyContext) -> None:
-        """Also select the orientation goal (:func:`orientation_goal`)."""
-        super().reset(context)
-        self._params[_KIND] = 1.0
-
-
 class OrientationEcmPolicy(OrientationPolicy):
     """The paper's orientation goal, carried out by the 4-DoF ECM (registry entry forces it).
 
@@ -769,4 +525,5 @@ __all__ = [
     "FixedPolicy",
     "OrientationEcmPolicy",
     "OrientationPolicy",
+    "PaperPolicy",
 ]

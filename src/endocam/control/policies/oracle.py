@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from endocam.control.config import ControllerConfig
-from endocam.control.tracker import EndocamPolicy
+from endocam.control.policies.endocam import EndocamPolicy
 from endocam.control.types import CameraCommand, Observation, PolicyContext
 from endocam.geometry import FloatArray
 from endocam.kernels import Vec
