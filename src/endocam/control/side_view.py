@@ -1,48 +1,86 @@
-"""The ``endocam`` tracker's views of the ring: feasibility, side choice, shortening, twist."""
+"""The ``endocam`` tracker's views of the ring: feasibility, side choice, shortening, twist.
+
+The camera looks at the ring centre ``p_c`` from side ``s = ±1`` (position ``p_c + s d u``),
+kept above ``aim_floor`` and inside the cone (``tracker.py``'s module docstring, items 1 and 6).
+Every function here is ``register_jitable``: plain Python from Python (the oracle's plan), and
+compiled inside the tracker's step (:func:`endocam.control.plan.plan_step`).
+"""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 from numba.extending import register_jitable
 
-from endocam.control.goal import goal_columns
-from endocam.control.safety import (
-    window_code_of,
-)
+from endocam.control.goal import DistanceRange, PreviousAxes, SideChoice, goal_columns
+from endocam.control.safety import window_code_of
 from endocam.geometry import FloatArray
-from endocam.kernels import (
-    Vec,
-    cross,
-    dot,
-    norm,
-)
+from endocam.kernels import Vec, cross, dot, norm
 from endocam.workspace.cone import Cone, cone_margin
 
-MIN_DIRECTION = 1e-9  # unitless: shorter directions are degenerate
+__all__ = [
+    "MIN_DIRECTION",
+    "SideView",
+    "View",
+    "ViewRule",
+    "angle",
+    "choose_of",
+    "pose_of",
+    "rows_of",
+    "shortened_of",
+    "twist_of",
+    "view_of",
+]
 
-# plan_kernel's parameters (``EndocamPolicy._params``), by index
-(
-    _AIM_FLOOR,  # m, goals keep the camera this high
-    _HALF_B,  # m, the left eye's offset (0: centred)
-    _D_MIN,
-    _D_MAX,
-    _D_STEP,  # m, the working distance's range and step
-    _SIDE_ANGLE,  # rad, side_change_angle
-    _MIN_HEIGHT,  # m, min_camera_height
-    _HYSTERESIS,  # rad, side_hysteresis
-    _KEEP_SIDE,
-    _SHORTEN,
-    _PORT_RULE,  # 1.0 / 0.0 flags: keep_side, shorten_when_low, SideRule.PORT
-    _WINDOW,  # 9 constants of window_code
-) = range(12)
-_CONE = _WINDOW + 9  # apex (3), axis (3), tan_half, cos_half, height
-_RCM = _CONE + 9  # m, the camera arm's RCM (3)
-_JUMP = _RCM + 3  # m, jump_threshold
-_CMD_FLOOR = _JUMP + 1  # m, the lowest commanded camera height (the last gate's floor)
-_N_PARAMS = _CMD_FLOOR + 1
+MIN_DIRECTION = 1e-9  # unitless: shorter directions are degenerate
+_UP = (0.0, 0.0, 1.0)  # world up
+
+Grid = Sequence[Sequence[float]] | FloatArray  # rows of a matrix: lists, tuples or an array
+
+
+class ViewRule(NamedTuple):
+    """The kept side's view settings for an episode.
+
+    Attributes
+    ----------
+    aim_floor : float
+        The lowest camera height a view aims at, m (``min_camera_height + floor_clearance``).
+    half_b : float
+        The left eye's offset along the camera's x axis, m (0: the midpoint is centred).
+    side_angle : float
+        ``side_change_angle``, rad.
+    cone : Cone
+        The cone workspace's constants (``cone_at``).
+    """
+
+    aim_floor: float
+    half_b: float
+    side_angle: float
+    cone: Cone
+
+
+class View(NamedTuple):
+    """A viewing direction on one side.
+
+    ``found``: feasible; unit ``u`` (ring centre to camera); its ``error`` to ``s n``, rad; the
+    camera's cone ``margin``, m.
+    """
+
+    found: bool
+    u: Vec
+    error: float
+    margin: float
+
+
+class SideView(NamedTuple):
+    """The side chosen (``found``: a feasible one), ``side`` ±1 and its unit direction ``u``."""
+
+    found: bool
+    side: float
+    u: Vec
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -51,61 +89,45 @@ def angle(a: Vec, b: Vec) -> float:
     return math.atan2(norm(cross(a, b)), dot(a, b))
 
 
-# The goal, view and twist of one step (EndocamPolicy's maths), callable from Python and
-# compiled inside ``plan_kernel``. ``cone`` is the cone workspace's constants: apex (3,),
-# world, m; unit axis (3,); tan and cos of the half-angle; height, m (``ConeWorkspace``).
-
-Grid = Sequence[Sequence[float]] | FloatArray  # rows of a matrix: lists, tuples or an array
-
-
 @register_jitable  # also callable from compiled kernels (the same source)
-def view_of(
-    p_c: Vec, n: Vec, s: float, d: float, aim_floor: float, cone: Cone
-) -> tuple[bool, Vec, float, float]:
-    """Feasible viewing direction on side ``s``: (found, unit ``u``, angle to ``s n``, margin).
+def view_of(rule: ViewRule, p_c: Vec, n: Vec, s: float, d: float) -> View:
+    """The feasible view of ``p_c`` (world, m; unit normal ``n``) on side ``s`` from ``d`` m.
 
-    The angle in rad, the margin in m.
-
-    ``p_c`` ring centre, world, m; ``n`` unit normal; ``d`` look distance, m; ``aim_floor``
-    the lowest camera height aimed at, m. ``u`` points from the ring centre to the camera;
-    not found if no direction keeps the camera ``aim_floor`` high. The margin is the
-    camera's to the cone, m.
+    ``u = s n`` when that camera is at least ``rule.aim_floor`` high, else the nearest direction
+    that keeps it there (not found if none does).
     """
     u: Vec = (s * n[0], s * n[1], s * n[2])
-    c = (aim_floor - p_c[2]) / d
+    c = (rule.aim_floor - p_c[2]) / d
     err = 0.0
     if u[2] < c:
         if c > 1.0:
-            return False, u, err, 0.0
+            return View(False, u, err, 0.0)
         horiz = math.hypot(u[0], u[1])
         if not horiz > MIN_DIRECTION:
-            return False, u, err, 0.0
+            return View(False, u, err, 0.0)
         k = math.sqrt(1.0 - c * c) / horiz
         u_c = (u[0] * k, u[1] * k, c)
         err = angle(u, u_c)
         u = u_c
-    a, axis, tan_half, cos_half, height = cone
+    a, axis, tan_half, cos_half, height = rule.cone
     margin = cone_margin(
         p_c[0] + d * u[0], p_c[1] + d * u[1], p_c[2] + d * u[2], a, axis, tan_half, cos_half, height
     )
-    return True, u, err, margin
+    return View(True, u, err, margin)
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
 def pose_of(
-    p_c: Vec, u: Vec, r: float, has_previous: bool, z_prev: Vec, x_prev: Vec, half_b: float
+    p_c: Vec, u: Vec, r: float, previous: PreviousAxes, half_b: float
 ) -> tuple[Vec, Vec, Vec, Vec]:
     """Look at ``p_c`` from ``p_c + r u`` with a level horizon: columns x, y, z and position.
 
-    ``p_c`` world, m; ``u`` unit; ``r`` m; ``z_prev``, ``x_prev``: the previous pose's axes
-    (read if ``has_previous``), for the roll near the vertical; the left eye, ``half_b`` (m)
-    left of the centre, on the axis when it is non-zero.
+    ``p_c`` world, m; ``u`` unit; ``r`` m; ``previous``: the previous pose's axes, for the
+    roll near the vertical; the left eye, ``half_b`` (m) left of the centre, on the axis.
     """
     # ``toward = u`` makes the goal take the side of ``u`` itself: position p_c + r u,
     # optical axis −u, roll from the previous pose near the vertical.
-    x, y, z, p = goal_columns(
-        p_c, u, r, (0.0, 0.0, 1.0), has_previous, z_prev, x_prev, 0.0, -math.inf, True, u
-    )
+    x, y, z, p = goal_columns(p_c, u, r, previous, SideChoice(_UP, 0.0, -math.inf, True, u))
     if half_b:
         p = (p[0] + half_b * x[0], p[1] + half_b * x[1], p[2] + half_b * x[2])
     return x, y, z, p
@@ -119,14 +141,14 @@ def twist_of(a: Grid, b: Grid, delta: float) -> tuple[float, float, float, float
     control period).
     """
     inv = 1.0 / delta
-    # m_ij = R_b[i] · R_a[j]; ``0.0 +`` first, as ``sum`` starts (the same float, signed zeros too)
     b0, b1, b2, a0, a1, a2 = b[0], b[1], b[2], a[0], a[1], a[2]
-    m21 = 0.0 + b2[0] * a1[0] + b2[1] * a1[1] + b2[2] * a1[2]
-    m12 = 0.0 + b1[0] * a2[0] + b1[1] * a2[1] + b1[2] * a2[2]
-    m02 = 0.0 + b0[0] * a2[0] + b0[1] * a2[1] + b0[2] * a2[2]
-    m20 = 0.0 + b2[0] * a0[0] + b2[1] * a0[1] + b2[2] * a0[2]
-    m10 = 0.0 + b1[0] * a0[0] + b1[1] * a0[1] + b1[2] * a0[2]
-    m01 = 0.0 + b0[0] * a1[0] + b0[1] * a1[1] + b0[2] * a1[2]
+    # m_ij = R_b[i] · R_a[j]
+    m21 = b2[0] * a1[0] + b2[1] * a1[1] + b2[2] * a1[2]
+    m12 = b1[0] * a2[0] + b1[1] * a2[1] + b1[2] * a2[2]
+    m02 = b0[0] * a2[0] + b0[1] * a2[1] + b0[2] * a2[2]
+    m20 = b2[0] * a0[0] + b2[1] * a0[1] + b2[2] * a0[2]
+    m10 = b1[0] * a0[0] + b1[1] * a0[1] + b1[2] * a0[2]
+    m01 = b0[0] * a1[0] + b0[1] * a1[1] + b0[2] * a1[2]
     return (
         (b0[3] - a0[3]) * inv,
         (b1[3] - a1[3]) * inv,
@@ -148,79 +170,72 @@ def rows_of(x: Vec, y: Vec, z: Vec, p: Vec) -> FloatArray:
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
-def choose_of(
-    p_c: Vec,
-    n: Vec,
-    d: float,
-    side: float,
-    planned: float,
-    limit: float,
-    aim_floor: float,
-    cone: Cone,
-) -> tuple[bool, float, Vec]:
-    """Side and viewing direction (keep the side while feasible): (found, ``s``, unit ``u``).
+def choose_of(rule: ViewRule, p_c: Vec, n: Vec, d: float, side: float, planned: float) -> SideView:
+    """Side and viewing direction, keeping the side while its view is feasible.
 
     ``side`` the kept side (0: none yet: the paper's, above the feature); ``planned`` a side
-    taken first while its view is feasible (0: none; the oracle's plan); ``limit``
-    ``side_change_angle``, rad; the rest as :func:`view_of`'s. Not found: no feasible view.
+    taken first while its view is feasible (0: none; the oracle's plan). The kept side changes
+    when its view turns more than ``rule.side_angle`` from the normal (or is infeasible) and
+    the other side's is better. Not found: no feasible view.
     """
     if planned != 0.0:
-        ok, u, _, margin = view_of(p_c, n, planned, d, aim_floor, cone)
-        if ok and margin >= 0.0:
-            return True, planned, u
-    s = side if side != 0.0 else (1.0 if n[2] >= 0.0 else -1.0)  # Python's ``side or …``
-    ok, u, err, margin = view_of(p_c, n, s, d, aim_floor, cone)
-    if ok and margin >= 0.0 and (err <= limit or side == 0.0):
-        return True, s, u
-    ok_o, u_o, err_o, margin_o = view_of(p_c, n, -s, d, aim_floor, cone)
-    if ok_o and margin_o >= 0.0:
-        if not ok or margin < 0.0 or err_o < err:
-            return True, -s, u_o
-    if ok and margin >= 0.0:
-        return True, s, u  # over the angle, but the other side is no better
-    return False, s, u
+        view = view_of(rule, p_c, n, planned, d)
+        if view.found and view.margin >= 0.0:
+            return SideView(True, planned, view.u)
+    s = side if side != 0.0 else (1.0 if n[2] >= 0.0 else -1.0)  # none yet: above the feature
+    kept = view_of(rule, p_c, n, s, d)
+    kept_ok = kept.found and kept.margin >= 0.0
+    if kept_ok and (kept.error <= rule.side_angle or side == 0.0):
+        return SideView(True, s, kept.u)
+    other = view_of(rule, p_c, n, -s, d)
+    worse = not kept.found or kept.margin < 0.0 or other.error < kept.error
+    if other.found and other.margin >= 0.0 and worse:
+        return SideView(True, -s, other.u)
+    if kept_ok:
+        return SideView(True, s, kept.u)  # over the angle, but the other side is no better
+    return SideView(False, s, kept.u)
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
 def shortened_of(
+    rule: ViewRule,
+    distance: DistanceRange,
+    windows: Sequence[float],
     p_c: Vec,
     n: Vec,
     d: float,
     side: float,
     previous: Grid,
     tips: Grid,
-    params: Sequence[float] | FloatArray,
-    cone: Cone,
 ) -> float:
-    """Look distance one ``d_f_step`` shorter if the kept view is height-limited, else ``d`` (m).
+    """Look distance one ``distance.step`` shorter if the kept view is height-limited, else ``d``.
 
-    Height-limited: the camera on side ``s`` at ``d`` would sit below ``min_camera_height``
-    (``s n·up < (h_min − p_c·up) / d``), so it is turned off the normal. A shorter look
-    distance lowers the camera's drop below ``p_c`` and lets it turn back. The step is
-    taken only if every tip (``tips`` (K, 3), world, m) stays inside the outer window of the
-    shortened goal (the window rule keeps priority: the caller shortens only while every tip
-    is between the windows). ``previous`` (4, 4) rows: the last goal or command;
-    ``params``: :func:`plan_kernel`'s.
+    Height-limited: the camera on side ``s`` at ``d`` (m) would sit below ``rule.aim_floor``
+    (``s n·up < (h − p_c·up) / d``), so it is turned off the normal. A shorter look distance
+    lowers the camera's drop below ``p_c`` and lets it turn back. The step is taken only if it
+    turns the view towards the normal and every tip (``tips`` (K, 3), world, m) stays inside
+    the outer window (``windows``: ``WindowGeometry.constants``) of the shortened goal.
+    ``previous`` (4, 4) rows: the last goal or command.
     """
-    prm = params
-    aim_floor = prm[_AIM_FLOOR]
-    s = side if side != 0.0 else (1.0 if n[2] >= 0.0 else -1.0)  # Python's ``side or …``
-    if not s * n[2] * d < aim_floor - p_c[2]:
+    s = side if side != 0.0 else (1.0 if n[2] >= 0.0 else -1.0)  # none yet: above the feature
+    if not s * n[2] * d < rule.aim_floor - p_c[2]:
         return d
-    d_next = d - prm[_D_STEP]
-    if d_next < prm[_D_MIN]:
+    d_next = d - distance.step
+    if d_next < distance.d_min:
         return d
-    ok, u, err, _ = view_of(p_c, n, s, d_next, aim_floor, cone)
-    ok_now, _, err_now, _ = view_of(p_c, n, s, d, aim_floor, cone)
-    if not ok or (ok_now and not err < err_now):
+    shorter = view_of(rule, p_c, n, s, d_next)
+    now = view_of(rule, p_c, n, s, d)
+    if not shorter.found or (now.found and not shorter.error < now.error):
         return d  # shorter only where it turns the view towards the normal
-    z_prev = (previous[0][2], previous[1][2], previous[2][2])
-    x_prev = (previous[0][0], previous[1][0], previous[2][0])
-    x, y, z, p = pose_of(p_c, u, d_next, True, z_prev, x_prev, prm[_HALF_B])
+    axes = PreviousAxes(
+        True,
+        (previous[0][2], previous[1][2], previous[2][2]),
+        (previous[0][0], previous[1][0], previous[2][0]),
+    )
+    x, y, z, p = pose_of(p_c, shorter.u, d_next, axes, rule.half_b)
     goal = (
         (x[0], y[0], z[0], p[0]),
         (x[1], y[1], z[1], p[1]),
         (x[2], y[2], z[2], p[2]),
     )
-    code = window_code_of(goal, tips, prm[_WINDOW : _WINDOW + 9])
-    return d if code == 0 else d_next
+    return d if window_code_of(goal, tips, windows) == 0 else d_next

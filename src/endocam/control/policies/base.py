@@ -1,4 +1,10 @@
-"""What the moving policies share: the safety rules (cone, wire), holds, way-point lifts."""
+"""What the moving policies share: the safety rules (cone, wire), holds, way-point lifts.
+
+The working distance ``d_f`` is committed state: a step computes a candidate (the windows'
+rule, :class:`~endocam.control.goal.DistanceRange`), passes it to the wire guard's back-off,
+and commits it only with the command it issues (:meth:`MovingPolicy._issue`); a hold or a
+freeze (:meth:`MovingPolicy._hold`) keeps the committed one.
+"""
 
 from __future__ import annotations
 
@@ -9,6 +15,7 @@ import numpy as np
 
 from endocam.control.clearance import ClearanceGuard
 from endocam.control.config import ControllerConfig
+from endocam.control.guard_answer import GuardAnswer
 from endocam.control.planner import WaypointPath
 from endocam.control.safety import (
     WindowGeometry,
@@ -19,13 +26,9 @@ from endocam.control.types import (
     TrackingState,
 )
 from endocam.geometry import FloatArray
-from endocam.kernels import (
-    Vec,
-)
 from endocam.workspace.cone import ConeWorkspace
 from endocam.workspace.region import Workspace
 
-_UP = (0.0, 0.0, 1.0)  # world up as plain floats
 FREEZE_RELEASE_MARGIN = 1e-3  # m, how far back inside the cone the goal must be to unfreeze
 LIFT_TOL = 1e-4  # m, resolution of the cone-limited way-point height
 DETOUR_REASON = "detouring around the wire's clearance zone"
@@ -85,21 +88,26 @@ class MovingPolicy:
         return self._cone
 
     def _clear(
-        self, T_world_cam: FloatArray, p_world_pivot: Sequence[float], p_world_now: Sequence[float]
+        self,
+        T_world_cam: FloatArray,
+        p_world_pivot: Sequence[float],
+        p_world_now: Sequence[float],
+        d_f: float,
     ) -> FloatArray | None:
         """A pose to command kept ``wire_clearance`` from the wire (``control.clearance``).
 
         ``T_world_cam`` (4, 4) itself when clear or without a wire model; else moved back along
         its optical axis (the look distance grows up to ``d_max``) or, if that does not clear,
         rotated about ``p_world_pivot`` (3,), the ring centre, world, m, towards the camera at
-        ``p_world_now`` (3,), m; ``None``: no clear feasible view.
+        ``p_world_now`` (3,), m; ``None``: no clear feasible view. ``d_f``: the step's working
+        distance, m (the look distance may grow from it to ``d_max``).
         """
         guard = self.guard
         if guard is None:
             return T_world_cam
         pivot = (p_world_pivot[0], p_world_pivot[1], p_world_pivot[2])
         now = (p_world_now[0], p_world_now[1], p_world_now[2])
-        back_off = max(0.0, self.config.d_max - self.d_f)  # the look distance may grow first
+        back_off = max(0.0, self.config.d_max - d_f)  # the look distance may grow first
         return guard.apply(T_world_cam, pivot, self._workspace, now, back_off)
 
     def _detoured(
@@ -107,7 +115,8 @@ class MovingPolicy:
         T_world_cmd: FloatArray,
         p_world_pivot: Sequence[float],
         p_world_now: Sequence[float],
-        traced: tuple[bool, Vec] | None = None,
+        d_f: float,
+        traced: GuardAnswer | None = None,
     ) -> FloatArray | None:
         """A way-point pose around the wire if the straight move to the command crosses it.
 
@@ -116,9 +125,10 @@ class MovingPolicy:
         ``p_world_pivot`` (3,), the ring centre, world, m, with a level horizon, and passes the
         clearance guard itself.
 
-        ``traced``: ``ClearanceGuard.detour``'s answer for this move, (found, way-point), when
-        a compiled step asked it already. The way-point pose, the workspace's check of the
-        way-point and the guard are one compiled call (``ClearanceGuard.apply_look_at``).
+        ``d_f``: the step's working distance, m (``_clear``'s). ``traced``: the guard's answer
+        for this move (``detour``, ``via``), when a compiled step asked it already. The
+        way-point pose, the workspace's check of the way-point and the guard are one compiled
+        call (``ClearanceGuard.apply_look_at``).
         """
         guard = self.guard
         if guard is None:
@@ -126,7 +136,7 @@ class MovingPolicy:
         if traced is None:
             via = guard.detour(p_world_now, T_world_cmd[:3, 3].tolist())
         else:
-            via = traced[1] if traced[0] else None
+            via = traced.via if traced.detour else None
         before, self._p_detour = self._p_detour, p_world_now
         if via is None:
             self._p_detour, self._stalled = None, 0
@@ -139,16 +149,34 @@ class MovingPolicy:
         assert self._workspace is not None and self._last_cmd is not None  # set by reset()
         pivot = (p_world_pivot[0], p_world_pivot[1], p_world_pivot[2])
         now = (p_world_now[0], p_world_now[1], p_world_now[2])
-        back_off = max(0.0, self.config.d_max - self.d_f)  # as _clear's
+        back_off = max(0.0, self.config.d_max - d_f)  # as _clear's
         return guard.apply_look_at(
             via, pivot, T_world_cmd, self._last_cmd, self._workspace, now, back_off
         )
 
     def _hold(self, state: TrackingState, reason: str) -> CameraCommand:
+        """Hold the last command; the working distance stays the committed one."""
         assert self._last_cmd is not None
         return CameraCommand(self._last_cmd, state, self.d_f, reason)
 
-    def _lift(self, p_world: list[float]) -> float:
+    def _issue(
+        self,
+        T_world_cmd: FloatArray,
+        state: TrackingState,
+        d_f: float,
+        reason: str = "",
+        twist: FloatArray | None = None,
+    ) -> CameraCommand:
+        """Command ``T_world_cmd`` (4, 4), committing it and the step's working distance ``d_f``.
+
+        The command is the last safe pose a hold returns to; ``d_f`` (m) the distance the next
+        step starts from.
+        """
+        self._last_cmd = T_world_cmd
+        self.d_f = d_f
+        return CameraCommand(T_world_cmd, state, d_f, reason, twist)
+
+    def _lift(self, p_world: Sequence[float]) -> float:
         """Way-point height above ``p_world``: ``d_wp``, lowered so the way-point stays in the cone.
 
         The cone is convex, so with both way-points and both ends inside it the whole path is

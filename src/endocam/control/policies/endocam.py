@@ -51,28 +51,18 @@ from endocam.control.checks import (
     OBS_CAMERA,
     OBS_OK,
     RING_REASON,
-    observed_kernel,
+    RingChecks,
+    Sighting,
     pose_array,
 )
 from endocam.control.config import ControllerConfig, SideRule, Transfer
+from endocam.control.goal import DistanceRange, PreviousAxes, SideChoice
 from endocam.control.plan import (
-    _N_OUT,
-    _NO_PREDICTIONS,
-    _OUT_CAM,
-    _OUT_CHECK,
-    _OUT_CLEARED,
-    _OUT_D,
-    _OUT_DETOUR,
-    _OUT_FOUND,
-    _OUT_INSIDE,
-    _OUT_MARGIN,
-    _OUT_P,
-    _OUT_SIDE,
-    _OUT_TWIST,
-    _OUT_U,
-    _OUT_VIA,
+    PlanResult,
+    PlanSettings,
+    TrackerMemory,
     inside_kernel,
-    plan_kernel,
+    plan_step,
 )
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.policies.base import (
@@ -82,44 +72,21 @@ from endocam.control.policies.base import (
     MovingPolicy,
 )
 from endocam.control.predictor import RingPredictor
-from endocam.control.side_view import (
-    _AIM_FLOOR,
-    _CMD_FLOOR,
-    _CONE,
-    _D_MAX,
-    _D_MIN,
-    _D_STEP,
-    _HALF_B,
-    _HYSTERESIS,
-    _JUMP,
-    _KEEP_SIDE,
-    _MIN_HEIGHT,
-    _N_PARAMS,
-    _PORT_RULE,
-    _RCM,
-    _SHORTEN,
-    _SIDE_ANGLE,
-    _WINDOW,
-    MIN_DIRECTION,
-    angle,
-    pose_of,
-    twist_of,
-    view_of,
-)
+from endocam.control.side_view import MIN_DIRECTION, ViewRule, angle, pose_of, twist_of, view_of
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
 from endocam.geometry import UP, FloatArray
-from endocam.kernels import (
-    Vec,
-    cross,
-    finite_rows,
-    unit_or_none,
-)
+from endocam.kernels import Vec, cross, finite_rows, unit_or_none
 from endocam.view import look_at_unchecked, pose_from_columns
-from endocam.workspace.cone import Cone, cone_at
+from endocam.workspace.cone import cone_at
 from endocam.workspace.keepout import NO_KEEP_OUT
+
+__all__ = ["EndocamPolicy"]
 
 ORBIT_DONE_ANGLE = math.radians(1.0)  # rad: an orbit this close to its goal direction ends
 FLOOR_TOL_M = 1e-9  # m: round-off allowed on the floor height of a built pose
+_UP = (0.0, 0.0, 1.0)  # world up
+CONE_REASON = "no view of the ring inside the cone workspace; holding"
+LAST_GATE_REASON = "command would leave the cone workspace or go below the floor; holding"
 
 
 class EndocamPolicy(MovingPolicy):
@@ -129,81 +96,100 @@ class EndocamPolicy(MovingPolicy):
     """
 
     name = "endocam"
+    _given = False  # the predictions are given (the oracle's ``_give_predictions``)
 
     def __init__(self, config: ControllerConfig | None = None) -> None:
         super().__init__(config)
         self.tracker = self.config.tracker
         self._predictor = RingPredictor(1)
-        self._ring = self._predictor  # passed (unused) when the predictor is not a RingPredictor
-        self._params = np.zeros(_N_PARAMS)  # plan_kernel's constants, set by reset()
-        self._out = np.zeros(_N_OUT)  # plan_kernel's scalar results
         self._side = 0.0  # ±1 once chosen
         self._transfer: Transfer | None = None
         self._u_orbit: Vec = (0.0, 0.0, 1.0)
         self._half_b = 0.0
         self._cleared_view: FloatArray | None = None  # this step's view, cleared by the kernel
+        self._view_T = np.eye(4)  # this step's view (plan_step writes it)
         self._horizon = 0.0
-        self._plan_consts: tuple[object, ...] | None = None  # plan_kernel's, per episode
-        self._given = False  # the predictor is the oracle's (its predictions are given)
+        self._settings: PlanSettings | None = None  # plan_step's, per episode
         self.transfers = 0  # transfers started this episode (side changes and approaches)
 
     def reset(self, context: PolicyContext) -> None:
         """Cone, windows, predictor and side memory for a new episode."""
         super().reset(context)
-        tc = self.tracker
+        tc, cfg = self.tracker, self.config
         self._predictor = RingPredictor(max(1, round(tc.velocity_window / context.dt)))
         self._side = 0.0
         self._transfer = None
-        self._half_b = 0.5 * context.camera.baseline if self.config.centre_left_eye else 0.0
-        self._aim_floor = self.config.min_camera_height + tc.floor_clearance  # m, goals aim here
-        self._cmd_floor = self.config.min_camera_height - FLOOR_TOL_M  # m, commands stay above
+        self._half_b = 0.5 * context.camera.baseline if cfg.centre_left_eye else 0.0
+        self._aim_floor = cfg.min_camera_height + tc.floor_clearance  # m, goals aim here
+        self._cmd_floor = cfg.min_camera_height - FLOOR_TOL_M  # m, commands stay above
         g_lin, g_ang = tc.feedforward_gain
         self._gains = np.array([g_lin, g_lin, g_lin, g_ang, g_ang, g_ang])  # the twist's gains
         self._horizon = context.sensing_latency + tc.carrier_lead if tc.predict else 0.0
         self.transfers = 0
-        self._plan_consts = None  # rebuilt at the first step (after a subclass's reset)
-        cfg, geometry = self.config, self._window_geometry
-        assert geometry is not None  # set by super().reset()
-        params = [0.0] * _N_PARAMS
-        params[_AIM_FLOOR], params[_HALF_B] = self._aim_floor, self._half_b
-        params[_D_MIN], params[_D_MAX], params[_D_STEP] = cfg.d_min, cfg.d_max, cfg.d_f_step
-        params[_SIDE_ANGLE] = tc.side_change_angle
-        params[_MIN_HEIGHT], params[_HYSTERESIS] = cfg.min_camera_height, cfg.side_hysteresis
-        params[_KEEP_SIDE] = 1.0 if tc.keep_side else 0.0
-        params[_SHORTEN] = 1.0 if tc.shorten_when_low else 0.0
-        params[_PORT_RULE] = 1.0 if cfg.side_rule is SideRule.PORT else 0.0
-        params[_WINDOW : _WINDOW + 9] = geometry.constants
-        params[_CONE : _CONE + 9] = self.cone.constants
-        params[_RCM : _RCM + 3] = np.asarray(context.p_world_rcm, dtype=float).tolist()
-        params[_JUMP] = cfg.jump_threshold
-        params[_CMD_FLOOR] = self._cmd_floor
-        self._params = np.array(params)
+        self._settings = None  # rebuilt at the first step (after a subclass's reset)
+        self._view_rule = ViewRule(
+            self._aim_floor, self._half_b, tc.side_change_angle, cone_at(self.cone.constants, 0)
+        )
 
-    # -- the goal (the maths: the compiled functions above) ---------------------------------
+    def _plan_settings(self) -> PlanSettings:
+        """:func:`plan_step`'s settings for the episode.
 
-    def _cone_constants(self) -> Cone:
-        return cone_at(self.cone.constants, 0)
+        The predictor's, the gate's and the guard's arrays in it are live: the step updates
+        them in place.
+        """
+        ctx, geometry = self._ctx, self._window_geometry
+        assert ctx is not None and geometry is not None  # set by reset()
+        cfg, tc, gate, guard = self.config, self.tracker, self._gate, self.guard
+        rule = self._view_rule
+        rcm = np.asarray(ctx.p_world_rcm, dtype=float).tolist()
+        port = cfg.side_rule is SideRule.PORT
+        pred = self._predictor
+        return PlanSettings(
+            checks=RingChecks(cfg.ring_max_age, gate.state, gate.bounds, rule.cone, True),
+            windows=tuple(geometry.constants),
+            distance=DistanceRange(cfg.d_min, cfg.d_max, cfg.d_f_step),
+            view_rule=rule,
+            keep_side=tc.keep_side,
+            shorten=tc.shorten_when_low,
+            paper_side=SideChoice(_UP, cfg.side_hysteresis, cfg.min_camera_height, port, _UP),
+            rcm=(rcm[0], rcm[1], rcm[2]),
+            jump=cfg.jump_threshold,
+            cmd_floor=self._cmd_floor,
+            samples=pred.buf,
+            sample_count=pred.count,
+            spacing=pred.spacing,
+            given=self._given,
+            predictions=np.zeros(12),
+            horizon=self._horizon,
+            dt=ctx.dt,
+            feedforward=tc.feedforward and self._horizon > 0.0 and ctx.follows_twist,
+            guarded=guard is not None,
+            zone=NO_KEEP_OUT if guard is None else guard.kernel_state,
+        )
+
+    # -- the goal (the maths: control.side_view, control.plan) -----------------------------
 
     def _view(self, p_c: Vec, n: Vec, s: float, d: float) -> tuple[Vec, float, float] | None:
         """Feasible viewing direction on side ``s``: (unit ``u``, angle to ``s n`` rad, margin m).
 
         ``u`` points from the ring centre to the camera; ``None`` if no direction keeps the
         camera ``min_camera_height`` above the board. The margin is the camera's to the cone.
-        (:func:`view_of`.)
+        (:func:`~endocam.control.side_view.view_of`.)
         """
-        ok, u, err, margin = view_of(p_c, n, s, d, self._aim_floor, self._cone_constants())
-        return (u, err, margin) if ok else None
+        view = view_of(self._view_rule, p_c, n, s, d)
+        return (view.u, view.error, view.margin) if view.found else None
 
     def _pose(self, p_c: Vec, u: Vec, r: float, previous: FloatArray | None) -> FloatArray:
         """Look at ``p_c`` from ``p_c + r u`` with a level horizon; left eye on the axis if set.
 
-        (:func:`pose_of`; ``previous`` (4, 4) or ``None``: its roll is kept near the vertical.)
+        (:func:`~endocam.control.side_view.pose_of`; ``previous`` (4, 4) or ``None``: its roll
+        is kept near the vertical.)
         """
-        z_prev = x_prev = (0.0, 0.0, 1.0)  # unread without a previous pose
+        axes = PreviousAxes(False, _UP, _UP)  # unread without a previous pose
         if previous is not None:
             R = previous[:3, :3].tolist()
-            z_prev, x_prev = (R[0][2], R[1][2], R[2][2]), (R[0][0], R[1][0], R[2][0])
-        x, y, z, p = pose_of(p_c, u, r, previous is not None, z_prev, x_prev, self._half_b)
+            axes = PreviousAxes(True, (R[0][2], R[1][2], R[2][2]), (R[0][0], R[1][0], R[2][0]))
+        x, y, z, p = pose_of(p_c, u, r, axes, self._half_b)
         return pose_from_columns(x, y, z, p)
 
     @staticmethod
@@ -215,119 +201,73 @@ class EndocamPolicy(MovingPolicy):
         """A side (±1) to take first while its view is feasible; 0.0: none (the oracle's plan)."""
         return 0.0
 
-    def _feedforward_twist(self, goal: FloatArray, twist: FloatArray) -> FloatArray:
-        """The twist (6,) to command with ``goal`` (4, 4): ``twist``, the goal's one-step one."""
+    def _give_predictions(self, t: float, predictions: FloatArray) -> None:
+        """Write the given predictions at ``t`` (s) into ``predictions`` (12,) (the oracle's).
+
+        The ring centre (m) and unit normal ``horizon`` s ahead, then ``horizon + dt``.
+        """
+        raise NotImplementedError("only a policy with _given set gives its predictions")
+
+    def _feedforward_twist(self, goal: FloatArray, twist: FloatArray, d_f: float) -> FloatArray:
+        """The twist (6,) to command with ``goal`` (4, 4): ``twist``, the goal's one-step one.
+
+        ``d_f``: the step's working distance, m (the oracle's look distance).
+        """
         return twist
 
-    def _plan_view(
-        self, obs: Observation, T_cam: FloatArray, T_ring: FloatArray, previous: FloatArray
-    ) -> tuple[list[float], FloatArray, FloatArray]:
-        """:func:`plan_kernel` for ``obs``, its camera and ring poses ``T_cam``, ``T_ring`` (4, 4).
+    def _plan_step(self, obs: Observation, T_cam: FloatArray, T_ring: FloatArray) -> PlanResult:
+        """:func:`plan_step` for ``obs``, its camera and ring poses ``T_cam``, ``T_ring`` (4, 4).
 
-        Returns its scalar results (``_OUT_*``; ``_OUT_CHECK``: the checks' answer, the rest
-        unset unless ``OBS_OK``), the view's pose (4, 4) and its twist (6,): new arrays each
-        step (the goal and the command keep them).
+        The view's pose goes into ``_view_T``, a new array each step (the goal and the command
+        keep it).
         """
-        consts = self._plan_consts
-        if consts is None:
-            consts = self._plan_consts = self._plan_constants()
-        given = _NO_PREDICTIONS
-        t_ring, t = obs.t_ring, float(obs.t)
-        has_t_ring = t_ring is not None
-        t_ring = 0.0 if t_ring is None else float(t_ring)
-        check = True
-        if self._given:  # the oracle's predictor: the true future
-            answer = observed_kernel(
-                T_cam, T_ring, t, has_t_ring, t_ring, self.config.ring_max_age, self._gate.state,
-                self._gate.bounds, self._params, _CONE, True,
-            )  # fmt: skip
-            if answer != OBS_OK:
-                self._out[_OUT_CHECK] = answer
-                return self._out.tolist(), T_cam, np.zeros(6)
-            check = False  # made
-            pred = self._predictor
-            p_obs = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])
-            n_obs = unit_or_none((T_ring[0, 2], T_ring[1, 2], T_ring[2, 2]))
-            pred.push(obs.t, p_obs, n_obs)  # type: ignore[arg-type]  # the oracle's: unread
-            p1, n1 = pred.predict(self._horizon)
-            p2, n2 = pred.predict(self._horizon + self._ctx_dt)
-            given = np.array([*p1, *n1, *p2, *n2])
+        settings = self._settings
+        if settings is None:
+            settings = self._settings = self._plan_settings()
+        t = float(obs.t)
+        t_ring = t if obs.t_ring is None else float(obs.t_ring)  # unstamped: never stale
+        if self._given:
+            self._give_predictions(t, settings.predictions)
         tips = obs.p_world_tips
         if not (isinstance(tips, np.ndarray) and tips.ndim == 2):
             tips = np.asarray(tips, dtype=float).reshape(-1, 3)
-        view, twist = np.empty((4, 4)), np.empty(6)
-        plan_kernel(
-            T_cam,
-            T_ring,
-            tips,
-            previous,
-            t,
-            check,
-            has_t_ring,
-            t_ring,
-            given,
+        previous = self._last_goal if self._last_goal is not None else self._last_cmd
+        assert previous is not None  # set by reset()
+        release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0
+        memory = TrackerMemory(
             self.d_f,
-            self._last_goal is None,
             self._side,
             self._preferred_side(),
+            self._last_goal is None,
             self._transfer is None,
-            FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0,
-            view,
-            twist,
-            *consts,  # type: ignore[arg-type]
+            release,
         )
-        return self._out.tolist(), view, twist
-
-    def _plan_constants(self) -> tuple[object, ...]:
-        """:func:`plan_kernel`'s arguments fixed for the episode, from ``buf`` on (a tuple).
-
-        Built at the first step after ``reset`` (a subclass's ``reset`` may replace the
-        predictor and the horizon after this class's); every array in it is updated in place
-        during the episode (the predictor's, the gate's, ``_params``, ``_out``, the guard's).
-        """
-        ctx = self._ctx
-        assert ctx is not None  # set by reset()
-        pred = self._predictor
-        self._given = not isinstance(pred, RingPredictor)
-        if self._given:
-            pred = self._ring  # unused: the oracle's predictions are given
-        feedforward = self.tracker.feedforward and self._horizon > 0.0 and ctx.follows_twist
-        gate = self._gate
-        return (
-            pred.buf,
-            pred.count,
-            pred.spacing,
-            self.config.ring_max_age,
-            gate.state,
-            gate.bounds,
-            self._horizon,
-            ctx.dt,
-            feedforward,
-            self._params,
-            self._out,
-            self.guard is not None,
-            NO_KEEP_OUT if self.guard is None else self.guard.kernel_state,
-        )
+        self._view_T = np.empty((4, 4))
+        seen = Sighting(T_cam, T_ring, tips, t, t_ring)
+        return plan_step(settings, seen, previous, memory, self._view_T)
 
     # -- the step --------------------------------------------------------------------------
 
-    def _freeze(self, d_before: float, why: str) -> CameraCommand:
-        """Hold the last safe command; the distance, goal and transfer are planned afresh."""
-        self.d_f = d_before
+    def _freeze(
+        self, why: str, state: TrackingState = TrackingState.FROZEN_OUTSIDE_CONE
+    ) -> CameraCommand:
+        """Hold the last safe command; the goal and the transfer are planned afresh."""
         self._path = None
         self._transfer = None
         self._last_goal = None
-        return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, f"{why}; holding")
+        return self._hold(state, why)
 
     def _lose(self, reason: str) -> CameraCommand:
-        self._last_goal = None
-        self._path = None
-        self._transfer = None
+        """Lost tracking: hold, and forget the predictor's samples (no differencing a gap)."""
         self._predictor.reset()
-        return self._hold(TrackingState.LOST_TRACKING, reason)
+        return self._freeze(reason, TrackingState.LOST_TRACKING)
 
     def step(self, obs: Observation) -> CameraCommand:
-        """Checks, working distance, prediction, side, cone freeze, transfers — in that order."""
+        """Checks, working distance, prediction, side, cone freeze, transfers — in that order.
+
+        The step's working distance (the plan's ``d_f``) is committed only with the command it
+        issues; a freeze or a hold keeps the last one.
+        """
         ctx = self._ctx
         if ctx is None:
             raise RuntimeError("call reset() before step()")
@@ -339,48 +279,38 @@ class EndocamPolicy(MovingPolicy):
         if T_ring is None:
             return self._lose(RING_REASON)
 
-        previous = self._last_goal if self._last_goal is not None else self._last_cmd
-        assert previous is not None  # set by reset()
-        d_before = self.d_f
         # the checks (finite poses, a fresh ring pose, the gate), the working distance,
         # prediction, side, view and its twist: one compiled call
-        out, view, view_twist = self._plan_view(obs, T_cam, T_ring, previous)
-        check = out[_OUT_CHECK]
-        if check != OBS_OK:
-            if check == OBS_CAMERA:
+        plan = self._plan_step(obs, T_cam, T_ring)
+        view = self._view_T
+        if plan.check != OBS_OK:
+            if plan.check == OBS_CAMERA:
                 return self._hold(TrackingState.LOST_TRACKING, CAMERA_REASON)
-            return self._lose(CHECK_REASONS[int(check)])
-        p_cam = (out[_OUT_CAM], out[_OUT_CAM + 1], out[_OUT_CAM + 2])
-        self.d_f = d = out[_OUT_D]
-        p_c = (out[_OUT_P], out[_OUT_P + 1], out[_OUT_P + 2])
+            return self._lose(CHECK_REASONS[plan.check])
+        p_cam, d, p_c = plan.p_cam, plan.d_f, plan.p_c
         margin = -math.inf
         goal = None
         adjusted = False  # the goal was turned off the view for the wire clearance
-        if out[_OUT_FOUND]:
-            s = out[_OUT_SIDE]
-            u = (out[_OUT_U], out[_OUT_U + 1], out[_OUT_U + 2])
-            if out[_OUT_CLEARED]:  # the kernel made the guard's check: the view is clear
+        if plan.found:
+            if plan.guard.cleared:  # the kernel made the guard's check: the view is clear
                 assert self.guard is not None
                 goal = self.guard.passed(view)
                 self._cleared_view = goal  # the pose the kernel's check and trace are for
             else:
-                goal = self._clear(view, p_c, p_cam)
+                goal = self._clear(view, p_c, p_cam, d)
             if goal is None:
-                self._path = None
-                self._transfer = None
-                self._last_goal = None
-                self.d_f = d_before
-                return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
+                return self._freeze(WIRE_REASON)
             adjusted = goal is not view
-            margin = self.cone.margin(goal[:3, 3]) if adjusted else out[_OUT_MARGIN]
+            margin = self.cone.margin(goal[:3, 3]) if adjusted else plan.margin
         release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0
         if goal is None or not margin >= release:
             if self._frozen_T is None:
                 self._frozen_T = T_cam
             self._last_cmd = self._frozen_T
-            return self._freeze(d_before, "no view of the ring inside the cone workspace")
+            return self._freeze(CONE_REASON)
         self._frozen_T = None
 
+        s, u = plan.side, plan.u
         side_changed = bool(self._side) and s != self._side
         fresh = self._last_goal is None
         side_before = self._side
@@ -402,45 +332,37 @@ class EndocamPolicy(MovingPolicy):
             if wp is not None:
                 cmd = wp
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
-        if state is TrackingState.TRACKING and out[_OUT_TWIST]:
+        if state is TrackingState.TRACKING and plan.has_twist:
             # the view's twist (the kernel's); unused below when the goal is not the view
-            twist = self._feedforward_twist(goal, view_twist)
+            twist = self._feedforward_twist(goal, np.array(plan.twist), d)
         near_edge = goal[2, 3] <= self._aim_floor + FLOOR_TOL_M or margin < tc.floor_clearance
         if twist is not None and not near_edge and not adjusted:
-            twist *= self._gains  # linear × g_lin, angular × g_ang (element by element)
+            twist = twist * self._gains  # linear × g_lin, angular × g_ang (element by element)
         else:
             twist = None  # a goal at the floor or the cone arrives at rest: nothing carries it out
         if cmd is not goal:  # an orbit or way-point pose keeps the clearance too
-            cleared = self._clear(cmd, p_c, p_cam)
+            cleared = self._clear(cmd, p_c, p_cam, d)
             if cleared is None:
                 self._side = side_before
-                self._path = None
-                self._transfer = None
-                self._last_goal = None
-                self.d_f = d_before
-                return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
+                return self._freeze(WIRE_REASON)
             cmd = cleared
-        if out[_OUT_CLEARED] and cmd is goal and goal is self._cleared_view:
+        if plan.guard.cleared and cmd is goal and goal is self._cleared_view:
             # the plain path (no transfer, no freeze): the kernel traced the move to this pose
-            if out[_OUT_DETOUR]:
-                p_via = (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2])
-                via = self._detoured(cmd, p_c, p_cam, (True, p_via))
+            if plan.guard.detour:
+                via = self._detoured(cmd, p_c, p_cam, d, plan.guard)
             else:  # a straight move: what ``_detoured`` does with no way-point
                 self._p_detour, self._stalled = None, 0
                 via = None
         else:
-            via = self._detoured(cmd, p_c, p_cam)
+            via = self._detoured(cmd, p_c, p_cam, d)
         if via is not None:
             cmd, twist = via, None
             state, reason = TrackingState.PLANNING, DETOUR_REASON
         # last gate: never command outside the workspace (the kernel's test of its own view)
-        if not (out[_OUT_INSIDE] if cmd is view else self._in_workspace(cmd)):
+        if not (plan.inside if cmd is view else self._in_workspace(cmd)):
             self._side = side_before
-            return self._freeze(
-                d_before, "command would leave the cone workspace or go below the floor"
-            )
-        self._last_cmd = cmd
-        return CameraCommand(cmd, state, d, reason, twist)
+            return self._freeze(LAST_GATE_REASON)
+        return self._issue(cmd, state, d, reason, twist)
 
     def _start(self, kind: Transfer, p_cam: Vec, p_c: Vec) -> None:
         """Begin a transfer of ``kind`` from the camera at ``p_cam`` (m, world)."""
@@ -521,10 +443,10 @@ class EndocamPolicy(MovingPolicy):
     def _in_workspace(self, T_world_cmd: FloatArray) -> bool:
         """Whether a commanded pose (4, 4) is inside the cone and above the floor.
 
-        The last gate: computed here (:func:`inside_kernel`), independently of the compiled
-        step's own margin.
+        The last gate: computed here (:func:`~endocam.control.plan.inside_kernel`),
+        independently of the compiled step's own margin.
         """
-        return bool(inside_kernel(T_world_cmd, self._params, self._cmd_floor))
+        return bool(inside_kernel(T_world_cmd, self._view_rule.cone, self._cmd_floor))
 
     @property
     def _ctx_dt(self) -> float:
@@ -553,6 +475,3 @@ class EndocamPolicy(MovingPolicy):
         assert self._path is not None
         p = self._path.point_at(self._s)
         return look_at_unchecked(p, np.array(p_c), goal, self._last_cmd)
-
-
-__all__ = ["EndocamPolicy", "RingPredictor"]

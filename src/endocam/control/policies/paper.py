@@ -20,22 +20,21 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from numba import njit
-from numba.extending import register_jitable
 
 from endocam.control.checks import (
     CAMERA_REASON,
     CHECK_REASONS,
-    MIN_NORMAL,
+    DEGENERATE_REASON,
     OBS_CAMERA,
     OBS_OK,
     RING_REASON,
-    observed,
+    RingChecks,
+    Sighting,
     pose_array,
 )
-from endocam.control.clearance import cleared_move
 from endocam.control.config import ControllerConfig, SideRule
-from endocam.control.goal import goal_columns
+from endocam.control.goal import DistanceRange, SideChoice
+from endocam.control.paper_step import PaperMemory, PaperResult, PaperSettings, paper_step
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.policies.base import (
     DETOUR_REASON,
@@ -43,166 +42,20 @@ from endocam.control.policies.base import (
     WIRE_REASON,
     MovingPolicy,
 )
-from endocam.control.safety import adjusted_distance, window_code_of
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
 from endocam.geometry import UP, FloatArray
-from endocam.kernels import Vec, dist3, finite_rows
+from endocam.kernels import finite_rows
 from endocam.view import look_at_unchecked
-from endocam.workspace.cone import cone_at, cone_margin
-from endocam.workspace.keepout import NO_KEEP_OUT, KeepOutState
+from endocam.workspace.cone import cone_at
+from endocam.workspace.keepout import NO_KEEP_OUT
 
-# _step_kernel's parameters (``MovingPolicy._params``), by index
-_WINDOW = 0  # the 9 constants of window_code
-_D_MIN, _D_MAX, _D_STEP = 9, 10, 11  # m, the working distance's range and step
-_KIND = 12  # 0.0: the centering goal, 1.0: the orientation goal
-_HYSTERESIS, _MIN_HEIGHT = 13, 14  # rad, m: side_hysteresis, min_camera_height
-_PORT_RULE = 15  # 1.0: SideRule.PORT
-_RCM = 16  # m, the camera arm's RCM (3)
-_Z0, _SHIFT = 19, 22  # the centering goal's optical axis (3) and left-eye shift (3), m
-_CONE = 25  # the cone: apex (3), m; axis (3); tan and cos of the half-angle; height, m
-_JUMP = 34  # m, jump_threshold
-_N_PARAMS = 35
-# _step_kernel's results (``MovingPolicy._out``): the guard's answers on the plain path
-_OUT_CLEARED, _OUT_DETOUR, _OUT_VIA = 0, 1, 2  # clear, detour, its way-point (3), m
-_OUT_RING, _OUT_CAM = 5, 8  # m, the observed ring centre and camera position (3 each)
-_OUT_CHECK = 11  # the observation's check (``observed``: OBS_*)
-_OUT_MARGIN = 12  # m, the goal's cone margin (``ConeWorkspace.margin``)
-_N_OUT = 13
-
-
-@register_jitable  # also callable from compiled kernels (the same source)
-def orientation_goal(
-    T_ring: FloatArray, previous: FloatArray, d_f: float, params: FloatArray
-) -> tuple[bool, tuple[Vec, Vec, Vec, Vec]]:
-    """Condition III's goal: (found, its rotation columns x, y, z and position, world, m).
-
-    ``T_ring`` (4, 4) the ring pose, world, m; ``previous`` (4, 4) the last goal (or the
-    camera); ``d_f`` the working distance, m; ``params`` :func:`_step_kernel`'s. Not found:
-    a degenerate ring normal.
-    """
-    n = (T_ring[0, 2], T_ring[1, 2], T_ring[2, 2])
-    norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
-    up = (0.0, 0.0, 1.0)
-    if not norm > MIN_NORMAL:
-        return False, (up, up, up, up)
-    n = (n[0] / norm, n[1] / norm, n[2] / norm)
-    p_c = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])
-    has_toward, toward = False, up
-    if params[_PORT_RULE] != 0.0:
-        r = (params[_RCM], params[_RCM + 1], params[_RCM + 2])
-        d = (r[0] - p_c[0], r[1] - p_c[1], r[2] - p_c[2])
-        norm_d = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        if norm_d > MIN_NORMAL:  # a ring at the port itself keeps the paper's rule
-            has_toward, toward = True, (d[0] / norm_d, d[1] / norm_d, d[2] / norm_d)
-    columns = goal_columns(
-        p_c,
-        n,
-        d_f,
-        up,
-        True,
-        (previous[0, 2], previous[1, 2], previous[2, 2]),
-        (previous[0, 0], previous[1, 0], previous[2, 0]),
-        params[_HYSTERESIS],
-        params[_MIN_HEIGHT],
-        has_toward,
-        toward,
-    )
-    return True, columns
-
-
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _step_kernel(
-    T_cam: FloatArray,
-    T_ring: FloatArray,
-    tips: FloatArray,
-    previous: FloatArray,
-    t: float,
-    has_t_ring: bool,
-    t_ring: float,
-    d_f: float,
-    plain: bool,
-    release: float,
-    goal: FloatArray,
-    T0: FloatArray,
-    max_age: float,
-    gate: FloatArray,
-    bounds: FloatArray,
-    params: FloatArray,
-    out: FloatArray,
-    has_guard: bool,
-    zone: KeepOutState,
-) -> tuple[float, bool]:  # pragma: no cover - compiled
-    """The moving policies' checks, working distance and goal: (``d_f`` m, found).
-
-    ``T_cam``, ``T_ring`` (4, 4) the observed camera and ring poses, world, m; ``tips`` (K, 3)
-    world, m; ``previous`` (4, 4) the last goal or the camera; ``T0`` (4, 4) the centering
-    goal's orientation; ``d_f`` m; ``params`` (``_N_PARAMS``,) the policy's constants. First the
-    input checks and the ring gate (:func:`observed` at ``t`` s, the ring captured at ``t_ring``
-    s unless not ``has_t_ring``, ``max_age`` s; the gate's ``state`` and ``bounds``): an
-    observation they refuse gives ``out[_OUT_CHECK]`` its reason and ``(d_f, False)``,
-    nothing else done. Then the windows' rule (``window_code``, ``adjusted_distance``), then the
-    goal at the new distance: the centering one (the ring centre on the initial optical axis) or
-    the orientation one (:func:`orientation_goal`; not found: a degenerate normal). The
-    interpreter's operations in its order (docs/conventions.md, "Compiled kernels").
-
-    On the step's plain path (``plain``: no way-point path; the goal's cone margin at least
-    ``release``, m; the goal within ``jump_threshold`` of ``previous``) it also asks the
-    wire's guard (``has_guard``; ``pts`` … ``clearance``: ``ClearanceGuard.kernel_state``)
-    what the interpreter would ask next: whether the goal is clear (``ClearanceGuard.apply``'s
-    query; the ring centre its pivot) and, if so, whether the move from the camera to it needs
-    a detour (``ClearanceGuard.detour``); a goal not clear leaves the guard's cache as it was.
-    The goal (4, 4), world, m, is written into ``goal``, the caller's array (numba unpickles
-    the type of every array it returns, ~1 us a call); meaningful when found.
-    ``out`` (``_N_OUT``,): whether the guard found the goal clear, whether the move needs a
-    detour, and its way-point (m); the ring centre and camera position observed (m); the
-    checks' answer.
-    """
-    prm = params
-    check = observed(
-        T_cam, T_ring, t, has_t_ring, t_ring, max_age, gate, bounds, cone_at(prm, _CONE), False
-    )
-    out[_OUT_CHECK] = check
-    out[_OUT_CLEARED] = out[_OUT_DETOUR] = 0.0
-    out[_OUT_MARGIN] = math.nan
-    if check != OBS_OK:
-        return d_f, False
-    for i in range(3):
-        out[_OUT_RING + i], out[_OUT_CAM + i] = T_ring[i, 3], T_cam[i, 3]
-    code = window_code_of(T_cam, tips, prm[_WINDOW : _WINDOW + 9])
-    d = adjusted_distance(d_f, code, prm[_D_MIN], prm[_D_MAX], prm[_D_STEP])
-    T = goal
-    for i in range(4):
-        for j in range(4):
-            T[i, j] = T0[i, j]
-    found = True
-    if prm[_KIND] == 0.0:  # camera = ring − d z0 + (b/2) x0
-        for i in range(3):
-            T[i, 3] = T_ring[i, 3] - d * prm[_Z0 + i] + prm[_SHIFT + i]
-    else:
-        found, (x, y, z, p) = orientation_goal(T_ring, previous, d, prm)
-        for i in range(3):
-            T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
-        T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
-    if not found:
-        return d, found
-    g = (T[0, 3], T[1, 3], T[2, 3])
-    cone = cone_at(prm, _CONE)
-    out[_OUT_MARGIN] = margin = cone_margin(
-        g[0], g[1], g[2], cone[0], cone[1], cone[2], cone[3], cone[4]
-    )
-    if not (has_guard and plain):
-        return d, found
-    c = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3])  # the guard's pivot: the ring centre
-    if margin >= release and not (
-        dist3(g[0], g[1], g[2], previous[0, 3], previous[1, 3], previous[2, 3]) > prm[_JUMP]
-    ):
-        now = (T_cam[0, 3], T_cam[1, 3], T_cam[2, 3])
-        cleared, found_via, via = cleared_move(zone, g, c, now)
-        out[_OUT_CLEARED] = 1.0 if cleared else 0.0
-        out[_OUT_DETOUR] = 1.0 if found_via else 0.0
-        for i in range(3):
-            out[_OUT_VIA + i] = via[i]
-    return d, found
+__all__ = [
+    "CenteringPolicy",
+    "FixedPolicy",
+    "OrientationEcmPolicy",
+    "OrientationPolicy",
+    "PaperPolicy",
+]
 
 
 class FixedPolicy:
@@ -226,90 +79,84 @@ class FixedPolicy:
 
 
 class PaperPolicy(MovingPolicy):
-    """The paper's moving policies' step (conditions II, III): checks, goal, freeze, way-points."""
+    """The paper's moving policies' step (conditions II, III): checks, goal, freeze, way-points.
+
+    A subclass chooses the goal (``_orientation``) and the way-point pose (``_waypoint_pose``).
+    """
 
     name = "paper"
+    _orientation = False  # the orientation goal (condition III); else the centering goal
 
     def reset(self, context: PolicyContext) -> None:
-        """Also the compiled step's constants (``_params``) for the episode."""
+        """Also forget the compiled step's settings (rebuilt at the first step)."""
         super().reset(context)
-        assert self._window_geometry is not None and self._cone is not None  # set by reset()
-        cfg = self.config
-        params = [0.0] * _N_PARAMS
-        params[_WINDOW : _WINDOW + 9] = self._window_geometry.constants
-        params[_D_MIN], params[_D_MAX], params[_D_STEP] = cfg.d_min, cfg.d_max, cfg.d_f_step
-        params[_HYSTERESIS], params[_MIN_HEIGHT] = cfg.side_hysteresis, cfg.min_camera_height
-        params[_PORT_RULE] = 1.0 if cfg.side_rule is SideRule.PORT else 0.0
-        params[_RCM : _RCM + 3] = np.asarray(context.p_world_rcm, dtype=float).tolist()
-        params[_CONE : _CONE + 9] = self._cone.constants
-        params[_JUMP] = cfg.jump_threshold
-        self._params = np.array(params)  # _step_kernel's constants
-        self._step_out = np.zeros(_N_OUT)  # _step_kernel's results
-        self._kernel_goal: FloatArray | None = None  # the goal _step_kernel last gave
+        self._settings: PaperSettings | None = None
+        self._kernel_goal: FloatArray | None = None  # the goal paper_step last gave
         self._kernel_p: list[float] = []  # its position, m, as the kernel checked it
-        self._T0 = np.eye(4)  # the centering goal's orientation
-        self._kernel_consts: tuple[object, ...] | None = None  # _step_kernel's, at step 1
 
-    def _goal(self, obs: Observation, T_cam: FloatArray, T_ring: FloatArray) -> FloatArray | None:
-        """Check ``obs``, set the working distance for its tips, then give the goal (4, 4).
+    def _paper_settings(self) -> PaperSettings:
+        """:func:`paper_step`'s settings for the episode (the gate's and guard's arrays live)."""
+        ctx, cone, geometry = self._ctx, self._cone, self._window_geometry
+        assert ctx is not None and cone is not None and geometry is not None  # set by reset()
+        cfg, guard, gate = self.config, self.guard, self._gate
+        up = (0.0, 0.0, 1.0)
+        R0 = np.asarray(ctx.T_world_cam, dtype=float)[:3, :3]
+        T0 = np.eye(4)
+        T0[:3, :3] = R0
+        half_b = 0.5 * ctx.camera.baseline if cfg.centre_left_eye else 0.0
+        z0, shift = R0[:, 2].tolist(), (half_b * R0[:, 0]).tolist()
+        rcm = np.asarray(ctx.p_world_rcm, dtype=float).tolist()
+        port = cfg.side_rule is SideRule.PORT
+        return PaperSettings(
+            checks=RingChecks(
+                cfg.ring_max_age, gate.state, gate.bounds, cone_at(cone.constants, 0), False
+            ),
+            windows=tuple(geometry.constants),
+            distance=DistanceRange(cfg.d_min, cfg.d_max, cfg.d_f_step),
+            orientation=self._orientation,
+            side=SideChoice(up, cfg.side_hysteresis, cfg.min_camera_height, port, up),
+            rcm=(rcm[0], rcm[1], rcm[2]),
+            T0=T0,
+            z0=(z0[0], z0[1], z0[2]),
+            shift=(shift[0], shift[1], shift[2]),
+            cone=cone_at(cone.constants, 0),
+            jump=cfg.jump_threshold,
+            guarded=guard is not None,
+            zone=NO_KEEP_OUT if guard is None else guard.kernel_state,
+        )
 
-        ``T_cam``, ``T_ring`` (4, 4): the observed camera and ring poses, world, m. ``None``:
-        the checks refused the observation (``_step_out[_OUT_CHECK]`` says why) or the ring
-        pose gives no goal (a degenerate normal). One compiled call (:func:`_step_kernel`,
-        with the subclass's ``_params``).
+    def _goal(self, seen: Sighting, previous: FloatArray) -> tuple[PaperResult, FloatArray | None]:
+        """The compiled step (:func:`paper_step`) on ``seen``: its answer and the goal (4, 4).
+
+        The goal is ``None`` when the checks refused the observation or the ring pose gives
+        none (a degenerate normal). ``previous`` (4, 4): the last goal or the camera.
         """
-        tips = obs.p_world_tips
-        if not (isinstance(tips, np.ndarray) and tips.ndim == 2):
-            tips = np.asarray(tips, dtype=float).reshape(-1, 3)
-        previous = self._last_goal if self._last_goal is not None else T_cam
-        consts = self._kernel_consts
-        if consts is None:
-            consts = self._kernel_consts = self._step_constants()
-        t_ring = obs.t_ring
+        settings = self._settings
+        if settings is None:
+            settings = self._settings = self._paper_settings()
+        release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0
+        memory = PaperMemory(self.d_f, self._path is None, release)
         goal = np.empty((4, 4))  # a new array each step: the goal and the command keep it
-        self.d_f, found = _step_kernel(
-            T_cam,
-            T_ring,
-            tips,
-            previous,
-            float(obs.t),
-            t_ring is not None,
-            0.0 if t_ring is None else float(t_ring),
-            self.d_f,
-            self._path is None,
-            FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0,
-            goal,
-            *consts,  # type: ignore[arg-type]
-        )
-        if not found:
-            return None
+        result = paper_step(settings, seen, previous, memory, goal)
+        if not result.found:
+            return result, None
         self._kernel_goal, self._kernel_p = goal, goal[:3, 3].tolist()
-        return goal
+        return result, goal
 
-    def _step_constants(self) -> tuple[object, ...]:
-        """:func:`_step_kernel`'s arguments fixed for the episode, from ``T0`` on (a tuple).
-
-        Built at the first step after ``reset`` (a subclass's ``reset`` sets ``_T0``); every
-        array in it is updated in place during the episode (the gate's, ``_params``,
-        ``_step_out``, the guard's).
-        """
-        guard, gate = self.guard, self._gate
-        return (
-            self._T0,
-            self.config.ring_max_age,
-            gate.state,
-            gate.bounds,
-            self._params,
-            self._step_out,
-            guard is not None,
-            NO_KEEP_OUT if guard is None else guard.kernel_state,
-        )
+    def _lose(
+        self, reason: str, state: TrackingState = TrackingState.LOST_TRACKING
+    ) -> CameraCommand:
+        """Hold the last command; the goal and the way-point path are planned afresh."""
+        self._last_goal = None
+        self._path = None
+        return self._hold(state, reason)
 
     def step(self, obs: Observation) -> CameraCommand:
         """Input checks, working distance, goal, cone freeze, way-points — in that order.
 
-        The checks (finite poses, a fresh ring pose, the ring gate; :func:`observed`), the
-        working distance and the goal are one compiled call (:meth:`_goal`).
+        The checks (finite poses, a fresh ring pose, the ring gate), the working distance and
+        the goal are one compiled call (:meth:`_goal`). The step's working distance is
+        committed only with the command it issues (a hold keeps the last one).
         """
         ctx = self._ctx
         if ctx is None:
@@ -320,48 +167,39 @@ class PaperPolicy(MovingPolicy):
         if T_cam is None or (T_ring is None and finite_rows(T_cam) is None):
             return self._hold(TrackingState.LOST_TRACKING, CAMERA_REASON)
         if T_ring is None:
-            self._last_goal = None
-            self._path = None
-            return self._hold(TrackingState.LOST_TRACKING, RING_REASON)
-
-        d_f_before = self.d_f
-        goal = self._goal(obs, T_cam, T_ring)  # the checks, the working distance, the goal
-        out = self._step_out.tolist()
-        check = out[_OUT_CHECK]
-        if check != OBS_OK:
-            if check == OBS_CAMERA:
+            return self._lose(RING_REASON)
+        tips = obs.p_world_tips
+        if not (isinstance(tips, np.ndarray) and tips.ndim == 2):
+            tips = np.asarray(tips, dtype=float).reshape(-1, 3)
+        t = float(obs.t)
+        t_ring = t if obs.t_ring is None else float(obs.t_ring)  # unstamped: never stale
+        previous = self._last_goal if self._last_goal is not None else T_cam
+        result, goal = self._goal(Sighting(T_cam, T_ring, tips, t, t_ring), previous)
+        if result.check != OBS_OK:
+            if result.check == OBS_CAMERA:
                 return self._hold(TrackingState.LOST_TRACKING, CAMERA_REASON)
-            self._last_goal = None
-            self._path = None
-            return self._hold(TrackingState.LOST_TRACKING, CHECK_REASONS[int(check)])
+            return self._lose(CHECK_REASONS[result.check])
         if goal is None:
-            self.d_f = d_f_before
-            self._last_goal = None
-            self._path = None
-            return self._hold(TrackingState.LOST_TRACKING, "ring pose degenerate (zero normal)")
-        p_ring = out[_OUT_RING : _OUT_RING + 3]
-        p_now = out[_OUT_CAM : _OUT_CAM + 3]
+            return self._lose(DEGENERATE_REASON)
+        d_f, p_ring, p_now = result.d_f, result.p_ring, result.p_cam
         # cleared by the kernel, with its trace to the goal: only for the very pose it checked
         # (a subclass's ``_goal`` may change it; then the guard checks it here)
         p_kernel = goal[:3, 3].tolist() if goal is self._kernel_goal else None
-        cleared = out[_OUT_CLEARED] != 0.0 and p_kernel == self._kernel_p
+        cleared = result.guard.cleared and p_kernel == self._kernel_p
         if cleared:
             assert self.guard is not None
             goal = self.guard.passed(goal)
         else:
-            goal = self._clear(goal, p_ring, p_now)
+            goal = self._clear(goal, p_ring, p_now, d_f)
         if goal is None:  # the last command passed the guard: hold it, as a freeze does
-            self.d_f = d_f_before
-            self._last_goal = None
-            self._path = None
-            return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
+            return self._lose(WIRE_REASON, TrackingState.FROZEN_OUTSIDE_CONE)
         if p_kernel is not None and goal is self._kernel_goal:
             p_goal = p_kernel  # the guard passed the kernel's goal itself (unchanged)
         else:
             goal_rows = goal.tolist()
             p_goal = [goal_rows[0][3], goal_rows[1][3], goal_rows[2][3]]
         if goal is self._kernel_goal and p_goal == self._kernel_p:
-            margin = out[_OUT_MARGIN]  # the kernel's ConeWorkspace.margin of this very pose
+            margin = result.margin  # the kernel's ConeWorkspace.margin of this very pose
         else:
             margin = self.cone.margin(p_goal)
         # Freeze when the goal leaves the cone; release only once it is FREEZE_RELEASE_MARGIN
@@ -370,14 +208,12 @@ class PaperPolicy(MovingPolicy):
         if not margin >= release:
             if self._frozen_T is None:
                 self._frozen_T = T_cam
-            self.d_f = d_f_before  # the working distance holds with the camera
             self._last_cmd = self._frozen_T
-            self._path = None
-            self._last_goal = None  # on recovery, a far goal is planned from the camera
             where = "outside" if margin < 0 else "not yet back inside"
-            return self._hold(
-                TrackingState.FROZEN_OUTSIDE_CONE,
+            # on recovery, a far goal is planned from the camera
+            return self._lose(
                 f"goal {abs(margin) * 1e3:.1f} mm {where} the cone workspace; holding",
+                TrackingState.FROZEN_OUTSIDE_CONE,
             )
         self._frozen_T = None
 
@@ -407,27 +243,23 @@ class PaperPolicy(MovingPolicy):
                 self._path = None  # arrived: back to plain tracking
             else:
                 p = self._path.point_at(self._s)
-                wp = self._cleared_waypoint(p, T_ring, goal, p_ring, p_now)
+                wp = self._cleared_waypoint(p, T_ring, goal, p_ring, p_now, d_f)
                 if wp is None:
-                    self._path = None
-                    self._last_goal = None
-                    return self._hold(TrackingState.FROZEN_OUTSIDE_CONE, WIRE_REASON)
+                    return self._lose(WIRE_REASON, TrackingState.FROZEN_OUTSIDE_CONE)
                 cmd = wp
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
         if cleared and cmd is goal:  # the plain path: no way-points; the kernel traced the move
-            if out[_OUT_DETOUR]:
-                p_via = (out[_OUT_VIA], out[_OUT_VIA + 1], out[_OUT_VIA + 2])
-                via = self._detoured(cmd, p_ring, p_now, (True, p_via))
+            if result.guard.detour:
+                via = self._detoured(cmd, p_ring, p_now, d_f, result.guard)
             else:  # a straight move: what ``_detoured`` does with no way-point
                 self._p_detour, self._stalled = None, 0
                 via = None
         else:
-            via = self._detoured(cmd, p_ring, p_now)
+            via = self._detoured(cmd, p_ring, p_now, d_f)
         if via is not None:
             cmd = via
             state, reason = TrackingState.PLANNING, DETOUR_REASON
-        self._last_cmd = cmd
-        return CameraCommand(cmd, state, self.d_f, reason)
+        return self._issue(cmd, state, d_f, reason)
 
     def _waypoint_pose(self, p: FloatArray, T_ring: FloatArray, goal: FloatArray) -> FloatArray:
         """Pose at a way-point: look at the ring centre with a level horizon."""
@@ -440,31 +272,24 @@ class PaperPolicy(MovingPolicy):
         goal: FloatArray,
         p_ring: Sequence[float],
         p_now: Sequence[float],
+        d_f: float,
     ) -> FloatArray | None:
-        """``_clear(_waypoint_pose(p, T_ring, goal), p_ring, p_now)``: the way-point's command.
+        """``_clear`` of ``_waypoint_pose(p, T_ring, goal)``: the way-point's command.
 
         ``p`` (3,) the way-point, ``T_ring`` (4, 4), ``goal`` (4, 4), ``p_ring`` (3,) the
-        ring centre, ``p_now`` (3,) the camera, world, m.
+        ring centre, ``p_now`` (3,) the camera, world, m; ``d_f`` the step's working distance.
         """
-        return self._clear(self._waypoint_pose(p, T_ring, goal), p_ring, p_now)
+        return self._clear(self._waypoint_pose(p, T_ring, goal), p_ring, p_now, d_f)
 
 
 class CenteringPolicy(PaperPolicy):
-    """Condition II: keep the initial orientation, put the ring centre on the optical axis."""
+    """Condition II: keep the initial orientation, put the ring centre on the optical axis.
+
+    The camera sits at ``ring − d_f z0 + (b/2) x0``: the left eye, ``b/2`` along −x, on the
+    line through the ring centre along the initial optical axis ``z0``.
+    """
 
     name = "centering"
-
-    def reset(self, context: PolicyContext) -> None:
-        """Also fix the orientation it keeps and the offset of the eye it centres."""
-        super().reset(context)
-        R0 = np.asarray(context.T_world_cam, dtype=float)[:3, :3]
-        self._T0 = np.eye(4)
-        self._T0[:3, :3] = R0
-        half_b = 0.5 * context.camera.baseline if self.config.centre_left_eye else 0.0
-        # camera = ring − d z0 + (b/2) x0: the left eye, b/2 along −x, on the ring's line
-        self._params[_KIND] = 0.0
-        self._params[_Z0 : _Z0 + 3] = R0[:, 2]
-        self._params[_SHIFT : _SHIFT + 3] = half_b * R0[:, 0]
 
     def _waypoint_pose(self, p: FloatArray, T_ring: FloatArray, goal: FloatArray) -> FloatArray:
         T = goal.copy()  # orientation stays fixed on the way too
@@ -476,11 +301,7 @@ class OrientationPolicy(PaperPolicy):
     """Condition III: the paper's orientation-aware camera (goal on the ring normal)."""
 
     name = "orientation"
-
-    def reset(self, context: PolicyContext) -> None:
-        """Also select the orientation goal (:func:`orientation_goal`)."""
-        super().reset(context)
-        self._params[_KIND] = 1.0
+    _orientation = True
 
     def _cleared_waypoint(
         self,
@@ -489,14 +310,15 @@ class OrientationPolicy(PaperPolicy):
         goal: FloatArray,
         p_ring: Sequence[float],
         p_now: Sequence[float],
+        d_f: float,
     ) -> FloatArray | None:
-        """The way-point's pose and the guard in one compiled call (``apply_look_at``)."""
+        """The way-point's look-at pose and the guard in one compiled call (``apply_look_at``)."""
         guard = self.guard
         if guard is None:
             return self._waypoint_pose(p, T_ring, goal)
         assert self._workspace is not None and self._last_cmd is not None  # set by reset()
         q = p.tolist()
-        back_off = max(0.0, self.config.d_max - self.d_f)  # as _clear's
+        back_off = max(0.0, self.config.d_max - d_f)  # as _clear's
         return guard.apply_look_at(
             (q[0], q[1], q[2]),
             (p_ring[0], p_ring[1], p_ring[2]),
@@ -518,12 +340,3 @@ class OrientationEcmPolicy(OrientationPolicy):
     """
 
     name = "orientation-ecm"
-
-
-__all__ = [
-    "CenteringPolicy",
-    "FixedPolicy",
-    "OrientationEcmPolicy",
-    "OrientationPolicy",
-    "PaperPolicy",
-]
