@@ -38,6 +38,7 @@ __all__ = [
     "observed",
     "observed_kernel",
     "pose_array",
+    "tips_array",
 ]
 
 MIN_NORMAL = 1e-9  # unitless, a ring normal shorter than this is degenerate
@@ -154,11 +155,24 @@ def observed_kernel(checks: RingChecks, seen: Sighting) -> int:  # pragma: no co
 def pose_array(T: object) -> FloatArray | None:
     """``T`` as a (4, 4) float array (itself when it is one), or ``None`` (missing, wrong shape).
 
-    The boundary from an observation into the compiled checks (:func:`observed`).
+    The boundary from an observation into the compiled steps (C-contiguous: they are called
+    at a fixed signature, ``fixed_signature.FixedSignature``).
     """
     if type(T) is np.ndarray and T.dtype == np.float64 and T.shape == (4, 4):
-        return T
+        return T if T.flags.c_contiguous else np.ascontiguousarray(T)
     if T is None:
         return None
-    arr = np.asarray(T, dtype=float)
+    arr = np.ascontiguousarray(T, dtype=float)
     return arr if arr.shape == (4, 4) else None
+
+
+def tips_array(tips: object) -> FloatArray:
+    """``tips`` as a C-contiguous (K, 3) float array (itself when it is one), world, m."""
+    if (
+        type(tips) is np.ndarray
+        and tips.dtype == np.float64
+        and tips.ndim == 2
+        and tips.flags.c_contiguous
+    ):
+        return tips
+    return np.ascontiguousarray(np.asarray(tips, dtype=float).reshape(-1, 3))

@@ -40,7 +40,7 @@ def ring_predict(buf: FloatArray, count: np.ndarray, m: int, h: float) -> tuple[
     """:meth:`RingPredictor.predict` from its samples ``buf`` (L, 7) and ``count`` (1,).
 
     Ring centre (m) and unit normal in world, ``h`` s after the newest sample; ``m`` the
-    spacing. The interpreter's floats: the same operations in the same order.
+    spacing.
     """
     k = count[0] - 1
     t_k = buf[k, 0]

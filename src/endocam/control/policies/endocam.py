@@ -34,9 +34,12 @@ ingredient has a switch in :class:`~endocam.control.config.TrackerConfig`:
    step, down to ``d_min`` and only while every tip stays inside the outer window of the
    shortened goal. A tip outside the outer window still lengthens ``d_f`` (safety first).
 
-The step runs on plain floats (no scipy); its maths from the working distance to the view and
-its twist is one compiled call (:func:`plan_kernel`, docs/conventions.md "Compiled kernels"),
-the interpreter's floats bit for bit (``tests/test_tracker_kernel.py``).
+The step's numbers, from the input checks to the view, its twist and the wire guard's answer,
+are one compiled call (:func:`~endocam.control.plan.plan_step`, with named settings, memory and
+result); its decisions (freeze, transfer, orbit, way-points, detour, the last gate) are the
+Python below. The working distance is committed only with a command (``MovingPolicy._issue``).
+``tests/test_tracker_kernel.py`` pins the pieces to numpy and scipy and the episodes to the
+safety invariants.
 """
 
 from __future__ import annotations
@@ -54,8 +57,10 @@ from endocam.control.checks import (
     RingChecks,
     Sighting,
     pose_array,
+    tips_array,
 )
 from endocam.control.config import ControllerConfig, SideRule, Transfer
+from endocam.control.fixed_signature import FixedSignature
 from endocam.control.goal import DistanceRange, PreviousAxes, SideChoice
 from endocam.control.plan import (
     PlanResult,
@@ -110,6 +115,7 @@ class EndocamPolicy(MovingPolicy):
         self._view_T = np.eye(4)  # this step's view (plan_step writes it)
         self._horizon = 0.0
         self._settings: PlanSettings | None = None  # plan_step's, per episode
+        self._plan_call = FixedSignature(plan_step)
         self.transfers = 0  # transfers started this episode (side changes and approaches)
 
     def reset(self, context: PolicyContext) -> None:
@@ -224,13 +230,12 @@ class EndocamPolicy(MovingPolicy):
         settings = self._settings
         if settings is None:
             settings = self._settings = self._plan_settings()
+            self._plan_call = FixedSignature(plan_step)  # this episode's types
         t = float(obs.t)
         t_ring = t if obs.t_ring is None else float(obs.t_ring)  # unstamped: never stale
         if self._given:
             self._give_predictions(t, settings.predictions)
-        tips = obs.p_world_tips
-        if not (isinstance(tips, np.ndarray) and tips.ndim == 2):
-            tips = np.asarray(tips, dtype=float).reshape(-1, 3)
+        tips = tips_array(obs.p_world_tips)
         previous = self._last_goal if self._last_goal is not None else self._last_cmd
         assert previous is not None  # set by reset()
         release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0
@@ -244,7 +249,7 @@ class EndocamPolicy(MovingPolicy):
         )
         self._view_T = np.empty((4, 4))
         seen = Sighting(T_cam, T_ring, tips, t, t_ring)
-        return plan_step(settings, seen, previous, memory, self._view_T)
+        return self._plan_call(settings, seen, previous, memory, self._view_T)  # plan_step
 
     # -- the step --------------------------------------------------------------------------
 

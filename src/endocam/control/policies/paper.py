@@ -31,8 +31,10 @@ from endocam.control.checks import (
     RingChecks,
     Sighting,
     pose_array,
+    tips_array,
 )
 from endocam.control.config import ControllerConfig, SideRule
+from endocam.control.fixed_signature import FixedSignature
 from endocam.control.goal import DistanceRange, SideChoice
 from endocam.control.paper_step import PaperMemory, PaperResult, PaperSettings, paper_step
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
@@ -134,10 +136,11 @@ class PaperPolicy(MovingPolicy):
         settings = self._settings
         if settings is None:
             settings = self._settings = self._paper_settings()
+            self._paper_call = FixedSignature(paper_step)  # this episode's types
         release = FREEZE_RELEASE_MARGIN if self._frozen_T is not None else 0.0
         memory = PaperMemory(self.d_f, self._path is None, release)
         goal = np.empty((4, 4))  # a new array each step: the goal and the command keep it
-        result = paper_step(settings, seen, previous, memory, goal)
+        result: PaperResult = self._paper_call(settings, seen, previous, memory, goal)
         if not result.found:
             return result, None
         self._kernel_goal, self._kernel_p = goal, goal[:3, 3].tolist()
@@ -168,9 +171,7 @@ class PaperPolicy(MovingPolicy):
             return self._hold(TrackingState.LOST_TRACKING, CAMERA_REASON)
         if T_ring is None:
             return self._lose(RING_REASON)
-        tips = obs.p_world_tips
-        if not (isinstance(tips, np.ndarray) and tips.ndim == 2):
-            tips = np.asarray(tips, dtype=float).reshape(-1, 3)
+        tips = tips_array(obs.p_world_tips)
         t = float(obs.t)
         t_ring = t if obs.t_ring is None else float(obs.t_ring)  # unstamped: never stale
         previous = self._last_goal if self._last_goal is not None else T_cam
