@@ -9,8 +9,8 @@ import pytest
 
 from endocam.config import CameraConfig, ExperimentConfig
 from endocam.control.config import ControllerConfig, TrackerConfig
-from endocam.control.oracle import OracleConfig, OraclePolicy, plan_sides
-from endocam.control.tracker import EndocamPolicy
+from endocam.control.policies import EndocamPolicy
+from endocam.control.policies.oracle import OracleConfig, OraclePolicy, plan_sides
 from endocam.control.types import Observation, PolicyContext, TrackingState
 from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import EpisodeSpec, run_episode

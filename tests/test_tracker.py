@@ -10,8 +10,9 @@ import pytest
 from endocam.camera import StereoCamera
 from endocam.config import CameraConfig, ExperimentConfig
 from endocam.control.config import ControllerConfig, TrackerConfig
+from endocam.control.policies import EndocamPolicy
+from endocam.control.predictor import RingPredictor
 from endocam.control.safety import WindowStatus, window_status
-from endocam.control.tracker import EndocamPolicy, RingPredictor
 from endocam.control.types import Observation, PolicyContext, TrackingState
 from endocam.registry import make_policy
 from endocam.robot.cartesian import CartesianLimiter, MotionLimits

@@ -1,8 +1,8 @@
 """The policy registry: every camera policy by name, with the carrier it needs.
 
 ``endocam policies`` lists it, the CLI takes its choices from it, and the episode runner builds
-policies through :func:`make_policy`. It sits above the policy modules (``policies``,
-``tracker``, ``oracle``), so none of them imports it back.
+policies through :func:`make_policy`. It sits above the policy modules (``control.policies``),
+so none of them imports it back.
 """
 
 from __future__ import annotations
@@ -11,14 +11,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from endocam.control.config import ControllerConfig
-from endocam.control.oracle import OraclePolicy
 from endocam.control.policies import (
     CenteringPolicy,
+    EndocamPolicy,
     FixedPolicy,
+    OraclePolicy,
     OrientationEcmPolicy,
     OrientationPolicy,
 )
-from endocam.control.tracker import EndocamPolicy
 from endocam.control.types import CameraPolicy
 from endocam.robot.actuator import ArmKind
 

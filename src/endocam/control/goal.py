@@ -34,6 +34,7 @@ Two places need care:
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba.extending import register_jitable
@@ -79,26 +80,58 @@ def choose_side(n: Vec, up: Vec, z_prev: Vec | None, sin_hysteresis: float = _SI
     return default
 
 
+class DistanceRange(NamedTuple):
+    """The working distance's range and its change per control step, m (the windows' rule)."""
+
+    d_min: float
+    d_max: float
+    step: float
+
+
+class PreviousAxes(NamedTuple):
+    """The previous pose's optical axis ``z`` and x axis ``x``, world (read when ``known``)."""
+
+    known: bool
+    z: Vec
+    x: Vec
+
+
+class SideChoice(NamedTuple):
+    """How :func:`goal_columns` picks the camera's side (see the module docstring).
+
+    Attributes
+    ----------
+    up : 3-tuple
+        World up, unit.
+    hysteresis : float
+        ``side_hysteresis``, rad.
+    min_height : float
+        Lowest camera height along ``up`` the hysteresis may keep, m (``-inf``: none).
+    has_toward : bool
+        Whether to take the side facing the port (``SideRule.PORT``).
+    toward : 3-tuple
+        The unit direction from the ring centre to the port (read when ``has_toward``).
+    """
+
+    up: Vec
+    hysteresis: float
+    min_height: float
+    has_toward: bool
+    toward: Vec
+
+
 @register_jitable  # also callable from compiled kernels (the same source)
 def goal_columns(
-    p_c: Vec,
-    n: Vec,
-    d_f: float,
-    up: Vec,
-    has_previous: bool,
-    z_prev: Vec,
-    x_prev: Vec,
-    side_hysteresis: float,
-    min_height: float,
-    has_toward: bool,
-    toward: Vec,
+    p_c: Vec, n: Vec, d_f: float, previous: PreviousAxes, rule: SideChoice
 ) -> tuple[Vec, Vec, Vec, Vec]:
     """:func:`goal_pose_unchecked` as rotation columns ``x, y, z`` and position ``p`` (m).
 
-    ``z_prev``, ``x_prev``: the previous pose's optical and x axes in world (read only if
-    ``has_previous``); ``toward``: the unit direction to the port (read only if
-    ``has_toward``). Flags rather than ``None``, so compiled kernels call it too.
+    ``p_c`` the ring centre, world, m; ``n`` its unit normal; ``d_f`` the working distance, m;
+    ``previous`` the previous pose's axes (hysteresis and roll); ``rule`` the side rule.
     """
+    up, toward, has_toward = rule.up, rule.toward, rule.has_toward
+    has_previous, z_prev, x_prev = previous
+    side_hysteresis, min_height = rule.hysteresis, rule.min_height
     ref = toward if has_toward else up
     sin_h = math.sin(side_hysteresis)
     if min_height > -math.inf and not has_toward:
@@ -141,19 +174,10 @@ def goal_pose_unchecked(
         R = previous[:3, :3].tolist()
         z_prev = (R[0][2], R[1][2], R[2][2])
         x_prev = (R[0][0], R[1][0], R[2][0])
-    x, y, z, p = goal_columns(
-        p_c,
-        n,
-        d_f,
-        up,
-        previous is not None,
-        z_prev,
-        x_prev,
-        side_hysteresis,
-        min_height,
-        toward is not None,
-        up if toward is None else toward,
+    rule = SideChoice(
+        up, side_hysteresis, min_height, toward is not None, up if toward is None else toward
     )
+    x, y, z, p = goal_columns(p_c, n, d_f, PreviousAxes(previous is not None, z_prev, x_prev), rule)
     return pose_from_columns(x, y, z, p)
 
 

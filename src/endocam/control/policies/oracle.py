@@ -26,8 +26,9 @@ and the same carrier with the same motion limits, but perfect information:
    plan's side ``switch_lead`` seconds ahead, so an orbit is centred on the planned change; a
    planned side whose view is infeasible now falls back to the tracker's side keeping.
 
-The policy is a subclass of :class:`~endocam.control.tracker.EndocamPolicy` whose predictor is
-replaced by a table of the true trajectory (sampled once at reset: no scipy per step).
+The policy is a subclass of :class:`~endocam.control.policies.endocam.EndocamPolicy` whose
+predictions are read from a table of the true trajectory (sampled once at reset: no scipy per
+step).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from endocam.control.config import ControllerConfig
-from endocam.control.tracker import EndocamPolicy
+from endocam.control.policies.endocam import EndocamPolicy
 from endocam.control.types import CameraCommand, Observation, PolicyContext
 from endocam.geometry import FloatArray
 from endocam.kernels import Vec
@@ -142,25 +143,6 @@ class RingFuture:
         return (v[0], v[1], v[2]), n
 
 
-class _FuturePredictor:
-    """Stands in for ``RingPredictor``: "predicts" by reading the true future."""
-
-    def __init__(self, future: RingFuture) -> None:
-        self.future = future
-        self.t = 0.0
-
-    def reset(self) -> None:
-        """Nothing to forget: the future is known."""
-
-    def push(self, t: float, p_world: Vec, n_world: Vec) -> None:
-        """Record the current time ``t`` (s); the (true) pose itself is in the table."""
-        self.t = t
-
-    def predict(self, h: float) -> tuple[Vec, Vec]:
-        """True ring centre (m) and unit normal, world, ``h`` seconds after now."""
-        return self.future.at(self.t + h)
-
-
 def plan_sides(cost: FloatArray, switch_cost: float) -> list[float]:
     r"""Cheapest side sequence over a time grid (Viterbi over two states).
 
@@ -205,6 +187,7 @@ class OraclePolicy(EndocamPolicy):
     """
 
     name = "oracle"
+    _given = True  # the compiled step gets the true future (``_give_predictions``)
 
     def __init__(
         self, config: ControllerConfig | None = None, oracle: OracleConfig | None = None
@@ -229,7 +212,7 @@ class OraclePolicy(EndocamPolicy):
         o = self.oracle
         lead = self.tracker.carrier_lead if o.lead is None else o.lead
         self._future = RingFuture.of(context, lead + o.switch_lead + context.dt)
-        self._predictor = _FuturePredictor(self._future)  # type: ignore[assignment]
+        self._now = 0.0  # s, the time of the step under way
         self._horizon = lead
         self._plan = self._side_plan(context.future_duration) if o.plan else []
 
@@ -254,26 +237,39 @@ class OraclePolicy(EndocamPolicy):
         """The plan's side ``switch_lead`` s from now, taken while feasible (0.0: no plan)."""
         if not self._plan:
             return 0.0
-        t = self._predictor.t + self.oracle.switch_lead  # type: ignore[attr-defined]
+        t = self._now + self.oracle.switch_lead
         j = min(max(round(t / self.oracle.plan_dt), 0), len(self._plan) - 1)
         return self._plan[j]
 
-    def _feedforward_twist(self, goal: FloatArray, twist: FloatArray) -> FloatArray:
+    def _give_predictions(self, t: float, predictions: FloatArray) -> None:
+        """The true ring centre (m) and unit normal ``horizon`` and ``horizon + dt`` s after ``t``.
+
+        Written into ``predictions`` (12,), the compiled step's (it predicts nothing itself).
+        """
+        assert self._future is not None and self._ctx is not None  # set by reset()
+        self._now = t
+        p1, n1 = self._future.at(t + self._horizon)
+        p2, n2 = self._future.at(t + self._horizon + self._ctx.dt)
+        predictions[:] = (*p1, *n1, *p2, *n2)
+
+    def _feedforward_twist(self, goal: FloatArray, twist: FloatArray, d_f: float) -> FloatArray:
         """(6,) the goal's mean velocity over ``velocity_window`` centred on ``lead`` from now.
 
         Linear (m/s) then angular (rad/s), world; the tracker's one-period ``twist`` of
         ``goal`` (4, 4) is replaced by the goals' difference at the window's ends on the
-        current side (kept where either end has no feasible view).
+        current side (kept where either end has no feasible view); ``d_f`` the step's working
+        distance, m.
         """
+        assert self._future is not None  # set by reset()
         w = self.oracle.velocity_window
         t = self._horizon
         poses = []
         for h in (t - 0.5 * w, t + 0.5 * w):
-            p_c, n = self._predictor.predict(h)
-            view = self._view(p_c, n, self._side, self.d_f)
+            p_c, n = self._future.at(self._now + h)
+            view = self._view(p_c, n, self._side, d_f)
             if view is None:
                 return twist
-            poses.append(self._pose(p_c, view[0], self.d_f, goal))
+            poses.append(self._pose(p_c, view[0], d_f, goal))
         return EndocamPolicy._twist(poses[0], poses[1], w)
 
     def step(self, obs: Observation) -> CameraCommand:
