@@ -25,6 +25,7 @@ from endocam.robot.arm import (
     PSM_MAX_ACCELERATION,
     PSM_MAX_VELOCITY,
 )
+from endocam.robot.arm_guard import NO_ROWS, BrakingPath, braking_inside
 from endocam.robot.braking import (
     _A,
     _BRAKE,
@@ -36,7 +37,6 @@ from endocam.robot.braking import (
     profile_extrema,
     profile_rows,
 )
-from endocam.robot.arm_guard import NO_ROWS, BrakingPath, braking_inside
 from endocam.robot.camera_arm import CameraArm, natural_pose
 from endocam.robot.cartesian import CartesianLimiter, MotionLimits
 from endocam.robot.cartesian_stop import CartesianState, box_corners

@@ -122,8 +122,7 @@ def clamp_angle_to_limits(angle: float, reference: float, lower: float, upper: f
     """
     chosen = branch_in_limits(angle, reference, lower, upper)
     if lower - LIMIT_SLACK <= chosen <= upper + LIMIT_SLACK:
-        inside = lower if lower > chosen else chosen  # Python's max(chosen, lower)
-        return upper if upper < inside else inside  # Python's min(inside, upper)
+        return min(max(chosen, lower), upper)
     to_lower = abs(wrap_angle(lower - angle))
     to_upper = abs(wrap_angle(upper - angle))
     return lower if to_lower <= to_upper else upper
@@ -223,8 +222,7 @@ def _aim(
         s0, s1, s2 = p0 / r, p1 / r, p2 / r
     else:
         s0, s1, s2 = g[2], g[5], g[8]
-    s1_in = s1 if s1 < 1.0 else 1.0  # Python's min(1.0, s1)
-    s1_in = s1_in if s1_in > -1.0 else -1.0  # Python's max(-1.0, …)
+    s1_in = max(-1.0, min(1.0, s1))
     q = (math.atan2(s0, -s2), -math.asin(s1_in), r - c[_C_SHAFT])
     # reachable with unlimited joints iff the best roll on the unclamped axis is exact
     theta4, R_free, T_rcm_3 = _best_roll(params, c, goal, q[0], q[1], q[2])
