@@ -40,7 +40,7 @@ from endocam.robot.braking import (
 from endocam.robot.camera_arm import CameraArm, natural_pose
 from endocam.robot.cartesian import CartesianLimiter, MotionLimits
 from endocam.robot.cartesian_stop import CartesianState, box_corners
-from endocam.robot.dh import chain_points
+from endocam.robot.dh import chain_points, pose12_from_matrix
 from endocam.task.wire import Wire
 from endocam.workspace.cone import ConeWorkspace
 from endocam.workspace.region import NO_WORKSPACE, Workspace
@@ -187,7 +187,7 @@ def test_arm_braking_points_are_chain_points_of_the_path(kind: ArmKind) -> None:
     rng = np.random.default_rng(14)
     guard = arm.guard
     g = guard.consts
-    point = (g.last_cam[0][3], g.last_cam[1][3], g.last_cam[2][3])
+    point = (float(g.last_cam[0, 3]), float(g.last_cam[1, 3]), float(g.last_cam[2, 3]))
     inp, traj = guard.inp, guard.trajectory
     for _ in range(300):
         q = model.clamp(natural_pose(model) + rng.uniform(-0.3, 0.3, model.n_joints))
@@ -200,7 +200,7 @@ def test_arm_braking_points_are_chain_points_of_the_path(kind: ArmKind) -> None:
             ruckig.Result.Finished,
         )
         path = _at_time_path(traj, 0.01).tolist()
-        expected = chain_points(model.chain, [*path, stop], g.world_rcm, point)
+        expected = chain_points(model.chain, [*path, stop], pose12_from_matrix(g.world_rcm), point)
         got = np.empty((len(path) + 1, 3))
         q_rows = np.empty((len(path) + 1, model.n_joints))
         sampled = BrakingPath(profile_rows(traj), traj.duration, 0.01, np.array(stop))
@@ -274,14 +274,16 @@ def test_brakes_inside_is_the_workspaces_answer_on_the_path(
         compiled = cfg.controller.workspace(rcm, feature, wire)
         reference = cfg.controller.workspace(rcm, feature, wire)  # its own keep-out cache
         g = arm.guard.consts
-        point = (g.last_cam[0][3], g.last_cam[1][3], g.last_cam[2][3])
+        point = (float(g.last_cam[0, 3]), float(g.last_cam[1, 3]), float(g.last_cam[2, 3]))
         for _ in range(300):
             q = model.clamp(natural_pose(model) + rng.uniform(-0.5, 0.5, model.n_joints))
             qd = rng.uniform(-1.0, 1.0, model.n_joints) * vmax * rng.uniform(0.0, 1.0)
             stop = model.clamp(q + qd * np.abs(qd) * g.half_inv_acc).tolist()
             inside = arm.guard.brakes_inside(compiled, q.tolist(), qd.tolist(), stop)
             path = _at_time_path(arm.guard.trajectory, 0.01).tolist()
-            points = chain_points(model.chain, [*path, stop], g.world_rcm, point)
+            points = chain_points(
+                model.chain, [*path, stop], pose12_from_matrix(g.world_rcm), point
+            )
             margins = np.array([reference.margin(p) for p in points])
             if np.abs(margins).min() > MARGIN_ATOL_M:  # (a point on the wall could go either way)
                 assert inside == reference.all_inside(points)

@@ -67,8 +67,8 @@ def test_camera_pose_fast_path_is_fk(kind: ArmKind):
         np.testing.assert_allclose(arm.camera_pose(q), expected, atol=ATOL_M)
         # the workspace guard's braking check sees the logged camera position
         g = arm.guard.consts
-        point = (g.last_cam[0][3], g.last_cam[1][3], g.last_cam[2][3])
-        points = chain_points(arm.model.chain, [q.tolist()], g.world_rcm, point)
+        point = (float(g.last_cam[0, 3]), float(g.last_cam[1, 3]), float(g.last_cam[2, 3]))
+        points = chain_points(arm.model.chain, [q.tolist()], pose12_from_matrix(g.world_rcm), point)
         np.testing.assert_allclose(points[0], arm.camera_pose(q)[:3, 3], atol=ATOL_M)
 
 

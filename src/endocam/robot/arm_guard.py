@@ -67,11 +67,11 @@ class GuardConsts(NamedTuple):
     ----------
     params : (n, 7) ndarray
         The chain's :attr:`~endocam.robot.dh.DHChain.param_array`.
-    world_rcm : Pose12
-        ``T_world_rcm`` as 12 floats, m: where FK starts.
-    last_cam : 3 rows of 4 floats
-        ``T_last_cam``'s top rows: the camera in the last link's frame, m.
-    p_rcm : 3-tuple of float
+    world_rcm : (4, 4) ndarray
+        ``T_world_rcm``, m: where FK starts.
+    last_cam : (4, 4) ndarray
+        ``T_last_cam``: the camera in the last link's frame, m.
+    p_rcm : (3,) ndarray
         The RCM in world, m.
     half_inv_acc : (n,) ndarray
         ``1 / 2a`` per joint at ``BRAKE_ACC_SHARE`` of its limit: the braking distance is
@@ -82,9 +82,9 @@ class GuardConsts(NamedTuple):
     """
 
     params: FloatArray
-    world_rcm: Pose12
-    last_cam: tuple[tuple[float, float, float, float], ...]
-    p_rcm: tuple[float, float, float]
+    world_rcm: FloatArray
+    last_cam: FloatArray
+    p_rcm: FloatArray
     half_inv_acc: FloatArray
     prismatic: np.ndarray
     lower: FloatArray
@@ -141,12 +141,28 @@ NO_ROWS = np.empty((0, ROW_LENGTH))  # a BrakingPath whose joints are given (rea
 
 
 @njit(cache=True)  # compiled once, then loaded from the cache
+def _world_rcm12(g: GuardConsts) -> Pose12:
+    """``T_world_rcm`` as 12 floats (rotation row-major, then translation), m."""
+    A = g.world_rcm
+    return (
+        A[0, 0], A[0, 1], A[0, 2], A[1, 0], A[1, 1], A[1, 2], A[2, 0], A[2, 1], A[2, 2],
+        A[0, 3], A[1, 3], A[2, 3],
+    )  # fmt: skip
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
 def arm_camera_pose(g: GuardConsts, q: FloatArray) -> FloatArray:
     """The camera pose (4, 4), world, m, for joints ``q`` (n,), rad / m.
 
     ``T_world_rcm · FK(q) · T_last_cam`` (:func:`~endocam.robot.dh.compose12`).
     """
-    P = pose12_times(compose12(g.params, q, 0, g.params.shape[0], g.world_rcm), g.last_cam)
+    B = g.last_cam
+    rows = (
+        (B[0, 0], B[0, 1], B[0, 2], B[0, 3]),
+        (B[1, 0], B[1, 1], B[1, 2], B[1, 3]),
+        (B[2, 0], B[2, 1], B[2, 2], B[2, 3]),
+    )
+    P = pose12_times(compose12(g.params, q, 0, g.params.shape[0], _world_rcm12(g)), rows)
     out = np.empty((4, 4))
     for i in range(3):
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = P[3 * i], P[3 * i + 1], P[3 * i + 2], P[9 + i]
@@ -214,8 +230,8 @@ def braking_inside(
     if path.rows.shape[0] > 0:
         q_rows[:steps] = path_positions(path.rows, path.duration, path.dt, steps)
         q_rows[steps] = path.stop
-    point = (g.last_cam[0][3], g.last_cam[1][3], g.last_cam[2][3])
-    points[:, :] = points12(g.params, q_rows, g.world_rcm, point)
+    point = (g.last_cam[0, 3], g.last_cam[1, 3], g.last_cam[2, 3])
+    points[:, :] = points12(g.params, q_rows, _world_rcm12(g), point)
     if not check:
         return True
     return workspace_all_inside(ws, points)

@@ -60,6 +60,7 @@ __all__ = [
     "target_error",
     "tip_goal12",
     "turned_pose",
+    "view_search",
     "view_towards_port",
     "wrist_jump",
 ]
@@ -335,6 +336,86 @@ def exact_joints(ik: ArmIK, T: FloatArray, seed: FloatArray, out: FloatArray) ->
         for i in range(4):
             out[i] = q4[i]
     return ok4
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def _reach(
+    ik: ArmIK,
+    turn: tuple[FloatArray, float, tuple[float, float, float]],
+    k: int,
+    seed: FloatArray,
+    known: np.ndarray,
+    qs: FloatArray,
+) -> bool:
+    """Whether the arm reaches the turn ``k / VIEW_STEPS`` (joints into ``qs[k]``), memoised.
+
+    ``turn``: the goal (4, 4, world, m), its look distance (m) and the port turn (rad);
+    ``known[k]``: −1 not asked yet, 0 no, 1 yes.
+    """
+    if known[k] < 0:
+        T_goal, look, rotvec = turn
+        T = turned_pose(T_goal, look, rotvec, k / VIEW_STEPS)
+        known[k] = 1 if exact_joints(ik, T, seed, qs[k]) else 0
+    return known[k] == 1
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache
+def view_search(
+    ik: ArmIK,
+    T_goal: FloatArray,
+    look_distance: float,
+    rotvec: tuple[float, float, float],
+    guess: int,
+    seed: FloatArray,
+    q_out: FloatArray,
+    T_out: FloatArray,
+) -> int:
+    """A locally smallest reachable turn ``k / VIEW_STEPS`` towards the port view; 0 if none.
+
+    ``T_goal`` (4, 4): the goal, world, m, looking ``look_distance`` (m) ahead; ``rotvec``:
+    its :func:`port_rotvec` (rad). Returns the ``k`` in 1…VIEW_STEPS whose turn
+    (:func:`turned_pose`) the arm reaches exactly (:func:`exact_joints`, ``seed`` as there)
+    while ``k − 1``'s it does not (``k = 0`` is the goal itself), with its joints in ``q_out``
+    (n,) and its pose in ``T_out`` (4, 4). Reachability mostly grows along the turn (the port
+    view, ``k = VIEW_STEPS``, is the easiest), but not always: a wrist joint can touch its
+    limit in the middle of the turn, leaving a gap, and a smaller reachable ``k`` may exist
+    below it. Cold (``guess`` ≤ 0) the search bisects over ``k`` (``VIEW_BISECTIONS`` solves
+    after the port view); warm (``guess``: the previous step's ``k``) it gallops from there
+    towards the boundary, so a boundary that moves little costs two or three solves and the
+    view stays on the same side of any gap from step to step (continuity before minimality).
+    """
+    known = np.full(VIEW_STEPS + 1, -1, dtype=np.int8)
+    qs = np.empty((VIEW_STEPS + 1, q_out.shape[0]))
+    turn = (T_goal, look_distance, rotvec)
+    if guess <= 0:
+        if not _reach(ik, turn, VIEW_STEPS, seed, known, qs):
+            return 0
+        lo, hi = 0, VIEW_STEPS
+    elif _reach(ik, turn, guess, seed, known, qs):  # gallop down towards the goal
+        hi, step = guess, 1
+        while True:
+            lo = max(hi - step, 0)
+            if lo == 0 or not _reach(ik, turn, lo, seed, known, qs):
+                break
+            hi, step = lo, 2 * step
+    else:  # gallop up towards the port view
+        lo, step = guess, 1
+        while True:
+            hi = min(lo + step, VIEW_STEPS)
+            if _reach(ik, turn, hi, seed, known, qs):
+                break
+            if hi == VIEW_STEPS:
+                return 0
+            lo, step = hi, 2 * step
+    while hi - lo > 1:  # lo is not reached (k = 0 is the goal itself), hi is
+        mid = (lo + hi) // 2
+        if _reach(ik, turn, mid, seed, known, qs):
+            hi = mid
+        else:
+            lo = mid
+    q_out[:] = qs[hi]
+    T_out[:, :] = turned_pose(T_goal, look_distance, rotvec, hi / VIEW_STEPS)
+    return hi
 
 
 @njit(cache=True)  # compiled once, then loaded from the cache

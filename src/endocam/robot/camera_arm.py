@@ -57,7 +57,6 @@ from endocam.robot.arm_targets import (
     ECM_VIEW,
     MAX_COMMAND_RANGE_M,
     VIEW_POSITION_TOL_M,
-    VIEW_STEPS,
     ArmIK,
     TargetError,
     ecm_target,
@@ -66,11 +65,10 @@ from endocam.robot.arm_targets import (
     path_joints,
     port_rotvec,
     target_error,
-    turned_pose,
+    view_search,
     view_towards_port,
     wrist_jump,
 )
-from endocam.robot.dh import pose12_from_matrix
 from endocam.robot.ecm import ECM
 from endocam.robot.kinematics import RcmArm
 from endocam.robot.psm import PSM
@@ -208,9 +206,9 @@ class CameraArm:
         # always reach the stopping point (at the full limit round-off can make it infeasible)
         guard = GuardConsts(
             self.model.chain.param_array,
-            pose12_from_matrix(self._T_world_rcm),
-            tuple((r[0], r[1], r[2], r[3]) for r in T_last_cam[:3].tolist()),
-            (self._p_world_rcm[0], self._p_world_rcm[1], self._p_world_rcm[2]),
+            self._T_world_rcm,
+            T_last_cam,
+            self._p_world_rcm,
             np.array([0.5 / (BRAKE_ACC_SHARE * a) for a in amax]),
             np.array(self.model.prismatic),
             self.model.lower.copy(),
@@ -221,7 +219,7 @@ class CameraArm:
         self._arm = SimulatedArm(self.model, dt=dt, q0=natural_pose(self.model))
         self._q = self._arm.measured_js()[0]
         self._T_cam = self.camera_pose(self._q)
-        self._k_prev: int | None = None  # the last conceded turn, in VIEW_STEPS (warm start)
+        self._k_prev: int | None = None  # the last conceded turn, VIEW_STEPS (warm start)
         self._last_key: bytes | None = None  # the last goal (bytes) and its look distance
         self._last_look = math.nan
         self._last_target: TargetAnswer | None = None  # the last goal's answer
@@ -394,58 +392,16 @@ class CameraArm:
     def _view_search(
         self, T_goal: FloatArray, look_distance: float, rotvec: tuple[float, float, float]
     ) -> tuple[list[float], FloatArray] | None:
-        """A locally smallest reachable turn ``k / VIEW_STEPS`` towards the port view.
+        """The nearest reachable turn towards the port view (:func:`view_search`), warm-started.
 
-        Returns the ``k`` in 1…VIEW_STEPS whose turn the arm reaches while ``k − 1``'s it does
-        not (``k = 0`` is the goal itself). Reachability mostly grows along the turn (the port
-        view, ``k = VIEW_STEPS``, is the easiest), but not always: a wrist joint can touch its
-        limit in the middle of the turn, leaving a gap, and then a smaller reachable ``k`` may
-        exist below the gap. Cold, the search bisects over ``k`` (``VIEW_BISECTIONS`` solves
-        after the port view); warm (the previous step conceded too), it starts at the previous
-        ``k`` and gallops towards the boundary, so a boundary that moves little costs two or
-        three solves and the view stays on the same side of any gap from step to step
-        (continuity before minimality; at most about ``2 · VIEW_BISECTIONS`` solves when the
-        boundary jumps).
+        The turn found (in ``VIEW_STEPS``) is remembered for the next step's search; none
+        found: the next search starts cold.
         """
-        cache: dict[int, tuple[list[float], FloatArray] | None] = {}
-
-        def reach(k: int) -> tuple[list[float], FloatArray] | None:
-            if k not in cache:
-                T = turned_pose(T_goal, look_distance, rotvec, k / VIEW_STEPS)
-                q = self._exact(T)
-                cache[k] = None if q is None else (q, T)
-            return cache[k]
-
-        guess = self._k_prev
-        if guess is None:
-            if reach(VIEW_STEPS) is None:
-                return None
-            lo, hi = 0, VIEW_STEPS
-        elif reach(guess) is not None:  # gallop down towards the goal
-            hi, step = guess, 1
-            while True:
-                lo = max(hi - step, 0)
-                if lo == 0 or reach(lo) is None:
-                    break
-                hi, step = lo, 2 * step
-        else:  # gallop up towards the port view
-            lo, step = guess, 1
-            while True:
-                hi = min(lo + step, VIEW_STEPS)
-                if reach(hi) is not None:
-                    break
-                if hi == VIEW_STEPS:
-                    self._k_prev = None
-                    return None
-                lo, step = hi, 2 * step
-        while hi - lo > 1:  # reach(lo) is None (k = 0 is the goal itself), reach(hi) is not
-            mid = (lo + hi) // 2
-            if reach(mid) is None:
-                lo = mid
-            else:
-                hi = mid
-        self._k_prev = hi
-        return reach(hi)
+        T = np.empty((4, 4))
+        guess = 0 if self._k_prev is None else self._k_prev
+        k = view_search(self.ik, T_goal, look_distance, rotvec, guess, self._q, self._q_out, T)
+        self._k_prev = k if k > 0 else None
+        return (self._q_out.tolist(), T) if k > 0 else None
 
     def _on_path(self, q_target: list[float], T_target: FloatArray, look: float) -> list[float]:
         """The joint set point of this step: towards ``q_target`` along a camera-space path.
