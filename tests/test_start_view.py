@@ -23,8 +23,9 @@ from endocam.camera import StereoCamera
 from endocam.cli import main
 from endocam.config import ExperimentConfig
 from endocam.robot.actuator import ArmKind
-from endocam.robot.camera_arm import ARM_START_GAP, START_ROLL_TOL_RAD, CameraArm, natural_pose
+from endocam.robot.camera_arm import CameraArm, natural_pose
 from endocam.robot.carriers import make_actuator
+from endocam.robot.start_view import ARM_START_GAP, START_ROLL_TOL_RAD
 from endocam.task.config import DEFAULT_KNOTS
 from endocam.task.layout import VIEW_MARGIN, FramingError, port_view
 

@@ -1,6 +1,6 @@
 """What carries the camera: the carrier kinds and the one interface the episode runner calls.
 
-Every camera carrier — the free 6-DoF camera (:class:`~endocam.robot.cartesian.FreeCamera`),
+Every camera carrier — the free 6-DoF camera (:class:`~endocam.robot.free_camera.FreeCamera`),
 the camera on a dVRK PSM or ECM (:class:`~endocam.robot.camera_arm.CameraArm`) — implements
 :class:`Actuator`: ``reset`` to a start view, then one ``step`` per control period from a
 commanded camera pose to the camera pose it reaches. The runner has no carrier branches; what a

@@ -284,6 +284,14 @@ class SimulatedArm:
         """Joint positions and velocities, each (n,), rad(/s) or m(/s) (copies)."""
         return self._q.copy(), self._qd.copy()
 
+    def state_view(self) -> tuple[FloatArray, FloatArray]:
+        """Joint positions and velocities, each (n,), rad(/s) or m(/s), without a copy.
+
+        The arrays are replaced, never written, as the arm moves: a caller may keep them as a
+        snapshot of this state but must not write them.
+        """
+        return self._q, self._qd
+
     def measured_jp(self) -> FloatArray:
         """Joint positions, (n,), rad / m (a copy; CRTK's position-only ``measured_jp``)."""
         return self._q.copy()

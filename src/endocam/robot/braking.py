@@ -1,12 +1,13 @@
 """A ruckig trajectory read once, then sampled and bounded by compiled kernels.
 
 The carriers' workspace guards check a braking path at every control step of it
-(:meth:`~endocam.robot.camera_arm.CameraArm._brakes_inside`, the free camera's
+(:meth:`~endocam.robot.arm_guard.BrakingGuard.brakes_inside`, the free camera's
 :class:`~endocam.robot.cartesian.CartesianLimiter`). Ruckig's Python binding answers one
 ``Trajectory.at_time`` per call; :func:`profile_rows` reads the trajectory's per-DoF profiles
-once instead, and :func:`path_positions` evaluates them at every step with ruckig's own
-arithmetic (``Trajectory::at_time`` and ``integrate`` of ruckig 0.19, compiled without FMA
-contraction), so the positions are the same floats. :func:`profile_extrema` is the lowest and
+once instead, and :func:`path_positions` evaluates them at every step as ruckig's
+``Trajectory::at_time`` does (each section a cubic in time, the brake pre-trajectory first).
+``tests/test_braking.py`` holds the samples to ruckig's own ``at_time`` within
+``AT_TIME_ATOL`` on random states, brakes included. :func:`profile_extrema` is the lowest and
 highest position of one profile (the free camera's braking box).
 
 Each profile is a row of 49 floats, SI units of its DoF (m or rad, and per second): the section
@@ -60,7 +61,7 @@ def profile_rows(trajectory: object) -> FloatArray:
 
 
 def float_rows(flat: list[float], width: int) -> FloatArray:
-    """Python floats as a writable (len(flat) / width, width) array: the same floats.
+    """Python floats as a writable (len(flat) / width, width) array.
 
     Packed as native doubles (cheaper than ``np.array`` or ``np.fromiter`` of a list).
     """
@@ -84,10 +85,7 @@ def has_brake(rows: FloatArray) -> bool:
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def _t_sums(rows: FloatArray) -> FloatArray:
-    """Each profile's running sums of its section durations (n, 7), s.
-
-    Summed as ruckig's ``Profile::check`` sums them: ``t_sum[i] = t_sum[i − 1] + t[i]``.
-    """
+    """Each profile's running sums of its section durations (n, 7), s."""
     out = np.empty((rows.shape[0], 7))
     for k in range(rows.shape[0]):
         total = rows[k, _T]
@@ -108,7 +106,7 @@ def _integrate_position(t: float, p0: float, v0: float, a0: float, j: float) -> 
 def _position_at(
     rows: FloatArray, t_sum: FloatArray, k: int, time: float, duration: float
 ) -> float:
-    """``Trajectory.at_time(time)[0][k]`` of a one-section trajectory (ruckig's steps).
+    """``Trajectory.at_time(time)[0][k]`` of a one-section trajectory, DoF ``k``.
 
     ``t_sum``: :func:`_t_sums` of ``rows``; ``time``, ``duration``: s.
     """
@@ -139,7 +137,7 @@ def path_positions(rows: FloatArray, duration: float, dt: float, steps: int) -> 
     """Positions at every control step of a trajectory: (steps, n), the DoFs' units.
 
     Row ``i − 1`` is ``Trajectory.at_time(min(i · dt, duration))[0]`` for ``i`` in
-    ``1 … steps`` (the same floats). ``rows``: :func:`profile_rows` of the trajectory;
+    ``1 … steps``. ``rows``: :func:`profile_rows` of the trajectory;
     ``duration``: its ``duration``, s; ``dt``: the control period, s.
     """
     n = rows.shape[0]
@@ -147,7 +145,7 @@ def path_positions(rows: FloatArray, duration: float, dt: float, steps: int) -> 
     out = np.empty((steps, n))
     for i in range(1, steps + 1):
         t = i * dt
-        time = duration if duration < t else t  # Python's min(i * dt, duration)
+        time = min(t, duration)
         for k in range(n):
             out[i - 1, k] = _position_at(rows, t_sum, k, time, duration)
     return out
@@ -158,7 +156,7 @@ def profile_extrema(rows: FloatArray, k: int) -> tuple[float, float]:
     """Lowest and highest position of profile ``k`` of ``rows`` (its brake part not counted).
 
     Each section is a cubic in time; its extremes lie at its ends or where its velocity, a
-    quadratic, crosses zero inside it. Python's ``min``/``max`` order of comparisons.
+    quadratic, crosses zero inside it.
     """
     r = rows[k]
     lo = hi = r[_P]

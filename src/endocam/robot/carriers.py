@@ -6,7 +6,8 @@ import numpy as np
 
 from endocam.robot.actuator import Actuator, ArmKind, WorkspaceBound
 from endocam.robot.camera_arm import CameraArm
-from endocam.robot.cartesian import FreeCamera, MotionLimits
+from endocam.robot.cartesian import MotionLimits
+from endocam.robot.free_camera import FreeCamera
 
 __all__ = ["make_actuator"]
 

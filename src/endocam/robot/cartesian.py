@@ -14,10 +14,10 @@ calls (docs/conventions.md, "Compiled kernels").
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
-from numba.extending import register_jitable
 from pydantic import BaseModel, ConfigDict, Field
 from ruckig import (
     ControlInterface,
@@ -30,22 +30,21 @@ from ruckig import (
     Trajectory,
 )
 
-from endocam.camera import StereoCamera
-from endocam.geometry import FloatArray, as_pose
+from endocam.geometry import FloatArray
 from endocam.kernels import matmul, so3_exp, so3_log, tmatmul
-from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
+from endocam.robot.actuator import WorkspaceBound
 from endocam.robot.arm import MotionStatus
-from endocam.robot.braking import has_brake, path_positions, profile_extrema, profile_rows
-from endocam.task.config import TaskConfig
-from endocam.task.layout import overview_camera_pose, task_centre
-from endocam.workspace.region import (
-    NO_WORKSPACE,
-    Workspace,
-    WorkspaceState,
-    workspace_all_inside,
-    workspace_keep_out_margin,
-    workspace_margin,
+from endocam.robot.braking import profile_rows
+from endocam.robot.cartesian_stop import (
+    STOP_ASK_PATH,
+    STOP_INSIDE,
+    CartesianState,
+    StopCheck,
+    StopStart,
+    path_inside,
+    stop_start,
 )
+from endocam.workspace.region import NO_WORKSPACE, Workspace
 
 
 class MotionLimits(BaseModel):
@@ -102,130 +101,131 @@ def _snap(values: list[float], tol: float) -> list[float]:
     return [0.0 if abs(v) < tol else v for v in values]
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _box_corners(rows: FloatArray) -> FloatArray:
-    """The eight corners (8, 3), m, of the box a 3-DoF braking path spans.
-
-    ``rows``: the path's :func:`~endocam.robot.braking.profile_rows` (3, 49); per axis its
-    lowest and highest position (:func:`~endocam.robot.braking.profile_extrema`, brake part
-    not counted), corners in the order ``[[x, y, z] for x in xs for y in ys for z in zs]``.
-    """
-    xs, ys, zs = profile_extrema(rows, 0), profile_extrema(rows, 1), profile_extrema(rows, 2)
-    out = np.empty((8, 3))
-    for i in range(2):
-        for j in range(2):
-            for k in range(2):
-                row = 4 * i + 2 * j + k
-                out[row, 0], out[row, 1], out[row, 2] = xs[i], ys[j], zs[k]
-    return out
-
-
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _stop_bound(
-    v0: float, v1: float, v2: float, a0: float, a1: float, a2: float, V: float, A: float, J: float
-) -> float:
-    """An upper bound of the braking distance from velocity ``v`` and acceleration ``a``, m.
-
-    ``v`` (m/s), ``a`` (m/s²): world, per axis. Per axis (limits ``V``, ``A``, ``J``: m/s,
-    m/s², m/s³): the speed peaks below ``s = |v| + a²/2J`` (≤ V) and braking lasts under
-    ``|a|/J + s/A + A/J``, so the axis travels less than their product.
-    """
-    total = 0.0
-    for vi, ai in ((v0, a0), (v1, a1), (v2, a2)):
-        x = abs(vi) + ai * ai / (2.0 * J)
-        s = x if x < V else V  # Python's min(V, x)
-        d = s * (abs(ai) / J + s / A + A / J)
-        total += d * d
-    return math.sqrt(total)
-
-
-# The limiter's state around ruckig, compiled (CartesianLimiter.step). ``T``: the current pose
-# (4, 4), world, m; ``flat``: a target pose's 16 entries, row by row; ``buf`` (18,): ruckig's
-# current position (6), target position (6) and target velocity (6) for the step, SI.
-_TARGET_REJECTED = 1  # _prepare's flags: the target is not finite (the last valid one is used)
-_TARGET_MOVING = 2  # the twist gives a target velocity (buf[12:18])
-_TARGET_SAME = 4  # the target is the one the camera rests on
-_F64 = np.dtype(np.float64)
 # Enum members read once: a class attribute of a Python 3.11 enum costs ~0.3 µs per access.
 _FINISHED, _MOVING, _REJECTED = MotionStatus.FINISHED, MotionStatus.MOVING, MotionStatus.REJECTED
 _RUCKIG_OK = (Result.Working, Result.Finished)
 _RUCKIG_FINISHED = Result.Finished
+_F64 = np.dtype(np.float64)
 _NO_TWIST = np.zeros(0)
 _NO_TWIST.setflags(write=False)
+_ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+_Six = tuple[float, float, float, float, float, float]
+
+
+class RuckigInput(NamedTuple):
+    """:func:`prepare_step`'s answer: the target's flags and ruckig's input for the step.
+
+    Attributes
+    ----------
+    rejected : bool
+        The target is not finite: the last valid one is used (its twist dropped).
+    moving : bool
+        The twist gives a target velocity.
+    same : bool
+        The target is the one the camera rests on.
+    current : 6 floats
+        Ruckig's current position: the camera's (m, world), rotation vector 0.
+    target : 6 floats
+        The target position (m, world) and ``so3_log(Rᵀ R_target)`` (rad, camera frame).
+    velocity : 6 floats
+        The target velocity (m/s world, rad/s camera frame); zero unless ``moving``.
+    """
+
+    rejected: bool
+    moving: bool
+    same: bool
+    current: _Six
+    target: _Six
+    velocity: _Six
+
+
+class LimiterStep(NamedTuple):
+    """Ruckig's state after one step, as :func:`advance` takes it.
+
+    ``position`` (m, world) and ``rotvec`` (rad, camera frame) of the new pose; the position
+    DoFs' ``velocity`` (m/s) and ``acceleration`` (m/s²), world; 3 floats each.
+    """
+
+    position: tuple[float, float, float]
+    rotvec: tuple[float, float, float]
+    velocity: tuple[float, float, float]
+    acceleration: tuple[float, float, float]
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _prepare(
+def _clip(v: float, m: float) -> float:
+    """``v`` clipped into ``[−m, m]``."""
+    return min(max(v, -m), m)
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def prepare_step(
     flat: FloatArray,
     last: FloatArray,
     arrived: FloatArray,
     twist: FloatArray,
     T: FloatArray,
     vmax: FloatArray,
-    buf: FloatArray,
-) -> int:
-    """Ruckig's input for a step towards the target ``flat`` (16,); flags (``_TARGET_…``).
+) -> RuckigInput:
+    """Ruckig's input for a step from ``T`` (4, 4), world, m, towards the target ``flat`` (16,).
 
-    A target with a non-finite entry is replaced by ``last`` (16,), the last valid one (its
-    twist dropped). ``twist`` (6,): linear velocity in world (m/s), angular velocity in world
-    (rad/s), or ``(0,)`` for none; a finite, non-zero one gives the target velocity, the
-    angular part in the current camera frame, each clipped to ``±vmax`` (6,) (Python's
-    ``min(max(v, −m), m)``). ``_TARGET_SAME`` when the target equals ``arrived`` (16,), entry
-    by entry.
-    Writes ``buf``: the current position ``T``'s (m) and rotation vector 0; the target
-    position (m) and ``so3_log(Rᵀ R_target)`` (rad, body); the target velocity.
+    A target with a non-finite entry is replaced by ``last`` (16,), the last valid one.
+    ``twist`` (6,): linear velocity in world (m/s), angular velocity in world (rad/s), or
+    ``(0,)`` for none; a finite, non-zero one gives the target velocity, the angular part in
+    the current camera frame, each clipped to ``±vmax`` (6,). ``same`` when the target equals
+    ``arrived`` (16,), entry by entry.
     """
-    code = 0
+    rejected = False
     for i in range(16):
         if not math.isfinite(flat[i]):
             flat = last
-            code = _TARGET_REJECTED
+            rejected = True
             break
-    if code == 0 and twist.shape[0] == 6:
-        finite, moving = True, False
+    moving = False
+    velocity = _ZERO6
+    if not rejected and twist.shape[0] == 6:
+        finite, nonzero = True, False
         for i in range(6):
             finite = finite and math.isfinite(twist[i])
-            moving = moving or twist[i] != 0.0
-        if finite and moving:
+            nonzero = nonzero or twist[i] != 0.0
+        if finite and nonzero:
             w3, w4, w5 = twist[3], twist[4], twist[5]
-            buf[12], buf[13], buf[14] = twist[0], twist[1], twist[2]
-            buf[15] = T[0, 0] * w3 + T[1, 0] * w4 + T[2, 0] * w5
-            buf[16] = T[0, 1] * w3 + T[1, 1] * w4 + T[2, 1] * w5
-            buf[17] = T[0, 2] * w3 + T[1, 2] * w4 + T[2, 2] * w5
-            for i in range(6):
-                buf[12 + i] = min(max(buf[12 + i], -vmax[i]), vmax[i])
-            code |= _TARGET_MOVING
+            velocity = (
+                _clip(twist[0], vmax[0]),
+                _clip(twist[1], vmax[1]),
+                _clip(twist[2], vmax[2]),
+                _clip(T[0, 0] * w3 + T[1, 0] * w4 + T[2, 0] * w5, vmax[3]),
+                _clip(T[0, 1] * w3 + T[1, 1] * w4 + T[2, 1] * w5, vmax[4]),
+                _clip(T[0, 2] * w3 + T[1, 2] * w4 + T[2, 2] * w5, vmax[5]),
+            )
+            moving = True
     same = True
     for i in range(16):
         same = same and flat[i] == arrived[i]
-    if same:
-        code |= _TARGET_SAME
     R = ((T[0, 0], T[0, 1], T[0, 2]), (T[1, 0], T[1, 1], T[1, 2]), (T[2, 0], T[2, 1], T[2, 2]))
     R_tgt = ((flat[0], flat[1], flat[2]), (flat[4], flat[5], flat[6]), (flat[8], flat[9], flat[10]))
     theta = so3_log(tmatmul(R, R_tgt))
-    buf[0], buf[1], buf[2], buf[3], buf[4], buf[5] = T[0, 3], T[1, 3], T[2, 3], 0.0, 0.0, 0.0
-    buf[6], buf[7], buf[8] = flat[3], flat[7], flat[11]
-    buf[9], buf[10], buf[11] = theta[0], theta[1], theta[2]
-    return code
+    current = (T[0, 3], T[1, 3], T[2, 3], 0.0, 0.0, 0.0)
+    target = (flat[3], flat[7], flat[11], theta[0], theta[1], theta[2])
+    return RuckigInput(rejected, moving, same, current, target, velocity)
 
 
-@register_jitable  # also callable from compiled kernels (the same source)
-def _next_pose(
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def advance(
+    check: StopCheck,
+    checking: bool,
     out: FloatArray,
     T: FloatArray,
     flat: FloatArray,
     arriving: bool,
-    x: float,
-    y: float,
-    z: float,
-    rx: float,
-    ry: float,
-    rz: float,
-) -> None:
-    """Writes into ``out`` (4, 4) the pose after a step: the target ``flat`` (16,) if ``arriving``.
+    step: LimiterStep,
+) -> StopStart:
+    """Writes the pose after a step into ``out`` (4, 4); with ``checking``, its stop check.
 
-    Else ruckig's new state from ``T`` (4, 4): position ``(x, y, z)``, world, m, orientation
-    ``R so3_exp(rx, ry, rz)`` (rotation vector in the camera frame, rad).
+    The pose: the target ``flat`` (16,) if ``arriving``, else ruckig's new state from ``T``
+    (4, 4): position ``step.position`` (world, m), orientation ``R so3_exp(step.rotvec)``. The
+    state reached is checked by :func:`~endocam.robot.cartesian_stop.stop_start` (at rest on
+    the target when ``arriving``); without ``checking`` the answer is ``STOP_INSIDE``.
     """
     if arriving:
         for r in range(3):
@@ -233,123 +233,18 @@ def _next_pose(
                 out[r, c] = flat[4 * r + c]
     else:
         R = ((T[0, 0], T[0, 1], T[0, 2]), (T[1, 0], T[1, 1], T[1, 2]), (T[2, 0], T[2, 1], T[2, 2]))
-        M = matmul(R, so3_exp((rx, ry, rz)))
+        M = matmul(R, so3_exp(step.rotvec))
         for r in range(3):
             for c in range(3):
                 out[r, c] = M[r][c]
-        out[0, 3], out[1, 3], out[2, 3] = x, y, z
+            out[r, 3] = step.position[r]
     out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
-
-
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _advance(
-    ws: WorkspaceState,
-    out: FloatArray,
-    T: FloatArray,
-    flat: FloatArray,
-    arriving: bool,
-    check: bool,
-    x: float,
-    y: float,
-    z: float,
-    rx: float,
-    ry: float,
-    rz: float,
-    v0: float,
-    v1: float,
-    v2: float,
-    a0: float,
-    a1: float,
-    a2: float,
-    V: float,
-    A: float,
-    J: float,
-) -> tuple[int, float]:
-    """The pose after a step into ``out`` (:func:`_next_pose`); with ``check``, its stop check.
-
-    The state reached: the target ``flat`` at rest when ``arriving``, else ruckig's new
-    position ``(x, y, z)`` (m) with velocity ``v`` (m/s) and acceleration ``a`` (m/s²), world;
-    its :func:`_stop_start` in the workspace ``state`` (first eleven arguments), limits ``V``,
-    ``A``, ``J``. Without ``check``: ``(1, 0.0)``.
-    """
-    _next_pose(out, T, flat, arriving, x, y, z, rx, ry, rz)
-    if not check:
-        return 1, 0.0
+    if not checking:
+        return StopStart(STOP_INSIDE, 0.0)
     if arriving:
-        x, y, z = flat[3], flat[7], flat[11]
-        v0, v1, v2, a0, a1, a2 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    return _stop_start(
-        ws,
-        x, y, z, v0, v1, v2, a0, a1, a2, V, A, J,
-    )  # fmt: skip
-
-
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _stop_start(
-    ws: WorkspaceState,
-    x: float,
-    y: float,
-    z: float,
-    v0: float,
-    v1: float,
-    v2: float,
-    a0: float,
-    a1: float,
-    a2: float,
-    V: float,
-    A: float,
-    J: float,
-) -> tuple[int, float]:
-    """The stop check's start: 1 it can stop inside, 0 it cannot, 2 ask the braking path.
-
-    A camera at ``(x, y, z)`` (m) moving with ``v`` (m/s), ``a`` (m/s²), world, in the
-    workspace ``state`` (``workspace.region.Workspace.kernel_state``): at rest, its margin
-    decides; farther inside than :func:`_stop_bound` (limits ``V``, ``A``, ``J``), yes. Also
-    returns that bound, m.
-    """
-    margin = workspace_margin(ws, x, y, z)
-    if not (v0 != 0.0 or v1 != 0.0 or v2 != 0.0 or a0 != 0.0 or a1 != 0.0 or a2 != 0.0):
-        return (1 if margin >= 0.0 else 0), 0.0
-    bound = _stop_bound(v0, v1, v2, a0, a1, a2, V, A, J)
-    if margin > bound:
-        return 1, bound  # farther inside than any braking from this state can carry it
-    return 2, bound
-
-
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _path_inside(
-    ws: WorkspaceState,
-    rows: FloatArray,
-    duration: float,
-    dt: float,
-    x: float,
-    y: float,
-    z: float,
-    bound: float,
-) -> bool:
-    """Whether the braking path ``rows`` (3, 49) from ``(x, y, z)`` (m) stays in the workspace.
-
-    ``rows``: the path's :func:`~endocam.robot.braking.profile_rows`, ``duration`` its length
-    (s), ``dt`` the control period (s), ``bound`` its :func:`_stop_bound` (m). The corners of
-    the box the path's profiles span must be inside; then a convex region holds the path,
-    unless a brake pre-trajectory precedes the profiles; a camera farther from the keep-out
-    zone than ``bound`` cannot reach it either; else the path is checked at every control
-    step (:func:`~endocam.robot.braking.path_positions`).
-    """
-    corners = _box_corners(rows)
-    if not workspace_all_inside(ws, corners):
-        return False
-    # The box holds the profiles, not a brake pre-trajectory before them (a state beyond the
-    # limits): then the path itself is checked too.
-    braked = has_brake(rows)
-    if not ws.keep and not braked:
-        return True  # a convex region holding the path's box's corners holds the path
-    if not braked and (workspace_keep_out_margin(ws, x, y, z) > bound):
-        return True  # farther from the keep-out zone than the braking can carry it
-    # a keep-out zone (the wire's) or a brake: the braking path itself, at every control step
-    steps = math.ceil(duration / dt - 1e-9)
-    path = path_positions(rows, duration, dt, steps)
-    return workspace_all_inside(ws, path)
+        rest = (0.0, 0.0, 0.0)
+        return stop_start(check, CartesianState((flat[3], flat[7], flat[11]), rest, rest))
+    return stop_start(check, CartesianState(step.position, step.velocity, step.acceleration))
 
 
 class CartesianLimiter:
@@ -363,9 +258,10 @@ class CartesianLimiter:
     the floor therefore no longer overshoots below it.
 
     The Python around ruckig is compiled: the target's finite check, its rotation vector and
-    the clipped target velocity (:func:`_prepare`), the next pose and the start of the stop
-    check (:func:`_advance`), the braking path's check (:func:`_path_inside`), with the
-    workspace's compiled queries (``workspace.region.workspace_margin`` and the others).
+    the clipped target velocity (:func:`prepare_step`), the next pose and the start of the
+    stop check (:func:`advance`), the braking path's check
+    (:func:`~endocam.robot.cartesian_stop.path_inside`), with the workspace's compiled queries
+    (``workspace.region.workspace_margin`` and the others).
 
     Parameters
     ----------
@@ -395,6 +291,7 @@ class CartesianLimiter:
         self._inp.max_jerk = [j, j, j, jr, jr, jr]  # jerk-limited: smooth for the viewer
         self._vmax = np.array(self._inp.max_velocity)
         self._stop_limits = (v, a, j)  # the position DoFs' limits, m/s, m/s², m/s³
+        self._check = StopCheck(NO_WORKSPACE, v, a, j)
         # Each DoF is limited on its own (no time synchronisation): the target moves every step,
         # so synchronised arrival buys nothing, and it halves ruckig's cost.
         self._inp.synchronization = Synchronization.No
@@ -405,11 +302,9 @@ class CartesianLimiter:
         self._target = np.eye(4)
         self._target_flat = self._target.reshape(16)
         self._arrived_at = np.full(16, math.nan)  # flattened target the camera rests on
-        self._buf = np.zeros(18)  # ruckig's positions and target velocity (_prepare)
         self._moving_target = False  # the last step had a target velocity
         self.status = _FINISHED
         self._workspace: WorkspaceBound | None = None
-        self._ws_state: WorkspaceState = NO_WORKSPACE
         self.workspace = workspace  # (checked, and its compiled state taken, by the setter)
         self._safe = False  # the camera can brake to rest inside the workspace
         self.braked = 0  # steps on which the workspace made the camera brake
@@ -446,33 +341,35 @@ class CartesianLimiter:
                 f"workspace.region.Workspace, got {type(workspace).__name__}"
             )
         self._workspace = workspace
-        self._ws_state = NO_WORKSPACE if workspace is None else workspace.kernel_state
+        state = NO_WORKSPACE if workspace is None else workspace.kernel_state
+        self._check = self._check._replace(workspace=state)
 
-    def _can_stop_inside(self, p: list[float], v: list[float], a: list[float]) -> bool:
-        """Whether a camera at ``p`` (m) moving with ``v``, ``a`` (world) can brake inside."""
-        V, A, J = self._stop_limits
-        code, bound = _stop_start(
-            self._ws_state, p[0], p[1], p[2], v[0], v[1], v[2], a[0], a[1], a[2], V, A, J
-        )
-        return code == 1 if code != 2 else self._path_inside(p, v, a, bound)
+    def can_stop_inside(self, state: CartesianState) -> bool:
+        """Whether a camera in ``state`` (world: m, m/s, m/s²) can brake to rest inside."""
+        return self._stoppable(state, stop_start(self._check, state))
 
-    def _path_inside(self, p: list[float], v: list[float], a: list[float], bound: float) -> bool:
-        """Whether the braking path from ``p`` (m), ``v``, ``a`` (world) stays inside.
+    def _stoppable(self, state: CartesianState, start: StopStart) -> bool:
+        """The stop check's answer from its start (:func:`~.cartesian_stop.stop_start`)."""
+        if start.code != STOP_ASK_PATH:
+            return start.code == STOP_INSIDE
+        return self._path_inside(state, start.bound)
 
-        ``bound``: its :func:`_stop_bound`, m (:func:`_path_inside`).
+    def _path_inside(self, state: CartesianState, bound: float) -> bool:
+        """Whether the braking path from ``state`` stays inside.
+
+        ``bound``: its :func:`~endocam.robot.cartesian_stop.stop_bound`, m.
         """
         inp = self._stop_inp
-        inp.current_position = p
-        inp.current_velocity = v
-        inp.current_acceleration = a
+        inp.current_position = state.p
+        inp.current_velocity = state.v
+        inp.current_acceleration = state.a
         if self._stop_otg.calculate(inp, self._stop_traj) not in _RUCKIG_OK:
             return False
         # (ruckig's position_extrema counts the target position 0 under velocity control)
         traj = self._stop_traj
         rows = profile_rows(traj)
-        return bool(
-            _path_inside(self._ws_state, rows, traj.duration, self.dt, p[0], p[1], p[2], bound)
-        )
+        ws = self._check.workspace
+        return bool(path_inside(ws, rows, traj.duration, self.dt, state.p, bound))
 
     def _brake(self) -> FloatArray:
         """One step along the braking path of the current state (checked the step before)."""
@@ -484,10 +381,9 @@ class CartesianLimiter:
         if self._brake_otg.update(inp, self._brake_out) not in _RUCKIG_OK:
             raise RuntimeError("ruckig failed to brake")
         x, y, z, rx, ry, rz = self._brake_out.new_position
-        _advance(
-            self._ws_state, self._T_next, T, self._target_flat, False, False,
-            x, y, z, rx, ry, rz, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-        )  # fmt: skip
+        rest = (0.0, 0.0, 0.0)
+        step = LimiterStep((x, y, z), (rx, ry, rz), rest, rest)
+        advance(self._check, False, self._T_next, T, self._target_flat, False, step)
         self._T, self._T_next = self._T_next, T
         self._v = self._brake_out.new_velocity
         self._acc = self._brake_out.new_acceleration
@@ -558,28 +454,24 @@ class CartesianLimiter:
                     tw = np.ravel(np.asarray(twist, dtype=float))
                 except (TypeError, ValueError):  # not numbers: no twist, as a NaN one
                     tw = _NO_TWIST
-        code = _prepare(
-            flat, self._target_flat, self._arrived_at, tw, self._T, self._vmax, self._buf
-        )
-        rejected = code & _TARGET_REJECTED
+        prepared = prepare_step(flat, self._target_flat, self._arrived_at, tw, self._T, self._vmax)
+        rejected, moving = prepared.rejected, prepared.moving
         if rejected:
             flat = self._target_flat
         else:
             self._target, self._target_flat = T_new, flat
-        moving = code & _TARGET_MOVING
-        b = self._buf.tolist()
         if moving or self._moving_target:
-            self._inp.target_velocity = b[12:18] if moving else [0.0] * 6
-            self._moving_target = bool(moving)
+            self._inp.target_velocity = prepared.velocity
+            self._moving_target = moving
             if moving:
                 self.status = _MOVING
-        if self.status is _FINISHED and code & _TARGET_SAME:
+        if self.status is _FINISHED and prepared.same:
             return self._T.copy()  # at rest on an unchanged target: nothing to do
         # Re-anchor the orientation DoFs at the current orientation: current rotation vector 0,
-        # target = log(R_cur^T R_target) (body frame, |θ| ≤ π) (_prepare).
+        # target = log(R_cur^T R_target) (body frame, |θ| ≤ π) (prepare_step).
         inp = self._inp
-        inp.current_position = b[0:6]
-        inp.target_position = b[6:12]
+        inp.current_position = prepared.current
+        inp.target_position = prepared.target
         inp.current_velocity = self._v
         inp.current_acceleration = self._acc
         try:
@@ -592,15 +484,20 @@ class CartesianLimiter:
         out = self._out
         new, v, a = out.new_position, out.new_velocity, out.new_acceleration
         check = self.workspace is not None
-        V, A, J = self._stop_limits
-        code, bound = _advance(
-            self._ws_state, self._T_next, self._T, flat, arriving, check,
-            new[0], new[1], new[2], new[3], new[4], new[5],
-            v[0], v[1], v[2], a[0], a[1], a[2], V, A, J,
-        )  # fmt: skip
+        step = LimiterStep(
+            (new[0], new[1], new[2]),
+            (new[3], new[4], new[5]),
+            (v[0], v[1], v[2]),
+            (a[0], a[1], a[2]),
+        )
+        start = advance(self._check, check, self._T_next, self._T, flat, arriving, step)
         if check:
-            # (arriving: at rest, code 0 or 1)
-            stoppable = code == 1 if code != 2 else self._path_inside(new[:3], v[:3], a[:3], bound)
+            # (arriving: at rest, never ask the path)
+            if start.code == STOP_ASK_PATH:
+                state = CartesianState(step.position, step.velocity, step.acceleration)
+                stoppable = self._path_inside(state, start.bound)
+            else:
+                stoppable = start.code == STOP_INSIDE
             if self._safe and not stoppable:
                 return self._brake()  # the braking path of a safe state stays safe
             self._safe = stoppable
@@ -620,71 +517,3 @@ class CartesianLimiter:
 
 _NOT_A_POSE = np.full(16, math.nan)  # a command without 16 entries: rejected
 _NOT_A_POSE.setflags(write=False)
-
-
-_NO_JOINTS = np.zeros(0)
-_NO_JOINTS.setflags(write=False)
-_EXACT = ActuatorStatus.EXACT  # (an enum member read once)
-
-
-class FreeCamera:
-    """The free 6-DoF camera (the paper's simulated endoscope) behind the ``Actuator`` interface.
-
-    It has no joints and reaches every command, within the Cartesian limits of its
-    :class:`CartesianLimiter`; it starts at the whole-task overview pose.
-
-    Parameters
-    ----------
-    limits : MotionLimits
-        Speed, acceleration and jerk norms.
-    dt : float
-        Control period, s.
-    workspace : WorkspaceBound, optional
-        Where the camera may be: once it can stop inside, it never leaves
-        (:class:`CartesianLimiter`).
-    """
-
-    kind = ArmKind.FREE
-    follows_twist = True  # the limiter tracks the command's velocity
-
-    def __init__(
-        self, limits: MotionLimits, dt: float, workspace: WorkspaceBound | None = None
-    ) -> None:
-        self.limiter = CartesianLimiter(limits, dt, workspace)
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        """No joints."""
-        return ()
-
-    @property
-    def q(self) -> FloatArray:
-        """No joints: ``(0,)``."""
-        return _NO_JOINTS
-
-    def start_view(self, task_cfg: TaskConfig, camera: StereoCamera) -> tuple[FloatArray, float]:
-        """The free camera starts at the overview pose itself, looking at the task centre."""
-        T_overview = overview_camera_pose(task_cfg, camera)
-        look = float(np.linalg.norm(task_centre(task_cfg) - T_overview[:3, 3]))
-        return T_overview, look
-
-    def reset(self, T_world_cam: object, look_distance: float | None = None) -> FloatArray:
-        """Start at rest at ``T_world_cam`` (4, 4); returns it."""
-        T = as_pose(T_world_cam, "T_world_cam")
-        self.limiter.reset(T)
-        return T
-
-    def stall(self, joint: int | None) -> None:
-        """No joint to stall: only ``None`` is accepted."""
-        if joint is not None:
-            raise ValueError(f"joint: the free camera has no joint {joint}")
-
-    def step(
-        self, T_world_cmd: FloatArray, look_distance: float, twist: FloatArray | None = None
-    ) -> ActuatorStep:
-        """One limiter step towards the command (a non-finite one keeps the last valid target).
-
-        ``twist`` (6,): the command's velocity, linear then angular, world, m/s and rad/s.
-        """
-        T = self.limiter.step(T_world_cmd, twist)
-        return ActuatorStep(T, _NO_JOINTS, T_world_cmd, _EXACT, 0.0, 0.0, True)

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
+from numba.extending import register_jitable
 from numpy.typing import ArrayLike
 
 from endocam.geometry import FloatArray
@@ -37,11 +38,13 @@ __all__ = [
     "chain_forward",
     "chain_frames",
     "chain_points",
+    "compose12",
     "compose_links",
     "flat_rows",
     "geometric_jacobian",
     "jacobian_into",
     "link_transform",
+    "points12",
     "pose12_between",
     "pose12_from_matrix",
     "pose12_point",
@@ -157,6 +160,15 @@ class DHChain:
         object.__setattr__(self, "_tip_rows", tuple(tuple(row) for row in T[:3].tolist()))
 
     @property
+    def param_array(self) -> FloatArray:
+        """The chain as compiled kernels read it: (n, 7), read-only.
+
+        Per link: cos and sin of ``alpha``, ``A`` (m), ``D`` (m), ``theta`` (rad), ``offset``
+        (rad or m), then 1.0 for a revolute joint, 0.0 for a prismatic one.
+        """
+        return self._param_array
+
+    @property
     def n_joints(self) -> int:
         """Number of joints (one per link)."""
         return len(self.links)
@@ -238,10 +250,10 @@ def compose_links(
 ) -> Pose12:
     """Product ``T0 · T_start · … · T_(stop-1)`` of link transforms, in plain floats.
 
-    The fast path of forward kinematics: the same modified-DH product as repeated
+    The fast path of forward kinematics: the modified-DH product of repeated
     :func:`link_transform`, written column by column on floats and compiled
-    (:func:`_compose_kernel`; about 6× cheaper per call than the same code in Python, and the
-    same floats: no fast-math, the same operations in the same order, libm's sin and cos).
+    (:func:`compose12`; about 6× cheaper per call than the same code in Python). Pinned to
+    :func:`chain_frames`'s numpy product by a tolerance (``tests/test_robot_kinematics.py``).
 
     Parameters
     ----------
@@ -260,7 +272,7 @@ def compose_links(
         The composed pose, 12 floats (rotation row-major, then translation), m.
     """
     stop = len(chain._params) if stop is None else stop
-    return _compose_kernel(chain._param_array, tuple(map(float, q)), start, stop, T0)
+    return compose12(chain._param_array, tuple(map(float, q)), start, stop, T0)
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -277,12 +289,14 @@ def flat_rows(c: FloatArray, i: int) -> tuple[tuple[float, ...], ...]:
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _compose_kernel(
+def compose12(
     params: FloatArray, q: tuple[float, ...] | FloatArray, start: int, stop: int, T0: Pose12
 ) -> Pose12:
-    """:func:`compose_links` on the chain's (n, 7) parameter array (``DHChain._param_array``).
+    """``T0 · T_start · … · T_(stop-1)``: :func:`compose_links` for compiled callers.
 
-    ``q``: the joint values (n,), a tuple or an array (the same floats either way), rad / m.
+    ``params``: the chain's (n, 7) :attr:`DHChain.param_array`; ``q``: the joint values (n,),
+    a tuple or an array, rad / m; ``T0`` and the result: 12 floats (rotation row-major, then
+    translation, m), in ``T0``'s frame.
     """
     r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = T0
     for i in range(start, stop):
@@ -313,8 +327,7 @@ def chain_points(
     """Where a point fixed to the last link goes, for many joint vectors at once.
 
     Row ``k`` is ``pose12_point(compose_links(chain, q_rows[k], T0=T0), rows)`` for ``rows``
-    whose last column is ``point``: the same floats (the same compiled product, then the same
-    products and sums in the same order), one call for a whole path (e.g. a braking path's
+    whose last column is ``point``, one compiled call for a whole path (e.g. a braking path's
     camera positions).
 
     Parameters
@@ -334,17 +347,22 @@ def chain_points(
         The point in ``T0``'s frame for each row, m.
     """
     q = np.ascontiguousarray(q_rows, dtype=float).reshape(-1, len(chain._params))
-    return _points_kernel(chain._param_array, q, T0, point[0], point[1], point[2])
+    return points12(chain._param_array, q, T0, (point[0], point[1], point[2]))
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _points_kernel(
-    params: FloatArray, q_rows: FloatArray, T0: Pose12, a3: float, b3: float, c3: float
+def points12(
+    params: FloatArray, q_rows: FloatArray, T0: Pose12, point: tuple[float, float, float]
 ) -> FloatArray:
-    """:func:`chain_points` on the chain's (n, 7) parameter array and joint rows (m, n)."""
+    """:func:`chain_points` for compiled callers: (m, 3), in ``T0``'s frame, m.
+
+    ``params``: the chain's (n, 7) :attr:`DHChain.param_array`; ``q_rows`` (m, n): joint
+    vectors, rad / m; ``T0``: 12 floats, m; ``point``: in the last link's frame, m.
+    """
+    a3, b3, c3 = point
     out = np.empty((q_rows.shape[0], 3))
     for k in range(q_rows.shape[0]):
-        r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = _compose_kernel(
+        r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = compose12(
             params, q_rows[k], 0, params.shape[0], T0
         )
         out[k, 0] = r00 * a3 + r01 * b3 + r02 * c3 + px
@@ -359,6 +377,7 @@ def pose12_from_matrix(T: FloatArray) -> Pose12:
     return (r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz)
 
 
+@register_jitable  # also callable from compiled kernels (the same source)
 def pose12_times(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> Pose12:
     """Product ``T · B`` of a 12-float pose and a transform ``B`` given by its top 3 rows.
 
@@ -392,31 +411,27 @@ def pose12_times(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> Pose12:
     )
 
 
-_pose12_times_kernel = njit(cache=True)(pose12_times)
-""":func:`pose12_times` compiled from the same source, for other kernels (e.g. the PSM's IK)."""
-
-
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def pose12_between(pre: Pose12, T: FloatArray, post: tuple[tuple[float, ...], ...]) -> Pose12:
     """``pre · T · post`` as 12 floats (rotation row-major, then translation), m.
 
-    ``T`` (4, 4): a pose, m; ``pre``: 12 floats; ``post``: the top 3 rows of a transform. The
-    floats of ``pose12_times(pose12_times(pre, T's top rows), post)``, in one compiled call
-    (e.g. a camera goal in world to its tool-tip goal in the RCM frame).
+    ``T`` (4, 4): a pose, m; ``pre``: 12 floats; ``post``: the top 3 rows of a transform:
+    ``pose12_times(pose12_times(pre, T's top rows), post)`` in one compiled call (e.g. a
+    camera goal in world to its tool-tip goal in the RCM frame).
     """
     rows = (
         (T[0, 0], T[0, 1], T[0, 2], T[0, 3]),
         (T[1, 0], T[1, 1], T[1, 2], T[1, 3]),
         (T[2, 0], T[2, 1], T[2, 2], T[2, 3]),
     )
-    return _pose12_times_kernel(_pose12_times_kernel(pre, rows), post)
+    return pose12_times(pose12_times(pre, rows), post)
 
 
 def pose12_point(T: Pose12, rows: tuple[tuple[float, ...], ...]) -> list[float]:
     """Translation of ``T · B`` alone (3 floats, m): :func:`pose12_times`'s last three values.
 
-    The same products in the same order, without the rotation (for checks that only need
-    where a point is, e.g. the camera on a braking path).
+    Without the rotation (for checks that only need where a point is, e.g. the camera on a
+    braking path).
     """
     r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = T
     (_, _, _, a3), (_, _, _, b3), (_, _, _, c3) = rows
@@ -521,9 +536,8 @@ def jacobian_into(params: FloatArray, T_last_tip: FloatArray, q: FloatArray, J: 
     """The geometric Jacobian (6, n) of the chain's tip at ``q`` (n,), into ``J``.
 
     ``params``: the chain's (n, 7) parameter array (``DHChain._param_array``); ``T_last_tip``
-    (4, 4), m. The floats of the interpreted form (``tests/reference_psm.py``): the link frames
-    as numpy's ``T @ link_transform(...)`` from the identity (``blasfloat.matmul4``), the tip
-    ``T_n @ T_last_tip``, and ``np.cross(z_i, p_tip - o_i)`` (``a1 b2 - a2 b1``, ...).
+    (4, 4), m. The link frames as :func:`chain_frames` (``T @ link_transform(...)`` from the
+    identity), the tip ``T_n @ T_last_tip``, and ``z_i × (p_tip − o_i)`` for a revolute joint.
     """
     n = params.shape[0]
     frames = np.empty((n, 4, 4))

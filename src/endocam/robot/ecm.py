@@ -29,6 +29,7 @@ solve restores the closest reachable position) and roll (to its nearer limit).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -42,12 +43,12 @@ from endocam.robot.dh import (
     DHLink,
     JointType,
     Pose12,
-    _compose_kernel,
-    _pose12_times_kernel,
+    compose12,
     compose_links,
     flat_rows,
     pose12_from_matrix,
     pose12_point,
+    pose12_times,
     pose12_to_matrix,
 )
 from endocam.robot.ik import (
@@ -64,7 +65,15 @@ from endocam.robot.kinematics import (
     branch_in_limits,
 )
 
-__all__ = ["ECM", "ECM_CHAIN"]
+__all__ = [
+    "ECM",
+    "ECM_CHAIN",
+    "SOLVE_DONE",
+    "SOLVE_NEED_NEAREST",
+    "EcmSolve",
+    "exact12",
+    "solve12",
+]
 
 
 _HALF_PI = math.pi / 2.0  # rad; the dVRK's 1.5708, as its parser reads it
@@ -113,8 +122,7 @@ def clamp_angle_to_limits(angle: float, reference: float, lower: float, upper: f
     """
     chosen = branch_in_limits(angle, reference, lower, upper)
     if lower - LIMIT_SLACK <= chosen <= upper + LIMIT_SLACK:
-        inside = lower if lower > chosen else chosen  # Python's max(chosen, lower)
-        return upper if upper < inside else inside  # Python's min(inside, upper)
+        return min(max(chosen, lower), upper)
     to_lower = abs(wrap_angle(lower - angle))
     to_upper = abs(wrap_angle(upper - angle))
     return lower if to_lower <= to_upper else upper
@@ -123,11 +131,43 @@ def clamp_angle_to_limits(angle: float, reference: float, lower: float, upper: f
 # ECM._consts, the compiled IK's constants: T_tip_last's rows, the tool-tip rows, the tool's
 # rotation (row-major), the shaft offset (m), then the lower and upper joint limits
 _C_TIP_INV, _C_TIP, _C_TOOL, _C_SHAFT, _C_LOWER, _C_UPPER = 0, 12, 24, 33, 34, 38
-# _solve_kernel's outcomes: done, or the axis is out of its limits (the caller solves the
-# nearest position, scipy, and asks again with it)
-_DONE, _NEED_NEAREST = 0, 1
-# IK statuses as _solve_kernel returns them
+SOLVE_DONE = 0
+"""A :func:`solve12` outcome: the solve is done."""
+SOLVE_NEED_NEAREST = 1
+"""A :func:`solve12` outcome: the axis is out of its limits; the caller solves the nearest
+in-limit position (scipy) and asks again with it."""
+# IK statuses as solve12 returns them (EcmSolve.status indexes this)
 _STATUSES = (IKStatus.OK, IKStatus.CLAMPED_TO_LIMITS, IKStatus.UNREACHABLE)
+
+
+class EcmSolve(NamedTuple):
+    """What :func:`solve12` found (the ECM's IK, compiled).
+
+    Attributes
+    ----------
+    outcome : int
+        :data:`SOLVE_DONE` or :data:`SOLVE_NEED_NEAREST`.
+    status : int
+        0 ``OK``, 1 ``CLAMPED_TO_LIMITS``, 2 ``UNREACHABLE`` (``IKStatus``).
+    q : 4-tuple of float
+        Joints, rad / m (the unclamped aim with ``SOLVE_NEED_NEAREST``).
+    position_error : float
+        m.
+    orientation_error : float
+        rad.
+    T12 : Pose12
+        ``forward(q)``: the tip in the RCM frame, 12 floats, m.
+    p_goal : 3-tuple of float
+        The goal position of the last DH frame, RCM frame, m.
+    """
+
+    outcome: int
+    status: int
+    q: tuple[float, float, float, float]
+    position_error: float
+    orientation_error: float
+    T12: Pose12
+    p_goal: tuple[float, float, float]
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -140,7 +180,7 @@ def _best_roll(
     (translation 0), then the product of the first three links at ``q0, q1, q2`` (12 floats,
     m). With ``M = R_tool · R_goalᵀ · R_rcm_3``, ``θ4 = atan2(M01 − M10, M00 + M11)``.
     """
-    a = _compose_kernel(params, (q0, q1, q2, 0.0), 0, 3, IDENTITY12)
+    a = compose12(params, (q0, q1, q2, 0.0), 0, 3, IDENTITY12)
     R3 = (a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], 0.0, 0.0, 0.0)
     # N = R_goal^T R3 (rows of R_goal^T = columns of R_goal)
     g00, g01, g02, g10, g11, g12, g20, g21, g22 = goal[:9]
@@ -161,7 +201,7 @@ def _best_roll(
         (c[t + 3], c[t + 4], c[t + 5], 0.0),
         (c[t + 6], c[t + 7], c[t + 8], 0.0),
     )
-    return theta4, _pose12_times_kernel(_pose12_times_kernel(R3, rz), tool4), a
+    return theta4, pose12_times(pose12_times(R3, rz), tool4), a
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
@@ -173,17 +213,16 @@ def _aim(
     Returns yaw, pitch, insertion (rad, rad, m; roll 0), the goal position of the last DH
     frame (m, RCM frame), the best roll θ4 (rad), whether that roll reaches the goal's
     orientation exactly (with unlimited joints: the axis passes through the RCM), and the
-    product of the first three links (12 floats, m). ``two``: 2.0 (:func:`pose12_error`).
+    product of the first three links (12 floats, m).
     """
-    g = _pose12_times_kernel(goal, flat_rows(c, _C_TIP_INV))  # last DH frame at the goal
+    g = pose12_times(goal, flat_rows(c, _C_TIP_INV))  # last DH frame at the goal
     p0, p1, p2 = g[9], g[10], g[11]
     r = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
     if r > _EPS_GEOM:
         s0, s1, s2 = p0 / r, p1 / r, p2 / r
     else:
         s0, s1, s2 = g[2], g[5], g[8]
-    s1_in = s1 if s1 < 1.0 else 1.0  # Python's min(1.0, s1)
-    s1_in = s1_in if s1_in > -1.0 else -1.0  # Python's max(-1.0, …)
+    s1_in = max(-1.0, min(1.0, s1))
     q = (math.atan2(s0, -s2), -math.asin(s1_in), r - c[_C_SHAFT])
     # reachable with unlimited joints iff the best roll on the unclamped axis is exact
     theta4, R_free, T_rcm_3 = _best_roll(params, c, goal, q[0], q[1], q[2])
@@ -229,8 +268,7 @@ def _clamped_forward(
     """``q`` clipped into the limits and ``forward`` of it (12 floats, m).
 
     Reuses ``T_rcm_3``, the first three links at ``q_axis``, if the clip left those joints
-    alone: the same products in the same order as composing all four links (the roll is the
-    last), so the same floats.
+    alone (the roll is the last link, so the product is the same as composing all four).
     """
     lo, hi = _C_LOWER, _C_UPPER
     qc = (
@@ -240,35 +278,34 @@ def _clamped_forward(
         _clip(q[3], c[lo + 3], c[hi + 3]),
     )
     if qc[0] == q_axis[0] and qc[1] == q_axis[1] and qc[2] == q_axis[2]:
-        T = _compose_kernel(params, qc, 3, 4, T_rcm_3)
+        T = compose12(params, qc, 3, 4, T_rcm_3)
     else:
-        T = _compose_kernel(params, qc, 0, 4, IDENTITY12)
-    return qc, _pose12_times_kernel(T, flat_rows(c, _C_TIP))
+        T = compose12(params, qc, 0, 4, IDENTITY12)
+    return qc, pose12_times(T, flat_rows(c, _C_TIP))
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _solve_kernel(
+def solve12(
     params: FloatArray,
     c: FloatArray,
     goal: Pose12,
     seed3: float,
     near: tuple[float, float, float] | None,
-) -> tuple[
-    int, int, tuple[float, float, float, float], float, float, Pose12, tuple[float, float, float]
-]:
-    """:meth:`ECM.solve_unchecked` (module docstring), compiled; ``two``: 2.0.
+) -> EcmSolve:
+    """:meth:`ECM.solve_unchecked` (module docstring), compiled.
 
-    Returns ``(outcome, status, q, position_error, orientation_error, forward(q), p_goal)``.
-    ``_NEED_NEAREST`` (axis out of its limits, ``near`` None): ``q`` is the unclamped aim and
-    ``p_goal`` the goal position of the last DH frame (m); the caller finds the nearest
-    in-limit yaw, pitch, insertion and calls again with them as ``near``.
+    ``params``: the chain's (4, 7) :attr:`~endocam.robot.dh.DHChain.param_array`; ``c``:
+    :attr:`ECM.ik_constants`; ``goal``: the tip goal in the RCM frame (12 floats, m);
+    ``seed3``: the preferred roll, rad. With :data:`SOLVE_NEED_NEAREST` (axis out of its
+    limits, ``near`` None) ``q`` is the unclamped aim; the caller finds the nearest in-limit
+    yaw, pitch, insertion (rad, rad, m) and calls again with them as ``near``.
     """
     q_axis, p_goal, theta4, exact, T_rcm_3 = _aim(params, c, goal)
     q = (q_axis[0], q_axis[1], q_axis[2], 0.0)
     clamped = False
     if not _axis_in_limits(c, q_axis):
         if near is None:
-            return _NEED_NEAREST, 0, q, 0.0, 0.0, IDENTITY12, p_goal
+            return EcmSolve(SOLVE_NEED_NEAREST, 0, q, 0.0, 0.0, IDENTITY12, p_goal)
         clamped = True
         theta4 = _best_roll(params, c, goal, near[0], near[1], near[2])[0]
         q = (near[0], near[1], near[2], 0.0)
@@ -279,16 +316,20 @@ def _solve_kernel(
     pos_err, ang_err = pose12_error(goal, T12)
     if status == 0 and not (pos_err <= IK_POSITION_TOL_M and ang_err <= IK_ORIENTATION_TOL_RAD):
         status = 2
-    return _DONE, status, q, pos_err, ang_err, T12, p_goal
+    return EcmSolve(SOLVE_DONE, status, q, pos_err, ang_err, T12, p_goal)
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _exact_kernel(
+def exact12(
     params: FloatArray, c: FloatArray, goal: Pose12, seed3: float
 ) -> tuple[bool, tuple[float, float, float, float]]:
-    """:meth:`ECM.exact12_unchecked`, compiled: ``(True, q)`` for an ``OK`` solve."""
+    """:meth:`ECM.exact12_unchecked`, compiled: ``(True, q)`` for an ``OK`` solve.
+
+    ``params``, ``c``, ``goal`` (12 floats, RCM frame, m), ``seed3`` (rad) as :func:`solve12`;
+    ``q``: rad / m (not meaningful with False).
+    """
     none = (0.0, 0.0, 0.0, 0.0)
-    g = _pose12_times_kernel(goal, flat_rows(c, _C_TIP_INV))  # last DH frame at the goal
+    g = pose12_times(goal, flat_rows(c, _C_TIP_INV))  # last DH frame at the goal
     p = (g[9], g[10], g[11])
     if norm(p) > _EPS_GEOM:  # else at the RCM: no shaft direction to compare with
         z = (g[2], g[5], g[8])
@@ -353,17 +394,23 @@ class ECM(RcmArm):
             ``OK`` when the goal is reached (its optical axis passes through the RCM and the
             joints are in limits); ``UNREACHABLE`` when the optical axis misses the RCM
             (residual orientation error > 0); ``CLAMPED_TO_LIMITS`` when only joint limits
-            prevent it. ``q`` is always within the limits. Compiled (:func:`_solve_kernel`)
+            prevent it. ``q`` is always within the limits. Compiled (:func:`solve12`)
             but for the nearest in-limit position of an axis out of its limits (scipy).
         """
         goal = pose12_from_matrix(T_goal)
-        args = (self._chain._param_array, self._consts, goal, float(seed[3]))
-        outcome, status, q, pos_err, ang_err, T12, p_goal = _solve_kernel(*args, None)
-        if outcome == _NEED_NEAREST:
-            q_clip = self.clamp(np.array(q))[:3]
-            near = self._nearest_position(np.array(p_goal), q_clip).tolist()
-            _, status, q, pos_err, ang_err, T12, _ = _solve_kernel(*args, tuple(near))
-        return IKResult(np.array(q), _STATUSES[status], pos_err, ang_err, pose12_to_matrix(T12))
+        args = (self._chain.param_array, self._consts, goal, float(seed[3]))
+        found = solve12(*args, None)
+        if found.outcome == SOLVE_NEED_NEAREST:
+            q_clip = self.clamp(np.array(found.q))[:3]
+            near = self._nearest_position(np.array(found.p_goal), q_clip).tolist()
+            found = solve12(*args, (near[0], near[1], near[2]))
+        return IKResult(
+            np.array(found.q),
+            _STATUSES[found.status],
+            found.position_error,
+            found.orientation_error,
+            pose12_to_matrix(found.T12),
+        )
 
     def exact12_unchecked(self, goal12: Pose12, seed: FloatArray) -> list[float] | None:
         """:meth:`solve_unchecked`'s joints when its status is ``OK``, else ``None``.
@@ -372,9 +419,9 @@ class ECM(RcmArm):
         out (an optical axis clearly off the ray from the RCM, more than ``_AXIS_MISS_RAD``,
         far beyond ``_EXACT_TOL_RAD``; a joint limit): the control loop asks this several
         times per step, mostly of goals the 4-DoF scope cannot reach. One compiled call
-        (:func:`_exact_kernel`).
+        (:func:`exact12`).
         """
-        ok, q = _exact_kernel(self._chain._param_array, self._consts, goal12, float(seed[3]))
+        ok, q = exact12(self._chain.param_array, self._consts, goal12, float(seed[3]))
         return list(q) if ok else None
 
     def _nearest_position(self, p_goal: FloatArray, q0: FloatArray) -> FloatArray:

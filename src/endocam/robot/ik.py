@@ -147,8 +147,6 @@ def pose12_error(goal: tuple[float, ...], pose: tuple[float, ...]) -> tuple[floa
     ----------
     goal, pose : tuple of 12 floats
         Poses in the same frame, m.
-    two : float
-        2.0, passed at run time by compiled kernels (:func:`~endocam.kernels.rotation_angle`).
 
     Returns
     -------

@@ -22,9 +22,9 @@ from endocam.robot.dh import (
     DHChain,
     JointType,
     Pose12,
-    _compose_kernel,
     chain_forward,
     chain_frames,
+    compose12,
     geometric_jacobian,
     jacobian_into,
     pose12_to_matrix,
@@ -65,9 +65,8 @@ def _round_half_even(x: float) -> float:
 def wrap_to_nearest(angle: float, reference: float) -> float:
     """Add a multiple of 2π to ``angle`` to bring it closest to ``reference`` (rad).
 
-    Compiled; the same floats as ``angle + 2π · round((reference − angle) / 2π)`` in the
-    interpreter (ties to even), and its errors: ``ValueError`` for NaN, ``OverflowError``
-    for an infinite quotient (``tests/test_robot_kinematics.py`` pins the two).
+    Compiled: ``angle + 2π · round((reference − angle) / 2π)`` (ties to even), with
+    Python's errors: ``ValueError`` for NaN, ``OverflowError`` for an infinite quotient.
     """
     x = (reference - angle) / (2.0 * math.pi)
     if math.isnan(x):
@@ -124,11 +123,10 @@ def _residual_into(
     """The nearest-feasible solve's residual (6,) at ``q`` (n,), into ``out``, m.
 
     ``[p(q) - p_goal, w · so3_log(R_goal^T R(q))]`` with ``T(q)`` the chain's tip pose
-    (``params``: ``DHChain._param_array``; ``T_last_tip`` (4, 4)) and ``T_goal`` (4, 4), RCM
-    frame, m; ``weight`` m/rad. The floats of the interpreted form (``tests/reference_psm.py``):
-    ``chain_forward``'s product, numpy's ``T_goal[:3, :3].T @ T[:3, :3]`` (``blasfloat.tmatmul3``).
+    (``params``: ``DHChain.param_array``; ``T_last_tip`` (4, 4)) and ``T_goal`` (4, 4), RCM
+    frame, m; ``weight`` m/rad: ``chain_forward``'s product, then ``T_goal[:3, :3].T @ R``.
     """
-    r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = _compose_kernel(
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = compose12(
         params, q, 0, params.shape[0], IDENTITY12
     )
     R = np.empty((3, 3))
@@ -201,12 +199,22 @@ class RcmArm(abc.ABC):
         self._lower_slack = self._lower - LIMIT_SLACK
         self._limit_pairs = tuple(zip(self._lower.tolist(), self._upper.tolist(), strict=True))
         self._upper_slack = self._upper + LIMIT_SLACK
+        self._consts: FloatArray = np.zeros(0)  # the compiled IK's constants (subclasses)
 
     # ------------------------------------------------------------------ properties
     @property
     def chain(self) -> DHChain:
         """The modified-DH chain (base = RCM frame)."""
         return self._chain
+
+    @property
+    def ik_constants(self) -> FloatArray:
+        """The constants the subclass's compiled IK reads (its closed form's), read-only.
+
+        Empty for an arm without a compiled IK; the layout is the subclass's (``psm.exact12``,
+        ``ecm.exact12`` and ``ecm.solve12`` take it with the chain's ``param_array``).
+        """
+        return self._consts
 
     @property
     def n_joints(self) -> int:
@@ -495,7 +503,7 @@ class RcmArm(abc.ABC):
         A new array per call: scipy's solver keeps the residuals it was given.
         """
         out = np.empty(6)
-        _residual_into(self._chain._param_array, self._chain.T_last_tip, q, T_goal, weight, out)
+        _residual_into(self._chain.param_array, self._chain.T_last_tip, q, T_goal, weight, out)
         return out
 
     def _pose_residual_jac(self, q: FloatArray, T_goal: FloatArray, weight: float) -> FloatArray:
@@ -505,7 +513,7 @@ class RcmArm(abc.ABC):
         (:func:`_residual_jac_into`); a new array per call.
         """
         out = np.empty((6, self.n_joints))
-        _residual_jac_into(self._chain._param_array, self._chain.T_last_tip, q, T_goal, weight, out)
+        _residual_jac_into(self._chain.param_array, self._chain.T_last_tip, q, T_goal, weight, out)
         return out
 
     def nearest_feasible(

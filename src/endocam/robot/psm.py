@@ -35,11 +35,11 @@ from endocam.robot.dh import (
     DHLink,
     JointType,
     Pose12,
-    _compose_kernel,
-    _pose12_times_kernel,
     chain_forward,
+    compose12,
     flat_rows,
     pose12_from_matrix,
+    pose12_times,
     pose12_to_matrix,
 )
 from endocam.robot.ik import (
@@ -58,7 +58,7 @@ from endocam.robot.kinematics import (
     branch_in_limits,
 )
 
-__all__ = ["PSM", "PSM_CHAIN", "PSM_TOOLTIP_OFFSET"]
+__all__ = ["PSM", "PSM_CHAIN", "PSM_TOOLTIP_OFFSET", "exact12"]
 
 
 # The dVRK files write ±1.5708; cisst's robManipulator parser replaces that value by π/2,
@@ -192,10 +192,10 @@ class PSM(RcmArm):
     def exact12_unchecked(self, goal12: Pose12, seed: FloatArray) -> list[float] | None:
         """:meth:`exact_unchecked` for a goal given as 12 floats (rotation row-major, then m).
 
-        One compiled call (:func:`_exact_kernel`).
+        One compiled call (:func:`exact12`).
         """
-        ok, q = _exact_kernel(
-            self._chain._param_array, self._consts, goal12, float(seed[0]), float(seed[3])
+        ok, q = exact12(
+            self._chain.param_array, self._consts, goal12, float(seed[0]), float(seed[3])
         )
         return list(q) if ok else None
 
@@ -207,7 +207,7 @@ class PSM(RcmArm):
         for a non-finite goal.
         """
         found, q, T = _closed_form_kernel(
-            self._chain._param_array, self._consts, goal, float(seed[0]), float(seed[3])
+            self._chain.param_array, self._consts, goal, float(seed[0]), float(seed[3])
         )
         return (list(q), T) if found else None
 
@@ -235,12 +235,10 @@ def _closed_form_kernel(
     ``params``: the chain's (6, 7) parameter array; ``c``: ``PSM._consts``; ``goal``: the
     tool-tip goal (rotation row-major, then m); ``seed0``, ``seed3``: the yaw and roll seeds,
     rad. Returns ``(found, q, forward(q))``; ``found`` is False when the wrist geometry is
-    singular. The interpreter's floats: no fast-math, CPython's hypot (:func:`hypot2`).
+    singular.
     """
     lower, upper = c[_C_LOWER : _C_LOWER + 6], c[_C_UPPER : _C_UPPER + 6]
-    x0, _, z0, x1, _, z1, x2, _, z2, p0, p1, p2 = _pose12_times_kernel(
-        goal, flat_rows(c, _C_TIP_INV)
-    )
+    x0, _, z0, x1, _, z1, x2, _, z2, p0, p1, p2 = pose12_times(goal, flat_rows(c, _C_TIP_INV))
     none = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     # step 2: wrist-pitch point on the shaft
     pz = p0 * z0 + p1 * z1 + p2 * z2
@@ -258,7 +256,7 @@ def _closed_form_kernel(
     q3 = r - c[_C_SHAFT]
     q2 = -math.asin(max(-1.0, min(1.0, w1 / r)))
     q1 = branch_in_limits(math.atan2(w0, -w2), seed0, lower[0], upper[0])
-    T_rcm_3 = _compose_kernel(params, (q1, q2, q3, 0.0, 0.0, 0.0), 0, 3, IDENTITY12)
+    T_rcm_3 = compose12(params, (q1, q2, q3, 0.0, 0.0, 0.0), 0, 3, IDENTITY12)
     a00, a01, a02, a10, a11, a12, a20, a21, a22 = T_rcm_3[:9]
     # step 4: wrist-yaw axis in frame 3 = (-cos θ4 sin θ5, -sin θ4 sin θ5, -cos θ5)
     v0 = a00 * z0 + a10 * z1 + a20 * z2
@@ -268,7 +266,7 @@ def _closed_form_kernel(
     theta4 = math.atan2(v1, v0)
     q4 = branch_in_limits(theta4 - params[3, 5], seed3, lower[3], upper[3])
     q5 = branch_in_limits(theta5 - params[4, 5], 0.0, lower[4], upper[4])
-    b = _compose_kernel(params, (q1, q2, q3, q4, q5, 0.0), 3, 5, IDENTITY12)
+    b = compose12(params, (q1, q2, q3, q4, q5, 0.0), 3, 5, IDENTITY12)
     b00, b01, b02, b10, b11, b12, b20, b21, b22 = b[:9]
     # x6 in frame 3, then in frame 5; RotX(alpha6)^T of it is (cos θ6, sin θ6, 0)
     c0 = a00 * x0 + a10 * x1 + a20 * x2
@@ -281,19 +279,22 @@ def _closed_form_kernel(
     q6 = branch_in_limits(theta6 - params[5, 5], 0.0, lower[5], upper[5])
     q = (q1, q2, q3, q4, q5, q6)
     # forward(q), reusing the product of the first three links (unchanged since)
-    T_rcm_6 = _compose_kernel(params, q, 3, 6, T_rcm_3)
-    return True, q, _pose12_times_kernel(T_rcm_6, flat_rows(c, _C_TIP))
+    T_rcm_6 = compose12(params, q, 3, 6, T_rcm_3)
+    return True, q, pose12_times(T_rcm_6, flat_rows(c, _C_TIP))
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
-def _exact_kernel(
+def exact12(
     params: FloatArray, c: FloatArray, goal: Pose12, seed0: float, seed3: float
 ) -> tuple[bool, tuple[float, ...]]:
     """:meth:`PSM.exact12_unchecked`, compiled: ``(True, q)`` for an exact, in-limit solution.
 
-    The closed form (:func:`_closed_form_kernel`), its pose error within the IK tolerances
-    (:func:`pose12_error`; ``two``: 2.0), and ``RcmArm.clamp_floats``'s clip and limit test
-    (``LIMIT_SLACK`` tolerated, the clipped values returned).
+    ``params``: the chain's (6, 7) :attr:`~endocam.robot.dh.DHChain.param_array`; ``c``:
+    :attr:`PSM.ik_constants`; ``goal``: the tool-tip goal in the RCM frame (12 floats, m);
+    ``seed0``, ``seed3``: the preferred outer yaw and roll, rad. The closed form
+    (:func:`_closed_form_kernel`), its pose error within the IK tolerances
+    (:func:`pose12_error`), and ``RcmArm.clamp_floats``'s clip and limit test (``LIMIT_SLACK``
+    tolerated, the clipped values returned; ``q``: 6 joints, rad / m).
     """
     found, q, T12 = _closed_form_kernel(params, c, goal, seed0, seed3)
     if not found:
