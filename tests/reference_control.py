@@ -26,6 +26,7 @@ import numpy as np
 
 from endocam.camera import MIN_DEPTH
 from endocam.control.config import ControllerConfig, SideRule, Transfer
+from endocam.control.gate import STALE_REASON, is_stale
 from endocam.control.oracle import (
     INFEASIBLE_COST,
     TIE_BREAK,
@@ -46,8 +47,8 @@ from endocam.control.policies import (
     OrientationPolicy,
     _MovingPolicy,
 )
-from endocam.control.safety import D_F_STEP, STALE_REASON, WindowGeometry, WindowStatus, is_stale
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
+from endocam.control.windows import D_F_STEP, WindowGeometry, WindowStatus
 from endocam.geometry import UP, FloatArray
 from endocam.kernels import Rows, Vec, cross, dot, finite_rows, norm, reject, scaled, unit_or_none
 from endocam.view import look_at_unchecked, pose_from_columns

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from endocam import kernels
 from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
-from endocam.control import clearance
+from endocam.control import detour, escape
 from endocam.control.clearance import WIRE_CLEARANCE, ClearanceGuard
 from endocam.control.goal import goal_pose
 from endocam.control.policies import DETOUR_REASON, STALL_STEPS, WIRE_REASON, OrientationPolicy
@@ -213,12 +213,12 @@ class _InterpretedGuard:
         if not math.isfinite(length) or length <= 1e-9:
             return None
         t, x = 0.0, [a[0], a[1], a[2]]
-        for _ in range(clearance.MAX_ESCAPE_STEPS):
+        for _ in range(detour.MAX_TRACE_STEPS):
             free = self.distance(x) - self.clearance
-            if not free > clearance.DETOUR_TOL:
-                if not (free >= -clearance.DETOUR_TOL and self.leaving(x, seg)):
+            if not free > detour.DETOUR_TOL:
+                if not (free >= -detour.DETOUR_TOL and self.leaving(x, seg)):
                     return x
-                free = clearance.DETOUR_CREEP
+                free = detour.DETOUR_CREEP
             t += free / length
             if t >= 1.0:
                 return None
@@ -232,7 +232,7 @@ class _InterpretedGuard:
 
     def lifted(self, p: list[float]) -> list[float] | None:
         d, k = self.nearest_surface(p)
-        want = self.clearance + clearance.DETOUR_PUSH
+        want = self.clearance + detour.DETOUR_PUSH
         if d >= want:
             return p
         q = self.points[k].tolist()
@@ -259,12 +259,12 @@ class _InterpretedGuard:
         g = kernels.reject((b[0] - q[0], b[1] - q[1], b[2] - q[2]), tangent)
         phi = math.atan2(kernels.dot(g, around), kernels.dot(g, out))
         rest = (b[0] - x[0], b[1] - x[1], b[2] - x[2])
-        step = min(clearance.DETOUR_STEP, kernels.norm(rest))
-        if abs(phi) < clearance.SAME_SIDE_ANGLE:
+        step = min(detour.DETOUR_STEP, kernels.norm(rest))
+        if abs(phi) < detour.SAME_SIDE_ANGLE:
             move = kernels.scaled(kernels.unit_or_none(kernels.reject(rest, out)) or out, step)
         else:
             sign = 1.0 if phi > 0.0 else -1.0
-            if abs(phi) > math.pi - clearance.SAME_SIDE_ANGLE:
+            if abs(phi) > math.pi - detour.SAME_SIDE_ANGLE:
                 sign = 1.0 if around[2] >= 0.0 else -1.0
             along = max(-step, min(step, kernels.dot(rest, tangent)))
             move = (
@@ -272,11 +272,11 @@ class _InterpretedGuard:
                 sign * step * around[1] + along * tangent[1],
                 sign * step * around[2] + along * tangent[2],
             )
-        for scale in clearance.DETOUR_SCALES:
+        for scale in detour.DETOUR_SCALES:
             via = self.lifted([x[i] + scale * move[i] for i in range(3)])
             if via is not None and self.trace(a, via) is None:
                 return (via[0], via[1], via[2])
-        lift = clearance.DETOUR_PUSH + max(0.0, self.clearance - self.distance(x))
+        lift = detour.DETOUR_PUSH + max(0.0, self.clearance - self.distance(x))
         return (x[0] + lift * out[0], x[1] + lift * out[1], x[2] + lift * out[2])
 
     # ``ClearanceGuard.apply`` and its search as they were before r7-ctrl compiled them
@@ -328,10 +328,10 @@ class _InterpretedGuard:
 
     def backed_off(self, rows, p, back_off, feasible):
         z = (rows[0][2], rows[1][2], rows[2][2])
-        target = self.clearance + clearance.AIM_BEYOND
+        target = self.clearance + escape.AIM_BEYOND
         s = 0.0
         back = (-z[0], -z[1], -z[2])
-        for _ in range(clearance.MAX_ESCAPE_STEPS):
+        for _ in range(escape.MAX_ESCAPE_STEPS):
             pos = [p[0] - s * z[0], p[1] - s * z[1], p[2] - s * z[2]]
             d, k = self.nearest_surface(pos)
             if d >= target:
@@ -355,8 +355,8 @@ class _InterpretedGuard:
         if not length > 1e-9:
             return max(conservative, 1e-7)
         rate = kernels.dot(g, velocity) / length
-        if rate * clearance.NEWTON_GAIN <= speed:
-            return max(clearance.NEWTON_GAIN * conservative, 1e-7)
+        if rate * escape.NEWTON_GAIN <= speed:
+            return max(escape.NEWTON_GAIN * conservative, 1e-7)
         return max(short / rate, conservative, 1e-7)
 
     def directions(self, p, u, c, p_now):
@@ -384,8 +384,8 @@ class _InterpretedGuard:
         x0, z0 = xz
         k = kernels.cross(u, e)
         theta = 0.0
-        target = self.clearance + clearance.AIM_BEYOND
-        for _ in range(clearance.MAX_ESCAPE_STEPS):
+        target = self.clearance + escape.AIM_BEYOND
+        for _ in range(escape.MAX_ESCAPE_STEPS):
             ct, st = math.cos(theta), math.sin(theta)
             z = _rotate(z0, k, ct, st)
             x_prev = _rotate(x0, k, ct, st)
@@ -399,9 +399,9 @@ class _InterpretedGuard:
                 rel = (pos[0] - c[0], pos[1] - c[1], pos[2] - c[2])
                 step = self.newton(target - d, pos, near, kernels.cross(k, rel))
             else:
-                step = clearance.MIN_ESCAPE_STEP
-            theta += max(step, clearance.MIN_ESCAPE_STEP * 0.1)
-            if theta > clearance.MAX_ESCAPE_ANGLE:
+                step = escape.MIN_ESCAPE_STEP
+            theta += max(step, escape.MIN_ESCAPE_STEP * 0.1)
+            if theta > escape.MAX_ESCAPE_ANGLE:
                 return None
         return None
 
@@ -563,7 +563,7 @@ def test_step_out_leaves_the_zone_by_the_push() -> None:
     moved = np.asarray(out) - on_edge
     assert np.linalg.norm(np.cross(moved, side)) < ROUND_M * 1e3  # straight away from the wire
     exact = _exact_surface_distance(wire, np.asarray(out))
-    push = clearance.DETOUR_PUSH
+    push = detour.DETOUR_PUSH
     assert exact == pytest.approx(CAMERA_CLEARANCE_M + push, abs=0.5 * wire.search_spacing)
     assert guard.step_out((q + 0.05 * side).tolist()) is None  # already far out: nothing to do
 

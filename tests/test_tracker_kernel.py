@@ -28,15 +28,15 @@ from endocam.control.config import ControllerConfig, SideRule, TrackerConfig, Tr
 from endocam.control.goal import goal_pose_unchecked
 from endocam.control.oracle import OraclePolicy
 from endocam.control.policies import CenteringPolicy, OrientationPolicy, _MovingPolicy
-from endocam.control.safety import (
+from endocam.control.tracker import EndocamPolicy, RingPredictor
+from endocam.control.types import CameraCommand, Observation, PolicyContext
+from endocam.control.windows import (
     ImageWindows,
     WindowGeometry,
     WindowStatus,
     adjust_working_distance,
     window_status_rows,
 )
-from endocam.control.tracker import EndocamPolicy, RingPredictor
-from endocam.control.types import CameraCommand, Observation, PolicyContext
 from endocam.task.config import WireConfig
 from endocam.task.wire import Wire
 from endocam.view import look_at_pose, rotation_columns

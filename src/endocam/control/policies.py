@@ -23,25 +23,19 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
-from endocam.control.clearance import ClearanceGuard, cleared_move
+from endocam.control.clearance import ClearanceGuard
 from endocam.control.config import ControllerConfig, SideRule
+from endocam.control.detour import cleared_move
+from endocam.control.gate import CLOCK_TOL, STALE_REASON, gate_commit, gate_decide
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
-from endocam.control.safety import (
-    CLOCK_TOL,
-    STALE_REASON,
-    WindowGeometry,
-    adjusted_distance,
-    gate_commit,
-    gate_decide,
-    window_code_of,
-)
 from endocam.control.types import (
     CameraCommand,
     Observation,
     PolicyContext,
     TrackingState,
 )
+from endocam.control.windows import WindowGeometry, adjusted_distance, window_code_of
 from endocam.geometry import UP, FloatArray
 from endocam.kernels import Vec, dist3, finite_rows, unit_checked
 from endocam.view import look_at_unchecked

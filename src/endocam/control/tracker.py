@@ -48,8 +48,8 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
-from endocam.control.clearance import cleared_move
 from endocam.control.config import ControllerConfig, SideRule, Transfer
+from endocam.control.detour import cleared_move
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.policies import (
@@ -66,8 +66,8 @@ from endocam.control.policies import (
     observed,
     pose_array,
 )
-from endocam.control.safety import adjusted_distance, window_code_of
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
+from endocam.control.windows import adjusted_distance, window_code_of
 from endocam.geometry import UP, FloatArray
 from endocam.kernels import (
     Vec,
