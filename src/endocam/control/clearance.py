@@ -54,6 +54,10 @@ from endocam.control.escape import (
     APPLY_ADJUSTED,
     APPLY_BLOCKED,
     APPLY_CLEAR,
+    ClearRequest,
+    EscapeMemory,
+    GuardState,
+    LookAt,
     clear_look_at_into,
     clear_pose_into,
 )
@@ -66,7 +70,7 @@ from endocam.workspace.keepout import (
     keep_out_distance,
     keep_out_first_outside,
 )
-from endocam.workspace.region import NO_WORKSPACE, Workspace, WorkspaceState
+from endocam.workspace.region import NO_WORKSPACE, Workspace
 
 CLEARANCE_MARGIN = 2.0e-3  # m, beyond the scope's radius: the carriers' tracking deviation
 WIRE_CLEARANCE = SCOPE_RADIUS + CLEARANCE_MARGIN  # m, ControllerConfig.wire_clearance default
@@ -93,16 +97,17 @@ class ClearanceGuard:
         self._state = KeepOutState(
             *wire.query_state, wire.radius, self._ref, self._nref, self.clearance
         )
-        self._escape = np.zeros(4)  # the direction of the last rotation: flag, unit (3,), world
+        self._escape = EscapeMemory(np.zeros(1, dtype=np.bool_), np.zeros(3))
+        self._unbounded = GuardState(self._state, self._escape, False, NO_WORKSPACE)
         self._workspace: Workspace | None = None  # the last workspace given to apply()
-        self._workspace_args: tuple[int, WorkspaceState] = (0, NO_WORKSPACE)  # clear_pose_into's
+        self._bounded = self._unbounded  # the search's state with that workspace
         self.adjusted = 0  # poses rotated this episode
         self.blocked = 0  # poses with no clear, feasible rotation this episode
 
     def reset(self) -> None:
         """Forget the cached query and the escape direction (a new episode)."""
         self._nref[0] = 0
-        self._escape[0] = 0.0
+        self._escape.held[0] = False
         self.adjusted = 0
         self.blocked = 0
 
@@ -112,7 +117,7 @@ class ClearanceGuard:
         The distance is 1-Lipschitz: while ``d_ref − ‖p − p_ref‖`` (the last queries' distance
         less how far the point moved) is at least ``clearance + exact_below`` (m), that lower
         bound is returned without a query. NaN for a non-finite position. Compiled
-        (:func:`_distance`).
+        (``workspace.keepout.keep_out_distance``).
         """
         return keep_out_distance(self._state, p_world[0], p_world[1], p_world[2], exact_below)
 
@@ -133,7 +138,7 @@ class ClearanceGuard:
         """The first of ``p_world[:count]`` whose :meth:`margin` is < 0 (or NaN), else ``count``.
 
         ``p_world`` (N, 3): camera positions, world, m. :meth:`margin` on each in turn, in
-        one compiled call (:func:`_first_outside`): the cache ends as those calls leave it.
+        one compiled call (``keep_out_first_outside``): the cache ends as those calls leave it.
         """
         p = np.ascontiguousarray(p_world, dtype=float).reshape(-1, 3)
         return keep_out_first_outside(self._state, p, count)
@@ -178,19 +183,10 @@ class ClearanceGuard:
             ``T_world_cam`` itself when clear; a rotated, clear and feasible pose; or ``None``
             (non-finite input, or no clear feasible rotation up to ``MAX_ESCAPE_ANGLE``).
         """
-        c, now = p_world_pivot, p_world_now
         T = np.empty((4, 4))  # the adjusted pose, if any (a new array: the caller keeps it)
-        code = clear_pose_into(
-            self._state,
-            np.asarray(T_world_cam, dtype=float),
-            (float(c[0]), float(c[1]), float(c[2])),
-            now is not None,
-            (0.0, 0.0, 0.0) if now is None else (float(now[0]), float(now[1]), float(now[2])),
-            float(back_off),
-            self._escape,
-            *self._feasible_args(workspace),
-            T,
-        )
+        request = _request(p_world_pivot, p_world_now, back_off)
+        guard = self._guard_state(workspace)
+        code = clear_pose_into(guard, np.asarray(T_world_cam, dtype=float), request, T)
         if code == APPLY_CLEAR:
             return T_world_cam
         if code == APPLY_ADJUSTED:
@@ -219,22 +215,12 @@ class ClearanceGuard:
         m, is outside the ``workspace`` (``Workspace.margin < 0``; asked only if ``check``),
         else :meth:`apply`'s answer. One compiled call (:func:`clear_look_at_into`).
         """
-        p, c, now = p_world, p_world_pivot, p_world_now
+        p = p_world
         T = np.empty((4, 4))  # the pose, if any (a new array: the caller keeps it)
-        code, fell_back = clear_look_at_into(
-            self._state,
-            (float(p[0]), float(p[1]), float(p[2])),
-            (float(c[0]), float(c[1]), float(c[2])),
-            fallback,
-            previous,
-            check,
-            now is not None,
-            (0.0, 0.0, 0.0) if now is None else (float(now[0]), float(now[1]), float(now[2])),
-            float(back_off),
-            self._escape,
-            *self._feasible_args(workspace),
-            T,
-        )
+        look = LookAt((float(p[0]), float(p[1]), float(p[2])), fallback, previous, check)
+        request = _request(p_world_pivot, p_world_now, back_off)
+        guard = self._guard_state(workspace)
+        code, fell_back = clear_look_at_into(guard, look, request, T)
         if code == APPLY_CLEAR:
             return fallback if fell_back else T
         if code == APPLY_ADJUSTED:
@@ -244,10 +230,10 @@ class ClearanceGuard:
             self.blocked += 1
         return None
 
-    def _feasible_args(self, workspace: Workspace | None) -> tuple[int, WorkspaceState]:
-        """:func:`clear_pose_into`'s workspace arguments: ``kind`` (0: none, 1: asked), state."""
+    def _guard_state(self, workspace: Workspace | None) -> GuardState:
+        """The search's state (:class:`~endocam.control.escape.GuardState`) with ``workspace``."""
         if workspace is None:
-            return (0, NO_WORKSPACE)
+            return self._unbounded
         if workspace is not self._workspace:
             if type(workspace) is not Workspace:  # a subclass's own margin would go unasked
                 raise TypeError(
@@ -258,8 +244,8 @@ class ClearanceGuard:
             if keep_out is not None and not isinstance(keep_out, ClearanceGuard):
                 raise TypeError("a workspace's keep-out zone must be a ClearanceGuard")
             self._workspace = workspace
-            self._workspace_args = (1, workspace.kernel_state)
-        return self._workspace_args
+            self._bounded = self._unbounded._replace(bounded=True, workspace=workspace.kernel_state)
+        return self._bounded
 
     @property
     def kernel_state(self) -> KeepOutState:
@@ -274,10 +260,10 @@ class ClearanceGuard:
     def passed(self, T_world_cam: FloatArray) -> FloatArray:
         """:meth:`apply`'s answer for a pose found clear by a compiled caller: the pose itself.
 
-        The caller made :meth:`apply`'s finite check and query (:func:`_distance`, the same
+        The caller made :meth:`apply`'s finite check and query (``keep_out_distance``, the same
         cache); this records the pass (no escape direction is remembered).
         """
-        self._escape[0] = 0.0
+        self._escape.held[0] = False
         return T_world_cam
 
     def detour(self, p_world_now: Sequence[float], p_world_cmd: Sequence[float]) -> Vec | None:
@@ -298,12 +284,12 @@ class ClearanceGuard:
             an end is not finite).
         """
         a, b = p_world_now, p_world_cmd
-        found, via = detour_waypoint(
+        via = detour_waypoint(
             self._state,
             (float(a[0]), float(a[1]), float(a[2])),
             (float(b[0]), float(b[1]), float(b[2])),
         )
-        return via if found else None
+        return via.point if via.found else None
 
     def step_out(self, p_world: Sequence[float]) -> Vec | None:
         """``p_world`` (3,), m, moved straight away from the wire to ``DETOUR_PUSH`` past the zone.
@@ -313,9 +299,18 @@ class ClearanceGuard:
         slide along the surface, whose braking path grazes the zone.
         """
         p = (float(p_world[0]), float(p_world[1]), float(p_world[2]))
-        pts, table, pool, meta = self.wire.query_state
-        ok, out = lifted(pts, table, pool, meta, self.wire.radius, self.clearance, p)
-        return out if ok and out != p else None
+        out = lifted(self._state, p)
+        return out.point if out.found and out.point != p else None
+
+
+def _request(pivot: Sequence[float], now: Sequence[float] | None, back_off: float) -> ClearRequest:
+    """:meth:`ClearanceGuard.apply`'s arguments as the compiled search's request."""
+    return ClearRequest(
+        (float(pivot[0]), float(pivot[1]), float(pivot[2])),
+        now is not None,
+        (0.0, 0.0, 0.0) if now is None else (float(now[0]), float(now[1]), float(now[2])),
+        float(back_off),
+    )
 
 
 def clear_pose_or_none(

@@ -1,25 +1,32 @@
 r"""The wire-clearance guard's search for a clear pose (``ClearanceGuard.apply``), compiled.
 
 A pose whose optical centre is closer than the clearance ``c`` to the wire's tube surface is
-first moved back along its optical axis (if allowed), else rotated about the pivot it looks at
-(the ring centre) by the smallest angle along an escape direction that restores the clearance,
-keeping the pivot at the same place in the camera frame and the horizon level
-(``control.clearance``'s module docstring gives the iteration).
+first moved back along its optical axis (if the caller allows it), else rotated about the pivot
+it looks at (the ring centre) by the smallest angle along an escape direction that restores the
+clearance, keeping the pivot at the same place in the camera frame and the horizon level
+(``control.clearance``'s module docstring gives the iteration). A pose is accepted only if its
+position is also feasible: inside the workspace the guard is given (the cone, the floor and the
+workspace's own keep-out zone), or anywhere without one.
+
+The search takes the guard's state as one :class:`GuardState` (the zone, the remembered escape
+direction, the workspace) and what it is asked as one :class:`ClearRequest`; it answers a
+:class:`Cleared` (an ``APPLY_*`` code and the pose).
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 from numba.extending import register_jitable
+from numpy.typing import NDArray
 
 from endocam.geometry import FloatArray
 from endocam.kernels import Vec, cross, dot, norm, reject, scaled
-from endocam.task.wire import surface_query
 from endocam.view import look_at_columns, rotation_columns
-from endocam.workspace.keepout import KeepOutState, keep_out_distance, remember
+from endocam.workspace.keepout import KeepOutState, keep_out_distance, keep_out_nearest, remember
 from endocam.workspace.region import WorkspaceState, workspace_margin
 
 AIM_BEYOND = 2.0e-4  # m, a rotated pose aims this far beyond the clearance, so the chord of a
@@ -28,28 +35,73 @@ MAX_ESCAPE_ANGLE = math.radians(90.0)  # rad, largest rotation about the pivot t
 MIN_ESCAPE_STEP = math.radians(0.5)  # rad, step while the clear pose is infeasible
 NEWTON_GAIN = 4.0  # unitless, largest Newton step as a multiple of the conservative one
 MAX_ESCAPE_STEPS = 40  # count, queries per direction at most
+MIN_STEP = 1e-7  # m or rad (the search's parameter), the smallest Newton step taken
 _EPS = 1e-9  # unitless, shorter directions are degenerate
-# clear_pose_into's answers: the pose itself, a backed-off or rotated one, none clear, not finite
-APPLY_CLEAR, APPLY_ADJUSTED, APPLY_BLOCKED, APPLY_NOT_FINITE = range(4)
-APPLY_INFEASIBLE = 4  # clear_look_at_into: the pose's position is outside the workspace
+# Cleared.code: the pose itself, a backed-off or rotated one, none clear, not finite; and
+# (clear_look_at_into only) the look-at pose's position is outside the workspace
+APPLY_CLEAR, APPLY_ADJUSTED, APPLY_BLOCKED, APPLY_NOT_FINITE, APPLY_INFEASIBLE = range(5)
 
-# The guard's search for a clear pose (``ClearanceGuard.apply``), compiled. ``feasible`` below:
-# whether a camera position may be commanded, ``workspace.region.Workspace.margin`` ≥ 0 (the
-# cone, the floor and the workspace's own keep-out guard, whose cache it updates), or
-# everywhere (``kind`` 0). ``ws``: the cone's constants (9,) (``ConeWorkspace.constants``) and
-# the floor, m; ``keep``: whether the workspace has a keep-out zone, then its guard's state.
+BoolArray = NDArray[np.bool_]
+
+
+class EscapeMemory(NamedTuple):
+    """The direction of the guard's last rotation, kept between steps (arrays, updated in place).
+
+    The next search tries it first, so the camera does not chatter between two sides of a
+    symmetric wire; a pose that passes unchanged forgets it.
+    """
+
+    held: BoolArray  # (1,), whether a direction is remembered
+    direction: FloatArray  # (3,), the unit escape direction, world
+
+
+class GuardState(NamedTuple):
+    """The guard's state as its compiled search reads it (``ClearanceGuard``'s)."""
+
+    zone: KeepOutState  # the wire's keep-out zone (its Lipschitz cache is updated)
+    escape: EscapeMemory  # the remembered escape direction (updated)
+    bounded: bool  # whether a position must lie in ``workspace`` (else anywhere will do)
+    workspace: WorkspaceState  # where a camera position may be commanded (read if bounded)
+
+
+class ClearRequest(NamedTuple):
+    """What ``ClearanceGuard.apply`` is asked besides the pose."""
+
+    pivot: Vec  # the point the pose looks at (the ring centre), world, m
+    has_now: bool  # whether ``now`` is known
+    now: Vec  # where the camera is now, world, m: turn towards it first
+    back_off: float  # m, how far the pose may first move back along its optical axis
+
+
+class Cleared(NamedTuple):
+    """:func:`clear_pose`'s answer."""
+
+    code: int  # APPLY_CLEAR, APPLY_ADJUSTED, APPLY_BLOCKED or APPLY_NOT_FINITE
+    pose: FloatArray  # (4, 4): the pose asked (CLEAR, BLOCKED, NOT_FINITE) or the adjusted one
+
+
+class LookAt(NamedTuple):
+    """The pose ``clear_look_at_into`` builds: at ``position``, looking at the request's pivot."""
+
+    position: Vec  # world, m
+    fallback: FloatArray  # (4, 4): the pose when ``position`` is the pivot
+    previous: FloatArray  # (4, 4): the pose whose roll is kept near the vertical
+    check: bool  # whether to refuse a position outside the workspace first
+
+
+class LookedAt(NamedTuple):
+    """:func:`clear_look_at_into`'s answer."""
+
+    code: int  # an APPLY_* code (APPLY_INFEASIBLE: the position is outside the workspace)
+    fell_back: bool  # the position was the pivot: the pose is ``LookAt.fallback``
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
-def _feasible(
-    kind: int,
-    ws: WorkspaceState,
-    pos: Vec,
-) -> bool:
-    """Whether ``pos`` (m) is feasible: ``Workspace.margin(pos) >= 0`` (``kind`` 1), or True."""
-    if kind == 0:
+def _feasible(guard: GuardState, pos: Vec) -> bool:
+    """Whether ``pos`` (world, m) may be commanded: ``Workspace.margin(pos) >= 0``, or True."""
+    if not guard.bounded:
         return True
-    return workspace_margin(ws, pos[0], pos[1], pos[2]) >= 0.0
+    return workspace_margin(guard.workspace, pos[0], pos[1], pos[2]) >= 0.0
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -66,11 +118,11 @@ def _newton(pts: FloatArray, short: float, pos: Vec, k: int, velocity: Vec) -> f
     conservative = short / speed if speed > _EPS else short
     length = norm(g)
     if not length > _EPS:
-        return max(conservative, 1e-7)
+        return max(conservative, MIN_STEP)
     rate = dot(g, velocity) / length
     if rate * NEWTON_GAIN <= speed:
-        return max(NEWTON_GAIN * conservative, 1e-7)
-    return max(max(short / rate, conservative), 1e-7)  # Python's max of the three
+        return max(NEWTON_GAIN * conservative, MIN_STEP)
+    return max(short / rate, conservative, MIN_STEP)
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -86,91 +138,95 @@ def _rotate(v: Vec, k: Vec, c: float, s: float) -> Vec:
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
-def clear_pose(
-    zone: KeepOutState,
-    T: FloatArray,
-    pivot: Vec,
-    has_now: bool,
-    now: Vec,
-    back_off: float,
-    escape: FloatArray,
-    kind: int,
-    ws: WorkspaceState,
-) -> tuple[int, FloatArray]:
-    """:meth:`ClearanceGuard.apply` of the pose ``T`` (4, 4): ``(APPLY_*, pose (4, 4))``.
+def _pose(x: Vec, y: Vec, z: Vec, p: Vec) -> FloatArray:
+    """The (4, 4) pose with rotation columns ``x``, ``y``, ``z`` and position ``p`` (m)."""
+    out = np.empty((4, 4))
+    for i in range(3):
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x[i], y[i], z[i], p[i]
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
+    return out
 
-    The guard's ``state`` first, then :meth:`~ClearanceGuard.apply`'s arguments: ``pivot``,
-    ``now`` (m; read if ``has_now``), ``back_off`` (m); ``escape`` (4,): the remembered
-    escape direction (a flag, then the unit direction, world; updated); the workspace
-    (``kind``, ``ws``, ``keep`` … ``k_clearance``: :func:`_feasible`'s). ``APPLY_CLEAR``:
-    ``T`` itself; ``APPLY_ADJUSTED``: the pose backed off or rotated; ``APPLY_BLOCKED``: no
-    clear feasible pose; ``APPLY_NOT_FINITE``: a non-finite pose or pivot. The interpreter's
-    floats and queries in its order (docs/conventions.md, "Compiled kernels").
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _backed_off(guard: GuardState, T: FloatArray, back_off: float, target: float) -> Cleared:
+    """``T`` moved back along its optical axis up to ``back_off`` (m) to ``target`` (m) out.
+
+    The camera moves 1:1 with the look distance, the view's direction is kept. Blocked when
+    that does not clear within ``back_off``, or the clear position is not feasible.
     """
-    pts, table, pool, meta, radius, ref, nref, clearance = zone
-    c = pivot
+    zone = guard.zone
     p = (T[0, 3], T[1, 3], T[2, 3])
-    if not math.isfinite(p[0] + p[1] + p[2] + (0.0 + c[0] + c[1] + c[2])):
-        return APPLY_NOT_FINITE, T
-    if keep_out_distance(zone, p[0], p[1], p[2], 0.0) >= (clearance):
-        escape[0] = 0.0
-        return APPLY_CLEAR, T
-    target = clearance + AIM_BEYOND
-    if back_off > 0.0:  # back along the optical axis: the camera moves 1:1 with the distance
-        z = (T[0, 2], T[1, 2], T[2, 2])
-        back = (-z[0], -z[1], -z[2])
-        s = 0.0
-        for _ in range(MAX_ESCAPE_STEPS):
-            pos = (p[0] - s * z[0], p[1] - s * z[1], p[2] - s * z[2])
-            k, dist = surface_query(pts, table, pool, meta, pos[0], pos[1], pos[2])
-            d = dist - radius
-            if d >= target:
-                if not _feasible(
-                    kind, ws, pos,
-                ):  # fmt: skip
-                    break
-                remember(ref, nref, pos[0], pos[1], pos[2], d)
-                out = T.copy()
-                for i in range(3):
-                    out[i, 3] = pos[i]
-                return APPLY_ADJUSTED, out
-            s += _newton(pts, target - d, pos, k, back)
-            if s > back_off:
+    z = (T[0, 2], T[1, 2], T[2, 2])
+    back = (-z[0], -z[1], -z[2])
+    s = 0.0
+    for _ in range(MAX_ESCAPE_STEPS):
+        pos = (p[0] - s * z[0], p[1] - s * z[1], p[2] - s * z[2])
+        near = keep_out_nearest(zone, pos[0], pos[1], pos[2])
+        if near.surface >= target:
+            if not _feasible(guard, pos):
                 break
-    # rotated about the pivot (module docstring)
+            remember(zone.ref, zone.nref, pos[0], pos[1], pos[2], near.surface)
+            out = T.copy()
+            for i in range(3):
+                out[i, 3] = pos[i]
+            return Cleared(APPLY_ADJUSTED, out)
+        s += _newton(zone.points, target - near.surface, pos, near.row, back)
+        if s > back_off:
+            break
+    return Cleared(APPLY_BLOCKED, T)
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _escape_direction(guard: GuardState, p: Vec, u: Vec, request: ClearRequest) -> Vec:
+    """The first escape direction to try, a unit vector ⟂ ``u``; the zero vector if none.
+
+    Best first: the remembered one, else towards the camera now (it need not cross the wire),
+    else the distance's gradient at ``p`` (m; away from the nearest wire point), then the
+    vertical and the x axis; each projected perpendicular to ``u``.
+    """
+    zone, escape, c = guard.zone, guard.escape, request.pivot
+    k = keep_out_nearest(zone, p[0], p[1], p[2]).row
+    q = zone.points[k]
+    candidates = [(p[0] - q[0], p[1] - q[1], p[2] - q[2]), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)]
+    if request.has_now:
+        now = request.now
+        candidates.insert(0, (now[0] - c[0], now[1] - c[1], now[2] - c[2]))
+    if escape.held[0]:
+        d = escape.direction
+        candidates.insert(0, (d[0], d[1], d[2]))
+    for cand in candidates:
+        e = reject(cand, u)
+        length = norm(e)
+        if length > 1e-6:
+            return scaled(e, 1.0 / length)
+    return (0.0, 0.0, 0.0)
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def _rotated(guard: GuardState, T: FloatArray, request: ClearRequest, target: float) -> Cleared:
+    """``T`` rotated about the pivot by the smallest angle that clears ``target`` (m).
+
+    Conservative advancement along the first escape direction (:func:`_escape_direction`),
+    then its perpendiculars and its opposite, each up to ``MAX_ESCAPE_ANGLE``; the pivot keeps
+    its place in the camera frame and the horizon stays level. The direction that clears is
+    remembered.
+    """
+    zone, c = guard.zone, request.pivot
+    p = (T[0, 3], T[1, 3], T[2, 3])
     x0 = (T[0, 0], T[1, 0], T[2, 0])
     y0 = (T[0, 1], T[1, 1], T[2, 1])
     z0 = (T[0, 2], T[1, 2], T[2, 2])
     rel = (p[0] - c[0], p[1] - c[1], p[2] - c[2])
     r = norm(rel)
     if not r > _EPS:
-        return APPLY_BLOCKED, T
+        return Cleared(APPLY_BLOCKED, T)
     a, b, w = dot(rel, x0), dot(rel, y0), dot(rel, z0)  # camera position in its own frame
     u = scaled(rel, 1.0 / r)
-    # the escape directions ⟂ u, best first: the remembered one, else towards the camera
-    # now, else the distance's gradient (away from the nearest wire point); then the
-    # perpendiculars and the opposite
-    k_near, _ = surface_query(pts, table, pool, meta, p[0], p[1], p[2])
-    q = (pts[k_near, 0], pts[k_near, 1], pts[k_near, 2])
-    candidates = [(p[0] - q[0], p[1] - q[1], p[2] - q[2]), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)]
-    if has_now:
-        candidates.insert(0, (now[0] - c[0], now[1] - c[1], now[2] - c[2]))
-    if escape[0] != 0.0:
-        candidates.insert(0, (escape[1], escape[2], escape[3]))
-    found = False
-    e0 = u
-    for cand in candidates:
-        e = reject(cand, u)
-        length = norm(e)
-        if length > 1e-6:
-            e0 = scaled(e, 1.0 / length)
-            found = True
-            break
-    if not found:
-        return APPLY_BLOCKED, T
+    e0 = _escape_direction(guard, p, u, request)
+    if e0 == (0.0, 0.0, 0.0):
+        return Cleared(APPLY_BLOCKED, T)
     e1 = cross(u, e0)
     for e in (e0, e1, scaled(e1, -1.0), scaled(e0, -1.0)):
-        # the smallest angle along e with a clear, feasible pose (conservative advancement)
         k_axis = cross(u, e)  # rotation axis: u turns towards e
         theta = 0.0
         for _ in range(MAX_ESCAPE_STEPS):
@@ -183,97 +239,84 @@ def clear_pose(
                 c[1] + a * xc[1] + b * yc[1] + w * zc[1],
                 c[2] + a * xc[2] + b * yc[2] + w * zc[2],
             )
-            near, dist = surface_query(pts, table, pool, meta, pos[0], pos[1], pos[2])
-            d = dist - radius
-            if d >= target and _feasible(
-                kind, ws, pos,
-            ):  # fmt: skip
-                remember(ref, nref, pos[0], pos[1], pos[2], d)
-                escape[0], escape[1], escape[2], escape[3] = 1.0, e[0], e[1], e[2]
-                out = np.empty((4, 4))
+            near = keep_out_nearest(zone, pos[0], pos[1], pos[2])
+            if near.surface >= target and _feasible(guard, pos):
+                remember(zone.ref, zone.nref, pos[0], pos[1], pos[2], near.surface)
+                guard.escape.held[0] = True
                 for i in range(3):
-                    out[i, 0], out[i, 1], out[i, 2], out[i, 3] = xc[i], yc[i], zc[i], pos[i]
-                out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
-                return APPLY_ADJUSTED, out
-            if d < target:  # the camera's velocity per radian: k × (pos − c)
+                    guard.escape.direction[i] = e[i]
+                return Cleared(APPLY_ADJUSTED, _pose(xc, yc, zc, pos))
+            if near.surface < target:  # the camera's velocity per radian: k × (pos − c)
                 rel_pos = (pos[0] - c[0], pos[1] - c[1], pos[2] - c[2])
-                step = _newton(pts, target - d, pos, near, cross(k_axis, rel_pos))
+                velocity = cross(k_axis, rel_pos)
+                step = _newton(zone.points, target - near.surface, pos, near.row, velocity)
             else:
                 step = MIN_ESCAPE_STEP
             theta += max(step, MIN_ESCAPE_STEP * 0.1)
             if theta > MAX_ESCAPE_ANGLE:
                 break
-    return APPLY_BLOCKED, T
+    return Cleared(APPLY_BLOCKED, T)
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+@register_jitable  # also callable from compiled kernels (the same source)
+def clear_pose(guard: GuardState, T: FloatArray, request: ClearRequest) -> Cleared:
+    """:meth:`ClearanceGuard.apply` of the pose ``T`` (4, 4), world, m.
+
+    ``APPLY_CLEAR``: ``T`` itself (the remembered escape direction is forgotten);
+    ``APPLY_ADJUSTED``: the pose backed off (if ``request.back_off`` > 0) or rotated about
+    the pivot; ``APPLY_BLOCKED``: no clear feasible pose; ``APPLY_NOT_FINITE``: a non-finite
+    pose position or pivot. The zone's cache and the escape memory are updated.
+    """
+    zone, c = guard.zone, request.pivot
+    p = (T[0, 3], T[1, 3], T[2, 3])
+    if not math.isfinite(p[0] + p[1] + p[2] + (c[0] + c[1] + c[2])):
+        return Cleared(APPLY_NOT_FINITE, T)
+    if keep_out_distance(zone, p[0], p[1], p[2], 0.0) >= zone.clearance:
+        guard.escape.held[0] = False
+        return Cleared(APPLY_CLEAR, T)
+    target = zone.clearance + AIM_BEYOND
+    if request.back_off > 0.0:
+        backed = _backed_off(guard, T, request.back_off, target)
+        if backed.code == APPLY_ADJUSTED:
+            return backed
+    return _rotated(guard, T, request, target)
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
 def clear_pose_into(
-    zone: KeepOutState,
-    T: FloatArray,
-    pivot: Vec,
-    has_now: bool,
-    now: Vec,
-    back_off: float,
-    escape: FloatArray,
-    kind: int,
-    ws: WorkspaceState,
-    out: FloatArray,
+    guard: GuardState, T: FloatArray, request: ClearRequest, out: FloatArray
 ) -> int:  # pragma: no cover - compiled
-    """:func:`clear_pose` from Python (:meth:`ClearanceGuard.apply`): its answer (``APPLY_*``).
+    """:func:`clear_pose` from Python (:meth:`ClearanceGuard.apply`): its ``APPLY_*`` code.
 
     An adjusted pose is written into ``out`` (4, 4), the caller's array (numba unpickles the
     type of every array it returns, ~1 us a call).
     """
-    code, cleared = clear_pose(
-        zone, T, pivot, has_now, now, back_off,
-        escape, kind, ws,
-    )  # fmt: skip
-    if code == APPLY_ADJUSTED:
-        out[:, :] = cleared
-    return code
+    cleared = clear_pose(guard, T, request)
+    if cleared.code == APPLY_ADJUSTED:
+        out[:, :] = cleared.pose
+    return cleared.code
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
 def clear_look_at_into(
-    zone: KeepOutState,
-    p: Vec,
-    pivot: Vec,
-    fallback: FloatArray,
-    previous: FloatArray,
-    check: bool,
-    has_now: bool,
-    now: Vec,
-    back_off: float,
-    escape: FloatArray,
-    kind: int,
-    ws: WorkspaceState,
-    out: FloatArray,
-) -> tuple[int, bool]:  # pragma: no cover - compiled
-    """:meth:`ClearanceGuard.apply_look_at`: ``(APPLY_* or APPLY_INFEASIBLE, fallen back)``.
+    guard: GuardState, look: LookAt, request: ClearRequest, out: FloatArray
+) -> LookedAt:  # pragma: no cover - compiled
+    """:meth:`ClearanceGuard.apply_look_at`: :func:`clear_pose` of a look-at pose.
 
-    The pose at ``p`` (m) looking at ``pivot`` (m) with a level horizon, its roll from
-    ``previous`` (4, 4) (``view.look_at_unchecked``: ``fallback`` (4, 4) when the two
-    points coincide; then "fallen back"); if ``check``, ``APPLY_INFEASIBLE`` when ``p`` is
-    not feasible (:func:`_feasible`); then :func:`clear_pose` of the pose (the other
-    arguments its). The pose :func:`clear_pose` gives (``APPLY_CLEAR``: the look-at pose,
-    unless fallen back; ``APPLY_ADJUSTED``: the cleared one) is written into ``out`` (4, 4),
-    the caller's array (numba unpickles the type of every array it returns).
+    The pose at ``look.position`` looking at ``request.pivot`` with a level horizon, its roll
+    from ``look.previous`` (``view.look_at_unchecked``; ``look.fallback`` when the two points
+    coincide: fallen back). If ``look.check``, ``APPLY_INFEASIBLE`` when the position is not
+    feasible (the guard's workspace); else :func:`clear_pose`'s code. The pose it gives
+    (``APPLY_CLEAR``: the look-at pose, unless fallen back; ``APPLY_ADJUSTED``: the cleared
+    one) is written into ``out`` (4, 4), the caller's array.
     """
+    p, previous = look.position, look.previous
     x_prev = (previous[0, 0], previous[1, 0], previous[2, 0])
-    found, x, y, z = look_at_columns(p, pivot, x_prev)
-    fell_back = not found
-    T = fallback
-    if found:
-        T = np.empty((4, 4))
-        for i in range(3):
-            T[i, 0], T[i, 1], T[i, 2], T[i, 3] = x[i], y[i], z[i], p[i]
-        T[3, 0], T[3, 1], T[3, 2], T[3, 3] = 0.0, 0.0, 0.0, 1.0
-    if check and not _feasible(kind, ws, p):
-        return APPLY_INFEASIBLE, fell_back
-    code, cleared = clear_pose(
-        zone, T, pivot, has_now, now, back_off,
-        escape, kind, ws,
-    )  # fmt: skip
-    if code == APPLY_ADJUSTED or (code == APPLY_CLEAR and not fell_back):
-        out[:, :] = cleared
-    return code, fell_back
+    found, x, y, z = look_at_columns(p, request.pivot, x_prev)
+    T = _pose(x, y, z, p) if found else look.fallback
+    if look.check and not _feasible(guard, p):
+        return LookedAt(APPLY_INFEASIBLE, not found)
+    cleared = clear_pose(guard, T, request)
+    if cleared.code == APPLY_ADJUSTED or (cleared.code == APPLY_CLEAR and found):
+        out[:, :] = cleared.pose
+    return LookedAt(cleared.code, not found)

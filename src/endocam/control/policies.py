@@ -26,7 +26,14 @@ from numba.extending import register_jitable
 from endocam.control.clearance import ClearanceGuard
 from endocam.control.config import ControllerConfig, SideRule
 from endocam.control.detour import cleared_move
-from endocam.control.gate import CLOCK_TOL, STALE_REASON, gate_commit, gate_decide
+from endocam.control.gate import (
+    CLOCK_TOL,
+    STALE_REASON,
+    GateBounds,
+    GateState,
+    gate_commit,
+    gate_decide,
+)
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.types import (
@@ -103,8 +110,8 @@ def observed(
     has_t_ring: bool,
     t_ring: float,
     max_age: float,
-    gate: FloatArray,
-    bounds: FloatArray,
+    gate: GateState,
+    bounds: GateBounds,
     cone: Cone,
     unit_normal: bool,
 ) -> int:
@@ -153,8 +160,8 @@ def _observed_kernel(
     has_t_ring: bool,
     t_ring: float,
     max_age: float,
-    gate: FloatArray,
-    bounds: FloatArray,
+    gate: GateState,
+    bounds: GateBounds,
     params: FloatArray,
     i_cone: int,
     unit_normal: bool,
@@ -232,8 +239,8 @@ def _step_kernel(
     goal: FloatArray,
     T0: FloatArray,
     max_age: float,
-    gate: FloatArray,
-    bounds: FloatArray,
+    gate: GateState,
+    bounds: GateBounds,
     params: FloatArray,
     out: FloatArray,
     has_guard: bool,

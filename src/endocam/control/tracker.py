@@ -50,6 +50,7 @@ from numba.extending import register_jitable
 
 from endocam.control.config import ControllerConfig, SideRule, Transfer
 from endocam.control.detour import cleared_move
+from endocam.control.gate import GateBounds, GateState
 from endocam.control.goal import goal_columns
 from endocam.control.planner import WaypointPath, advance, intermediate_waypoints
 from endocam.control.policies import (
@@ -442,8 +443,8 @@ def _plan_kernel(
     count: np.ndarray,
     spacing: int,
     max_age: float,
-    gate: FloatArray,
-    bounds: FloatArray,
+    gate: GateState,
+    bounds: GateBounds,
     horizon: float,
     dt: float,
     feedforward: bool,

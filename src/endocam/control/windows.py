@@ -14,6 +14,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 from numba.extending import register_jitable
@@ -22,6 +23,8 @@ from endocam.camera import MIN_DEPTH, StereoCamera
 from endocam.geometry import FloatArray
 
 D_F_STEP = 1.0e-3  # m, working-distance change per control step (paper: ±1 mm)
+# window_code's answers (WindowStatus's members, in this order)
+WINDOW_OUTSIDE_OUTER, WINDOW_BETWEEN, WINDOW_INSIDE_INNER = 0, 1, 2
 
 
 class WindowStatus(enum.Enum):
@@ -52,6 +55,20 @@ class ImageWindows:
             raise ValueError(
                 f"need 0 < inner_frac < outer_frac ≤ 1, got {self.inner_frac}, {self.outer_frac}"
             )
+
+
+class WindowConstants(NamedTuple):
+    """What the compiled window test reads of a camera and its windows (one named argument)."""
+
+    fx: float  # px, focal length along u
+    fy: float  # px, focal length along v
+    du0: float  # px, the principal point's u less the image centre's
+    dv0: float  # px, the principal point's v less the image centre's
+    half_baseline: float  # m, half the stereo baseline (each eye's offset along x)
+    outer_half_width: float  # px
+    outer_half_height: float  # px
+    inner_half_width: float  # px
+    inner_half_height: float  # px
 
 
 @dataclass(frozen=True)
@@ -98,12 +115,9 @@ class WindowGeometry:
         )
 
     @cached_property
-    def constants(self) -> tuple[float, ...]:
-        """:func:`window_code`'s constants: ``fx, fy, cx − u0, cy − v0, b/2`` and the windows'.
-
-        px, px, px, px, m, then the outer and inner half widths and heights, px.
-        """
-        return (
+    def constants(self) -> WindowConstants:
+        """:func:`window_code`'s constants (a tuple of nine floats, in its fields' order)."""
+        return WindowConstants(
             self.fx,
             self.fy,
             self.cx - self.u0,
@@ -150,22 +164,14 @@ _STATUS_CODES = {status: code for code, status in enumerate(_STATUSES)}
 def window_code(
     T: Sequence[Sequence[float]] | FloatArray,
     tips: Sequence[Sequence[float]] | FloatArray,
-    fx: float,
-    fy: float,
-    du0: float,
-    dv0: float,
-    half_b: float,
-    hw_out: float,
-    hh_out: float,
-    hw_in: float,
-    hh_in: float,
+    w: WindowConstants,
 ) -> int:
-    """:func:`window_status_rows` as a code: 0 ``OUTSIDE_OUTER``, 1 ``BETWEEN``, 2 ``INSIDE_INNER``.
+    """:func:`window_status_rows` as a ``WINDOW_*`` code (``WindowStatus``'s members in order).
 
-    ``T`` (4, 4) rows of ``T_world_cam`` (m), ``tips`` (K, 3) world, m, rows; ``fx``, ``fy``
-    px; ``du0``, ``dv0``: principal point less the image centre, px; ``half_b`` m; the
-    windows' half widths and heights, px.
+    ``T`` (4, 4) rows of ``T_world_cam`` (m), ``tips`` (K, 3) world, m, rows; ``w``: the
+    camera's and the windows' constants.
     """
+    half_b = w.half_baseline
     R0, R1, R2 = T[0], T[1], T[2]
     t0, t1, t2 = R0[3], R1[3], R2[3]
     all_inner = True
@@ -181,17 +187,17 @@ def window_code(
         y = R0[1] * d0 + R1[1] * d1 + R2[1] * d2
         z = R0[2] * d0 + R1[2] * d1 + R2[2] * d2
         if not z > MIN_DEPTH:  # also catches NaN
-            return 0
-        dv = abs(fy * y / z + dv0)
+            return WINDOW_OUTSIDE_OUTER
+        dv = abs(w.fy * y / z + w.dv0)
         for x_eye in (x + half_b, x - half_b):  # left eye at −b/2, right eye at +b/2
-            du = abs(fx * x_eye / z + du0)
-            if not (du <= hw_out and dv <= hh_out):
-                return 0
-            if not (du <= hw_in and dv <= hh_in):
+            du = abs(w.fx * x_eye / z + w.du0)
+            if not (du <= w.outer_half_width and dv <= w.outer_half_height):
+                return WINDOW_OUTSIDE_OUTER
+            if not (du <= w.inner_half_width and dv <= w.inner_half_height):
                 all_inner = False
     if not usable:
-        return 1  # no tool position known: hold d_f, never zoom in blind
-    return 2 if all_inner else 1
+        return WINDOW_BETWEEN  # no tool position known: hold d_f, never zoom in blind
+    return WINDOW_INSIDE_INNER if all_inner else WINDOW_BETWEEN
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -200,9 +206,13 @@ def window_code_of(
     tips: Sequence[Sequence[float]] | FloatArray,
     constants: Sequence[float] | FloatArray,
 ) -> int:
-    """:func:`window_code` with its nine constants in a sequence (``WindowGeometry.constants``)."""
+    """:func:`window_code` with its constants as nine floats in :class:`WindowConstants`' order.
+
+    For a caller that keeps them in a parameter array (``WindowGeometry.constants`` copied in).
+    """
     c = constants
-    return window_code(T, tips, c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8])
+    w = WindowConstants(c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8])
+    return window_code(T, tips, w)
 
 
 def window_status_rows(
@@ -215,9 +225,9 @@ def window_status_rows(
 @register_jitable  # also callable from compiled kernels (the same source)
 def adjusted_distance(d_f: float, code: int, d_min: float, d_max: float, step: float) -> float:
     """:func:`adjust_working_distance` for a :func:`window_code` ``code``, m."""
-    if code == 0:
+    if code == WINDOW_OUTSIDE_OUTER:
         d_f += step
-    elif code == 2:
+    elif code == WINDOW_INSIDE_INNER:
         d_f -= step
     return min(max(d_f, d_min), d_max)
 
