@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from typing import Protocol
 
 import numpy as np
 from numba import njit
@@ -20,9 +20,6 @@ from numpy.typing import NDArray
 from endocam.geometry import FloatArray
 from endocam.kernels import dist3
 from endocam.workspace.cone import ConeWorkspace
-
-BoolArray = NDArray[np.bool_]
-IntArray = NDArray[np.integer]
 
 STALE_REASON = "ring pose stale (older than ring_max_age, or stamped in the future); holding"
 CLOCK_TOL = 1e-6  # s, a capture stamp this far after the control time is round-off, not a fault
@@ -43,60 +40,92 @@ def is_stale(t: float, t_ring: float | None, max_age: float) -> bool:
 GATE_REJECT, GATE_ACCEPT, GATE_REACQUIRE = 0, 1, 2  # gate_decide's answers
 
 
-class GateBounds(NamedTuple):
-    """How fast a real ring can move: the gate's bounds (:class:`RingGate`'s parameters)."""
+GATE_BOUNDS = np.dtype(
+    [
+        ("max_speed", np.float64),  # m/s, fastest plausible ring centre
+        ("max_rate", np.float64),  # rad/s, fastest plausible turn of the ring normal
+        ("horizon", np.float64),  # s, longest time the bounds grow over
+        ("reacquire", np.float64),  # s, time without an accepted observation to re-acquire
+    ],
+    align=True,
+)
+"""How fast a real ring can move (:attr:`RingGate.bounds` is a (1,) array of it)."""
 
-    max_speed: float  # m/s, fastest plausible ring centre
-    max_rate: float  # rad/s, fastest plausible turn of the ring normal
-    horizon: float  # s, longest time the bounds grow over
-    reacquire: float  # s, time without an accepted observation before re-acquiring
-
-
-class GateMemory(NamedTuple):
-    """One remembered ring observation; arrays, updated in place by :func:`gate_remember`."""
-
-    held: BoolArray  # (1,), whether there is one
-    t: FloatArray  # (1,), when it was seen, s
-    centre: FloatArray  # (3,), the ring centre, world, m
-    normal: FloatArray  # (3,), the ring's unit normal, world
+GateBounds = NDArray[np.void]  # a (1,) array of GATE_BOUNDS
 
 
-class GateState(NamedTuple):
-    """The gate's memory (:attr:`RingGate.state`): what compiled callers pass, updated in place."""
+class GateLimits(Protocol):
+    """A :data:`GATE_BOUNDS` record as compiled code reads it (its fields, by name)."""
 
-    accepted: GateMemory  # the last accepted observation: the reference for the bounds
-    seen: GateMemory  # the last finite observation, accepted or not
-    rejected: IntArray  # (1,), observations rejected this episode
+    max_speed: float
+    max_rate: float
+    horizon: float
+    reacquire: float
 
 
-def _memory() -> GateMemory:
-    """An empty :class:`GateMemory`."""
-    return GateMemory(np.zeros(1, dtype=np.bool_), np.zeros(1), np.zeros(3), np.zeros(3))
+GATE_MEMORY = np.dtype(
+    [
+        ("held", np.bool_),  # whether there is one
+        ("t", np.float64),  # when it was seen, s
+        ("centre", np.float64, (3,)),  # the ring centre, world, m
+        ("normal", np.float64, (3,)),  # the ring's unit normal, world
+    ],
+    align=True,
+)
+"""One remembered ring observation (a record; :func:`gate_remember` stores one)."""
+
+GATE_STATE = np.dtype(
+    [
+        ("accepted", GATE_MEMORY),  # the last accepted observation: the bounds' reference
+        ("seen", GATE_MEMORY),  # the last finite observation, accepted or not
+        ("rejected", np.int64),  # observations rejected this episode
+    ],
+    align=True,
+)
+"""The gate's memory (:attr:`RingGate.state` is a (1,) array of it, updated in place).
+
+A structured array: named fields, and one array for compiled callers to take.
+"""
+
+GateState = NDArray[np.void]  # a (1,) array of GATE_STATE
+
+
+class GateMemory(Protocol):
+    """A :data:`GATE_MEMORY` record as compiled code reads it (its fields, by name)."""
+
+    held: bool
+    t: float
+    centre: FloatArray
+    normal: FloatArray
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
 def gate_remember(memory: GateMemory, t: float, x: Sequence[float]) -> None:
-    """Store the observation ``x`` (centre (3,), world, m; unit normal (3,)) seen at ``t`` s."""
-    memory.held[0] = True
-    memory.t[0] = t
+    """Store the observation ``x`` (centre (3,), world, m; unit normal (3,)) seen at ``t`` s.
+
+    ``memory``: a :data:`GATE_MEMORY` record (compiled callers only: numba's record views).
+    """
+    memory.held = True
+    memory.t = t
     for i in range(3):
         memory.centre[i] = x[i]
         memory.normal[i] = x[3 + i]
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
-def gate_agrees(memory: GateMemory, bounds: GateBounds, t: float, x: Sequence[float]) -> bool:
+def gate_agrees(memory: GateMemory, limits: GateLimits, t: float, x: Sequence[float]) -> bool:
     """Whether ``x`` (centre, m; unit normal) at ``t`` (s) agrees with the remembered one.
 
     The centre moved at most ``max_speed · Δt`` and the normal turned at most
-    ``max_rate · Δt``, ``Δt`` the time since ``memory``'s observation capped at ``horizon``.
+    ``max_rate · Δt``, ``Δt`` the time since ``memory``'s observation (a :data:`GATE_MEMORY`
+    record) capped at ``horizon`` (``limits``: a :data:`GATE_BOUNDS` record).
     """
-    dt = min(max(t - memory.t[0], 0.0), bounds.horizon)
+    dt = min(max(t - memory.t, 0.0), limits.horizon)
     c, n = memory.centre, memory.normal
     dp = dist3(x[0], x[1], x[2], c[0], c[1], c[2])
     cos = x[3] * n[0] + x[4] * n[1] + x[5] * n[2]
     turn = math.acos(max(-1.0, min(1.0, cos)))
-    return dp <= bounds.max_speed * dt and turn <= bounds.max_rate * dt
+    return dp <= limits.max_speed * dt and turn <= limits.max_rate * dt
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -106,15 +135,15 @@ def gate_decide(state: GateState, bounds: GateBounds, t: float, x: Sequence[floa
     ``state`` and ``bounds``: :class:`RingGate`'s; ``x`` (6,) the ring centre, world, m, and
     its unit normal seen at ``t`` (s). ``GATE_REACQUIRE``: accept if the centre may be
     re-acquired (the gate's ``inside``). Records ``x`` as the last finite observation; the
-    caller ends with :func:`gate_commit`.
+    caller ends with :func:`gate_commit`. Compiled callers only.
     """
-    accepted, seen = state.accepted, state.seen
+    accepted, seen, limits = state[0].accepted, state[0].seen, bounds[0]
     decision = GATE_REJECT
-    if not accepted.held[0] or gate_agrees(accepted, bounds, t, x):
+    if not accepted.held or gate_agrees(accepted, limits, t, x):
         decision = GATE_ACCEPT
-    elif t - accepted.t[0] > bounds.reacquire and seen.held[0]:
-        age = t - seen.t[0]
-        if 0.0 < age <= bounds.horizon and gate_agrees(seen, bounds, t, x):
+    elif t - accepted.t > limits.reacquire and seen.held:
+        age = t - seen.t
+        if 0.0 < age <= limits.horizon and gate_agrees(seen, limits, t, x):
             decision = GATE_REACQUIRE
     gate_remember(seen, t, x)
     return decision
@@ -124,9 +153,9 @@ def gate_decide(state: GateState, bounds: GateBounds, t: float, x: Sequence[floa
 def gate_commit(state: GateState, t: float, x: Sequence[float], ok: bool) -> None:
     """Record :func:`gate_decide`'s final answer ``ok``: ``x`` at ``t`` is the new reference."""
     if ok:
-        gate_remember(state.accepted, t, x)
+        gate_remember(state[0].accepted, t, x)
     else:
-        state.rejected[0] += 1
+        state[0].rejected += 1
 
 
 @njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
@@ -135,6 +164,14 @@ def _gate_decide_kernel(
 ) -> int:  # pragma: no cover - compiled
     """:func:`gate_decide` from Python (:meth:`RingGate.accept`)."""
     return gate_decide(state, bounds, t, x)
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
+def _gate_commit_kernel(
+    state: GateState, t: float, x: tuple[float, ...], ok: bool
+) -> None:  # pragma: no cover - compiled
+    """:func:`gate_commit` from Python (:meth:`RingGate.accept`)."""
+    gate_commit(state, t, x, ok)
 
 
 class RingGate:
@@ -151,7 +188,7 @@ class RingGate:
     indistinguishable from a moved ring.)
 
     The rule is compiled (:func:`gate_decide`, :func:`gate_commit` on :attr:`state`, a
-    :class:`GateState`, with :attr:`bounds`, a :class:`GateBounds`); the policies' compiled
+    :data:`GATE_STATE` record, with :attr:`bounds`, a :class:`GateBounds`); the policies' compiled
     steps run it inside their own kernel, with the cone's own ``cone_margin`` as the
     workspace.
 
@@ -168,17 +205,16 @@ class RingGate:
     """
 
     def __init__(self, max_speed: float, max_rate: float, horizon: float, reacquire: float) -> None:
-        self.bounds = GateBounds(
-            float(max_speed), float(max_rate), float(horizon), float(reacquire)
-        )
-        self.state = GateState(_memory(), _memory(), np.zeros(1, dtype=np.int64))
+        limits = (float(max_speed), float(max_rate), float(horizon), float(reacquire))
+        self.bounds: GateBounds = np.array([limits], dtype=GATE_BOUNDS)
+        self.state: GateState = np.zeros(1, dtype=GATE_STATE)
         self._inside: Callable[[Sequence[float]], bool] | None = None
         self.cone: ConeWorkspace | None = None  # the workspace, when it is a cone
 
     @property
     def rejected(self) -> int:
         """Observations rejected this episode."""
-        return int(self.state.rejected[0])
+        return int(self.state[0]["rejected"])
 
     def reset(
         self,
@@ -192,10 +228,7 @@ class RingGate:
         ``None``: anywhere. ``cone``: the cone workspace instead (its ``contains``; compiled
         callers test it themselves).
         """
-        for memory in (self.state.accepted, self.state.seen):
-            for array in memory:
-                array[:] = 0
-        self.state.rejected[0] = 0
+        self.state[:] = np.zeros(1, dtype=GATE_STATE)
         self.cone = cone
         self._inside = cone.contains if cone is not None else inside
 
@@ -208,5 +241,5 @@ class RingGate:
             decision == GATE_REACQUIRE
             and (self._inside is None or self._inside([x[0], x[1], x[2]]))
         )
-        gate_commit(self.state, t, x, ok)
+        _gate_commit_kernel(self.state, float(t), x, ok)
         return ok
