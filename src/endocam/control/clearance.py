@@ -49,15 +49,14 @@ from collections.abc import Sequence
 import numpy as np
 
 from endocam.camera import SCOPE_RADIUS
-from endocam.control.detour import detour_waypoint, lifted
+from endocam.control.detour import detour_fields, lifted
 from endocam.control.escape import (
     APPLY_ADJUSTED,
     APPLY_BLOCKED,
     APPLY_CLEAR,
-    ClearRequest,
+    ESCAPE_MEMORY,
     EscapeMemory,
     GuardState,
-    LookAt,
     clear_look_at_into,
     clear_pose_into,
 )
@@ -97,7 +96,7 @@ class ClearanceGuard:
         self._state = KeepOutState(
             *wire.query_state, wire.radius, self._ref, self._nref, self.clearance
         )
-        self._escape = EscapeMemory(np.zeros(1, dtype=np.bool_), np.zeros(3))
+        self._escape: EscapeMemory = np.zeros(1, dtype=ESCAPE_MEMORY)
         self._unbounded = GuardState(self._state, self._escape, False, NO_WORKSPACE)
         self._workspace: Workspace | None = None  # the last workspace given to apply()
         self._bounded = self._unbounded  # the search's state with that workspace
@@ -107,7 +106,7 @@ class ClearanceGuard:
     def reset(self) -> None:
         """Forget the cached query and the escape direction (a new episode)."""
         self._nref[0] = 0
-        self._escape.held[0] = False
+        self._escape[0]["held"] = False
         self.adjusted = 0
         self.blocked = 0
 
@@ -217,7 +216,7 @@ class ClearanceGuard:
         """
         p = p_world
         T = np.empty((4, 4))  # the pose, if any (a new array: the caller keeps it)
-        look = LookAt((float(p[0]), float(p[1]), float(p[2])), fallback, previous, check)
+        look = ((float(p[0]), float(p[1]), float(p[2])), fallback, previous, check)  # a LookAt
         request = _request(p_world_pivot, p_world_now, back_off)
         guard = self._guard_state(workspace)
         code, fell_back = clear_look_at_into(guard, look, request, T)
@@ -263,7 +262,7 @@ class ClearanceGuard:
         The caller made :meth:`apply`'s finite check and query (``keep_out_distance``, the same
         cache); this records the pass (no escape direction is remembered).
         """
-        self._escape.held[0] = False
+        self._escape[0]["held"] = False
         return T_world_cam
 
     def detour(self, p_world_now: Sequence[float], p_world_cmd: Sequence[float]) -> Vec | None:
@@ -284,12 +283,12 @@ class ClearanceGuard:
             an end is not finite).
         """
         a, b = p_world_now, p_world_cmd
-        via = detour_waypoint(
+        found, via = detour_fields(
             self._state,
             (float(a[0]), float(a[1]), float(a[2])),
             (float(b[0]), float(b[1]), float(b[2])),
         )
-        return via.point if via.found else None
+        return via if found else None
 
     def step_out(self, p_world: Sequence[float]) -> Vec | None:
         """``p_world`` (3,), m, moved straight away from the wire to ``DETOUR_PUSH`` past the zone.
@@ -303,9 +302,11 @@ class ClearanceGuard:
         return out.point if out.found and out.point != p else None
 
 
-def _request(pivot: Sequence[float], now: Sequence[float] | None, back_off: float) -> ClearRequest:
-    """:meth:`ClearanceGuard.apply`'s arguments as the compiled search's request."""
-    return ClearRequest(
+def _request(
+    pivot: Sequence[float], now: Sequence[float] | None, back_off: float
+) -> tuple[Vec, bool, Vec, float]:
+    """:meth:`ClearanceGuard.apply`'s arguments as ``escape.ClearRequest``'s fields (a tuple)."""
+    return (
         (float(pivot[0]), float(pivot[1]), float(pivot[2])),
         now is not None,
         (0.0, 0.0, 0.0) if now is None else (float(now[0]), float(now[1]), float(now[2])),

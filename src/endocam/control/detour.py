@@ -154,6 +154,16 @@ def detour_waypoint(zone: KeepOutState, a: Vec, b: Vec) -> Waypoint:
 
 
 @njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
+def detour_fields(zone: KeepOutState, a: Vec, b: Vec) -> tuple[bool, Vec]:  # pragma: no cover
+    """:func:`detour_waypoint` from Python: its fields as a plain tuple (found, point).
+
+    numba returns a plain tuple cheaper than a NamedTuple (built by calling its class).
+    """
+    via = detour_waypoint(zone, a, b)
+    return via.found, via.point
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
 def cleared_move(zone: KeepOutState, p: Vec, pivot: Vec, now: Vec) -> ClearedMove:
     """``ClearanceGuard.apply``'s check of a pose at ``p`` and ``ClearanceGuard.detour``.
 

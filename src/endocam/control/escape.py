@@ -41,31 +41,38 @@ _EPS = 1e-9  # unitless, shorter directions are degenerate
 # (clear_look_at_into only) the look-at pose's position is outside the workspace
 APPLY_CLEAR, APPLY_ADJUSTED, APPLY_BLOCKED, APPLY_NOT_FINITE, APPLY_INFEASIBLE = range(5)
 
-BoolArray = NDArray[np.bool_]
+ESCAPE_MEMORY = np.dtype(
+    [
+        ("held", np.bool_),  # whether a direction is remembered
+        ("direction", np.float64, (3,)),  # the unit escape direction, world
+    ],
+    align=True,
+)
+"""The direction of the guard's last rotation, kept between steps (a (1,) array, in place).
 
+The next search tries it first, so the camera does not chatter between two sides of a symmetric
+wire; a pose that passes unchanged forgets it. A structured array: one array to dispatch.
+"""
 
-class EscapeMemory(NamedTuple):
-    """The direction of the guard's last rotation, kept between steps (arrays, updated in place).
-
-    The next search tries it first, so the camera does not chatter between two sides of a
-    symmetric wire; a pose that passes unchanged forgets it.
-    """
-
-    held: BoolArray  # (1,), whether a direction is remembered
-    direction: FloatArray  # (3,), the unit escape direction, world
+EscapeMemory = NDArray[np.void]  # a (1,) array of ESCAPE_MEMORY
 
 
 class GuardState(NamedTuple):
     """The guard's state as its compiled search reads it (``ClearanceGuard``'s)."""
 
     zone: KeepOutState  # the wire's keep-out zone (its Lipschitz cache is updated)
-    escape: EscapeMemory  # the remembered escape direction (updated)
+    escape: EscapeMemory  # the remembered escape direction (a (1,) ESCAPE_MEMORY, updated)
     bounded: bool  # whether a position must lie in ``workspace`` (else anywhere will do)
     workspace: WorkspaceState  # where a camera position may be commanded (read if bounded)
 
 
 class ClearRequest(NamedTuple):
-    """What ``ClearanceGuard.apply`` is asked besides the pose."""
+    """What ``ClearanceGuard.apply`` is asked besides the pose.
+
+    It reaches the compiled entry points as a plain tuple of these fields, named on arrival
+    (``ClearRequest(*asked)``): numba dispatches a plain tuple in C, a NamedTuple through
+    Python's ``typeof`` (~2 us a call, thousands of calls an episode).
+    """
 
     pivot: Vec  # the point the pose looks at (the ring centre), world, m
     has_now: bool  # whether ``now`` is known
@@ -81,7 +88,10 @@ class Cleared(NamedTuple):
 
 
 class LookAt(NamedTuple):
-    """The pose ``clear_look_at_into`` builds: at ``position``, looking at the request's pivot."""
+    """The pose ``clear_look_at_into`` builds: at ``position``, looking at the request's pivot.
+
+    Passed as a plain tuple of these fields, as :class:`ClearRequest`.
+    """
 
     position: Vec  # world, m
     fallback: FloatArray  # (4, 4): the pose when ``position`` is the pivot
@@ -184,14 +194,14 @@ def _escape_direction(guard: GuardState, p: Vec, u: Vec, request: ClearRequest) 
     else the distance's gradient at ``p`` (m; away from the nearest wire point), then the
     vertical and the x axis; each projected perpendicular to ``u``.
     """
-    zone, escape, c = guard.zone, guard.escape, request.pivot
+    zone, escape, c = guard.zone, guard.escape[0], request.pivot
     k = keep_out_nearest(zone, p[0], p[1], p[2]).row
     q = zone.points[k]
     candidates = [(p[0] - q[0], p[1] - q[1], p[2] - q[2]), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)]
     if request.has_now:
         now = request.now
         candidates.insert(0, (now[0] - c[0], now[1] - c[1], now[2] - c[2]))
-    if escape.held[0]:
+    if escape.held:
         d = escape.direction
         candidates.insert(0, (d[0], d[1], d[2]))
     for cand in candidates:
@@ -242,9 +252,10 @@ def _rotated(guard: GuardState, T: FloatArray, request: ClearRequest, target: fl
             near = keep_out_nearest(zone, pos[0], pos[1], pos[2])
             if near.surface >= target and _feasible(guard, pos):
                 remember(zone.ref, zone.nref, pos[0], pos[1], pos[2], near.surface)
-                guard.escape.held[0] = True
+                memory = guard.escape[0]
+                memory.held = True
                 for i in range(3):
-                    guard.escape.direction[i] = e[i]
+                    memory.direction[i] = e[i]
                 return Cleared(APPLY_ADJUSTED, _pose(xc, yc, zc, pos))
             if near.surface < target:  # the camera's velocity per radian: k × (pos − c)
                 rel_pos = (pos[0] - c[0], pos[1] - c[1], pos[2] - c[2])
@@ -272,7 +283,7 @@ def clear_pose(guard: GuardState, T: FloatArray, request: ClearRequest) -> Clear
     if not math.isfinite(p[0] + p[1] + p[2] + (c[0] + c[1] + c[2])):
         return Cleared(APPLY_NOT_FINITE, T)
     if keep_out_distance(zone, p[0], p[1], p[2], 0.0) >= zone.clearance:
-        guard.escape.held[0] = False
+        guard.escape[0].held = False
         return Cleared(APPLY_CLEAR, T)
     target = zone.clearance + AIM_BEYOND
     if request.back_off > 0.0:
@@ -284,14 +295,15 @@ def clear_pose(guard: GuardState, T: FloatArray, request: ClearRequest) -> Clear
 
 @njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
 def clear_pose_into(
-    guard: GuardState, T: FloatArray, request: ClearRequest, out: FloatArray
+    guard: GuardState, T: FloatArray, asked: tuple[Vec, bool, Vec, float], out: FloatArray
 ) -> int:  # pragma: no cover - compiled
     """:func:`clear_pose` from Python (:meth:`ClearanceGuard.apply`): its ``APPLY_*`` code.
 
-    An adjusted pose is written into ``out`` (4, 4), the caller's array (numba unpickles the
-    type of every array it returns, ~1 us a call).
+    ``asked``: a :class:`ClearRequest`'s fields. An adjusted pose is written into ``out``
+    (4, 4), the caller's array (numba unpickles the type of every array it returns, ~1 us a
+    call).
     """
-    cleared = clear_pose(guard, T, request)
+    cleared = clear_pose(guard, T, ClearRequest(*asked))
     if cleared.code == APPLY_ADJUSTED:
         out[:, :] = cleared.pose
     return cleared.code
@@ -299,9 +311,14 @@ def clear_pose_into(
 
 @njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
 def clear_look_at_into(
-    guard: GuardState, look: LookAt, request: ClearRequest, out: FloatArray
+    guard: GuardState,
+    look_at: tuple[Vec, FloatArray, FloatArray, bool],
+    asked: tuple[Vec, bool, Vec, float],
+    out: FloatArray,
 ) -> LookedAt:  # pragma: no cover - compiled
     """:meth:`ClearanceGuard.apply_look_at`: :func:`clear_pose` of a look-at pose.
+
+    ``look_at``: a :class:`LookAt`'s fields, ``asked``: a :class:`ClearRequest`'s.
 
     The pose at ``look.position`` looking at ``request.pivot`` with a level horizon, its roll
     from ``look.previous`` (``view.look_at_unchecked``; ``look.fallback`` when the two points
@@ -310,6 +327,7 @@ def clear_look_at_into(
     (``APPLY_CLEAR``: the look-at pose, unless fallen back; ``APPLY_ADJUSTED``: the cleared
     one) is written into ``out`` (4, 4), the caller's array.
     """
+    look, request = LookAt(*look_at), ClearRequest(*asked)
     p, previous = look.position, look.previous
     x_prev = (previous[0, 0], previous[1, 0], previous[2, 0])
     found, x, y, z = look_at_columns(p, request.pivot, x_prev)
