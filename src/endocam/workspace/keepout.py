@@ -144,7 +144,8 @@ def keep_out_distance(
         bound = ref[r, 3] - dist3(x, y, z, ref[r, 0], ref[r, 1], ref[r, 2])
         if bound >= zone.clearance + exact_below:
             return bound  # a lower bound that already clears
-    d = keep_out_nearest(zone, x, y, z).surface
+    _, dist = surface_query(zone.points, zone.table, zone.pool, zone.meta, x, y, z)
+    d = dist - zone.radius
     remember(ref, zone.nref, x, y, z, d)
     return d
 
