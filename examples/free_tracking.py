@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from endocam.config import ExperimentConfig
-from endocam.control.safety import WindowGeometry, WindowStatus, window_status_rows
+from endocam.control.windows import WindowGeometry, WindowStatus, window_status_rows
 from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode
 from endocam.runner.experiments import study_path_config
 from endocam.task.study_paths import (

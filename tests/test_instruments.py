@@ -10,7 +10,7 @@ import pytest
 from endocam.camera import StereoCamera
 from endocam.control.config import ControllerConfig
 from endocam.control.goal import goal_pose
-from endocam.control.safety import WindowStatus, window_status
+from endocam.control.windows import WindowStatus, window_status
 from endocam.geometry import transform_points
 from endocam.task.config import Psm2Idle, TaskConfig
 from endocam.task.instruments import instrument_tips, lagged_path

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from endocam import geometry, kernels
 from endocam.camera import StereoCamera, inside_image
-from endocam.control.safety import ImageWindows, WindowGeometry, WindowStatus, window_status_rows
+from endocam.control.windows import ImageWindows, WindowGeometry, WindowStatus, window_status_rows
 from endocam.view import look_at_pose, look_at_unchecked
 
 ATOL_RAD = 1e-9  # rad: float round-off on angles of order 1, far below any real error

@@ -320,7 +320,7 @@ LATENCY_S = 0.05  # s, the default sensing delay: a fresh pose is this old
 )
 def test_a_stale_ring_pose_holds(name: str, age_s: float | None, stale: bool) -> None:
     """A pose older than ring_max_age (a frozen tracker), or stamped ahead, is not acted on."""
-    from endocam.control.safety import STALE_REASON
+    from endocam.control.gate import STALE_REASON
 
     cfg = WIDE
     assert cfg.ring_max_age < 0.3 and LATENCY_S < cfg.ring_max_age

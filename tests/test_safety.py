@@ -1,4 +1,4 @@
-"""Cone workspace and tool-in-view windows (paper Sec. III-C)."""
+"""Cone workspace, tool-in-view windows (paper Sec. III-C) and the observation gate's state."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from endocam import StereoCamera, look_at_pose
-from endocam.control.safety import (
+from endocam.control.gate import GATE_STATE, RingGate
+from endocam.control.windows import (
     D_F_STEP,
     ImageWindows,
     WindowStatus,
-    _first_outside_kernel,
     adjust_working_distance,
     window_status,
 )
@@ -20,7 +20,7 @@ from endocam.geometry import transform_points
 from endocam.workspace.cone import ConeWorkspace
 
 ATOL_M = 1e-12  # m, round-off at 0.1 m scale
-N_PATHS = 2000  # count: random point sequences checked, compiled vs scalar
+N_PATHS = 2000  # count: random point sequences checked, path check vs scalar margins
 PX_EPS = 1e-3  # px, how far past a window edge a test tip is placed
 
 CAM = StereoCamera()
@@ -144,7 +144,7 @@ def test_no_usable_tip_holds() -> None:
 
 
 def _first_outside_scalar(cone: ConeWorkspace, path: np.ndarray, floor: float) -> int:
-    """The interpreted reference: the scalar margins in turn, as ``Workspace.margin`` does."""
+    """The scalar margins in turn (``ConeWorkspace.margin``, the floor), as ``Workspace.margin``."""
     for i, p in enumerate(path.tolist()):
         if not min(cone.margin(p), p[2] - floor) >= 0.0:
             return i
@@ -173,7 +173,22 @@ def test_cone_first_outside_is_the_scalar_decision() -> None:
         path[rng.random(n) < 0.02, int(rng.integers(0, 3))] = rng.choice([math.nan, math.inf])
         expected = _first_outside_scalar(cone, path, floor)
         assert cone.first_outside(path, floor) == expected
-        args = (cone._apex, cone._axis, cone._tan_half, cone._cos_half, cone.height, floor)
-        with np.errstate(invalid="ignore"):  # the interpreter on numpy floats: inf · 0 warns
-            assert _first_outside_kernel.py_func(path, *args) == expected
     assert cone.first_outside(np.zeros((0, 3))) == 0
+
+
+def test_the_gate_remembers_by_name_and_forgets_at_reset() -> None:
+    """``RingGate.state``'s named fields: the accepted and the last seen pose, the rejections."""
+    gate = RingGate(max_speed=0.1, max_rate=1.0, horizon=0.5, reacquire=1.0)
+    up = (0.0, 0.0, 1.0)
+    assert gate.accept(0.0, (0.0, 0.0, 0.05), up)
+    assert not gate.accept(0.01, (0.5, 0.0, 0.05), up)  # 50 m/s: refused
+    state = gate.state[0]
+    assert state["accepted"]["held"] and state["accepted"]["t"] == 0.0
+    np.testing.assert_array_equal(state["accepted"]["centre"], [0.0, 0.0, 0.05])
+    np.testing.assert_array_equal(state["seen"]["centre"], [0.5, 0.0, 0.05])
+    np.testing.assert_array_equal(state["seen"]["normal"], up)
+    assert state["seen"]["t"] == 0.01 and gate.rejected == 1
+    gate.reset()
+    assert gate.state.dtype == GATE_STATE and gate.rejected == 0
+    assert not gate.state[0]["accepted"]["held"] and not gate.state[0]["seen"]["held"]
+    assert gate.accept(5.0, (0.5, 0.0, 0.05), up)  # nothing to compare with: accepted

@@ -12,8 +12,8 @@ from endocam.config import CameraConfig, ExperimentConfig
 from endocam.control.config import ControllerConfig, TrackerConfig
 from endocam.control.policies import EndocamPolicy
 from endocam.control.predictor import RingPredictor
-from endocam.control.safety import WindowStatus, window_status
 from endocam.control.types import Observation, PolicyContext, TrackingState
+from endocam.control.windows import WindowStatus, window_status
 from endocam.registry import make_policy
 from endocam.robot.cartesian import CartesianLimiter, MotionLimits
 from endocam.runner.episode import EpisodeSpec, run_episode
@@ -350,10 +350,10 @@ def test_endocam_never_commands_or_goes_outside_the_cone_or_below_the_floor(
     checked at the real speed only.
     """
     from endocam.config import ExperimentConfig
-    from endocam.control.safety import ConeWorkspace
     from endocam.runner.episode import EpisodeSpec, run_episode
     from endocam.task.config import TrajectoryConfig
     from endocam.task.trajectory import TrajectoryKind
+    from endocam.workspace.cone import ConeWorkspace
 
     cfg = ExperimentConfig.model_validate(
         {"task": {"trajectory": {"duration": duration}}, "episode": {"arm": arm}}

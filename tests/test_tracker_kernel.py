@@ -24,6 +24,7 @@ from scipy.spatial.transform import Rotation
 from endocam.config import CameraConfig
 from endocam.control.checks import GATE_REASON, OBS_OK, RING_REASON, Sighting
 from endocam.control.config import ControllerConfig, SideRule, TrackerConfig, Transfer
+from endocam.control.gate import STALE_REASON
 from endocam.control.goal import PreviousAxes, goal_pose_unchecked
 from endocam.control.paper_step import PaperResult
 from endocam.control.plan import PlanResult, inside_kernel
@@ -37,9 +38,9 @@ from endocam.control.policies import (
 from endocam.control.policies.endocam import FLOOR_TOL_M
 from endocam.control.policies.oracle import OracleConfig
 from endocam.control.predictor import RingPredictor
-from endocam.control.safety import STALE_REASON, WindowGeometry, WindowStatus, window_status_rows
 from endocam.control.side_view import ViewRule, pose_of, twist_of, view_of
 from endocam.control.types import CameraCommand, Observation, PolicyContext, TrackingState
+from endocam.control.windows import WindowGeometry, WindowStatus, window_status_rows
 from endocam.task.config import WireConfig
 from endocam.task.wire import Wire
 from endocam.view import ROLL_LEVEL_ANGLE, look_at_pose, rotation_columns

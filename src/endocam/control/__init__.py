@@ -8,18 +8,18 @@ from endocam.control.policies import (
     FixedPolicy,
     OrientationPolicy,
 )
-from endocam.control.safety import (
-    ImageWindows,
-    WindowStatus,
-    adjust_working_distance,
-    window_status,
-)
 from endocam.control.types import (
     CameraCommand,
     CameraPolicy,
     Observation,
     PolicyContext,
     TrackingState,
+)
+from endocam.control.windows import (
+    ImageWindows,
+    WindowStatus,
+    adjust_working_distance,
+    window_status,
 )
 from endocam.registry import POLICIES, make_policy
 from endocam.workspace.cone import ConeWorkspace

@@ -14,7 +14,14 @@ import numpy as np
 from numba import njit
 from numba.extending import register_jitable
 
-from endocam.control.safety import CLOCK_TOL, STALE_REASON, gate_commit, gate_decide
+from endocam.control.gate import (
+    CLOCK_TOL,
+    STALE_REASON,
+    GateBounds,
+    GateState,
+    gate_commit,
+    gate_decide,
+)
 from endocam.geometry import FloatArray
 from endocam.kernels import dist3, unit_checked
 from endocam.workspace.cone import Cone, cone_margin
@@ -66,9 +73,9 @@ class RingChecks(NamedTuple):
     ----------
     max_age : float
         ``ring_max_age``, s: an older ring pose is stale.
-    gate : (n,) array
+    gate : (1,) record array, ``gate.GATE_STATE``
         ``RingGate.state``, updated in place by the checks.
-    bounds : (4,) array
+    bounds : (1,) record array, ``gate.GATE_BOUNDS``
         ``RingGate.bounds``.
     cone : Cone
         The cone workspace's constants (``cone_at``): the gate re-acquires only inside it.
@@ -79,8 +86,8 @@ class RingChecks(NamedTuple):
     """
 
     max_age: float
-    gate: FloatArray
-    bounds: FloatArray
+    gate: GateState
+    bounds: GateBounds
     cone: Cone
     unit_normal: bool
 

@@ -10,8 +10,9 @@ from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from endocam.control.clearance import WIRE_CLEARANCE, ClearanceGuard
+from endocam.control.gate import RingGate
 from endocam.control.goal import SIDE_HYSTERESIS
-from endocam.control.safety import D_F_STEP, ImageWindows, RingGate
+from endocam.control.windows import D_F_STEP, ImageWindows
 from endocam.task.wire import Wire
 from endocam.workspace.cone import CONE_BASE_RADIUS, CONE_HEIGHT, ConeWorkspace
 from endocam.workspace.region import Workspace

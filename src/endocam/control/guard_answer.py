@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 from numba.extending import register_jitable
 
-from endocam.control.clearance import cleared_move
+from endocam.control.detour import cleared_move
 from endocam.kernels import Vec
 from endocam.workspace.keepout import KeepOutState
 

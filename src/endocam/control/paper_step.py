@@ -18,7 +18,7 @@ from numba.extending import register_jitable
 from endocam.control.checks import MIN_NORMAL, OBS_OK, RingChecks, Sighting, observed
 from endocam.control.goal import DistanceRange, PreviousAxes, SideChoice, goal_columns
 from endocam.control.guard_answer import NOT_ASKED, GuardAnswer, ask_guard
-from endocam.control.safety import adjusted_distance, window_code_of
+from endocam.control.windows import adjusted_distance, window_code_of
 from endocam.geometry import FloatArray
 from endocam.kernels import Vec, dist3
 from endocam.workspace.cone import Cone, cone_margin

@@ -19,7 +19,6 @@ from endocam.control.checks import OBS_OK, RingChecks, Sighting, observed
 from endocam.control.goal import DistanceRange, PreviousAxes, SideChoice, goal_columns
 from endocam.control.guard_answer import NOT_ASKED, GuardAnswer, ask_guard
 from endocam.control.predictor import ring_predict, ring_push
-from endocam.control.safety import adjusted_distance, window_code_of
 from endocam.control.side_view import (
     ViewRule,
     choose_of,
@@ -29,6 +28,7 @@ from endocam.control.side_view import (
     twist_of,
     view_of,
 )
+from endocam.control.windows import adjusted_distance, window_code_of
 from endocam.geometry import FloatArray
 from endocam.kernels import Vec, dist3, dot, unit_checked
 from endocam.workspace.cone import Cone, cone_margin

@@ -16,7 +16,7 @@ import numpy as np
 from numba.extending import register_jitable
 
 from endocam.control.goal import DistanceRange, PreviousAxes, SideChoice, goal_columns
-from endocam.control.safety import window_code_of
+from endocam.control.windows import window_code_of
 from endocam.geometry import FloatArray
 from endocam.kernels import Vec, cross, dot, norm
 from endocam.workspace.cone import Cone, cone_margin

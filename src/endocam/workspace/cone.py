@@ -1,4 +1,4 @@
-"""The cone workspace around the RCM (paper Sec. III-C): its margin, interpreted and compiled.
+"""The cone workspace around the RCM (paper Sec. III-C): the checked object and its compiled margin.
 
 The camera may only be driven autonomously inside a solid cone whose tip is the remote centre of
 motion (RCM) and whose axis points at the feature's initial position. :class:`ConeWorkspace` is
@@ -63,7 +63,7 @@ def cone_margin(
 
 @register_jitable  # also callable from compiled kernels (the same source)
 def cone_floor_margin(x: float, y: float, z: float, cone: FloatArray, floor: float) -> float:
-    """``Workspace.margin`` without its keep-out zone: Python's ``min(cone margin, z − floor)``, m.
+    """``Workspace.margin`` without its keep-out zone: ``min(cone margin, z − floor)``, m.
 
     ``(x, y, z)``: the point, world, m; ``cone`` (≥ 9,): ``ConeWorkspace.constants`` (apex,
     unit axis, tan and cos of the half-angle, height); ``floor``: the lowest z, world, m. NaN
@@ -74,7 +74,7 @@ def cone_floor_margin(x: float, y: float, z: float, cone: FloatArray, floor: flo
     return min(cone_margin(x, y, z, apex, axis, cone[6], cone[7], cone[8]), z - floor)
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
 def cone_first_outside(
     p: FloatArray,
     apex: tuple[float, ...],
@@ -100,7 +100,7 @@ def cone_first_outside(
 Cone = tuple[tuple[float, float, float], tuple[float, float, float], float, float, float]
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
 def _cone_margin_kernel(constants: FloatArray, x: float, y: float, z: float) -> float:
     """:func:`cone_margin` of ``(x, y, z)``, world, m, with the cone's ``constants`` (9,), m."""
     apex, axis, tan_half, cos_half, height = cone_at(constants, 0)

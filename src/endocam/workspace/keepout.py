@@ -27,8 +27,10 @@ __all__ = [
     "NO_KEEP_OUT",
     "KeepOut",
     "KeepOutState",
+    "NearestWire",
     "keep_out_distance",
     "keep_out_first_outside",
+    "keep_out_nearest",
     "remember",
 ]
 
@@ -97,6 +99,23 @@ class KeepOut(Protocol):
         turn would find it, any cache it keeps left as those calls leave it.
         """
         ...
+
+
+class NearestWire(NamedTuple):
+    """:func:`keep_out_nearest`'s answer."""
+
+    row: int  # the row of the zone's ``points`` nearest to the point asked
+    surface: float  # m, the point's exact distance to the tube's surface
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
+def keep_out_nearest(zone: KeepOutState, x: float, y: float, z: float) -> NearestWire:
+    """The wire's search point nearest to ``(x, y, z)`` (world, m) and its surface distance.
+
+    One exact query (``Wire.nearest_surface``'s), not remembered in the zone's cache.
+    """
+    k, dist = surface_query(zone.points, zone.table, zone.pool, zone.meta, x, y, z)
+    return NearestWire(k, dist - zone.radius)
 
 
 @njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)

@@ -17,14 +17,12 @@ from endocam.control.clearance import ClearanceGuard
 from endocam.control.config import ControllerConfig
 from endocam.control.guard_answer import GuardAnswer
 from endocam.control.planner import WaypointPath
-from endocam.control.safety import (
-    WindowGeometry,
-)
 from endocam.control.types import (
     CameraCommand,
     PolicyContext,
     TrackingState,
 )
+from endocam.control.windows import WindowGeometry
 from endocam.geometry import FloatArray
 from endocam.workspace.cone import ConeWorkspace
 from endocam.workspace.region import Workspace
