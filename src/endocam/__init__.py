@@ -18,19 +18,18 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree wi
 
 from endocam.camera import Intrinsics, StereoCamera
 from endocam.control import (
-    POLICIES,
     CameraCommand,
-    ConeWorkspace,
     ControllerConfig,
     Observation,
     PolicyContext,
     TrackingState,
     goal_pose,
-    make_policy,
 )
 from endocam.metrics import center_error_3d, image_centering_error, orientation_error
+from endocam.registry import POLICIES, make_policy
 from endocam.robot import ECM, PSM
 from endocam.view import look_at_pose
+from endocam.workspace import ConeWorkspace
 
 __all__ = [
     "ECM",

@@ -21,15 +21,11 @@ from endocam.control.windows import (
     adjust_working_distance,
     window_status,
 )
-from endocam.registry import POLICIES, make_policy
-from endocam.workspace.cone import ConeWorkspace
 
 __all__ = [
-    "POLICIES",
     "CameraCommand",
     "CameraPolicy",
     "CenteringPolicy",
-    "ConeWorkspace",
     "ControllerConfig",
     "FixedPolicy",
     "ImageWindows",
@@ -43,6 +39,5 @@ __all__ = [
     "adjust_working_distance",
     "goal_pose",
     "intermediate_waypoints",
-    "make_policy",
     "window_status",
 ]
