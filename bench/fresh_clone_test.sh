@@ -2,8 +2,8 @@
 # Wall time of a fresh clone's `make test` (install included), as CI runs it: the issue 23
 # target is ≤ 3 min 30 s on the 2-core machine. Run from a checkout:
 #     bench/fresh_clone_test.sh            # clones HEAD into a temporary folder, times `make test`
-# The numba cache is emptied for the run (a fresh machine has none); uv's download cache is
-# kept as the machine has it.
+# Every user cache is fresh for the run (XDG_CACHE_HOME: numba's compile cache, uv's downloads),
+# as on a fresh machine; the system packages (apt) are whatever this machine has.
 set -euo pipefail
 src="$(cd "$(dirname "$0")/.." && pwd)"
 work="$(mktemp -d)"
