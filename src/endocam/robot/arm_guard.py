@@ -19,12 +19,13 @@ from typing import NamedTuple
 import numpy as np
 import ruckig
 from numba import njit
+from numba.extending import register_jitable
 
 from endocam.geometry import FloatArray
 from endocam.kernels import dist3
 from endocam.robot.actuator import WorkspaceBound
 from endocam.robot.arm import SimulatedArm
-from endocam.robot.braking import ROW_LENGTH, float_rows, path_positions, profile_rows
+from endocam.robot.braking import ROW_LENGTH, float_rows, path_positions_into, profile_rows
 from endocam.robot.dh import Pose12, compose12, points12, pose12_times
 from endocam.workspace.region import (
     NO_WORKSPACE,
@@ -140,7 +141,7 @@ class BrakingPath(NamedTuple):
 NO_ROWS = np.empty((0, ROW_LENGTH))  # a BrakingPath whose joints are given (read by at_time)
 
 
-@njit(cache=True)  # compiled once, then loaded from the cache
+@register_jitable  # compiled into its callers
 def _world_rcm12(g: GuardConsts) -> Pose12:
     """``T_world_rcm`` as 12 floats (rotation row-major, then translation), m."""
     A = g.world_rcm
@@ -156,6 +157,14 @@ def arm_camera_pose(g: GuardConsts, q: FloatArray) -> FloatArray:
 
     ``T_world_rcm · FK(q) · T_last_cam`` (:func:`~endocam.robot.dh.compose12`).
     """
+    out = np.empty((4, 4))
+    _camera_pose_into(g, q, out)
+    return out
+
+
+@register_jitable  # compiled into its callers
+def _camera_pose_into(g: GuardConsts, q: FloatArray, out: FloatArray) -> None:
+    """:func:`arm_camera_pose` into ``out`` (4, 4), m."""
     B = g.last_cam
     rows = (
         (B[0, 0], B[0, 1], B[0, 2], B[0, 3]),
@@ -163,11 +172,9 @@ def arm_camera_pose(g: GuardConsts, q: FloatArray) -> FloatArray:
         (B[2, 0], B[2, 1], B[2, 2], B[2, 3]),
     )
     P = pose12_times(compose12(g.params, q, 0, g.params.shape[0], _world_rcm12(g)), rows)
-    out = np.empty((4, 4))
     for i in range(3):
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = P[3 * i], P[3 * i + 1], P[3 * i + 2], P[9 + i]
     out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
-    return out
 
 
 @njit(cache=True)  # compiled once, then loaded from the cache
@@ -202,7 +209,7 @@ def stop_point(
             slide += abs(d)
         else:
             turn += abs(d)
-    T_now[:, :] = arm_camera_pose(g, q)
+    _camera_pose_into(g, q, T_now)
     x, y, z = T_now[0, 3], T_now[1, 3], T_now[2, 3]
     to_rcm = dist3(x, y, z, g.p_rcm[0], g.p_rcm[1], g.p_rcm[2])
     margin = workspace_margin(ws, x, y, z) if check else math.nan
@@ -222,16 +229,17 @@ def braking_inside(
 
     The joints ``q_rows`` (steps + 1, n), rad / m: given (ruckig's ``at_time`` at every
     control step, then the stop), or, when ``path.rows`` has rows, written here (the path
-    sampled at every control step, :func:`~endocam.robot.braking.path_positions`, then
+    sampled at every control step, :func:`~endocam.robot.braking.path_positions_into`, then
     ``path.stop``). Writes the camera's positions into ``points`` (steps + 1, 3), world, m,
     and returns ``workspace_all_inside(ws, points)`` with ``check`` (True without).
     """
     steps = q_rows.shape[0] - 1
     if path.rows.shape[0] > 0:
-        q_rows[:steps] = path_positions(path.rows, path.duration, path.dt, steps)
-        q_rows[steps] = path.stop
+        path_positions_into(path.rows, path.duration, path.dt, q_rows, steps)
+        for j in range(q_rows.shape[1]):
+            q_rows[steps, j] = path.stop[j]
     point = (g.last_cam[0, 3], g.last_cam[1, 3], g.last_cam[2, 3])
-    points[:, :] = points12(g.params, q_rows, _world_rcm12(g), point)
+    points12(g.params, q_rows, _world_rcm12(g), point, points)
     if not check:
         return True
     return workspace_all_inside(ws, points)

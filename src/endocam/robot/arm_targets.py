@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+from numba.extending import overload, register_jitable
 
 from endocam.geometry import FloatArray
 from endocam.kernels import cross, dot3, matmul4_into, matvec3, rotation_angle, so3_exp_entries
@@ -45,9 +46,11 @@ __all__ = [
     "VIEW_STEPS",
     "WRIST_JUMP_RAD",
     "ArmIK",
+    "EcmIK",
     "EcmTarget",
     "PathStart",
     "PortTurn",
+    "PsmIK",
     "TargetError",
     "camera_of_tip",
     "ecm_target",
@@ -76,13 +79,14 @@ PATH_ENGAGE_AIM_RAD = math.radians(10.0)  # rad: or a camera aimed this far off 
 WRIST_JUMP_RAD = 1.0  # rad: a wrist joint target moving this far in one step has jumped
 
 
-class ArmIK(NamedTuple):
-    """A camera arm's constants as its compiled IK reads them (one named argument).
+class PsmIK(NamedTuple):
+    """A PSM camera arm's constants as its compiled IK reads them (one named argument).
+
+    The type picks the arm's exact IK in compiled code (``psm.exact12``; :class:`EcmIK`:
+    ``ecm.exact12``), so a kernel compiled for one arm never compiles the other's.
 
     Attributes
     ----------
-    psm : bool
-        The PSM's closed form (``psm.exact12``); False: the ECM's (``ecm.exact12``).
     params : (n, 7) ndarray
         The chain's :attr:`~endocam.robot.dh.DHChain.param_array`.
     consts : ndarray
@@ -93,13 +97,27 @@ class ArmIK(NamedTuple):
         ``T_tip_cam`` (the camera on the tool tip) and its inverse, m.
     """
 
-    psm: bool
     params: FloatArray
     consts: FloatArray
     world_rcm: FloatArray
     rcm_world: FloatArray
     tip_cam: FloatArray
     cam_tip: FloatArray
+
+
+class EcmIK(NamedTuple):
+    """An ECM camera arm's constants as its compiled IK reads them: fields as :class:`PsmIK`."""
+
+    params: FloatArray
+    consts: FloatArray
+    world_rcm: FloatArray
+    rcm_world: FloatArray
+    tip_cam: FloatArray
+    cam_tip: FloatArray
+
+
+ArmIK = PsmIK | EcmIK
+"""A camera arm's IK constants: :class:`PsmIK` or :class:`EcmIK`."""
 
 
 class PortTurn(NamedTuple):
@@ -203,7 +221,7 @@ def view_towards_port(
     return turned_pose(T_world_cam, look_distance, turn.rotvec, fraction)
 
 
-@njit(cache=True)  # compiled once, then loaded from the cache
+@register_jitable  # compiled into its callers
 def _so3_exp(x: float, y: float, z: float) -> FloatArray:
     """:func:`endocam.kernels.so3_exp` of the rotation vector ``(x, y, z)`` (rad): (3, 3) array."""
     e = so3_exp_entries(x, y, z)
@@ -241,6 +259,14 @@ def port_rotvec(T: FloatArray, look_distance: float, p_rcm: FloatArray) -> PortT
     return PortTurn(True, (a0 * k, a1 * k, a2 * k))
 
 
+@register_jitable  # compiled into its callers (no slice assignment: no error strings compiled)
+def _copy4_into(T: FloatArray, out: FloatArray) -> None:
+    """``out[:, :] = T`` for two (4, 4) arrays."""
+    for i in range(4):
+        for j in range(4):
+            out[i, j] = T[i, j]
+
+
 @njit(cache=True)  # compiled once, then loaded from the cache
 def look_at_matrix(
     p: tuple[float, float, float], c: tuple[float, float, float], T: FloatArray
@@ -252,7 +278,7 @@ def look_at_matrix(
     found, x, y, z = look_at_columns(p, c, (T[0, 0], T[1, 0], T[2, 0]))
     out = np.empty((4, 4))
     if not found:
-        out[:] = T
+        _copy4_into(T, out)
         return out
     for i in range(3):
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x[i], y[i], z[i], p[i]
@@ -315,30 +341,56 @@ def camera_of_tip(ik: ArmIK, T12: Pose12) -> FloatArray:
     return out
 
 
+def _exact_into(ik: ArmIK, goal12: Pose12, seed: FloatArray, out: FloatArray) -> bool:
+    """The arm's exact IK of a tool-tip goal (12 floats, RCM frame, m) into ``out`` (n,).
+
+    Compiled code only: the overload below picks the PSM's or the ECM's by ``ik``'s type.
+    """
+    raise NotImplementedError("compiled code only")
+
+
+def _psm_exact_into(ik: ArmIK, goal12: Pose12, seed: FloatArray, out: FloatArray) -> bool:
+    """:func:`_exact_into` on the PSM: ``psm.exact12``, seeded by the outer yaw and the roll."""
+    ok, q6 = psm_exact12(ik.params, ik.consts, goal12, seed[0], seed[3])
+    if ok:
+        for i in range(6):
+            out[i] = q6[i]
+    return ok
+
+
+def _ecm_exact_into(ik: ArmIK, goal12: Pose12, seed: FloatArray, out: FloatArray) -> bool:
+    """:func:`_exact_into` on the ECM: ``ecm.exact12``, seeded by the roll."""
+    ok, q4 = ecm_exact12(ik.params, ik.consts, goal12, seed[3])
+    if ok:
+        for i in range(4):
+            out[i] = q4[i]
+    return ok
+
+
+@overload(_exact_into)
+def _exact_into_overload(ik: ArmIK, goal12: Pose12, seed: FloatArray, out: FloatArray) -> object:
+    """The arm's own exact IK, chosen by the type of ``ik`` when a kernel is compiled.
+
+    numba calls this with the arguments' numba types (the annotations are the kernels').
+    """
+    if getattr(ik, "instance_class", None) is PsmIK:
+        return _psm_exact_into
+    return _ecm_exact_into
+
+
 @njit(cache=True)  # compiled once, then loaded from the cache
 def exact_joints(ik: ArmIK, T: FloatArray, seed: FloatArray, out: FloatArray) -> bool:
     """Whether the arm reaches the camera pose ``T`` (4, 4, world, m) exactly, in its limits.
 
-    The arm's compiled exact IK (``ik.psm``: the PSM's, else the ECM's) of :func:`tip_goal12`,
-    seeded by ``seed`` (n,): the measured joints (their outer yaw and roll pick the branch),
-    rad / m. True with the joints (rad / m) written into ``out`` (n,); False (``out``
-    untouched) if there are none.
+    The arm's compiled exact IK (:class:`PsmIK`: the PSM's, :class:`EcmIK`: the ECM's) of
+    :func:`tip_goal12`, seeded by ``seed`` (n,): the measured joints (their outer yaw and roll
+    pick the branch), rad / m. True with the joints (rad / m) written into ``out`` (n,); False
+    (``out`` untouched) if there are none.
     """
-    goal12 = tip_goal12(ik, T)
-    if ik.psm:
-        ok, q6 = psm_exact12(ik.params, ik.consts, goal12, seed[0], seed[3])
-        if ok:
-            for i in range(6):
-                out[i] = q6[i]
-        return ok
-    ok4, q4 = ecm_exact12(ik.params, ik.consts, goal12, seed[3])
-    if ok4:
-        for i in range(4):
-            out[i] = q4[i]
-    return ok4
+    return _exact_into(ik, tip_goal12(ik, T), seed, out)
 
 
-@njit(cache=True)  # compiled once, then loaded from the cache
+@register_jitable  # compiled into view_search
 def _reach(
     ik: ArmIK,
     turn: tuple[FloatArray, float, tuple[float, float, float]],
@@ -355,7 +407,7 @@ def _reach(
     if known[k] < 0:
         T_goal, look, rotvec = turn
         T = turned_pose(T_goal, look, rotvec, k / VIEW_STEPS)
-        known[k] = 1 if exact_joints(ik, T, seed, qs[k]) else 0
+        known[k] = 1 if _exact_into(ik, tip_goal12(ik, T), seed, qs[k]) else 0
     return known[k] == 1
 
 
@@ -388,9 +440,9 @@ def view_search(
     qs = np.empty((VIEW_STEPS + 1, q_out.shape[0]))
     turn = (T_goal, look_distance, rotvec)
     if guess <= 0:
-        if not _reach(ik, turn, VIEW_STEPS, seed, known, qs):
-            return 0
         lo, hi = 0, VIEW_STEPS
+        if not _reach(ik, turn, hi, seed, known, qs):
+            return 0
     elif _reach(ik, turn, guess, seed, known, qs):  # gallop down towards the goal
         hi, step = guess, 1
         while True:
@@ -413,8 +465,9 @@ def view_search(
             hi = mid
         else:
             lo = mid
-    q_out[:] = qs[hi]
-    T_out[:, :] = turned_pose(T_goal, look_distance, rotvec, hi / VIEW_STEPS)
+    for i in range(q_out.shape[0]):
+        q_out[i] = qs[hi, i]
+    _copy4_into(turned_pose(T_goal, look_distance, rotvec, hi / VIEW_STEPS), T_out)
     return hi
 
 
@@ -428,7 +481,7 @@ def target_error(T_target: FloatArray, T_goal: FloatArray) -> TargetError:
     return TargetError(position, rotation_angle(_rotation_rows(T_target), _rotation_rows(T_goal)))
 
 
-@njit(cache=True)  # compiled once, then loaded from the cache
+@register_jitable  # compiled into its callers
 def _rotation_rows(T: FloatArray) -> tuple[tuple[float, float, float], ...]:
     """The rotation rows of a pose (4, 4) as three 3-tuples of floats."""
     return (
@@ -461,27 +514,27 @@ def ecm_target(
     """
     ok, q = ecm_exact12(ik.params, ik.consts, tip_goal12(ik, T_goal), seed[3])
     if ok:
-        T[:, :] = T_goal
+        _copy4_into(T_goal, T)
         return EcmTarget(ECM_EXACT, q, _NO_ERROR)
     turn = port_rotvec(T_goal, look_distance, p_rcm)
     if turn.found:
         T_port = turned_pose(T_goal, look_distance, turn.rotvec, 1.0)
         port = solve12(ik.params, ik.consts, tip_goal12(ik, T_port), seed[3], None)
         if port.outcome != SOLVE_DONE:
-            T[:, :] = T_port
+            _copy4_into(T_port, T)
             return EcmTarget(ECM_PORT_SCIPY, port.q, _NO_ERROR)
         if port.position_error <= VIEW_POSITION_TOL_M:
-            T[:, :] = camera_of_tip(ik, port.T12)
+            _copy4_into(camera_of_tip(ik, port.T12), T)
             return EcmTarget(ECM_VIEW, port.q, target_error(T, T_goal))
     near = solve12(ik.params, ik.consts, tip_goal12(ik, T_goal), seed[3], None)
     if near.outcome != SOLVE_DONE:
-        T[:, :] = T_goal
+        _copy4_into(T_goal, T)
         return EcmTarget(ECM_GOAL_SCIPY, near.q, _NO_ERROR)
-    T[:, :] = camera_of_tip(ik, near.T12)
+    _copy4_into(camera_of_tip(ik, near.T12), T)
     return EcmTarget(ECM_NEAREST, near.q, target_error(T, T_goal))
 
 
-@njit(cache=True)  # compiled once, then loaded from the cache
+@register_jitable  # compiled into its callers
 def _unit_clip(x: float) -> float:
     """``x`` clipped into [−1, 1] (a NaN gives 1.0)."""
     return max(-1.0, min(1.0, x))
@@ -564,7 +617,7 @@ def path_joints(
     r = start.r_cur + alpha * (look_distance - start.r_cur)
     c = start.c
     T_via = look_at_matrix((c[0] + r * w0, c[1] + r * w1, c[2] + r * w2), c, T_target)
-    return exact_joints(ik, T_via, seed, out)
+    return _exact_into(ik, tip_goal12(ik, T_via), seed, out)
 
 
 @njit(cache=True)  # compiled once, then loaded from the cache

@@ -25,10 +25,17 @@ from typing import Any
 
 import numpy as np
 from numba import njit
+from numba.extending import register_jitable
 
 from endocam.geometry import FloatArray
 
-__all__ = ["float_rows", "path_positions", "profile_extrema", "profile_rows"]
+__all__ = [
+    "float_rows",
+    "path_positions",
+    "path_positions_into",
+    "profile_extrema",
+    "profile_rows",
+]
 
 # offsets in a profile row (module docstring)
 _P, _V, _A, _J, _T = 0, 8, 16, 24, 31
@@ -83,7 +90,7 @@ def has_brake(rows: FloatArray) -> bool:
     return False
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+@register_jitable  # compiled into path_positions_into (no entry of its own)
 def _t_sums(rows: FloatArray) -> FloatArray:
     """Each profile's running sums of its section durations (n, 7), s."""
     out = np.empty((rows.shape[0], 7))
@@ -96,13 +103,13 @@ def _t_sums(rows: FloatArray) -> FloatArray:
     return out
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+@register_jitable  # compiled into path_positions_into (no entry of its own)
 def _integrate_position(t: float, p0: float, v0: float, a0: float, j: float) -> float:
     """Ruckig's ``integrate``, position only: ``p0 + t (v0 + t (a0/2 + t j/6))``."""
     return p0 + t * (v0 + t * (a0 / 2.0 + t * j / 6.0))
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+@register_jitable  # compiled into path_positions_into (no entry of its own)
 def _position_at(
     rows: FloatArray, t_sum: FloatArray, k: int, time: float, duration: float
 ) -> float:
@@ -132,23 +139,35 @@ def _position_at(
     return _integrate_position(t, r[_P + index], r[_V + index], r[_A + index], r[_J + index])
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def path_positions(rows: FloatArray, duration: float, dt: float, steps: int) -> FloatArray:
     """Positions at every control step of a trajectory: (steps, n), the DoFs' units.
 
     Row ``i − 1`` is ``Trajectory.at_time(min(i · dt, duration))[0]`` for ``i`` in
-    ``1 … steps``. ``rows``: :func:`profile_rows` of the trajectory;
-    ``duration``: its ``duration``, s; ``dt``: the control period, s.
+    ``1 … steps`` (:func:`path_positions_into`).
+    """
+    out = np.empty((steps, rows.shape[0]))
+    path_positions_into(rows, duration, dt, out, steps)
+    return out
+
+
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def path_positions_into(
+    rows: FloatArray, duration: float, dt: float, out: FloatArray, steps: int
+) -> None:
+    """:func:`path_positions` into the first ``steps`` rows of ``out`` (≥ steps, n).
+
+    Row ``i − 1`` of ``out`` is ``Trajectory.at_time(min(i · dt, duration))[0]`` for ``i`` in
+    ``1 … steps`` (a braking guard writes the stop into the row after them). ``rows``:
+    :func:`profile_rows` of the trajectory; ``duration``: its ``duration``, s; ``dt``: the
+    control period, s.
     """
     n = rows.shape[0]
     t_sum = _t_sums(rows)
-    out = np.empty((steps, n))
     for i in range(1, steps + 1):
         t = i * dt
         time = min(t, duration)
         for k in range(n):
             out[i - 1, k] = _position_at(rows, t_sum, k, time, duration)
-    return out
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)

@@ -58,6 +58,8 @@ from endocam.robot.arm_targets import (
     MAX_COMMAND_RANGE_M,
     VIEW_POSITION_TOL_M,
     ArmIK,
+    EcmIK,
+    PsmIK,
     TargetError,
     ecm_target,
     exact_joints,
@@ -145,6 +147,17 @@ class TargetAnswer(NamedTuple):
 _NO_ERROR = TargetError(0.0, 0.0)
 
 
+def _frozen(a: FloatArray) -> FloatArray:
+    """``a`` made read-only (and returned).
+
+    The joints, the camera and the targets the compiled kernels read are read-only arrays
+    always: numba compiles a kernel once per argument type, and a writable array is another
+    type than a read-only one.
+    """
+    a.setflags(write=False)
+    return a
+
+
 class CameraArm:
     """A camera on a dVRK arm (PSM or ECM): one IK, one ruckig joint step and FK per step.
 
@@ -190,8 +203,8 @@ class CameraArm:
         self._T_tip_cam = as_pose(np.asarray(T_tip_cam, dtype=float), "T_tip_cam")
         self._T_cam_tip = invert_pose(self._T_tip_cam)
         self._is_psm = kind is ArmKind.PSM
-        self.ik = ArmIK(
-            self._is_psm,
+        ik_kind = PsmIK if self._is_psm else EcmIK
+        self.ik: ArmIK = ik_kind(
             self.model.chain.param_array,
             self.model.ik_constants,
             self._T_world_rcm,
@@ -217,8 +230,9 @@ class CameraArm:
         self.guard = BrakingGuard(guard, dt, vmax, amax)
         self._q_out = np.empty(self.model.n_joints)  # the IK kernels' output row
         self._arm = SimulatedArm(self.model, dt=dt, q0=natural_pose(self.model))
-        self._q = self._arm.measured_js()[0]
-        self._T_cam = self.camera_pose(self._q)
+        q = self._arm.measured_js()[0]
+        self._T_cam = _frozen(self.camera_pose(q))  # (a writable q, as in step)
+        self._q = _frozen(q)
         self._k_prev: int | None = None  # the last conceded turn, VIEW_STEPS (warm start)
         self._last_key: bytes | None = None  # the last goal (bytes) and its look distance
         self._last_look = math.nan
@@ -358,7 +372,7 @@ class CameraArm:
         """The nearest configuration of a camera goal (4, 4), world, m, and its camera, m."""
         self._k_prev = None
         result = self.model.solve_unchecked(self._tip_goal(T_world_goal), self._q)
-        T_near = self._T_world_rcm @ result.T_rcm_tip @ self._T_tip_cam
+        T_near = _frozen(self._T_world_rcm @ result.T_rcm_tip @ self._T_tip_cam)
         return result.q.tolist(), T_near, ActuatorStatus.NEAREST
 
     def _ecm_target(self, T_world_goal: FloatArray, look_distance: float) -> TargetAnswer:
@@ -376,7 +390,7 @@ class CameraArm:
             T.setflags(write=False)
             return TargetAnswer(q_new, T, ActuatorStatus.EXACT, _NO_ERROR)
         if found.outcome == ECM_VIEW:
-            return TargetAnswer(q_new, T, ActuatorStatus.VIEW, found.error)
+            return TargetAnswer(q_new, _frozen(T), ActuatorStatus.VIEW, found.error)
         if found.outcome == ECM_NEAREST:
             self._k_prev = None
             return TargetAnswer(q_new, T, ActuatorStatus.NEAREST, found.error)
@@ -385,7 +399,7 @@ class CameraArm:
             if port.position_error <= VIEW_POSITION_TOL_M:
                 T_reached = self._T_world_rcm @ port.T_rcm_tip @ self._T_tip_cam
                 error = target_error(T_reached, T_world_goal)
-                return TargetAnswer(port.q.tolist(), T_reached, ActuatorStatus.VIEW, error)
+                return TargetAnswer(port.q.tolist(), _frozen(T_reached), ActuatorStatus.VIEW, error)
         q, T_near, status = self._nearest(T_world_goal)
         return TargetAnswer(q, T_near, status, target_error(T_near, T_world_goal))
 
@@ -401,7 +415,7 @@ class CameraArm:
         guess = 0 if self._k_prev is None else self._k_prev
         k = view_search(self.ik, T_goal, look_distance, rotvec, guess, self._q, self._q_out, T)
         self._k_prev = k if k > 0 else None
-        return (self._q_out.tolist(), T) if k > 0 else None
+        return (self._q_out.tolist(), _frozen(T)) if k > 0 else None
 
     def _on_path(self, q_target: list[float], T_target: FloatArray, look: float) -> list[float]:
         """The joint set point of this step: towards ``q_target`` along a camera-space path.
@@ -412,7 +426,7 @@ class CameraArm:
         configurations reach continuously; it continues to the target once the camera is there.
         """
         if self._via_port:
-            T_port = view_towards_port(T_target, look, self._p_world_rcm, 1.0)
+            T_port = _frozen(view_towards_port(T_target, look, self._p_world_rcm, 1.0))
             q_via = self._path_target(T_port, look)
             if q_via is not None:
                 return q_via
@@ -465,11 +479,12 @@ class CameraArm:
         self._via_port = False
         if look_distance is None:
             look_distance = self._port_distance(T)
-        self._q = natural_pose(self.model)
+        self._q = _frozen(natural_pose(self.model))
         q0, _, _ = self.target(T, look_distance)
         self._arm.reset(q0)
-        self._q = self._arm.measured_js()[0]
-        self._T_cam = self.camera_pose(self._q)
+        q = self._arm.measured_js()[0]
+        self._T_cam = _frozen(self.camera_pose(q))  # (a writable q, as in step)
+        self._q = _frozen(q)
         if self.workspace is not None:
             self.guard.reset(self._arm, self.workspace)
         return self._T_cam.copy()

@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from endocam.geometry import FloatArray
-from endocam.robot.braking import has_brake, path_positions, profile_extrema
+from endocam.robot.braking import has_brake, path_positions_into, profile_extrema
 from endocam.workspace.region import (
     WorkspaceState,
     workspace_all_inside,
@@ -146,7 +146,7 @@ def path_inside(
     the box the path's profiles span must be inside; then a convex region holds the path,
     unless a brake pre-trajectory precedes the profiles; a camera farther from the keep-out
     zone than ``bound`` cannot reach it either; else the path is checked at every control
-    step (:func:`~endocam.robot.braking.path_positions`).
+    step (:func:`~endocam.robot.braking.path_positions_into`).
     """
     if not workspace_all_inside(ws, box_corners(rows)):
         return False
@@ -159,4 +159,6 @@ def path_inside(
         return True  # farther from the keep-out zone than the braking can carry it
     # a keep-out zone (the wire's) or a brake: the braking path itself, at every control step
     steps = math.ceil(duration / dt - 1e-9)
-    return workspace_all_inside(ws, path_positions(rows, duration, dt, steps))
+    points = np.empty((steps, rows.shape[0]))
+    path_positions_into(rows, duration, dt, points, steps)
+    return workspace_all_inside(ws, points)

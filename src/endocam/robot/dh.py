@@ -39,6 +39,7 @@ __all__ = [
     "chain_frames",
     "chain_points",
     "compose12",
+    "compose12_kernel",
     "compose_links",
     "flat_rows",
     "geometric_jacobian",
@@ -272,10 +273,12 @@ def compose_links(
         The composed pose, 12 floats (rotation row-major, then translation), m.
     """
     stop = len(chain._params) if stop is None else stop
-    return compose12(chain._param_array, tuple(map(float, q)), start, stop, T0)
+    return compose12_kernel(chain._param_array, tuple(map(float, q)), start, stop, T0)
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+# register_jitable, not njit: a compiled caller's constant arguments (``c, 12``) are typed as
+# plain ints then, one specialisation for all of them (an njit callee compiles one per literal)
+@register_jitable
 def flat_rows(c: FloatArray, i: int) -> tuple[tuple[float, ...], ...]:
     """Three rows of four floats stored flat from ``c[i]`` (a transform's top rows, m).
 
@@ -288,7 +291,7 @@ def flat_rows(c: FloatArray, i: int) -> tuple[tuple[float, ...], ...]:
     )
 
 
-@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+@register_jitable  # compiled into its callers, one specialisation for constant start / stop
 def compose12(
     params: FloatArray, q: tuple[float, ...] | FloatArray, start: int, stop: int, T0: Pose12
 ) -> Pose12:
@@ -321,6 +324,14 @@ def compose12(
     return (r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz)
 
 
+@njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
+def compose12_kernel(
+    params: FloatArray, q: tuple[float, ...], start: int, stop: int, T0: Pose12
+) -> Pose12:
+    """:func:`compose12` called from Python (:func:`compose_links`)."""
+    return compose12(params, q, start, stop, T0)
+
+
 def chain_points(
     chain: DHChain, q_rows: ArrayLike, T0: Pose12, point: tuple[float, float, float]
 ) -> FloatArray:
@@ -347,20 +358,25 @@ def chain_points(
         The point in ``T0``'s frame for each row, m.
     """
     q = np.ascontiguousarray(q_rows, dtype=float).reshape(-1, len(chain._params))
-    return points12(chain._param_array, q, T0, (point[0], point[1], point[2]))
+    out = np.empty((q.shape[0], 3))
+    points12(chain._param_array, q, T0, (point[0], point[1], point[2]), out)
+    return out
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
 def points12(
-    params: FloatArray, q_rows: FloatArray, T0: Pose12, point: tuple[float, float, float]
-) -> FloatArray:
-    """:func:`chain_points` for compiled callers: (m, 3), in ``T0``'s frame, m.
+    params: FloatArray,
+    q_rows: FloatArray,
+    T0: Pose12,
+    point: tuple[float, float, float],
+    out: FloatArray,
+) -> None:
+    """:func:`chain_points` for compiled callers, into ``out`` (m, 3): in ``T0``'s frame, m.
 
     ``params``: the chain's (n, 7) :attr:`DHChain.param_array`; ``q_rows`` (m, n): joint
     vectors, rad / m; ``T0``: 12 floats, m; ``point``: in the last link's frame, m.
     """
     a3, b3, c3 = point
-    out = np.empty((q_rows.shape[0], 3))
     for k in range(q_rows.shape[0]):
         r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = compose12(
             params, q_rows[k], 0, params.shape[0], T0
@@ -368,7 +384,6 @@ def points12(
         out[k, 0] = r00 * a3 + r01 * b3 + r02 * c3 + px
         out[k, 1] = r10 * a3 + r11 * b3 + r12 * c3 + py
         out[k, 2] = r20 * a3 + r21 * b3 + r22 * c3 + pz
-    return out
 
 
 def pose12_from_matrix(T: FloatArray) -> Pose12:
