@@ -21,6 +21,7 @@ from numba.extending import register_jitable
 __all__ = [
     "Rows",
     "Vec",
+    "copy_into",
     "cross",
     "dist3",
     "dot",
@@ -275,3 +276,15 @@ def wrap_angle(angle: float) -> float:
     """``angle`` wrapped into [−π, π], rad (``math.remainder(angle, 2π)`` up to ties at ±π)."""
     two_pi = 2.0 * math.pi
     return angle - two_pi * math.floor(angle / two_pi + 0.5)
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def copy_into(src: np.ndarray, out: np.ndarray) -> None:
+    """``out[:, :] = src`` for two 2-D arrays of one shape, as plain loops.
+
+    A compiled slice assignment also compiles numba's shape-mismatch message (string
+    formatting, ~2 s of a first run's compile); the caller guarantees the shapes.
+    """
+    for r in range(src.shape[0]):
+        for c in range(src.shape[1]):
+            out[r, c] = src[r, c]

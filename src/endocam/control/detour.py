@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 from numba import njit
 
-from endocam.kernels import Vec, cross, dot, norm, reject, scaled, unit_checked
+from endocam.kernels import Vec, copy_into, cross, dot, norm, reject, scaled, unit_checked
 from endocam.workspace.keepout import KeepOutState, keep_out_distance, keep_out_nearest
 
 MAX_TRACE_STEPS = 40  # count, queries along one traced segment at most
@@ -177,7 +177,7 @@ def cleared_move(zone: KeepOutState, p: Vec, pivot: Vec, now: Vec) -> ClearedMov
     saved, n_saved = zone.ref.copy(), zone.nref[0]
     surface = keep_out_distance(zone, p[0], p[1], p[2], 0.0)
     if not surface >= zone.clearance:
-        zone.ref[:, :] = saved
+        copy_into(saved, zone.ref)
         zone.nref[0] = n_saved
         return ClearedMove(False, False, now)
     via = detour_waypoint(zone, now, p)

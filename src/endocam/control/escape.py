@@ -24,7 +24,7 @@ from numba.extending import register_jitable
 from numpy.typing import NDArray
 
 from endocam.geometry import FloatArray
-from endocam.kernels import Vec, cross, dot, norm, reject, scaled
+from endocam.kernels import Vec, copy_into, cross, dot, norm, reject, scaled
 from endocam.view import look_at_columns, rotation_columns
 from endocam.workspace.keepout import KeepOutState, keep_out_distance, keep_out_nearest, remember
 from endocam.workspace.region import WorkspaceState, workspace_margin
@@ -305,7 +305,7 @@ def clear_pose_into(
     """
     cleared = clear_pose(guard, T, ClearRequest(*asked))
     if cleared.code == APPLY_ADJUSTED:
-        out[:, :] = cleared.pose
+        copy_into(cleared.pose, out)
     return cleared.code
 
 
@@ -336,5 +336,5 @@ def clear_look_at_into(
         return LookedAt(APPLY_INFEASIBLE, not found)
     cleared = clear_pose(guard, T, request)
     if cleared.code == APPLY_ADJUSTED or (cleared.code == APPLY_CLEAR and found):
-        out[:, :] = cleared.pose
+        copy_into(cleared.pose, out)
     return LookedAt(cleared.code, not found)

@@ -107,13 +107,15 @@ def surface_query(
             table[slot, _START], table[slot, _COUNT] = 0, -1
         else:
             start = meta[1]
-            pool[start : start + idx.shape[0]] = idx
+            for i in range(idx.shape[0]):  # a loop: a slice copy compiles numba's shape errors
+                pool[start + i] = idx[i]
             table[slot, _START], table[slot, _COUNT] = start, idx.shape[0]
             meta[1] = start + idx.shape[0]
         meta[0] += 1
-    if table[slot, _COUNT] < 0:
-        return _nearest_kernel(pts, pool, 0, n, x, y, z)
-    return _nearest_kernel(pts, pool, table[slot, _START], table[slot, _COUNT], x, y, z)
+    start, count = table[slot, _START], table[slot, _COUNT]
+    if count < 0:  # every search point (one signature: no literal argument to specialise on)
+        start, count = 0, n
+    return _nearest_kernel(pts, pool, start, count, x, y, z)
 
 
 @njit(cache=True)  # compiled once, then loaded from __pycache__ (or NUMBA_CACHE_DIR)
