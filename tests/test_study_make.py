@@ -518,7 +518,9 @@ def test_study_observe_replays_the_episodes_for_a_missing_gap_in_sight(
     """A folder made before the columns existed gets them from replayed episodes, the same values.
 
     Round-3 records lack both ``gap_in_sight`` and ``gap_hidden_by``; round-5 records and kept
-    seeds have the first only: both kinds are replayed.
+    seeds have the first only: both kinds are replayed. Two of the videos lack them (both kinds
+    of records; two conditions, two trajectories) and so does the kept seed (its three
+    conditions): a video's replay does not depend on which video it is.
     """
     copy = _copy(study, tmp_path)
     observability = json.loads((copy / OBSERVABILITY_JSON).read_text())
@@ -526,7 +528,17 @@ def test_study_observe_replays_the_episodes_for_a_missing_gap_in_sight(
     truth_path = copy / SEEDS_DIR / str(s) / TRUTH_JSON
     truth = json.loads(truth_path.read_text())
     old = json.loads(json.dumps(observability))
-    for k, r in enumerate(old["touches"]):
+    first = old["touches"][0]
+    second = next(
+        r
+        for r in old["touches"]
+        if r["condition"] != first["condition"] and r["trajectory"] != first["trajectory"]
+    )
+    stripped = [
+        r for r in old["touches"] if r["video_id"] in (first["video_id"], second["video_id"])
+    ]
+    assert len(stripped) > 2
+    for k, r in enumerate(stripped):
         if k % 2:  # round 3
             del r["gap_in_sight"], r["gap_hidden_by"]
         else:  # round 5
