@@ -5,8 +5,10 @@ import math
 import numpy as np
 import pytest
 
+from endocam.study import observer_clips
 from endocam.study.observer_clips import (
     ANGLE_NOISE_DEG,
+    CLIPS_PER_CELL,
     CROSS_TILT_DEG,
     LEAD_IN_S,
     PUSH_PAST,
@@ -22,9 +24,11 @@ from endocam.study.observer_clips import (
     draw_spec,
     from_above,
     gap_visible,
+    iter_validation_specs,
     push_depths,
     ring_poses,
     true_touches,
+    validation_specs,
 )
 from endocam.task.config import TaskConfig
 from endocam.task.touches import clearances
@@ -107,3 +111,24 @@ def test_a_view_with_the_gap_behind_the_wire_is_redrawn() -> None:
     shown = from_above(TASK, draw_spec(rng, TUNING_ARC_FRACTIONS[0], "head-on"))
     assert not gap_visible(TASK, hidden)
     assert gap_visible(TASK, shown)
+
+
+def test_validation_specs_redraw_hidden_gaps_bend_by_bend_and_view_by_view(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # with every other draw's gap "hidden" (a stand-in for the ray casts), each kept spec is the
+    # second of two draws from the set's generator, in bend, view, clip order; the iterator
+    # draws the same specs one at a time
+    draws = iter(range(10**6))
+    monkeypatch.setattr(observer_clips, "gap_visible", lambda task, spec: next(draws) % 2 == 1)
+    specs = validation_specs(False, TASK)
+    rng = np.random.default_rng(TUNING_SEED)
+    want = []
+    for arc in TUNING_ARC_FRACTIONS:
+        for view in VIEW_KINDS:
+            for _ in range(CLIPS_PER_CELL):
+                draw_spec(rng, arc, view)  # hidden, redrawn
+                want.append(from_above(TASK, draw_spec(rng, arc, view)))
+    assert specs == want
+    assert list(iter_validation_specs(False, TASK)) == want
+    assert validation_specs(True, TASK) != want  # the held-out set: other bends, other seed

@@ -2,6 +2,7 @@ import json
 import re
 import shutil
 from pathlib import Path
+from typing import Any
 
 import imageio_ffmpeg
 import pytest
@@ -61,10 +62,19 @@ def config_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
+def shortest_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("cfg") / "shortest.toml"
+    path.write_text(SHORTEST, encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="module")
 def study(config_file: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("made") / "study"
     args = ["study", "make", "--out", str(out), "--config", str(config_file)]
-    assert main([*args, "--seed", str(SEED), "--seeds", "1", "--keep-seed-videos"]) == 0
+    # one extra seed needs no pool (the pool is test_extra_seeds_in_the_process_pool_...'s)
+    args += ["--seed", str(SEED), "--seeds", "1", "--keep-seed-videos", "--workers", "1"]
+    assert main(args) == 0
     return out
 
 
@@ -150,12 +160,29 @@ def test_practice_video_is_the_easiest_path_with_its_own_seed_and_fixed_camera(
     assert metrics["touches"] == truth.count
 
 
-def test_no_practice_flag_writes_no_practice_video(tmp_path: Path) -> None:
-    config = tmp_path / "short.toml"
-    config.write_text(SHORTEST, encoding="utf-8")
+def _one_trajectory(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``study make`` (the command) makes the study of the easiest trajectory alone: 3 videos.
+
+    For checks of what the command does (or does not) write that do not depend on the design.
+    """
+    from endocam.study import make
+
+    real = make.make_study
+
+    def easiest_only(*args: Any, **kwargs: Any) -> Any:
+        return real(*args, trajectories=STUDY_TRAJECTORIES[:1], **kwargs)
+
+    monkeypatch.setattr(make, "make_study", easiest_only)
+
+
+def test_no_practice_flag_writes_no_practice_video(
+    shortest_file: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     out = tmp_path / "study"
-    args = ["study", "make", "--out", str(out), "--config", str(config), "--no-practice"]
+    args = ["study", "make", "--out", str(out), "--config", str(shortest_file), "--no-practice"]
+    _one_trajectory(monkeypatch)
     assert main(args) == 0
+    assert len(load_manifest(out).videos) == len(Condition)  # the easiest trajectory's
     assert load_manifest(out).practice is None
     assert not (out / "videos" / "practice.mp4").exists()
     assert not (out / "logs" / "practice").exists()
@@ -307,9 +334,9 @@ def test_bad_input_is_one_line_exit_2(
 
 
 def test_extra_seeds_in_the_process_pool_equal_a_serial_run(
-    config_file: Path, tmp_path: Path
+    shortest_file: Path, tmp_path: Path
 ) -> None:
-    config = load_config(config_file)
+    config = load_config(shortest_file)
     hardest = max(STUDY_TRAJECTORIES, key=lambda t: t.difficulty)
     keys = ColourKeys.from_scene(config.task.scene)
     serial = run_extra_seeds(config, hardest, SEED, 2, keys, tmp_path, workers=1)
@@ -411,20 +438,36 @@ def _children(pid: int) -> set[int]:
     return out
 
 
+# `endocam study make ARGS` (the command's `main`) making the easiest trajectory's videos alone
+# (its noise seed is the full study's first: each trajectory's seed is the k-th draw)
+EASIEST_ONLY_CLI = """
+import sys
+from endocam.study import make
+real = make.make_study
+make.make_study = lambda *a, **k: real(*a, trajectories=make.STUDY_TRAJECTORIES[:1], **k)
+from endocam.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
 def test_sigterm_during_the_extra_seeds_leaves_no_folder_and_no_worker(
-    config_file: Path, tmp_path: Path
+    shortest_file: Path, tmp_path: Path
 ) -> None:
-    """A job scheduler stops `study make` half-way: nothing half-written, no orphan process."""
+    """A job scheduler stops `study make` half-way: nothing half-written, no orphan process.
+
+    The study is the shortest one of the easiest trajectory alone (the command's own `main`):
+    what is checked happens after its videos, while the extra seeds run in the pool.
+    """
     import signal
     import subprocess
     import sys
     import time
 
     out = tmp_path / "study"
-    cmd = [sys.executable, "-m", "endocam.cli", "study", "make", "--out", str(out)]
-    cmd += ["--config", str(config_file), "--seeds", "6", "--workers", "2", "--no-practice"]
+    cmd = [sys.executable, "-c", EASIEST_ONLY_CLI, "study", "make", "--out", str(out)]
+    cmd += ["--config", str(shortest_file), "--seeds", "6", "--workers", "2", "--no-practice"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 300.0  # s: the nine tiny videos come first
+    deadline = time.monotonic() + 300.0  # s: the study's own videos come first
     while not list(tmp_path.glob(f".{out.name}.tmp-*/{SEEDS_DIR}/*")):
         assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
         assert time.monotonic() < deadline, "the extra seeds never started"
@@ -475,7 +518,9 @@ def test_study_observe_replays_the_episodes_for_a_missing_gap_in_sight(
     """A folder made before the columns existed gets them from replayed episodes, the same values.
 
     Round-3 records lack both ``gap_in_sight`` and ``gap_hidden_by``; round-5 records and kept
-    seeds have the first only: both kinds are replayed.
+    seeds have the first only: both kinds are replayed. Two of the videos lack them (both kinds
+    of records; two conditions, two trajectories) and so does the kept seed (its three
+    conditions): a video's replay does not depend on which video it is.
     """
     copy = _copy(study, tmp_path)
     observability = json.loads((copy / OBSERVABILITY_JSON).read_text())
@@ -483,7 +528,17 @@ def test_study_observe_replays_the_episodes_for_a_missing_gap_in_sight(
     truth_path = copy / SEEDS_DIR / str(s) / TRUTH_JSON
     truth = json.loads(truth_path.read_text())
     old = json.loads(json.dumps(observability))
-    for k, r in enumerate(old["touches"]):
+    first = old["touches"][0]
+    second = next(
+        r
+        for r in old["touches"]
+        if r["condition"] != first["condition"] and r["trajectory"] != first["trajectory"]
+    )
+    stripped = [
+        r for r in old["touches"] if r["video_id"] in (first["video_id"], second["video_id"])
+    ]
+    assert len(stripped) > 2
+    for k, r in enumerate(stripped):
         if k % 2:  # round 3
             del r["gap_in_sight"], r["gap_hidden_by"]
         else:  # round 5

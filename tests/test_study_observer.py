@@ -1,3 +1,4 @@
+import itertools
 import math
 from pathlib import Path
 
@@ -21,7 +22,12 @@ from endocam.study.observer import (
     observer_summary,
     segment,
 )
-from endocam.study.observer_clips import ClipSpec, observe_clip, render_clip, validation_specs
+from endocam.study.observer_clips import (
+    ClipSpec,
+    iter_validation_specs,
+    observe_clip,
+    render_clip,
+)
 from endocam.study.observer_frame import RESOLVE_PX, TUBE_FRACTION, WIDTH_TOL, WIRE_FRACTION
 from endocam.task.config import TaskConfig
 from study_helpers import manifest_dict
@@ -224,7 +230,8 @@ def keys() -> ColourKeys:
 
 @pytest.fixture(scope="module")
 def tuning_specs() -> list[ClipSpec]:
-    return validation_specs(held_out=False)
+    """The first three tuning clips (of ``validation_specs(held_out=False)``), drawn alone."""
+    return list(itertools.islice(iter_validation_specs(False, TASK), 3))
 
 
 # a head-on and an oblique tuning view; at this half resolution 4 of the 8 near tuning views

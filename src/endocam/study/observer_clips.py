@@ -44,6 +44,7 @@ import json
 import math
 import sys
 import tempfile
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -55,7 +56,7 @@ from endocam.config import CameraConfig
 from endocam.geometry import FloatArray, make_pose
 from endocam.study.observability import GAP_SEEN
 from endocam.study.observer import ColourKeys, Match, match_events, observe_video
-from endocam.task.config import TaskConfig
+from endocam.task.config import TaskConfig, WireConfig
 from endocam.task.trajectory import ideal_ring_rotations
 from endocam.task.wire import Wire
 
@@ -203,7 +204,7 @@ def gap_visible(task: TaskConfig, spec: ClipSpec, touches: int = CLIP_TOUCHES) -
     t = np.arange(0.0, LEAD_IN_S + touches * PUSH_PERIOD_S, GAP_SEEN_DT)
     depths = push_depths(task, spec)
     rings = ring_poses(task, spec, t, depths)
-    c, p = clearances(rings, Wire(task.wire), task.ring)
+    c, p = clearances(rings, clip_wire(task.wire), task.ring)
     cams = camera_poses(task, spec, t)
     push = np.floor(np.maximum(t - LEAD_IN_S, 0.0) / PUSH_PERIOD_S).astype(int)
     rays_only = CameraConfig(width=RAY_CAMERA_PX[0], height=RAY_CAMERA_PX[1]).stereo()
@@ -220,6 +221,12 @@ def gap_visible(task: TaskConfig, spec: ClipSpec, touches: int = CLIP_TOUCHES) -
     return True
 
 
+@functools.lru_cache(maxsize=4)
+def clip_wire(config: WireConfig) -> Wire:
+    """The wire of ``config``, built once: the clips' geometry asks for it at every pose."""
+    return Wire(config)
+
+
 @functools.cache
 def _default_specs(held_out: bool) -> tuple[ClipSpec, ...]:
     """:func:`validation_specs` of the default task, drawn once per process."""
@@ -234,9 +241,16 @@ def validation_specs(held_out: bool, task: TaskConfig | None = None) -> list[Cli
     """
     if task is None:
         return list(_default_specs(held_out))
+    return list(iter_validation_specs(held_out, task))
+
+
+def iter_validation_specs(held_out: bool, task: TaskConfig) -> Iterator[ClipSpec]:
+    """:func:`validation_specs` one at a time, each drawn when asked for (bend, view, clip).
+
+    The first few cost a few ray-cast scenes, not the whole set's (a test of a few clips).
+    """
     rng = np.random.default_rng(TEST_SEED if held_out else TUNING_SEED)
     arcs = TEST_ARC_FRACTIONS if held_out else TUNING_ARC_FRACTIONS
-    specs = []
     for arc in arcs:
         for view in VIEW_KINDS:
             for _ in range(CLIPS_PER_CELL):
@@ -246,8 +260,7 @@ def validation_specs(held_out: bool, task: TaskConfig | None = None) -> list[Cli
                         break
                 else:  # pragma: no cover - no default bend needs it
                     raise RuntimeError(f"no view of {view} at {arc} shows the gap")
-                specs.append(spec)
-    return specs
+                yield spec
 
 
 @dataclass(frozen=True)
@@ -274,7 +287,7 @@ class Clip:
 # ------------------------------------------------------------------ geometry of a clip
 def _rest_frame(task: TaskConfig, spec: ClipSpec) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The ring's noisy rest rotation (3, 3), its centre (3,), m, and the push direction (3,)."""
-    wire = Wire(task.wire)
+    wire = clip_wire(task.wire)
     s = spec.arc_fraction * wire.length
     R0 = ideal_ring_rotations(wire, np.array([s]))[0]
     centre = wire.points(np.array([s]))[0]
@@ -292,7 +305,7 @@ def push_depths(task: TaskConfig, spec: ClipSpec) -> tuple[float, float]:
     from endocam.task.touches import clearances
 
     R, centre, u = _rest_frame(task, spec)
-    wire = Wire(task.wire)
+    wire = clip_wire(task.wire)
     out = []
     for sign in (1.0, -1.0):
         lo, hi = 0.0, PUSH_SEARCH_MAX
@@ -370,7 +383,7 @@ def true_touches(
     from endocam.task.touches import clearances
 
     t = np.arange(0.0, duration + 0.5 * TRUTH_DT, TRUTH_DT)
-    c, _ = clearances(ring_poses(task, spec, t, depths), Wire(task.wire), task.ring)
+    c, _ = clearances(ring_poses(task, spec, t, depths), clip_wire(task.wire), task.ring)
     inside = c <= 0.0
     edges = np.flatnonzero(np.diff(inside.astype(int)))
     events, start = [], None
