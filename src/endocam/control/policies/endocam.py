@@ -351,15 +351,9 @@ class EndocamPolicy(MovingPolicy):
                 self._side = side_before
                 return self._freeze(WIRE_REASON)
             cmd = cleared
-        if plan.guard.cleared and cmd is goal and goal is self._cleared_view:
-            # the plain path (no transfer, no freeze): the kernel traced the move to this pose
-            if plan.guard.detour:
-                via = self._detoured(cmd, p_c, p_cam, d, plan.guard)
-            else:  # a straight move: what ``_detoured`` does with no way-point
-                self._p_detour, self._stalled = None, 0
-                via = None
-        else:
-            via = self._detoured(cmd, p_c, p_cam, d)
+        # on the plain path (no transfer, no freeze) the kernel traced the move to this pose
+        plain = plan.guard.cleared and cmd is goal and goal is self._cleared_view
+        via = self._detoured(cmd, p_c, p_cam, d, plan.guard if plain else None)
         if via is not None:
             cmd, twist = via, None
             state, reason = TrackingState.PLANNING, DETOUR_REASON

@@ -249,14 +249,9 @@ class PaperPolicy(MovingPolicy):
                     return self._lose(WIRE_REASON, TrackingState.FROZEN_OUTSIDE_CONE)
                 cmd = wp
                 state, reason = TrackingState.PLANNING, "following intermediate way-points"
-        if cleared and cmd is goal:  # the plain path: no way-points; the kernel traced the move
-            if result.guard.detour:
-                via = self._detoured(cmd, p_ring, p_now, d_f, result.guard)
-            else:  # a straight move: what ``_detoured`` does with no way-point
-                self._p_detour, self._stalled = None, 0
-                via = None
-        else:
-            via = self._detoured(cmd, p_ring, p_now, d_f)
+        # on the plain path (no way-points) the kernel traced the move
+        plain = cleared and cmd is goal
+        via = self._detoured(cmd, p_ring, p_now, d_f, result.guard if plain else None)
         if via is not None:
             cmd = via
             state, reason = TrackingState.PLANNING, DETOUR_REASON
