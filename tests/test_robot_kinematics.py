@@ -293,7 +293,7 @@ def _branch_reference(angle: float, reference: float, lower: float, upper: float
 ANGLES = st.floats(-40.0, 40.0) | st.sampled_from([0.0, -0.0, math.pi, -math.pi, 3 * math.pi])
 
 
-@settings(max_examples=3000, deadline=None)
+@settings(max_examples=600, deadline=None)
 @given(ANGLES, ANGLES, ANGLES, st.floats(0.0, 20.0), st.integers(-3, 3))
 def test_compiled_branch_choice_is_pythons(
     angle: float, reference: float, lower: float, width: float, half_turns: int
@@ -360,7 +360,7 @@ def _closed_form_reference(goal: Pose12, seed: np.ndarray) -> tuple[list[float],
     return q, pose12_times(T_rcm_6, PSM_CHAIN._tip_rows)
 
 
-N_CLOSED_FORM = 20000  # count: random goals, compiled closed form vs the Python one
+N_CLOSED_FORM = 4000  # count: random goals, compiled closed form vs the Python one
 
 
 def test_compiled_psm_closed_form_is_the_python_one() -> None:
@@ -403,7 +403,7 @@ def test_compiled_psm_closed_form_is_the_python_one() -> None:
     assert _closed_form_reference(singular, np.zeros(6)) is None
 
 
-N_ECM_GOALS = 6000  # count: random goals for the ECM IK's promises
+N_ECM_GOALS = 1500  # count: random goals for the ECM IK's promises
 
 
 def test_ecm_ik_keeps_its_promises() -> None:
