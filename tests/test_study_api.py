@@ -225,11 +225,12 @@ def test_admin_export_needs_the_token(client: TestClient, study: Path, db_path: 
         "reported_touches": "6",
     }
     assert cells["attention_passed"] == ""
-    doc = client.get(f"/admin/export.json?token={ADMIN}").json()
+    auth = {"Authorization": f"Bearer {ADMIN}"}
+    doc = client.get("/admin/export.json", headers=auth).json()
     assert [(r["participant_id"], r["reported_touches"]) for r in doc["responses"]] == [("ivy", 6)]
     assert doc["responses"][0]["attention_passed"] is None
     with TestClient(create_app(study, db_path, None)) as no_token:
-        assert no_token.get("/admin/export.csv?token=").status_code == 403
+        assert no_token.get("/admin/export.csv").status_code == 403
         assert (
             no_token.get("/admin/export.json", headers={"Authorization": "Bearer x"}).status_code
             == 403
