@@ -178,9 +178,7 @@ def test_within_set_order_is_random_per_participant_and_stored(study: Path, db_p
     (p,) = StudyDB(db_path).participants()
     assert tuple(shown) == tuple(v for s in p.video_order for v in s)
     assert p.video_order == video_sequence(manifest, p.order_index, p.shuffle_seed)
-    rows = {
-        r["video_id"]: r for r in c.get("/admin/export.json", headers=AUTH).json()["responses"]
-    }
+    rows = {r["video_id"]: r for r in c.get("/admin/export.json", headers=AUTH).json()["responses"]}
     assert [rows[v]["position"] for v in shown] == list(range(1, 10))
     assert [rows[v]["set_number"] for v in shown] == [1, 1, 1, 2, 2, 2, 3, 3, 3]
     assert [rows[v]["position_in_set"] for v in shown] == [1, 2, 3] * 3
