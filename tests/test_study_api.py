@@ -434,17 +434,12 @@ def test_a_later_attempt_of_a_withdrawn_id_is_not_analysed(study: Path, db_path:
     ]
 
 
-@pytest.mark.parametrize(
-    ("method", "url", "body"),
-    [
-        ("post", "/api/answer", {"video_id": "ZZ-echo-42", "reported_touches": 3}),
-        ("post", "/api/event", {"video_id": "ZZ-echo-42", "kind": "play"}),
-        ("get", "/videos/ZZ-echo-42", None),
-    ],
-)
-def test_a_404_does_not_echo_the_video_id(
-    client: TestClient, method: str, url: str, body: dict | None
-) -> None:
+def test_a_404_does_not_echo_the_video_id(client: TestClient) -> None:
     start(client, "echo")
-    r = client.request(method.upper(), url, json=body)
-    assert r.status_code == 404 and "ZZ-echo-42" not in r.text
+    for method, url, body in (
+        ("POST", "/api/answer", {"video_id": "ZZ-echo-42", "reported_touches": 3}),
+        ("POST", "/api/event", {"video_id": "ZZ-echo-42", "kind": "play"}),
+        ("GET", "/videos/ZZ-echo-42", None),
+    ):
+        r = client.request(method, url, json=body)
+        assert r.status_code == 404 and "ZZ-echo-42" not in r.text, url
