@@ -1,13 +1,19 @@
 import sqlite3
 import threading
 from collections.abc import Iterator
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
 
 from endocam.study.app import SESSION_COOKIE, create_app
+from endocam.study.catalogue import load_catalogue
 from endocam.study.db import StudyDB
+from endocam.study.export import export_tables
+from endocam.study.flow import video_sequence
+from endocam.study.manifest import load_manifest
+from endocam.study.records import Status
 from study_helpers import ATTENTION_ANSWER, make_study
 
 ADMIN = "s3cret-admin"
@@ -225,11 +231,12 @@ def test_admin_export_needs_the_token(client: TestClient, study: Path, db_path: 
         "reported_touches": "6",
     }
     assert cells["attention_passed"] == ""
-    doc = client.get(f"/admin/export.json?token={ADMIN}").json()
+    auth = {"Authorization": f"Bearer {ADMIN}"}
+    doc = client.get("/admin/export.json", headers=auth).json()
     assert [(r["participant_id"], r["reported_touches"]) for r in doc["responses"]] == [("ivy", 6)]
     assert doc["responses"][0]["attention_passed"] is None
     with TestClient(create_app(study, db_path, None)) as no_token:
-        assert no_token.get("/admin/export.csv?token=").status_code == 403
+        assert no_token.get("/admin/export.csv").status_code == 403
         assert (
             no_token.get("/admin/export.json", headers={"Authorization": "Bearer x"}).status_code
             == 403
@@ -290,3 +297,149 @@ def test_concurrent_starts_get_balanced_orders(tmp_path: Path) -> None:
     assert sorted(results) == sorted(list(range(6)) * 3)
     with sqlite3.connect(tmp_path / "c.db") as conn:
         assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+
+
+# ---- issue 24 §4 -------------------------------------------------------------------------------
+def _answer_all(c: TestClient, last: bool = True) -> dict:
+    """Answer every step (attention rightly); without ``last`` stop before the last answer."""
+    while (step := c.get("/api/next").json())["kind"] != "done":
+        if step["kind"] == "attention":
+            assert c.post("/api/attention", json={"answer": ATTENTION_ANSWER}).status_code == 201
+            continue
+        if not last and step["n_answered"] == step["n_videos"] - 1:
+            return step
+        body = {"video_id": step["video_id"], "reported_touches": 1}
+        assert c.post("/api/answer", json=body).status_code == 201
+    return step
+
+
+def test_the_last_answer_and_the_completed_stamp_are_one_transaction(
+    study: Path, db_path: Path
+) -> None:
+    app = create_app(study, db_path, ADMIN)
+    with TestClient(app, raise_server_exceptions=False) as c:
+        start(c, "kill9")
+        step = _answer_all(c, last=False)
+        # a crash while stamping: the answer that completes the session must not stay without it
+        with sqlite3.connect(db_path) as conn:
+            conn.execute(
+                "CREATE TRIGGER crash BEFORE UPDATE OF completed ON participants"
+                " BEGIN SELECT RAISE(ABORT, 'simulated crash'); END"
+            )
+        body = {"video_id": step["video_id"], "reported_touches": 1}
+        assert c.post("/api/answer", json=body).status_code == 500
+        (p,) = StudyDB(db_path).participants()
+        assert (len(StudyDB(db_path).answers(p)), p.completed) == (8, None)  # both or neither
+        with sqlite3.connect(db_path) as conn:
+            conn.execute("DROP TRIGGER crash")
+        assert c.post("/api/answer", json=body).status_code == 201
+    (p,) = StudyDB(db_path).participants()
+    assert len(StudyDB(db_path).answers(p)) == 9 and p.completed is not None
+
+
+def test_a_session_answered_but_never_stamped_is_repaired_at_start(
+    study: Path, db_path: Path
+) -> None:
+    with TestClient(create_app(study, db_path, ADMIN)) as c:
+        start(c, "crashed")
+        _answer_all(c)
+    # what an older endocam killed between the last answer and the stamp left, 3 h ago
+    idle = (datetime.now(UTC) - timedelta(hours=3)).isoformat(timespec="milliseconds")
+    with sqlite3.connect(db_path) as conn:
+        conn.execute(
+            "UPDATE participants SET completed = NULL, last_active = ?1, attention_time = ?1",
+            (idle,),
+        )
+        conn.execute("UPDATE responses SET submitted = ?", (idle,))
+    (p,) = StudyDB(db_path).participants()
+    assert p.status(datetime.now(UTC)) == Status.ABANDONED  # its order would be given again
+    with TestClient(create_app(study, db_path, ADMIN)) as c:
+        start(c, "next")
+    crashed, following = StudyDB(db_path).participants()
+    assert crashed.status(datetime.now(UTC)) == Status.COMPLETED and crashed.completed == idle
+    assert (crashed.order_index, following.order_index) == (0, 1)
+    (entry,) = StudyDB(db_path).admin_log()
+    assert (entry["action"], entry["participant_id"]) == ("repair", "crashed")
+
+
+def test_admin_signs_in_once_and_the_token_never_travels_in_a_url(
+    client: TestClient, study: Path, db_path: Path
+) -> None:
+    start(TestClient(client.app), "leaver")
+    # a token in the URL is not accepted (it would reach access logs and browser history)
+    for url in (f"/admin?token={ADMIN}", f"/admin/export.json?token={ADMIN}"):
+        assert client.get(url).status_code == 401
+    page = client.get("/admin")
+    assert page.status_code == 401 and 'action="/admin/login"' in page.text
+    wrong = client.post("/admin/login", data={"token": "wrong"}, follow_redirects=False)
+    assert wrong.status_code == 401 and "set-cookie" not in wrong.headers
+    r = client.post("/admin/login", data={"token": ADMIN}, follow_redirects=False)
+    assert (r.status_code, r.headers["location"]) == (303, "/admin")
+    cookie = r.headers["set-cookie"]
+    assert "HttpOnly" in cookie and "samesite=strict" in cookie.lower() and "Path=/admin" in cookie
+    assert "Secure" not in cookie  # plain http unless told (see the next test)
+    assert ADMIN not in cookie and ADMIN not in r.headers["location"]
+    page = client.get("/admin")
+    assert page.status_code == 200 and ADMIN not in page.text and "token=" not in page.text
+    assert client.get("/admin/export/responses.csv").status_code == 200  # the links work
+    r = client.post("/admin/withdraw", data={"participant_id": "leaver"}, follow_redirects=False)
+    assert r.status_code == 303 and ADMIN not in r.headers["location"]
+    assert "token" not in r.headers["location"]
+    client.post("/admin/logout")
+    assert client.get("/admin/export.json").status_code == 401
+    # scripts keep the header
+    bearer = {"Authorization": f"Bearer {ADMIN}"}
+    assert client.get("/admin/export.json", headers=bearer).status_code == 200
+
+
+def test_cookies_are_secure_when_served_over_https(study: Path, db_path: Path) -> None:
+    with TestClient(create_app(study, db_path, ADMIN, secure_cookies=True)) as c:
+        participant = c.post("/api/session", json={"consent": True, "participant_id": "tls"})
+        admin = c.post("/admin/login", data={"token": ADMIN}, follow_redirects=False)
+    for r in (participant, admin):
+        assert "Secure" in r.headers["set-cookie"]
+
+
+def test_a_withdrawn_id_cannot_start_again(client: TestClient, db_path: Path) -> None:
+    start(client, "gone")
+    client.post("/api/answer", json={"video_id": "v01", "reported_touches": 3})
+    StudyDB(db_path).withdraw("gone")
+    before = snapshot(db_path)
+    with TestClient(client.app) as again:
+        r = again.post("/api/session", json={"consent": True, "participant_id": "gone"})
+        assert r.status_code == 403 and "withdrawn" in r.json()["detail"]
+        form = {"participant_id": "gone", "consent": "yes"}
+        page = again.post("/start", data=form, follow_redirects=False)
+        assert page.status_code == 403 and load_catalogue()("error_withdrawn") in page.text
+        assert SESSION_COOKIE not in again.cookies
+    assert snapshot(db_path) == before
+
+
+def test_a_later_attempt_of_a_withdrawn_id_is_not_analysed(study: Path, db_path: Path) -> None:
+    db = StudyDB(db_path)
+    manifest = load_manifest(study)
+    for pid in ("stays", "went", "went"):  # the second "went" started after the withdrawal
+        participant, _ = db.create_participant(
+            pid, 6, lambda order, seed: video_sequence(manifest, order, seed)
+        )
+        db.record_answer(participant, "v01", 2)
+    with sqlite3.connect(db_path) as conn:  # what withdraw() left, then an older endocam allowed
+        conn.execute("DELETE FROM responses WHERE participant_pk = 2")
+        conn.execute("UPDATE participants SET withdrawn = '2024-05-02T00:00:00' WHERE pk = 2")
+    assert [r.participant_id for r in db.export_rows()] == ["stays"]
+    exported = export_tables(db, manifest)
+    assert [(r.participant_id, r.in_analysis) for r in exported["responses"]] == [
+        ("stays", True),
+        ("went", False),
+    ]
+
+
+def test_a_404_does_not_echo_the_video_id(client: TestClient) -> None:
+    start(client, "echo")
+    for method, url, body in (
+        ("POST", "/api/answer", {"video_id": "ZZ-echo-42", "reported_touches": 3}),
+        ("POST", "/api/event", {"video_id": "ZZ-echo-42", "kind": "play"}),
+        ("GET", "/videos/ZZ-echo-42", None),
+    ):
+        r = client.request(method, url, json=body)
+        assert r.status_code == 404 and "ZZ-echo-42" not in r.text, url

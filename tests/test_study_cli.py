@@ -1,10 +1,13 @@
+import asyncio
 import json
 import socket
+import sqlite3
 from pathlib import Path
 
 import pytest
 
 from endocam.cli import main
+from endocam.cli.study import server_config, trusted_proxies
 from endocam.study.db import StudyDB
 from endocam.study.manifest import parse_manifest
 from endocam.study.responses import ResponseRow, rows_to_csv
@@ -47,7 +50,10 @@ def test_analyze_from_csv_and_db_agree(files: tuple[Path, Path], tmp_path: Path)
             if r.participant_id == participant.participant_id:
                 db.record_answer(participant, r.video_id, r.reported_touches)
         db.record_attention(participant, 4 if k else 0, k != 0)
+    beside = sorted(p.name for p in tmp_path.iterdir())
+    assert "s.db-wal" not in beside  # a WAL database, fully checkpointed (no server running)
     assert main([*args, "--db", str(tmp_path / "s.db"), "--out", str(out_db)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([*beside, "b"])  # no -wal/-shm
     a = json.loads((out_csv / "analysis.json").read_text())
     b = json.loads((out_db / "analysis.json").read_text())
     assert a == b
@@ -158,3 +164,50 @@ def test_serve_on_a_busy_port_exits_2_and_creates_no_database(
     err = capsys.readouterr().err
     assert f"127.0.0.1:{port}" in err and err.count("\n") == 1
     assert not db.exists()
+
+
+def test_analyze_reads_answers_still_in_the_wal_of_a_running_server(tmp_path: Path) -> None:
+    path = tmp_path / "live.db"
+    db = StudyDB(path)
+    with sqlite3.connect(path) as server:  # a server's connection: keeps the WAL un-checkpointed
+        server.execute("PRAGMA wal_autocheckpoint = 0")
+        server.execute("SELECT COUNT(*) FROM participants").fetchone()
+        participant, _ = db.create_participant("live", 6)
+        db.record_answer(participant, "v01", 3)
+        files = sorted(p.name for p in tmp_path.iterdir())
+        assert files == ["live.db", "live.db-shm", "live.db-wal"]
+        rows = StudyDB(path, read_only=True).export_rows()
+        assert [(r.participant_id, r.reported_touches) for r in rows] == [("live", 3)]
+        assert sorted(p.name for p in tmp_path.iterdir()) == files
+    server.close()
+
+
+def _client_seen_by_the_app(proxies: list[str]) -> str:
+    """The client address the app sees for a request from 127.0.0.1 with X-Forwarded-For."""
+    seen = []
+
+    async def app(scope: dict, receive: object, send: object) -> None:
+        seen.append(scope["client"][0])
+
+    config = server_config(app, proxies)
+    config.load()
+    scope = {
+        "type": "http",
+        "client": ("127.0.0.1", 50000),
+        "headers": [(b"x-forwarded-for", b"203.0.113.7")],
+    }
+    asyncio.run(config.loaded_app(scope, None, None))
+    return seen[0]
+
+
+def test_serve_trusts_no_proxy_unless_told(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert _client_seen_by_the_app(trusted_proxies(None)) == "127.0.0.1"  # the default
+    assert _client_seen_by_the_app(trusted_proxies("127.0.0.1, 10.0.0.0/8")) == "203.0.113.7"
+    study = make_study(tmp_path, with_videos=False)
+    args = ["study", "serve", "--study", str(study), "--db", str(tmp_path / "s.db")]
+    assert main([*args, "--trusted-proxy", "*"]) == 2
+    err = capsys.readouterr().err
+    assert "--trusted-proxy" in err and err.count("\n") == 1
+    assert not (tmp_path / "s.db").exists()

@@ -26,6 +26,7 @@ from endocam.study.web import MAX_BODY_BYTES, RateLimit
 from study_helpers import ATTENTION_ANSWER, PRACTICE_TOUCHES, make_study
 
 ADMIN = "online-admin"
+AUTH = {"Authorization": f"Bearer {ADMIN}"}
 CODE = "C0DE42"
 RETURN_URL = "https://app.prolific.com/submissions/complete?cc={code}"
 PLATFORM = {"PROLIFIC_PID": "5f0aa1b2c3d4e5f6a7b8c9d0", "STUDY_ID": "st1", "SESSION_ID": "se1"}
@@ -152,7 +153,7 @@ def test_must_watch_rule_and_interaction_log(client: TestClient, db_path: Path) 
         assert client.post("/api/event", json={"video_id": vid} | bad).status_code == 422
     assert client.post("/api/event", json={"video_id": "v99", "kind": "play"}).status_code == 404
     assert client.post("/api/answer", json=answer).status_code == 201
-    rows = client.get(f"/admin/export.json?token={ADMIN}").json()["responses"]
+    rows = client.get("/admin/export.json", headers=AUTH).json()["responses"]
     (row,) = rows
     assert (row["n_play"], row["n_pause"], row["n_seek"], row["n_ratechange"]) == (2, 1, 1, 1)
     assert (row["max_playback_rate"], row["watched_s"], row["watched_to_end"]) == (2.0, 1.1, True)
@@ -177,9 +178,7 @@ def test_within_set_order_is_random_per_participant_and_stored(study: Path, db_p
     (p,) = StudyDB(db_path).participants()
     assert tuple(shown) == tuple(v for s in p.video_order for v in s)
     assert p.video_order == video_sequence(manifest, p.order_index, p.shuffle_seed)
-    rows = {
-        r["video_id"]: r for r in c.get(f"/admin/export.json?token={ADMIN}").json()["responses"]
-    }
+    rows = {r["video_id"]: r for r in c.get("/admin/export.json", headers=AUTH).json()["responses"]}
     assert [rows[v]["position"] for v in shown] == list(range(1, 10))
     assert [rows[v]["set_number"] for v in shown] == [1, 1, 1, 2, 2, 2, 3, 3, 3]
     assert [rows[v]["position_in_set"] for v in shown] == [1, 2, 3] * 3
@@ -254,8 +253,8 @@ def test_admin_page_needs_the_token_and_withdraw_is_logged(
         _run(a, "keep", 9)
         _run(b, "leave", 3)
     assert client.get("/admin").status_code == 401
-    assert client.get("/admin?token=wrong").status_code == 401
-    page = client.get(f"/admin?token={ADMIN}")
+    assert client.post("/admin/login", data={"token": "wrong"}).status_code == 401
+    page = client.post("/admin/login", data={"token": ADMIN})  # then the cookie, no token
     assert page.status_code == 200
     assert re.search(
         r"<td>0</td><td>fixed &gt; centering &gt; orientation</td>"
@@ -263,20 +262,22 @@ def test_admin_page_needs_the_token_and_withdraw_is_logged(
         page.text,
     )  # order 0: 0 active, 1 completed
     before = StudyDB(db_path).export_rows()
-    bad = client.post("/admin/withdraw", data={"token": "wrong", "participant_id": "leave"})
+    with TestClient(client.app) as stranger:  # no admin cookie
+        bad = stranger.post("/admin/withdraw", data={"token": ADMIN, "participant_id": "leave"})
     assert bad.status_code == 401 and StudyDB(db_path).export_rows() == before
-    r = client.post("/admin/withdraw", data={"token": ADMIN, "participant_id": "leave"})
+    r = client.post("/admin/withdraw", data={"participant_id": "leave"})
     assert r.status_code == 200 and "withdrew leave: 3 answer(s) removed" in r.text
     assert {x.participant_id for x in StudyDB(db_path).export_rows()} == {"keep"}
     (entry,) = StudyDB(db_path).admin_log()
     assert (entry["action"], entry["participant_id"]) == ("withdraw", "leave")
-    doc = client.get(f"/admin/export.json?token={ADMIN}").json()
+    doc = client.get("/admin/export.json").json()
     assert all(r["participant_id"] == "keep" for r in doc["responses"] + doc["events"])
     assert b.get("/api/next").status_code == 401  # the withdrawn session cannot continue
-    r = client.post("/admin/withdraw", data={"token": ADMIN, "participant_id": "leave"})
+    r = client.post("/admin/withdraw", data={"participant_id": "leave"})
     assert r.status_code == 404
     with TestClient(create_app(study, db_path, None)) as no_token:
-        assert no_token.get("/admin?token=").status_code == 403
+        assert no_token.get("/admin").status_code == 403
+        assert no_token.post("/admin/login", data={"token": ""}).status_code == 403
 
 
 def test_counterbalancing_skips_abandoned_and_withdrawn_sessions(tmp_path: Path) -> None:

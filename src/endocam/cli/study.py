@@ -9,16 +9,21 @@ imported only when ``serve`` runs; MuJoCo only when ``make`` runs.
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import math
 import os
 import socket
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from endocam.cli.common import UsageError, check_workers, integer
 from endocam.runner.pool import DEFAULT_WORKERS
 from endocam.study.analysis import AnalysisConfig, OutlierRule
 from endocam.study.db import ABANDON_AFTER_S
+
+if TYPE_CHECKING:
+    import uvicorn
 
 ADMIN_TOKEN_ENV = "ENDOCAM_ADMIN_TOKEN"
 _EXTRA_HINT = "install the study extra: pip install 'endocam[study]'"
@@ -145,6 +150,45 @@ def _add_observe(sub: argparse._SubParsersAction) -> None:
 # ---------------------------------------------------------------------------------------------
 
 
+def trusted_proxies(text: str | None) -> list[str]:
+    """The ``--trusted-proxy`` addresses: comma-separated IP addresses or networks (CIDR).
+
+    Raises
+    ------
+    UsageError
+        An entry that is not an IP address or network (``*``, trusting everyone, included).
+    """
+    if text is None:
+        return []
+    entries = [e.strip() for e in text.split(",")]
+    for entry in entries:
+        try:
+            ipaddress.ip_network(entry, strict=False)
+        except ValueError:
+            raise UsageError(
+                f"--trusted-proxy: {entry!r} is not an IP address or network (e.g. 127.0.0.1,"
+                " 10.0.0.0/8)"
+            ) from None
+    return entries
+
+
+def server_config(app: Any, proxies: list[str]) -> uvicorn.Config:
+    """The uvicorn configuration of ``study serve``.
+
+    ``X-Forwarded-For`` and ``X-Forwarded-Proto`` are read only from a connection whose peer is
+    one of ``proxies`` (none by default: the peer address is the client's).
+    """
+    import uvicorn
+
+    return uvicorn.Config(
+        app,
+        log_level="info",
+        proxy_headers=bool(proxies),
+        forwarded_allow_ips=proxies or None,
+        server_header=False,
+    )
+
+
 def _serve(args: argparse.Namespace) -> int:
     study = Path(args.study)
     if not (study / "manifest.json").is_file():
@@ -156,6 +200,7 @@ def _serve(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.abandon_after_min) and args.abandon_after_min > 0):
         raise UsageError(f"--abandon-after-min must be > 0, got {args.abandon_after_min}")
     token = args.admin_token or os.environ.get(ADMIN_TOKEN_ENV) or None
+    proxies = trusted_proxies(args.trusted_proxy)
     try:
         import uvicorn
 
@@ -164,14 +209,20 @@ def _serve(args: argparse.Namespace) -> int:
         raise UsageError(f"'study serve' needs {exc.name}: {_EXTRA_HINT}") from None
     sock = _bind(args.host, args.port)  # a busy port fails here, before the database exists
     try:
-        app = create_app(study, args.db, token, abandon_after_s=60.0 * args.abandon_after_min)
+        app = create_app(
+            study,
+            args.db,
+            token,
+            abandon_after_s=60.0 * args.abandon_after_min,
+            secure_cookies=args.secure_cookies,
+        )
     except ValueError as exc:
         sock.close()
         raise UsageError(str(exc)) from None
     if token is None:
         print(f"endocam: no admin token (--admin-token or {ADMIN_TOKEN_ENV}): admin disabled")
     print(f"endocam: serving the study on http://{args.host}:{args.port}/ (Ctrl+C stops)")
-    server = uvicorn.Server(uvicorn.Config(app, log_level="info"))
+    server = uvicorn.Server(server_config(app, proxies))
     server.run(sockets=[sock])
     return 0
 
@@ -292,6 +343,20 @@ def _add_serve(sub: argparse._SubParsersAction) -> None:
         metavar="MIN",
         help="minutes without activity after which an unfinished session is abandoned and no "
         "longer counts for counterbalancing (default: %(default)g)",
+    )
+    p.add_argument(
+        "--secure-cookies",
+        action="store_true",
+        help="mark the session and admin cookies Secure (HTTPS only): set it when a reverse proxy "
+        "serves the study over HTTPS (default: off, for plain http://127.0.0.1 tests)",
+    )
+    p.add_argument(
+        "--trusted-proxy",
+        default=None,
+        metavar="ADDR[,ADDR]",
+        help="reverse proxies (IP addresses or networks) whose X-Forwarded-For names the client, "
+        "e.g. 127.0.0.1 for Caddy or nginx on the same machine (default: none, the peer "
+        "address is the client)",
     )
     p.set_defaults(handler=_serve)
 

@@ -4,8 +4,9 @@
   ``endocam study make``);
 - :mod:`~endocam.study.counterbalance`: Latin-square presentation orders, round-robin assignment;
 - :mod:`~endocam.study.flow`: a participant's path through the sets and the attention question;
-- :mod:`~endocam.study.db`: the SQLite store; :mod:`~endocam.study.app`: the web app (``study``
-  extra);
+- :mod:`~endocam.study.db`: the SQLite store, :mod:`~endocam.study.records` its records;
+  :mod:`~endocam.study.app`: the web app (``study`` extra), :mod:`~endocam.study.admin_auth` its
+  admin sign-in;
 - :mod:`~endocam.study.analysis` and :mod:`~endocam.study.report`: statistics and outputs.
 """
 

@@ -2,9 +2,10 @@
 
 Participants open ``/`` (from a recruitment platform: ``/?PROLIFIC_PID=...&STUDY_ID=...&
 SESSION_ID=...``, parameter names from the manifest's ``recruitment``), read the information,
-give consent and receive a random session token in an ``HttpOnly``, ``SameSite=Strict`` cookie;
-the id alone never grants access, and the server never tells whether an id is already known (see
-:mod:`endocam.study.db`). ``/study`` always shows the first unanswered step (see
+give consent and receive a random session token in an ``HttpOnly``, ``SameSite=Strict`` cookie
+(``Secure`` with ``secure_cookies``); the id alone never grants access, and the server never
+tells whether an id is already known (see :mod:`endocam.study.db`), except that a withdrawn id is
+refused (403). ``/study`` always shows the first unanswered step (see
 :mod:`endocam.study.flow`): demographics, practice video with feedback, the sets, the attention
 question, and the last page with the completion code. A reload resumes where the participant
 stopped. Answers are never overwritten: a second answer for the same step is refused with 409.
@@ -26,19 +27,26 @@ JSON API (the pages post plain forms; the API serves scripts and tests):
 - ``POST /api/event`` ``{"video_id": "v01", "kind": "play", "media_time_s": 0.0, ...}`` → 204;
 - ``GET /api/me`` → the caller's own answers.
 
-Admin (``Authorization: Bearer TOKEN`` or ``?token=TOKEN``; 403 when the app has no token):
-``GET /admin`` (progress per order, sessions, withdraw form, action log), ``POST /admin/withdraw``,
+Admin (``Authorization: Bearer TOKEN``, or the admin session cookie a browser gets by posting the
+token once to ``POST /admin/login``, see :mod:`endocam.study.admin_auth`; never a token in a URL;
+403 when the app has no token): ``GET /admin`` (progress per order, sessions, withdraw form,
+action log; the sign-in form without a sign-in), ``POST /admin/withdraw``, ``POST /admin/logout``,
 ``GET /admin/export/{responses|participants|events}.{csv|parquet}``, ``/admin/export.json``,
 ``/admin/codebook.md`` and, as before, ``/admin/export.csv`` (= responses).
 
+At start the app stamps completed any session that has every step answered but no ``completed``
+stamp (left by an older endocam killed between the two writes; see
+:meth:`~endocam.study.db.StudyDB.repair_completed`); now the last answer and its stamp are one
+transaction.
+
 Limits (:mod:`endocam.study.web`): request bodies above :data:`MAX_BODY_BYTES` get 413;
-validation errors (422) name the field and the rule but never echo the input; session starts
+validation errors (422) and 404s name the field or the rule but never echo the input; session starts
 are rate-limited per client address and in total (:data:`SESSION_RATE`, 429).
 """
 
 import math
 import secrets
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any, cast
@@ -52,6 +60,7 @@ from fastapi.templating import Jinja2Templates
 from pydantic import ValidationError
 
 from endocam import __version__
+from endocam.study.admin_auth import ADMIN_COOKIE, AdminSessions
 from endocam.study.api_models import (
     MAX_TRAINING_YEARS,
     AnswerIn,
@@ -66,13 +75,7 @@ from endocam.study.api_models import (
     validation_error_body,
 )
 from endocam.study.catalogue import Catalogue, load_catalogue
-from endocam.study.db import (
-    ABANDON_AFTER_S,
-    ConflictError,
-    Participant,
-    Status,
-    StudyDB,
-)
+from endocam.study.db import ABANDON_AFTER_S, StudyDB
 from endocam.study.export import (
     TABLES,
     TableName,
@@ -84,6 +87,7 @@ from endocam.study.export import (
 from endocam.study.export import to_parquet as table_to_parquet
 from endocam.study.flow import Step, StepKind, next_step, video_sequence
 from endocam.study.manifest import MAX_TOUCHES, Manifest, load_manifest
+from endocam.study.records import ConflictError, Participant, Status, WithdrawnError
 from endocam.study.responses import parse_count
 from endocam.study.web import (
     SESSION_RATE,
@@ -97,6 +101,7 @@ SESSION_COOKIE = "endocam_session"
 SESSION_MAX_AGE_S = 7 * 24 * 3600  # s, cookie lifetime
 PRACTICE_ID = "_practice"  # video id of the practice video (never a manifest id: see ID_PATTERN)
 PRIOR_ASSESSMENT = ("yes", "no", "unsure")
+ADMIN_DISABLED = "the admin pages are disabled: start with an admin token"
 _HERE = Path(__file__).parent
 TEMPLATES_DIR = _HERE / "templates"
 STATIC_DIR = _HERE / "static"
@@ -109,6 +114,7 @@ def create_app(
     *,
     session_rate: RateLimit = SESSION_RATE,
     abandon_after_s: float = ABANDON_AFTER_S,
+    secure_cookies: bool = False,
 ) -> FastAPI:
     """Build the study web app.
 
@@ -125,6 +131,9 @@ def create_app(
     abandon_after_s : float
         Idle time (s) after which an unfinished session is abandoned (no longer counted for
         counterbalancing; shown as such on the admin page).
+    secure_cookies : bool
+        Mark the session and admin cookies ``Secure`` (sent over HTTPS only): set it when the app
+        is served over HTTPS (behind a reverse proxy).
 
     Returns
     -------
@@ -149,6 +158,7 @@ def create_app(
         else t.paragraphs("consent_default")
     )
     db = StudyDB(db_path)
+    admin = AdminSessions(admin_token)
     video_files = {v.id: study_root / v.file for v in manifest.videos}
     if manifest.practice:
         video_files[PRACTICE_ID] = study_root / manifest.practice.file
@@ -183,14 +193,24 @@ def create_app(
             raise HTTPException(401, "no valid session: start one at / or POST /api/session")
         return participant
 
-    def current_step(participant: Participant) -> Step:
+    def step_for(participant: Participant, answered: Collection[str]) -> Step:
         return next_step(
             participant.video_order,
-            db.answers(participant).keys(),
+            answered,
             participant.attention_answer is not None,
             demographics_due=manifest.demographics and not participant.demographics_done,
             practice_due=manifest.practice is not None and not participant.practice_done,
         )
+
+    def current_step(participant: Participant) -> Step:
+        return step_for(participant, db.answers(participant).keys())
+
+    def is_done(participant: Participant, answered: Collection[str]) -> bool:
+        """The store's ``done`` predicate: every step of the session answered."""
+        steps = participant.video_order
+        return bool(steps and steps[0]) and step_for(participant, answered).kind == StepKind.DONE
+
+    db.repair_completed(is_done)  # sessions an older endocam left answered but unstamped
 
     def start_session(
         request: Request,
@@ -205,27 +225,26 @@ def create_app(
         if unknown:
             raise RefusedError(422, f"unknown recruitment parameters {unknown}", "error_platform")
         pid = recruitment.get(manifest.recruitment.id_param) or participant_id
-        participant, token = db.create_participant(
-            pid or f"p-{secrets.token_hex(4)}",
-            len(manifest.orders),
-            lambda order, seed: video_sequence(manifest, order, seed),
-            recruitment=recruitment,
-            abandon_after_s=abandon_after_s,
-        )
+        try:
+            participant, token = db.create_participant(
+                pid or f"p-{secrets.token_hex(4)}",
+                len(manifest.orders),
+                lambda order, seed: video_sequence(manifest, order, seed),
+                recruitment=recruitment,
+                abandon_after_s=abandon_after_s,
+            )
+        except WithdrawnError:
+            message = "this participant id was withdrawn from the study; it cannot take part again"
+            raise RefusedError(403, message, "error_withdrawn") from None
         response.set_cookie(
             SESSION_COOKIE,
             token,
             max_age=SESSION_MAX_AGE_S,
             httponly=True,
             samesite="strict",
+            secure=secure_cookies,
             path="/",
         )
-        return participant
-
-    def finish_if_done(participant: Participant) -> Participant:
-        participant = db.refresh(participant)
-        if current_step(participant).kind == StepKind.DONE:
-            db.mark_completed(participant)
         return participant
 
     def expect_step(participant: Participant, kind: StepKind) -> None:
@@ -251,7 +270,7 @@ def create_app(
 
     def submit_answer(participant: Participant, video_id: str, touches: int) -> None:
         if video_id not in video_files or video_id == PRACTICE_ID:
-            raise RefusedError(404, f"unknown video {video_id!r}")
+            raise RefusedError(404, "unknown video_id")
         answers = db.answers(participant)
         if video_id in answers:
             raise RefusedError(409, f"video {video_id!r} is already answered; answers are final")
@@ -263,28 +282,27 @@ def create_app(
         if manifest.must_watch and not db.watched_to_end(participant, video_id):
             raise RefusedError(409, "watch the video to its end first", "error_must_watch")
         try:
-            db.record_answer(participant, video_id, touches)
+            db.record_answer(participant, video_id, touches, is_done)
         except ConflictError as exc:
             raise RefusedError(409, str(exc)) from None
-        finish_if_done(participant)
 
     def submit_attention(participant: Participant, answer: int) -> None:
         expect_step(participant, StepKind.ATTENTION)
         try:
-            db.record_attention(participant, answer, answer == manifest.attention.answer)
+            db.record_attention(participant, answer, answer == manifest.attention.answer, is_done)
         except ConflictError as exc:
             raise RefusedError(409, str(exc)) from None
-        finish_if_done(participant)
 
-    def check_admin(request: Request) -> str:
-        if not admin_token:
-            raise HTTPException(403, "the admin pages are disabled: start with an admin token")
-        header = request.headers.get("authorization", "")
-        given = header[7:] if header.lower().startswith("bearer ") else ""
-        given = given or request.query_params.get("token", "")
-        if not secrets.compare_digest(given.encode(), admin_token.encode()):
-            raise HTTPException(401, "admin token missing or wrong", {"WWW-Authenticate": "Bearer"})
-        return given
+    def check_admin(request: Request) -> None:
+        if not admin.enabled:
+            raise HTTPException(403, ADMIN_DISABLED)
+        if not admin.authorised(request):
+            raise HTTPException(
+                401,
+                "admin sign-in needed: sign in at /admin or send Authorization: Bearer TOKEN"
+                " (a token in the URL is not accepted)",
+                {"WWW-Authenticate": "Bearer"},
+            )
 
     CurrentParticipant = Annotated[Participant, Depends(require_participant)]
 
@@ -358,7 +376,7 @@ def create_app(
     @app.post("/api/event", status_code=204)
     def api_event(body: EventIn, participant: CurrentParticipant) -> Response:
         if body.video_id not in video_files:
-            raise HTTPException(404, f"unknown video {body.video_id!r}")
+            raise HTTPException(404, "unknown video_id")
         db.record_event(
             participant,
             body.video_id,
@@ -539,17 +557,42 @@ def create_app(
     def video_file(video_id: str, participant: CurrentParticipant) -> FileResponse:
         path = video_files.get(video_id)
         if path is None:
-            raise HTTPException(404, f"unknown video {video_id!r}")
+            raise HTTPException(404, "unknown video")
         return FileResponse(path, media_type="video/mp4")
 
     # ---- admin ----------------------------------------------------------------------------
-    Admin = Annotated[str, Depends(check_admin)]
-
     def tables() -> dict[TableName, list[Any]]:
         return export_tables(db, manifest, abandon_after_s)
 
+    def sign_in_page(request: Request, error: str | None = None) -> Response:
+        if not admin.enabled:
+            raise HTTPException(403, ADMIN_DISABLED)
+        hours = admin.lifetime_s / 3600.0
+        response = page(request, "admin_login.html", 401, error=error, hours=hours)
+        response.headers["WWW-Authenticate"] = "Bearer"
+        return response
+
+    @app.post("/admin/login")
+    async def admin_login(request: Request) -> Response:
+        form = await request.form()
+        value = admin.sign_in(str(form.get("token", "")))
+        if value is None:
+            return sign_in_page(request, "admin token wrong")
+        redirect = RedirectResponse("/admin", status_code=303)
+        admin.set_cookie(redirect, value, secure=secure_cookies)
+        return redirect
+
+    @app.post("/admin/logout")
+    def admin_logout(request: Request) -> Response:
+        admin.sign_out(request.cookies.get(ADMIN_COOKIE, ""))
+        redirect = RedirectResponse("/admin", status_code=303)
+        admin.clear_cookie(redirect, secure=secure_cookies)
+        return redirect
+
     @app.get("/admin")
-    def admin_page(request: Request, token: Admin) -> Response:
+    def admin_page(request: Request) -> Response:
+        if not admin.authorised(request):
+            return sign_in_page(request)
         now = datetime.now(UTC)
         sessions = db.participants()
         statuses = [p.status(now, abandon_after_s) for p in sessions]
@@ -571,7 +614,6 @@ def create_app(
         return page(
             request,
             "admin.html",
-            token=token,
             progress=progress,
             statuses=list(Status),
             sessions=list(zip(sessions, statuses, strict=True)),
@@ -581,19 +623,16 @@ def create_app(
             message=request.query_params.get("message"),
         )
 
-    @app.post("/admin/withdraw")
+    @app.post("/admin/withdraw", dependencies=[Depends(check_admin)])
     async def admin_withdraw(request: Request) -> Response:
         form = await request.form()
-        token = str(form.get("token", ""))
-        if not admin_token or not secrets.compare_digest(token.encode(), admin_token.encode()):
-            raise HTTPException(401, "admin token missing or wrong")
         pid = str(form.get("participant_id", "")).strip()
         try:
             removed = db.withdraw(pid, note=str(form.get("note", "")).strip()[:200])
         except KeyError:
             raise HTTPException(404, "no active session has this participant id") from None
         message = f"withdrew {pid}: {removed} answer(s) removed"
-        target = f"/admin?{urlencode({'token': token, 'message': message})}"
+        target = f"/admin?{urlencode({'message': message})}"
         return RedirectResponse(target, status_code=303)
 
     @app.get("/admin/codebook.md", dependencies=[Depends(check_admin)])
@@ -611,7 +650,7 @@ def create_app(
     @app.get("/admin/export/{table}.{fmt}", dependencies=[Depends(check_admin)])
     def export_table(table: str, fmt: str) -> Response:
         if table not in TABLES or fmt not in ("csv", "parquet"):
-            raise HTTPException(404, f"no export {table}.{fmt}: tables {TABLES}, csv or parquet")
+            raise HTTPException(404, f"no such export: tables {TABLES}, formats csv or parquet")
         name = cast(TableName, table)
         rows = tables()[name]
         disposition = {"Content-Disposition": f'attachment; filename="{table}.{fmt}"'}

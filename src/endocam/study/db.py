@@ -3,15 +3,25 @@
 The database is a real file in WAL mode with ``synchronous=FULL``: every answer is committed in its
 own transaction when it is submitted, so neither a reload nor a server restart loses anything.
 Each call opens its own short-lived connection, so the store is safe to share between the web
-server's worker threads and between processes.
+server's worker threads and between processes. The answer that finishes a session and its
+``completed`` stamp are one transaction (the ``done`` predicate of :meth:`StudyDB.record_answer`);
+a database written by an older endocam, killed between the two, is repaired by
+:meth:`StudyDB.repair_completed` when the app starts.
 
 Session tokens are random (``secrets.token_urlsafe``); only their SHA-256 is stored, so a copy of
 the database does not let anyone act as a participant.
 
 A participant id is a label, not a key: the same id may start several sessions (someone reopening
 a recruitment link in another browser), so the server never reveals whether an id is known. Each
-session is numbered per id (``attempt`` 1, 2, ...); only the first non-withdrawn attempt enters
-the analysis (:meth:`StudyDB.export_rows`), the others stay in the exports, marked.
+session is numbered per id (``attempt`` 1, 2, ...); only the first attempt enters the analysis
+(:meth:`StudyDB.analysed_pks`), the others stay in the exports, marked. A withdrawn id is refused
+when it tries to start again (:class:`~endocam.study.records.WithdrawnError`) and none of its
+sessions is ever analysed, not even one started before the refusal existed.
+
+Read-only (``study analyze --db``), the file is opened ``mode=ro``; when no ``-wal`` file lies
+beside it (no server running, everything checkpointed) also ``immutable=1``, so that SQLite
+creates no ``-wal``/``-shm`` files next to it. With a ``-wal`` file present (a running or killed
+server) it is read through that WAL.
 
 A session's status is *completed* (every step answered), *withdrawn* (by the admin), *active*
 (something happened within the last ``abandon_after_s``) or else *abandoned*. Counterbalancing
@@ -24,23 +34,26 @@ import hashlib
 import json
 import secrets
 import sqlite3
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Collection, Iterator, Mapping
 from contextlib import closing, contextmanager
-from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 from endocam.study.counterbalance import assign_order
 from endocam.study.flow import VideoSequence
+from endocam.study.records import (
+    ABANDON_AFTER_S,
+    ConflictError,
+    Participant,
+    VideoInteraction,
+    WithdrawnError,
+    participant_from_row,
+)
 from endocam.study.responses import ResponseRow
 
 SCHEMA_VERSION = 2
 BUSY_TIMEOUT_S = 10.0  # s, how long a writer waits for the lock
-ABANDON_AFTER_S = (
-    2 * 3600.0
-)  # s without any activity after which an unfinished session is abandoned
 MAX_EVENTS_PER_VIDEO = 2000  # interaction events stored per session and video (the rest dropped)
 EVENT_KINDS = ("shown", "play", "pause", "seeked", "ratechange", "ended", "progress")
 
@@ -96,114 +109,12 @@ CREATE TABLE IF NOT EXISTS admin_log (
 );
 """
 _TABLES = ("participants", "responses", "events", "admin_log")
-
-
-class ConflictError(Exception):
-    """The request conflicts with what is already stored (answer given twice, step done)."""
-
-
-class Status(StrEnum):
-    """Where a session stands (see the module docstring)."""
-
-    ACTIVE = "active"
-    COMPLETED = "completed"
-    ABANDONED = "abandoned"
-    WITHDRAWN = "withdrawn"
-
-
-@dataclass(frozen=True)
-class Participant:
-    """A stored session (never carries the session token).
-
-    Attributes
-    ----------
-    pk : int
-        Internal row id (the session number).
-    participant_id : str
-        The anonymous id the participant typed, brought in the URL, or was given.
-    attempt : int
-        1 for the first session with this id, 2 for the next, ...
-    order_index : int
-        Index into the manifest's ``orders``.
-    shuffle_seed : int
-        Seed of the within-set video order.
-    video_order : tuple of tuples of str
-        The video ids per set in the order shown (drawn from ``shuffle_seed`` at the start).
-    recruitment : dict str → str
-        URL parameters brought from the recruitment platform.
-    created, last_active : str
-        ISO 8601 UTC times of the start and of the last activity.
-    demographics_done, practice_done : bool
-        Whether those steps are answered.
-    training_years : int or None
-        Years of surgical training, None if not given.
-    prior_assessment : str or None
-        ``yes``, ``no`` or ``unsure`` (prefer not to say), None if not given.
-    practice_answer : int or None
-        The count given for the practice video.
-    attention_answer : int or None
-        The answer to the attention question, None until given.
-    attention_passed : bool or None
-        Whether that answer was right, None until given.
-    completed, withdrawn : str or None
-        ISO 8601 UTC times, None if not (yet).
-    """
-
-    pk: int
-    participant_id: str
-    attempt: int
-    order_index: int
-    shuffle_seed: int
-    video_order: VideoSequence
-    recruitment: dict[str, str]
-    created: str
-    last_active: str
-    demographics_done: bool
-    practice_done: bool
-    training_years: int | None
-    prior_assessment: str | None
-    practice_answer: int | None
-    attention_answer: int | None
-    attention_passed: bool | None
-    completed: str | None
-    withdrawn: str | None
-
-    def status(self, now: datetime, abandon_after_s: float = ABANDON_AFTER_S) -> Status:
-        """The session's :class:`Status` at time ``now`` (UTC)."""
-        if self.withdrawn:
-            return Status.WITHDRAWN
-        if self.completed:
-            return Status.COMPLETED
-        idle = now - datetime.fromisoformat(self.last_active)
-        return Status.ACTIVE if idle <= timedelta(seconds=abandon_after_s) else Status.ABANDONED
-
-
-@dataclass(frozen=True)
-class VideoInteraction:
-    """What a participant did with one video, summarised from the event log.
-
-    Attributes
-    ----------
-    first_shown : str or None
-        ISO 8601 UTC time the video page was first served.
-    n_play, n_pause, n_seek, n_ratechange : int
-        Number of those player events.
-    max_playback_rate : float or None
-        Fastest playback rate used (1 = normal speed).
-    watched_s : float
-        Seconds of video played, as last reported by the page (s of media time).
-    ended : bool
-        Whether the video was played to its end at least once.
-    """
-
-    first_shown: str | None
-    n_play: int
-    n_pause: int
-    n_seek: int
-    n_ratechange: int
-    max_playback_rate: float | None
-    watched_s: float
-    ended: bool
+# each id's first session, for ids none of whose sessions is withdrawn
+_ANALYSED_PKS = (
+    "SELECT MIN(pk) FROM participants GROUP BY participant_id HAVING COUNT(withdrawn) = 0"
+)
+# (stored session, ids of its answered videos) → whether every step of the study is answered
+DonePredicate = Callable[[Participant, Collection[str]], bool]
 
 
 def _now() -> str:
@@ -212,30 +123,6 @@ def _now() -> str:
 
 def _token_hash(token: str) -> str:
     return hashlib.sha256(token.encode("utf-8")).hexdigest()
-
-
-def _participant(row: sqlite3.Row) -> Participant:
-    passed = row["attention_passed"]
-    return Participant(
-        pk=row["pk"],
-        participant_id=row["participant_id"],
-        attempt=row["attempt"],
-        order_index=row["order_index"],
-        shuffle_seed=row["shuffle_seed"],
-        video_order=tuple(tuple(s) for s in json.loads(row["video_order"])),
-        recruitment=json.loads(row["recruitment"]),
-        created=row["created"],
-        last_active=row["last_active"],
-        demographics_done=row["demographics_time"] is not None,
-        practice_done=row["practice_time"] is not None,
-        training_years=row["training_years"],
-        prior_assessment=row["prior_assessment"],
-        practice_answer=row["practice_answer"],
-        attention_answer=row["attention_answer"],
-        attention_passed=None if passed is None else bool(passed),
-        completed=row["completed"],
-        withdrawn=row["withdrawn"],
-    )
 
 
 class StudyDB:
@@ -293,7 +180,10 @@ class StudyDB:
     def _connect(self) -> Iterator[sqlite3.Connection]:
         try:
             if self.read_only:
-                uri = f"{self.path.resolve().as_uri()}?mode=ro"
+                wal = self.path.with_name(self.path.name + "-wal")
+                # no WAL beside it: the file is complete; immutable keeps SQLite from creating one
+                mode = "mode=ro" if wal.exists() else "mode=ro&immutable=1"
+                uri = f"{self.path.resolve().as_uri()}?{mode}"
                 conn = sqlite3.connect(uri, uri=True, timeout=BUSY_TIMEOUT_S, isolation_level=None)
             else:
                 conn = sqlite3.connect(self.path, timeout=BUSY_TIMEOUT_S, isolation_level=None)
@@ -318,6 +208,19 @@ class StudyDB:
                 raise
             conn.execute("COMMIT")
 
+    @staticmethod
+    def _stamp_if_done(conn: sqlite3.Connection, pk: int, done: DonePredicate | None) -> None:
+        """Inside a write transaction: stamp session ``pk`` completed if ``done`` says so."""
+        if done is None:
+            return
+        row = conn.execute("SELECT * FROM participants WHERE pk = ?", (pk,)).fetchone()
+        answered = {
+            r[0]
+            for r in conn.execute("SELECT video_id FROM responses WHERE participant_pk = ?", (pk,))
+        }
+        if row["completed"] is None and done(participant_from_row(row), answered):
+            conn.execute("UPDATE participants SET completed = ? WHERE pk = ?", (_now(), pk))
+
     # ---- sessions ------------------------------------------------------------------------------
     def create_participant(
         self,
@@ -336,7 +239,7 @@ class StudyDB:
         Parameters
         ----------
         participant_id : str
-            Anonymous id; an id already used starts a further attempt.
+            Anonymous id; an id already used starts a further attempt, a withdrawn one is refused.
         n_orders : int
             Number of presentation orders in the manifest.
         sequence_for : callable (order_index, seed) → video ids per set, optional
@@ -353,6 +256,11 @@ class StudyDB:
             The new session.
         token : str
             The secret session token (only its hash is stored).
+
+        Raises
+        ------
+        WithdrawnError
+            A session of ``participant_id`` was withdrawn (nothing is stored).
         """
         token = secrets.token_urlsafe(32)
         seed = secrets.randbits(63)
@@ -360,9 +268,12 @@ class StudyDB:
         active_since = (now - timedelta(seconds=abandon_after_s)).isoformat(timespec="milliseconds")
         stamp = now.isoformat(timespec="milliseconds")
         with self._transaction() as conn:
-            attempt = conn.execute(
-                "SELECT COUNT(*) FROM participants WHERE participant_id = ?", (participant_id,)
-            ).fetchone()[0]
+            attempt, withdrawn = conn.execute(
+                "SELECT COUNT(*), COUNT(withdrawn) FROM participants WHERE participant_id = ?",
+                (participant_id,),
+            ).fetchone()
+            if withdrawn:
+                raise WithdrawnError("this participant id was withdrawn from the study")
             counts = [0] * n_orders
             for index, n in conn.execute(
                 "SELECT order_index, COUNT(*) FROM participants WHERE withdrawn IS NULL"
@@ -393,7 +304,7 @@ class StudyDB:
             row = conn.execute(
                 "SELECT * FROM participants WHERE pk = ?", (cur.lastrowid,)
             ).fetchone()
-        return _participant(row), token
+        return participant_from_row(row), token
 
     def participant_by_token(self, token: str) -> Participant | None:
         """The (not withdrawn) session owning ``token``, or None."""
@@ -402,7 +313,7 @@ class StudyDB:
                 "SELECT * FROM participants WHERE token_sha256 = ? AND withdrawn IS NULL",
                 (_token_hash(token),),
             ).fetchone()
-        return None if row is None else _participant(row)
+        return None if row is None else participant_from_row(row)
 
     def refresh(self, participant: Participant) -> Participant:
         """Re-read ``participant`` (after one of its steps was stored)."""
@@ -412,13 +323,13 @@ class StudyDB:
             ).fetchone()
         if row is None:
             raise KeyError(participant.participant_id)
-        return _participant(row)
+        return participant_from_row(row)
 
     def participants(self) -> list[Participant]:
         """Every session, in order of arrival."""
         with self._connect() as conn:
             rows = conn.execute("SELECT * FROM participants ORDER BY pk").fetchall()
-        return [_participant(r) for r in rows]
+        return [participant_from_row(r) for r in rows]
 
     def answers(self, participant: Participant) -> dict[str, int]:
         """The session's own answers: video id → reported touches."""
@@ -430,7 +341,14 @@ class StudyDB:
         return {r["video_id"]: r["reported_touches"] for r in rows}
 
     # ---- steps ---------------------------------------------------------------------------------
-    def _update_once(self, participant: Participant, sets: str, unset: str, values: tuple) -> None:
+    def _update_once(
+        self,
+        participant: Participant,
+        sets: str,
+        unset: str,
+        values: tuple,
+        done: DonePredicate | None = None,
+    ) -> None:
         with self._transaction() as conn:
             cur = conn.execute(
                 f"UPDATE participants SET {sets}, last_active = ? WHERE pk = ? AND {unset} IS NULL",
@@ -438,6 +356,7 @@ class StudyDB:
             )
             if cur.rowcount != 1:
                 raise ConflictError("this step is already answered")
+            self._stamp_if_done(conn, participant.pk, done)
 
     def record_demographics(
         self, participant: Participant, training_years: int | None, prior_assessment: str | None
@@ -459,8 +378,18 @@ class StudyDB:
             (reported_touches, _now()),
         )
 
-    def record_answer(self, participant: Participant, video_id: str, reported_touches: int) -> None:
+    def record_answer(
+        self,
+        participant: Participant,
+        video_id: str,
+        reported_touches: int,
+        done: DonePredicate | None = None,
+    ) -> None:
         """Store one answer in its own transaction.
+
+        If ``done`` (given the session and its answered video ids, this answer included) says
+        every step is answered, the session is stamped completed in the same transaction: a crash
+        never leaves a fully answered session unstamped.
 
         Raises
         ------
@@ -478,13 +407,16 @@ class StudyDB:
                 conn.execute(
                     "UPDATE participants SET last_active = ? WHERE pk = ?", (now, participant.pk)
                 )
+                self._stamp_if_done(conn, participant.pk, done)
         except sqlite3.IntegrityError as exc:
             if "UNIQUE" in str(exc) or "PRIMARY KEY" in str(exc):
                 raise ConflictError(f"video {video_id!r} is already answered") from None
             raise
 
-    def record_attention(self, participant: Participant, answer: int, passed: bool) -> None:
-        """Store the attention answer once, in its own transaction.
+    def record_attention(
+        self, participant: Participant, answer: int, passed: bool, done: DonePredicate | None = None
+    ) -> None:
+        """Store the attention answer once, in its own transaction (``done``: as for answers).
 
         Raises
         ------
@@ -497,17 +429,53 @@ class StudyDB:
                 "attention_answer = ?, attention_passed = ?, attention_time = ?",
                 "attention_answer",
                 (answer, int(passed), _now()),
+                done,
             )
         except ConflictError:
             raise ConflictError("the attention question is already answered") from None
 
-    def mark_completed(self, participant: Participant) -> None:
-        """Stamp the session completed (once; later calls change nothing)."""
+    def repair_completed(self, done: DonePredicate) -> list[str]:
+        """Stamp the sessions that ``done`` finds fully answered but that lack ``completed``.
+
+        Such a session was left by an older endocam killed between the last answer and its
+        stamp. The stamp is the time of its last answer (or of the attention answer, if later);
+        each repair is written to the admin log.
+
+        Returns
+        -------
+        list of str
+            The participant ids repaired, in order of arrival.
+        """
+        repaired = []
         with self._transaction() as conn:
-            conn.execute(
-                "UPDATE participants SET completed = ? WHERE pk = ? AND completed IS NULL",
-                (_now(), participant.pk),
-            )
+            rows = conn.execute(
+                "SELECT * FROM participants WHERE completed IS NULL AND withdrawn IS NULL"
+                " ORDER BY pk"
+            ).fetchall()
+            for row in rows:
+                answers = conn.execute(
+                    "SELECT video_id, submitted FROM responses WHERE participant_pk = ?",
+                    (row["pk"],),
+                ).fetchall()
+                if not done(participant_from_row(row), {a[0] for a in answers}):
+                    continue
+                stamp = max([a[1] for a in answers] + [row["attention_time"] or ""])
+                conn.execute(
+                    "UPDATE participants SET completed = ? WHERE pk = ?", (stamp, row["pk"])
+                )
+                conn.execute(
+                    "INSERT INTO admin_log (time, action, participant_id, detail)"
+                    " VALUES (?, ?, ?, ?)",
+                    (
+                        _now(),
+                        "repair",
+                        row["participant_id"],
+                        f"attempt {row['attempt']}: every step answered but no completed stamp;"
+                        f" stamped {stamp} (its last answer)",
+                    ),
+                )
+                repaired.append(row["participant_id"])
+        return repaired
 
     # ---- interaction log -----------------------------------------------------------------------
     def record_event(
@@ -654,14 +622,22 @@ class StudyDB:
             ).fetchall()
         return [dict(r) for r in rows]
 
+    def analysed_pks(self) -> set[int]:
+        """The sessions that enter the analysis: each id's first attempt, unless it was withdrawn.
+
+        An id with any withdrawn session has none analysed (a later attempt started before
+        withdrawn ids were refused does not count either).
+        """
+        with self._connect() as conn:
+            return {r[0] for r in conn.execute(_ANALYSED_PKS)}
+
     def export_rows(self) -> list[ResponseRow]:
-        """The answers that enter the analysis: the first non-withdrawn attempt of each id."""
+        """The answers that enter the analysis (those of :meth:`analysed_pks`), oldest first."""
         with self._connect() as conn:
             rows = conn.execute(
                 "SELECT p.participant_id, r.video_id, r.reported_touches, p.attention_passed"
                 " FROM responses r JOIN participants p ON p.pk = r.participant_pk"
-                " WHERE p.withdrawn IS NULL AND p.pk = (SELECT MIN(q.pk) FROM participants q"
-                "  WHERE q.participant_id = p.participant_id AND q.withdrawn IS NULL)"
+                f" WHERE p.pk IN ({_ANALYSED_PKS})"
                 " ORDER BY p.pk, r.submitted, r.video_id"
             ).fetchall()
         return [

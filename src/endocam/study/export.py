@@ -45,7 +45,7 @@ class ResponseExport(_Row):
     )
     attempt: int = Field(description="1 for the first session with this id, 2 for the next, ...")
     in_analysis: bool = Field(
-        description="True for the first non-withdrawn attempt of the id (used by `study analyze`)."
+        description="True for the first attempt of an id never withdrawn (used by `study analyze`)."
     )
     order_index: int = Field(
         description="Index of the counterbalanced presentation order (0-based)."
@@ -101,7 +101,7 @@ class ParticipantExport(_Row):
 
     participant_id: str = Field(description="Anonymous participant id.")
     attempt: int = Field(description="1 for the first session with this id, 2 for the next, ...")
-    in_analysis: bool = Field(description="True for the first non-withdrawn attempt of the id.")
+    in_analysis: bool = Field(description="True for the first attempt of an id never withdrawn.")
     status: str = Field(description="active, completed, abandoned (idle too long) or withdrawn.")
     order_index: int = Field(
         description="Index of the counterbalanced presentation order (0-based)."
@@ -186,10 +186,7 @@ def export_tables(
     """
     now = datetime.now(UTC)
     sessions = {p.pk: p for p in db.participants()}
-    first: dict[str, int] = {}
-    for p in sessions.values():
-        if p.withdrawn is None:
-            first.setdefault(p.participant_id, p.pk)
+    analysed = db.analysed_pks()
     interactions = db.interactions()
     answered: dict[int, int] = {}
     responses = []
@@ -208,7 +205,7 @@ def export_tables(
             ResponseExport(
                 participant_id=p.participant_id,
                 attempt=p.attempt,
-                in_analysis=first.get(p.participant_id) == p.pk,
+                in_analysis=p.pk in analysed,
                 order_index=p.order_index,
                 condition_order=ORDER_SEPARATOR.join(
                     c.value for c in manifest.orders[p.order_index]
@@ -242,7 +239,7 @@ def export_tables(
         ParticipantExport(
             participant_id=p.participant_id,
             attempt=p.attempt,
-            in_analysis=first.get(p.participant_id) == p.pk,
+            in_analysis=p.pk in analysed,
             status=p.status(now, abandon_after_s).value,
             order_index=p.order_index,
             condition_order=order_text(manifest, p.order_index),
