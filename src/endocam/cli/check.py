@@ -25,10 +25,10 @@ EXIT_CLEAN = 0
 EXIT_VIOLATIONS = 1
 EXIT_CODES = (
     f"exit codes: {EXIT_CLEAN} every invariant holds in every run; {EXIT_VIOLATIONS} "
-    f"violations found (or an internal error); {EXIT_USAGE} a run is malformed (a log endocam "
-    "does not write: missing or extra columns, a row count other than the duration at the "
-    "control rate gives, time stamps off the control period, non-unit quaternions, unknown states) or "
-    "unreadable, refused with one line naming the problem"
+    f"violations found (or an internal error); {EXIT_USAGE} a run is malformed (a log "
+    "endocam does not write: missing or extra columns, a row count other than the duration "
+    "at the control rate gives, time stamps off the control period, non-unit quaternions, "
+    "unknown states) or unreadable, refused with one line naming the problem"
 )
 
 

@@ -1,7 +1,7 @@
 """The safety checker: every logged step of a finished run against the safety invariants.
 
 :func:`check_run` reads a run's ``scene.json`` and ``episode.csv`` (as ``endocam run`` writes
-them), first refuses a log that is not one endocam writes (:class:`MalformedLog`, from
+them), first refuses a log that is not one endocam writes (:class:`MalformedLogError`, from
 :mod:`endocam.runner.log_schema`: the carrier's columns, the row count of the duration at
 the control period, time stamps every control period, unit quaternions, known states and
 faults: a log that fails these cannot be checked, so it is never passed), then checks, step
@@ -76,7 +76,7 @@ from endocam.runner.episode import UNREACHABLE
 from endocam.runner.log_schema import (
     TIME_TOL_S,
     LogHeader,
-    MalformedLog,
+    MalformedLogError,
     joint_column,
     quat_names,
     read_columns,
@@ -263,7 +263,7 @@ def read_run(run_dir: Path) -> RunLog:
 
     Raises
     ------
-    MalformedLog
+    MalformedLogError
         One line when the log is not one endocam writes.
     ValueError
         One line when a file is missing or unreadable.
@@ -273,29 +273,35 @@ def read_run(run_dir: Path) -> RunLog:
     try:
         scene = json.loads(scene_path.read_text(encoding="utf-8"))
         if not isinstance(scene, dict):
-            raise MalformedLog(f"{scene_path} is not an endocam scene: not a JSON object")
+            raise MalformedLogError(f"{scene_path} is not an endocam scene: not a JSON object")
         header = LogHeader.from_scene(scene, str(scene_path))
-        columns = read_columns(csv_path, header)
-    except OSError as exc:
-        raise ValueError(f"{run_dir}: cannot read {exc.filename}: {exc.strerror}") from None
-    except json.JSONDecodeError as exc:
-        raise MalformedLog(f"{scene_path} is not JSON: {exc.msg}") from None
-    except UnicodeDecodeError as exc:
-        raise MalformedLog(f"{run_dir}: a file is not UTF-8 text: {exc.reason}") from None
-    try:
         config = ExperimentConfig.model_validate(scene["config"])
         workspace = config.controller.workspace(
             scene["cone"]["apex"], scene["cone"]["axis_towards"]
         )
         wire_points = np.asarray(scene["wire"]["points"], dtype=float).reshape(-1, 3)
         wire_radius = float(scene["wire"]["wire_radius"])
+    except OSError as exc:
+        raise ValueError(f"{run_dir}: cannot read {exc.filename}: {exc.strerror}") from None
+    except json.JSONDecodeError as exc:
+        raise MalformedLogError(f"{scene_path} is not JSON: {exc.msg}") from None
+    except UnicodeDecodeError as exc:
+        raise MalformedLogError(f"{scene_path} is not UTF-8 text: {exc.reason}") from None
+    except MalformedLogError:
+        raise
     except (KeyError, TypeError, ValueError) as exc:
-        raise MalformedLog(f"{scene_path} is not an endocam scene: {exc}") from None
+        raise MalformedLogError(f"{scene_path} is not an endocam scene: {exc}") from None
     if not math.isclose(header.control_period * config.episode.control_rate, 1.0):
-        raise MalformedLog(
+        raise MalformedLogError(
             f"{scene_path}: log control_period {header.control_period:g} s is not "
             f"1 / episode.control_rate ({config.episode.control_rate:g} Hz)"
         )
+    try:
+        columns = read_columns(csv_path, header)
+    except OSError as exc:
+        raise ValueError(f"{run_dir}: cannot read {exc.filename}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise MalformedLogError(f"{csv_path} is not UTF-8 text: {exc.reason}") from None
     return RunLog(config, header, workspace, columns, wire_points, wire_radius)
 
 
@@ -304,7 +310,7 @@ def check_run(run_dir: Path) -> CheckResult:
 
     Raises
     ------
-    MalformedLog
+    MalformedLogError
         One line when the log is not one endocam writes (:func:`read_run`).
     ValueError
         One line when the run cannot be read.

@@ -6,7 +6,7 @@ columns by :func:`episode_column_names` and refuses any other set, and the check
 section (:func:`log_section`, read back by :meth:`LogHeader.from_scene`) says what the log
 must be: its carrier, the trajectory's duration and the control period.
 
-:func:`validate_log` refuses, with :class:`MalformedLog` (one line naming what is wrong), a
+:func:`validate_log` refuses, with :class:`MalformedLogError` (one line naming what is wrong), a
 log that a broken controller or logger could have written: missing, extra or repeated
 columns; a row count other than the one the duration and the control period give
 (:func:`control_step_count`, the runner's own grid); time stamps off ``k · dt``; a quaternion
@@ -51,7 +51,7 @@ in 10⁹ (a 9-digit print), lies far above it."""
 TIME_TOL_S = 1e-9  # s: a time stamp's distance from k · dt (the runner logs k · dt exactly)
 
 
-class MalformedLog(ValueError):
+class MalformedLogError(ValueError):
     """A run's files are not a log that endocam writes (one line: the file and the problem)."""
 
 
@@ -151,25 +151,25 @@ class LogHeader:
 
         Raises
         ------
-        MalformedLog
+        MalformedLogError
             When the section is missing (a log written before :data:`LOG_FORMAT`), of another
             format, or holds an unknown carrier or a non-positive duration or period.
         """
         section = scene.get("log")
         if not isinstance(section, Mapping):
             version = scene.get("endocam_version", "unknown")
-            raise MalformedLog(
+            raise MalformedLogError(
                 f"{where} has no 'log' section (written by endocam {version}, before log "
                 f"format {LOG_FORMAT}): run the episode again to check it"
             )
         if section.get("format") != LOG_FORMAT:
-            raise MalformedLog(
+            raise MalformedLogError(
                 f"{where}: log format {section.get('format')!r}, this endocam reads format "
                 f"{LOG_FORMAT}"
             )
         carriers = [k.value for k in ArmKind]
         if section.get("carrier") not in carriers:
-            raise MalformedLog(
+            raise MalformedLogError(
                 f"{where}: log carrier {section.get('carrier')!r} is not one of "
                 f"{', '.join(carriers)}"
             )
@@ -177,7 +177,9 @@ class LogHeader:
         for key in ("duration", "control_period"):
             value = section.get(key)
             if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
-                raise MalformedLog(f"{where}: log {key} {value!r} is not a positive number (s)")
+                raise MalformedLogError(
+                    f"{where}: log {key} {value!r} is not a positive number (s)"
+                )
             values[key] = float(value)
         return cls(ArmKind(section["carrier"]), values["duration"], values["control_period"])
 
@@ -187,19 +189,23 @@ def validate_header(header: LogHeader, names: Sequence[str], where: str) -> None
 
     Raises
     ------
-    MalformedLog
+    MalformedLogError
     """
     repeated = [n for n, count in Counter(names).items() if count > 1]
     if repeated:
-        raise MalformedLog(f"{where}: column {repeated[0]} appears more than once")
+        raise MalformedLogError(f"{where}: column {repeated[0]} appears more than once")
     expected = episode_column_names(header.carrier)
     missing = [n for n in expected if n not in names]
     extra = [n for n in names if n not in expected]
-    what = f"a {header.carrier.value} log"
+    carrier = header.carrier.value
     if missing:
-        raise MalformedLog(f"{where}: missing columns of {what}: {', '.join(missing)}")
+        raise MalformedLogError(
+            f"{where}: missing columns (carrier {carrier}): {', '.join(missing)}"
+        )
     if extra:
-        raise MalformedLog(f"{where}: columns not in {what}: {', '.join(extra)}")
+        raise MalformedLogError(
+            f"{where}: unexpected columns (carrier {carrier}): {', '.join(extra)}"
+        )
 
 
 def read_columns(path: Path, header: LogHeader) -> dict[str, np.ndarray]:
@@ -210,7 +216,7 @@ def read_columns(path: Path, header: LogHeader) -> dict[str, np.ndarray]:
 
     Raises
     ------
-    MalformedLog
+    MalformedLogError
         One line: not CSV, a cell over ``csv.field_size_limit()`` (128 kB), other columns
         (:func:`validate_header`), rows of another length, text in a numeric column, or
         rows :func:`validate_log` refuses.
@@ -222,14 +228,16 @@ def read_columns(path: Path, header: LogHeader) -> dict[str, np.ndarray]:
         try:
             rows = list(reader)
         except csv.Error as exc:
-            raise MalformedLog(f"{path} line {reader.line_num}: {exc}") from None
+            raise MalformedLogError(f"{path} line {reader.line_num}: {exc}") from None
     if not rows:
-        raise MalformedLog(f"{path} is empty")
+        raise MalformedLogError(f"{path} is empty")
     names, body = rows[0], rows[1:]
     validate_header(header, names, str(path))
     for i, row in enumerate(body):
         if len(row) != len(names):
-            raise MalformedLog(f"{path} line {i + 2}: {len(row)} cells, the header {len(names)}")
+            raise MalformedLogError(
+                f"{path} line {i + 2}: {len(row)} cells, the header {len(names)}"
+            )
     columns: dict[str, np.ndarray] = {}
     for j, name in enumerate(names):
         cells = [r[j] for r in body]
@@ -239,7 +247,7 @@ def read_columns(path: Path, header: LogHeader) -> dict[str, np.ndarray]:
         try:
             columns[name] = np.array([float(c) if c != "" else math.nan for c in cells])
         except ValueError:
-            raise MalformedLog(f"{path}: column {name} is not numeric") from None
+            raise MalformedLogError(f"{path}: column {name} is not numeric") from None
     validate_log(header, columns, str(path))
     return columns
 
@@ -256,13 +264,13 @@ def validate_log(header: LogHeader, columns: Mapping[str, np.ndarray], where: st
 
     Raises
     ------
-    MalformedLog
+    MalformedLogError
         One line: the file, the first offending row (step ``k`` is row ``k + 2`` counting the
         header as row 1) and what is wrong.
     """
     n = len(columns["t"])
     if n != header.steps:
-        raise MalformedLog(
+        raise MalformedLogError(
             f"{where}: {n} rows, but {header.duration:g} s at a {header.control_period:g} s "
             f"control period log {header.steps}"
         )
@@ -271,25 +279,25 @@ def validate_log(header: LogHeader, columns: Mapping[str, np.ndarray], where: st
     bad = np.flatnonzero(~(off <= TIME_TOL_S))
     if bad.size:
         k = int(bad[0])
-        raise MalformedLog(
-            f"{where}: t = {t[k]!r} s at step {k}, expected {k * header.control_period!r} s "
+        raise MalformedLogError(
+            f"{where}: t = {float(t[k])!r} s at step {k}, expected {k * header.control_period!r} s "
             f"(steps every {header.control_period:g} s from 0; {bad.size} rows off)"
         )
     unknown = sorted(set(columns["state"].tolist()) - set(LOG_STATES))
     if unknown:
-        raise MalformedLog(
+        raise MalformedLogError(
             f"{where}: unknown state {unknown[0]!r} (states: {', '.join(LOG_STATES)})"
         )
     faults = set().union(*(fault_names(f) for f in set(columns["fault"].tolist())))
     if faults - set(FAULT_NAMES):
-        raise MalformedLog(f"{where}: unknown fault {sorted(faults - set(FAULT_NAMES))[0]!r}")
+        raise MalformedLogError(f"{where}: unknown fault {sorted(faults - set(FAULT_NAMES))[0]!r}")
     for prefix in QUATERNION_PREFIXES:
         q = np.stack([columns[name] for name in quat_names(prefix)], axis=1)
         norm = np.linalg.norm(q, axis=1)
         bad = np.flatnonzero(np.isfinite(norm) & ~(np.abs(norm - 1.0) <= QUAT_NORM_TOL))
         if bad.size:
             k = int(bad[0])
-            raise MalformedLog(
-                f"{where}: {prefix}_q* at step {k} has norm {norm[k]:.17g}, not a unit "
+            raise MalformedLogError(
+                f"{where}: {prefix}_q* at step {k} has norm {norm[k]:.15g}, not a unit "
                 f"quaternion (tolerance {QUAT_NORM_TOL:.2g}; {bad.size} rows)"
             )
