@@ -1,13 +1,16 @@
-"""``endocam check``: clean runs pass; each invariant, broken once in a clean log, is reported."""
+"""``endocam check``: clean runs pass; each invariant, broken once in a clean log, is reported;
+a log a broken controller or logger could write is refused (exit 2), never passed."""
 
 from __future__ import annotations
 
 import csv
 import json
 import math
+import re
 import shutil
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -15,11 +18,18 @@ from scipy.spatial.transform import Rotation
 
 from endocam.cli import main
 from endocam.config import ExperimentConfig
+from endocam.robot.actuator import ArmKind
 from endocam.robot.arm import PSM_MAX_VELOCITY
 from endocam.robot.psm import PSM
-from endocam.runner.check import CHECK_JSON, INVARIANTS, check_run
-from endocam.runner.episode import EpisodeSpec, run_episode
-from endocam.runner.outputs import EPISODE_CSV, METRICS_JSON, write_run
+from endocam.runner.check import CHECK_JSON, INVARIANTS, SCENE_JSON, check_run, read_run
+from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode
+from endocam.runner.log_schema import (
+    QUAT_NORM_TOL,
+    QUATERNION_PREFIXES,
+    MalformedLogError,
+    episode_column_names,
+)
+from endocam.runner.outputs import EPISODE_CSV, METRICS_JSON, episode_columns, write_run
 from endocam.task.trajectory import TrajectoryKind
 
 DURATION_S = 3.0  # s: short clean episodes
@@ -34,21 +44,32 @@ def _config(arm: str) -> ExperimentConfig:
     return ExperimentConfig.model_validate(data)
 
 
-def _write_clean(arm: str, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    result = run_episode(_config(arm), EpisodeSpec("endocam", TrajectoryKind.NOISY, 36, 1))
-    out = tmp_path_factory.mktemp(f"clean-{arm}") / "run"
+def _write_clean(result: EpisodeResult, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp(f"clean-{result.log.arm}") / "run"
     write_run(result, out, video=False)
     return out
 
 
 @pytest.fixture(scope="module")
-def free_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return _write_clean("free", tmp_path_factory)
+def free_result() -> EpisodeResult:
+    return run_episode(_config("free"), EpisodeSpec("endocam", TrajectoryKind.NOISY, 36, 1))
+
+
+@pytest.fixture(scope="module")
+def free_run(free_result: EpisodeResult, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _write_clean(free_result, tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
 def psm_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return _write_clean("psm", tmp_path_factory)
+    result = run_episode(_config("psm"), EpisodeSpec("endocam", TrajectoryKind.NOISY, 36, 1))
+    return _write_clean(result, tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def ecm_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    result = run_episode(_config("ecm"), EpisodeSpec("endocam", TrajectoryKind.NOISY, 36, 1))
+    return _write_clean(result, tmp_path_factory)
 
 
 @pytest.fixture(params=["free_run", "psm_run"])
@@ -80,8 +101,11 @@ def _steps(run: Path, invariant: str) -> set[int]:
     return {v.step for v in check_run(run).violations if v.invariant == invariant}
 
 
-def test_clean_runs_hold_every_invariant(clean_run: Path) -> None:
+@pytest.mark.parametrize("carrier", ["free", "psm", "ecm"])
+def test_clean_runs_hold_every_invariant(carrier: str, request: pytest.FixtureRequest) -> None:
+    clean_run = Path(request.getfixturevalue(f"{carrier}_run"))
     result = check_run(clean_run)
+    assert result.arm == carrier
     assert result.ok, result.summary()
     assert set(result.counts) == set(INVARIANTS)
     metrics = json.loads((clean_run / METRICS_JSON).read_text())
@@ -247,5 +271,215 @@ def test_read_rejects_foreign_files(free_run: Path, tmp_path: Path) -> None:
     copy = tmp_path / "foreign"
     shutil.copytree(free_run, copy)
     (copy / EPISODE_CSV).write_text("a,b\n1,2\n")
-    with pytest.raises(ValueError, match="missing columns"):
+    with pytest.raises(MalformedLogError, match="missing columns"):
         check_run(copy)
+
+
+# ------------------------------------------------------------------------- malformed logs
+Table = tuple[list[str], list[list[str]]]  # episode.csv: header, rows of cells
+FIELD_LIMIT = 128 * 1024  # bytes: csv.field_size_limit()'s default, the largest cell read
+
+
+def _drop(*columns: str) -> Callable[[Table], Table]:
+    def edit(table: Table) -> Table:
+        names, rows = table
+        keep = [j for j, n in enumerate(names) if n not in columns]
+        assert len(keep) == len(names) - len(columns), columns
+        return [names[j] for j in keep], [[r[j] for j in keep] for r in rows]
+
+    return edit
+
+
+def _cells(column: str, f: Callable[[int, str], str]) -> Callable[[Table], Table]:
+    """Rewrite one column: cell ``k`` (step ``k``) becomes ``f(k, cell)``."""
+
+    def edit(table: Table) -> Table:
+        names, rows = table
+        j = names.index(column)
+        for k, row in enumerate(rows):
+            row[j] = f(k, row[j])
+        return names, rows
+
+    return edit
+
+
+def _scaled(prefix: str, factor: float, step: int | None = None) -> Callable[[Table], Table]:
+    """Multiply a logged quaternion by ``factor`` at ``step`` (every step if None)."""
+
+    def edit(table: Table) -> Table:
+        for a in "wxyz":
+
+            def scale(k: int, cell: str) -> str:
+                return repr(float(cell) * factor) if step in (None, k) else cell
+
+            table = _cells(f"{prefix}_q{a}", scale)(table)
+        return table
+
+    return edit
+
+
+def _rows(f: Callable[[list[list[str]]], list[list[str]]]) -> Callable[[Table], Table]:
+    return lambda table: (table[0], f(table[1]))
+
+
+def _with_column(name: str, value: str) -> Callable[[Table], Table]:
+    return lambda table: ([*table[0], name], [[*r, value] for r in table[1]])
+
+
+def _repeat(name: str) -> Callable[[Table], Table]:
+    def edit(table: Table) -> Table:
+        j = table[0].index(name)
+        return [*table[0], name], [[*r, r[j]] for r in table[1]]
+
+    return edit
+
+
+PSM_Q = [f"q_{n}" for n in PSM().joint_names]
+TAMPERED = {  # case: (carrier, edit of episode.csv, what the one-line refusal names)
+    "truncated to 10 rows": ("free", _rows(lambda r: r[:10]), "10 rows, but 3 s"),
+    "truncated to half": ("psm", _rows(lambda r: r[: len(r) // 2]), "150 rows, but 3 s"),
+    "rows reversed": ("free", _rows(lambda r: r[::-1]), "t = 3.0 s at step 0"),
+    "stamp duplicated": (
+        "ecm",
+        _cells("t", lambda k, c: repr((k - (k == STEP)) * DT)),  # t[STEP] = t[STEP - 1]
+        f"at step {STEP}, expected",
+    ),
+    "times all zero": ("psm", _cells("t", lambda k, c: "0.0"), "t = 0.0 s at step 1"),
+    "quaternion x2 on one row": (
+        "free",
+        _scaled("cam", 2.0, STEP),
+        f"cam_q* at step {STEP} has norm 2",
+    ),
+    "quaternions x1.3 on all rows": ("psm", _scaled("cmd", 1.3), "cmd_q* at step 0 has norm 1.3"),
+    "state relabelled": ("free", _cells("state", lambda k, c: c.upper()), "unknown state"),
+    "unknown fault": (
+        "psm",
+        _cells("fault", lambda k, c: "ring_melt" if k == STEP else c),
+        "unknown fault 'ring_melt'",
+    ),
+    "fault missing": ("free", _drop("fault"), "missing columns (carrier free): fault"),
+    "cmd_qw missing": ("psm", _drop("cmd_qw"), "missing columns (carrier psm): cmd_qw"),
+    "cam_z missing": ("free", _drop("cam_z"), "missing columns (carrier free): cam_z"),
+    "cam_qz missing": ("ecm", _drop("cam_qz"), "missing columns (carrier ecm): cam_qz"),
+    "q_roll missing": ("ecm", _drop("q_roll"), "missing columns (carrier ecm): q_roll"),
+    "two q_ of a PSM dropped": ("psm", _drop(*PSM_Q[-2:]), "missing columns (carrier psm)"),
+    "every q_ of a PSM dropped": ("psm", _drop(*PSM_Q), ", ".join(PSM_Q)),
+    "an ECM's q_ in a free log": (
+        "free",
+        _with_column("q_yaw", "0.0"),
+        "unexpected columns (carrier free): q_yaw",
+    ),
+    "column repeated": ("free", _repeat("cam_x"), "column cam_x appears more than once"),
+    "field over 128 kB": (
+        "psm",
+        _cells("reason", lambda k, c: "x" * (FIELD_LIMIT + 1) if k == STEP else c),
+        "field larger than field limit",
+    ),
+}
+
+
+@pytest.fixture(scope="module")
+def clean_tables(
+    free_run: Path, psm_run: Path, ecm_run: Path
+) -> dict[str, tuple[Path, list[list[str]]]]:
+    """Each carrier's run and its episode.csv as rows of cells (header first), read once."""
+    out = {}
+    for carrier, run in (("free", free_run), ("psm", psm_run), ("ecm", ecm_run)):
+        with open(run / EPISODE_CSV, newline="", encoding="utf-8") as fh:
+            out[carrier] = (run, list(csv.reader(fh)))
+    return out
+
+
+def _tampered_run(
+    clean: tuple[Path, list[list[str]]], edit: Callable[[Table], Table], tmp_path: Path
+) -> Path:
+    """A run folder holding the clean scene.json and the edited episode.csv."""
+    run, rows = clean
+    names, body = edit((list(rows[0]), [list(r) for r in rows[1:]]))
+    copy = tmp_path / "tampered"
+    copy.mkdir()
+    shutil.copy(run / SCENE_JSON, copy / SCENE_JSON)
+    with open(copy / EPISODE_CSV, "w", newline="", encoding="utf-8") as fh:
+        csv.writer(fh).writerows([names, *body])
+    return copy
+
+
+@pytest.mark.parametrize("case", list(TAMPERED))
+def test_a_tampered_log_is_refused_in_one_line_exit_2(
+    case: str,
+    clean_tables: dict[str, tuple[Path, list[list[str]]]],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    carrier, edit, named = TAMPERED[case]
+    run = _tampered_run(clean_tables[carrier], edit, tmp_path)
+    assert main(["check", str(run)]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert "\n" not in err and named in err and EPISODE_CSV in err, err
+    assert "internal error" not in err and not captured.out
+    assert not (run / CHECK_JSON).exists()
+
+
+def _scene_edited(run: Path, tmp_path: Path, edit: Callable[[dict[str, Any]], None]) -> Path:
+    copy = tmp_path / "scene-edited"
+    copy.mkdir()
+    shutil.copy(run / EPISODE_CSV, copy / EPISODE_CSV)
+    scene = json.loads((run / SCENE_JSON).read_text())
+    edit(scene)
+    (copy / SCENE_JSON).write_text(json.dumps(scene))
+    return copy
+
+
+SCENE_TAMPERED: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
+    "no log section (an old run)": (lambda s: s.pop("log"), "no 'log' section"),
+    "another log format": (lambda s: s["log"].update(format=99), "log format 99"),
+    "carrier changed": (lambda s: s["log"].update(carrier="ecm"), "missing columns (carrier ecm)"),
+    "unknown carrier": (lambda s: s["log"].update(carrier="hand"), "log carrier 'hand'"),
+    "longer duration": (lambda s: s["log"].update(duration=4.0), "301 rows, but 4 s"),
+    "period not the control rate's": (
+        lambda s: s["log"].update(control_period=0.02),
+        "not 1 / episode.control_rate",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(SCENE_TAMPERED))
+def test_a_scene_json_that_does_not_describe_the_log_is_refused(
+    case: str, psm_run: Path, tmp_path: Path
+) -> None:
+    edit, named = SCENE_TAMPERED[case]
+    with pytest.raises(MalformedLogError, match=re.escape(named)):
+        check_run(_scene_edited(psm_run, tmp_path, edit))
+
+
+def test_clean_runs_of_every_carrier_pass_the_cli(
+    free_run: Path, psm_run: Path, ecm_run: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["check", "-q", str(free_run), str(psm_run), str(ecm_run)]) == 0
+    assert "3 of 3 runs hold every invariant" in capsys.readouterr().out
+
+
+def test_the_writer_refuses_columns_other_than_the_schema(
+    free_result: EpisodeResult, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The writer and the checker share one column list; the writer cannot drift from it."""
+    assert list(episode_columns(free_result)) == list(episode_column_names(ArmKind.FREE))
+    monkeypatch.setattr(
+        "endocam.runner.outputs.episode_column_names",
+        lambda carrier: (*episode_column_names(carrier), "cam_speed"),
+    )
+    with pytest.raises(RuntimeError, match="cam_speed"):
+        episode_columns(free_result)
+
+
+def test_the_quaternion_tolerance_sits_between_round_off_and_a_9_digit_print(
+    free_run: Path,
+) -> None:
+    """Clean quaternions are unit to round-off; one printed to 9 digits would be refused."""
+    log = read_run(free_run)
+    for prefix in QUATERNION_PREFIXES:
+        norm = np.linalg.norm(log.quat(prefix), axis=1)
+        assert np.all(np.abs(norm - 1.0) <= QUAT_NORM_TOL)
+    q = np.array([0.5, 0.5, 0.5, 0.5 + 0.5e-9])  # one component off by half a 9th digit
+    assert abs(np.linalg.norm(q) - 1.0) > QUAT_NORM_TOL

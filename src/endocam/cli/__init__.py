@@ -5,7 +5,12 @@ line on stderr and exit code 2, never a traceback; an ``OSError`` (a file system
 port that cannot frame its task (``FramingError``) too.
 Any other exception is an internal error: one line and exit code 1, its traceback only with
 ``--debug``. An interrupt (Ctrl-C, or ``SIGTERM`` as a job scheduler sends it) unwinds like an
-error: temporary folders are removed, worker processes stopped, exit code 130. One module per
+error: temporary folders are removed, worker processes stopped, exit code 130.
+
+``endocam check`` answers with its own codes: 0 every invariant held in every run, 1 a run broke
+one (violations found), 2 a run's log is malformed (not what endocam writes: columns, row count,
+time stamps, quaternions, states; ``runner.log_schema``) or unreadable, refused in one line.
+A malformed log is never passed, and never an internal error. One module per
 command group (``policies``, ``run`` for run/demo/experiment/config, ``study``), each with
 ``register(subparsers)``; they import heavy parts (MuJoCo, FastAPI) only inside their handlers.
 """

@@ -1,7 +1,11 @@
 """The safety checker: every logged step of a finished run against the safety invariants.
 
 :func:`check_run` reads a run's ``scene.json`` and ``episode.csv`` (as ``endocam run`` writes
-them) and checks, step by step:
+them), first refuses a log that is not one endocam writes (:class:`MalformedLogError`, from
+:mod:`endocam.runner.log_schema`: the carrier's columns, the row count of the duration at
+the control period, time stamps every control period, unit quaternions, known states and
+faults: a log that fails these cannot be checked, so it is never passed), then checks, step
+by step:
 
 ``floor``
     the camera never below the tissue plane plus its minimum height
@@ -47,7 +51,6 @@ an acceleration, ``8 tol / dt³`` for a jerk.
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 from dataclasses import asdict, dataclass
@@ -70,6 +73,15 @@ from endocam.robot.arm import (
 )
 from endocam.robot.camera_arm import CameraArm, arm_model
 from endocam.runner.episode import UNREACHABLE
+from endocam.runner.log_schema import (
+    TIME_TOL_S,
+    LogHeader,
+    MalformedLogError,
+    joint_column,
+    quat_names,
+    read_columns,
+    xyz_names,
+)
 from endocam.task.wire import Wire
 from endocam.workspace.region import Workspace
 
@@ -81,7 +93,6 @@ POSITION_TOL_M = 1e-9  # m: round-off of a logged position (repr floats, product
 ANGLE_TOL_RAD = 1e-9  # rad: round-off of a logged orientation (quaternion → matrix)
 JOINT_TOL = 1e-9  # rad or m: round-off of a logged joint position
 ARRIVED_TOL_M = 1e-9  # m: a held command repeats the last one to this round-off
-TIME_TOL_S = 1e-9  # s: round-off of a logged time
 AUTONOMOUS_STATES = (TrackingState.TRACKING.value, TrackingState.PLANNING.value, UNREACHABLE)
 """States in which the controller drives the camera (the cone applies)."""
 HOLD_STATES = (TrackingState.LOST_TRACKING.value, TrackingState.HOLDING.value)
@@ -210,6 +221,8 @@ class RunLog:
     ----------
     config : ExperimentConfig
         From ``scene.json``.
+    header : LogHeader
+        ``scene.json``'s ``log`` section: carrier, duration, control period.
     workspace : Workspace
         The cone of ``scene.json`` and the config's floor.
     columns : dict of str to ndarray
@@ -221,6 +234,7 @@ class RunLog:
     """
 
     config: ExperimentConfig
+    header: LogHeader
     workspace: Workspace
     columns: dict[str, np.ndarray]
     wire_points: FloatArray
@@ -233,62 +247,62 @@ class RunLog:
 
     def xyz(self, prefix: str) -> FloatArray:
         """(N, 3) positions of ``<prefix>_x/y/z``, m."""
-        return np.stack([self.columns[f"{prefix}_{a}"] for a in "xyz"], axis=1)
+        return np.stack([self.columns[c] for c in xyz_names(prefix)], axis=1)
 
     def quat(self, prefix: str) -> FloatArray:
         """(N, 4) quaternions of ``<prefix>_qw/qx/qy/qz`` (w, x, y, z)."""
-        return np.stack([self.columns[f"{prefix}_q{a}"] for a in "wxyz"], axis=1)
-
-
-_TEXT_COLUMNS = ("state", "reason", "fault")
+        return np.stack([self.columns[c] for c in quat_names(prefix)], axis=1)
 
 
 def read_run(run_dir: Path) -> RunLog:
-    """Read ``scene.json`` and ``episode.csv`` of a run folder.
+    """Read ``scene.json`` and ``episode.csv`` of a run folder, refusing a malformed log.
+
+    The log must be what ``endocam run`` writes for ``scene.json``'s carrier, duration and
+    control period (:mod:`endocam.runner.log_schema`: columns, rows, time stamps, unit
+    quaternions, known states and faults).
 
     Raises
     ------
+    MalformedLogError
+        One line when the log is not one endocam writes.
     ValueError
-        One line when a file is missing, unreadable or not what ``endocam run`` writes.
+        One line when a file is missing or unreadable.
     """
     run_dir = Path(run_dir)
     scene_path, csv_path = run_dir / SCENE_JSON, run_dir / EPISODE_CSV
     try:
         scene = json.loads(scene_path.read_text(encoding="utf-8"))
-        with open(csv_path, newline="", encoding="utf-8") as fh:
-            rows = list(csv.reader(fh))
-    except OSError as exc:
-        raise ValueError(f"{run_dir}: cannot read {exc.filename}: {exc.strerror}") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{scene_path} is not JSON: {exc.msg}") from None
-    if not rows or len(rows) < 2:
-        raise ValueError(f"{csv_path} has no logged step")
-    try:
+        if not isinstance(scene, dict):
+            raise MalformedLogError(f"{scene_path} is not an endocam scene: not a JSON object")
+        header = LogHeader.from_scene(scene, str(scene_path))
         config = ExperimentConfig.model_validate(scene["config"])
         workspace = config.controller.workspace(
             scene["cone"]["apex"], scene["cone"]["axis_towards"]
         )
         wire_points = np.asarray(scene["wire"]["points"], dtype=float).reshape(-1, 3)
         wire_radius = float(scene["wire"]["wire_radius"])
+    except OSError as exc:
+        raise ValueError(f"{run_dir}: cannot read {exc.filename}: {exc.strerror}") from None
+    except json.JSONDecodeError as exc:
+        raise MalformedLogError(f"{scene_path} is not JSON: {exc.msg}") from None
+    except UnicodeDecodeError as exc:
+        raise MalformedLogError(f"{scene_path} is not UTF-8 text: {exc.reason}") from None
+    except MalformedLogError:
+        raise
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{scene_path} is not an endocam scene: {exc}") from None
-    header, body = rows[0], rows[1:]
-    if any(len(r) != len(header) for r in body):
-        raise ValueError(f"{csv_path}: rows of unequal length")
-    columns: dict[str, np.ndarray] = {}
-    for j, name in enumerate(header):
-        cells = [r[j] for r in body]
-        if name in _TEXT_COLUMNS:
-            columns[name] = np.array(cells, dtype=object)
-            continue
-        try:
-            columns[name] = np.array([float(c) if c != "" else math.nan for c in cells])
-        except ValueError:
-            raise ValueError(f"{csv_path}: column {name} is not numeric") from None
-    missing = [c for c in ("t", "state", "cam_x", "cam_qw", "cmd_x") if c not in columns]
-    if missing:
-        raise ValueError(f"{csv_path}: missing columns {', '.join(missing)}")
-    return RunLog(config, workspace, columns, wire_points, wire_radius)
+        raise MalformedLogError(f"{scene_path} is not an endocam scene: {exc}") from None
+    if not math.isclose(header.control_period * config.episode.control_rate, 1.0):
+        raise MalformedLogError(
+            f"{scene_path}: log control_period {header.control_period:g} s is not "
+            f"1 / episode.control_rate ({config.episode.control_rate:g} Hz)"
+        )
+    try:
+        columns = read_columns(csv_path, header)
+    except OSError as exc:
+        raise ValueError(f"{run_dir}: cannot read {exc.filename}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise MalformedLogError(f"{csv_path} is not UTF-8 text: {exc.reason}") from None
+    return RunLog(config, header, workspace, columns, wire_points, wire_radius)
 
 
 def check_run(run_dir: Path) -> CheckResult:
@@ -296,6 +310,8 @@ def check_run(run_dir: Path) -> CheckResult:
 
     Raises
     ------
+    MalformedLogError
+        One line when the log is not one endocam writes (:func:`read_run`).
     ValueError
         One line when the run cannot be read.
     """
@@ -307,7 +323,9 @@ def check_run(run_dir: Path) -> CheckResult:
     counts = dict.fromkeys(INVARIANTS, 0)
     for v in found:
         counts[v.invariant] += 1
-    return CheckResult(str(run_dir), log.n, _arm(log).value, counts, tuple(found[:MAX_LISTED]))
+    return CheckResult(
+        str(run_dir), log.n, log.header.carrier.value, counts, tuple(found[:MAX_LISTED])
+    )
 
 
 def write_check(result: CheckResult, path: Path) -> None:
@@ -316,13 +334,6 @@ def write_check(result: CheckResult, path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------ invariants
-def _arm(log: RunLog) -> ArmKind:
-    names = [c for c in log.columns if c.startswith("q_")]
-    if not names:
-        return ArmKind.FREE
-    return ArmKind.ECM if len(names) == len(arm_model(ArmKind.ECM).joint_names) else ArmKind.PSM
-
-
 def _violations(
     log: RunLog,
     bad: np.ndarray,
@@ -389,9 +400,7 @@ def _wire_clearance(log: RunLog) -> list[Violation]:
 
 
 def _finite(log: RunLog) -> list[Violation]:
-    names = [
-        c for c in log.columns if c.startswith(("cam_", "cmd_", "q_")) and c not in _TEXT_COLUMNS
-    ]
+    names = [c for c in log.columns if c.startswith(("cam_", "cmd_", "q_"))]
     out: list[Violation] = []
     for name in names:
         v = log.columns[name]
@@ -400,13 +409,13 @@ def _finite(log: RunLog) -> list[Violation]:
 
 
 def _limits(log: RunLog) -> list[Violation]:
-    dt = 1.0 / log.config.episode.control_rate
-    kind = _arm(log)
+    dt = log.header.control_period
+    kind = log.header.carrier
     if kind is ArmKind.FREE:
         return _cartesian_limits(log, dt)
     model = arm_model(kind)
     names = model.joint_names
-    q = np.stack([log.columns[f"q_{n}"] for n in names], axis=1)
+    q = np.stack([log.columns[joint_column(n)] for n in names], axis=1)
     vmax = np.array(PSM_MAX_VELOCITY if kind is ArmKind.PSM else ECM_MAX_VELOCITY)
     amax = np.array(PSM_MAX_ACCELERATION if kind is ArmKind.PSM else ECM_MAX_ACCELERATION)
     qd = np.diff(q, axis=0) / dt
@@ -491,14 +500,14 @@ def _cartesian_limits(log: RunLog, dt: float) -> list[Violation]:
 
 
 def _fk(log: RunLog) -> list[Violation]:
-    kind = _arm(log)
+    kind = log.header.carrier
     if kind is ArmKind.FREE:
         return []
     cfg = log.config
     T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-    arm = CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 1.0 / cfg.episode.control_rate)
+    arm = CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, log.header.control_period)
     names = arm.joint_names
-    q = np.stack([log.columns[f"q_{n}"] for n in names], axis=1)
+    q = np.stack([log.columns[joint_column(n)] for n in names], axis=1)
     ok = np.isfinite(q).all(axis=1)
     p = log.xyz("cam")
     quat = log.quat("cam")
@@ -530,10 +539,7 @@ def _fk(log: RunLog) -> list[Violation]:
 
 
 def _lost_hold(log: RunLog) -> list[Violation]:
-    fault = log.columns.get("fault")
-    if fault is None:
-        return []
-    names = [fault_names(f) for f in fault]
+    names = [fault_names(f) for f in log.columns["fault"]]
     invalid = np.array([bool(f & OBSERVATION_INVALID_FAULTS) for f in names])
     frozen = np.array(["tracker_frozen" in f for f in names], dtype=bool)
     invalid |= _frozen_age(log.columns["t"], frozen, log.config.episode.sensing_latency) > (

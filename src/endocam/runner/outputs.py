@@ -31,6 +31,7 @@ from endocam import __version__
 from endocam.control.types import TrackingState
 from endocam.geometry import FloatArray, quat_wxyz_from_R
 from endocam.metrics import summarize
+from endocam.robot.actuator import ArmKind
 from endocam.runner.check import (
     CHECK_JSON,
     EPISODE_CSV,
@@ -40,6 +41,13 @@ from endocam.runner.check import (
     write_check,
 )
 from endocam.runner.episode import UNREACHABLE, EpisodeResult, state_fractions
+from endocam.runner.log_schema import (
+    episode_column_names,
+    joint_column,
+    log_section,
+    quat_names,
+    xyz_names,
+)
 
 METRICS_JSON = "metrics.json"
 VIDEO_MP4 = "video.mp4"
@@ -152,41 +160,35 @@ def scene_dict(result: EpisodeResult) -> dict[str, Any]:
             "control_points": result.spec.control_points,
             "seed": result.spec.seed,
         },
+        "log": log_section(
+            ArmKind(result.log.arm), result.trajectory.duration, 1.0 / cfg.episode.control_rate
+        ),
         "config": cfg.model_dump(mode="json"),
         "endocam_version": __version__,
     }
 
 
 def episode_columns(result: EpisodeResult) -> dict[str, np.ndarray]:
-    """Per-step columns of ``episode.csv`` (ordered), SI unless the name gives a unit."""
+    """Per-step columns of ``episode.csv`` (ordered), SI unless the name gives a unit.
+
+    The names and their order are :func:`endocam.runner.log_schema.episode_column_names` of the
+    carrier, the checker's own (``RuntimeError`` if the columns built here drift from them).
+    """
     log = result.log
-    q_ring = quat_wxyz_from_R(log.T_world_ring[:, :3, :3])
-    q_cam = _quaternions(log.T_world_cam)
     cols: dict[str, np.ndarray] = {"t": log.t}
-    for i, a in enumerate("xyz"):
-        cols[f"ring_{a}"] = log.T_world_ring[:, i, 3]
-    for i, a in enumerate("wxyz"):
-        cols[f"ring_q{a}"] = q_ring[:, i]
-    for i, a in enumerate("xyz"):
-        cols[f"cam_{a}"] = log.T_world_cam[:, i, 3]
-    for i, a in enumerate("wxyz"):
-        cols[f"cam_q{a}"] = q_cam[:, i]
+    _pose_columns(cols, "ring", log.T_world_ring, quat_wxyz_from_R(log.T_world_ring[:, :3, :3]))
+    _pose_columns(cols, "cam", log.T_world_cam, _quaternions(log.T_world_cam))
     cols["contact"] = log.contact.astype(int)
     cols["clearance"] = log.clearance
     cols["state"] = log.state
     cols["fault"] = log.fault if log.fault is not None else np.full(len(log.t), "", dtype=object)
     cols["d_f"] = log.d_f
-    q_cmd = _quaternions(log.T_world_cmd)
-    for i, a in enumerate("xyz"):
-        cols[f"cmd_{a}"] = log.T_world_cmd[:, i, 3]
-    for i, a in enumerate("wxyz"):
-        cols[f"cmd_q{a}"] = q_cmd[:, i]
+    _pose_columns(cols, "cmd", log.T_world_cmd, _quaternions(log.T_world_cmd))
     for j, name in enumerate(("psm1", "psm2")):
-        for i, a in enumerate("xyz"):
-            cols[f"{name}_tip_{a}"] = log.p_world_tips[:, j, i]
+        cols.update(zip(xyz_names(f"{name}_tip"), log.p_world_tips[:, j].T, strict=True))
     if log.joints is not None:
         for j, name in enumerate(log.joint_names):
-            cols[f"q_{name}"] = log.joints[:, j]
+            cols[joint_column(name)] = log.joints[:, j]
     if log.goal_position_error is not None and log.goal_orientation_error is not None:
         # how far the pose the arm heads for lies from the commanded goal (0: reached exactly)
         cols["goal_conceded_mm"] = log.goal_position_error * 1e3
@@ -195,7 +197,19 @@ def episode_columns(result: EpisodeResult) -> dict[str, np.ndarray]:
     cols["center_error_mm"] = result.center_error * 1e3
     cols["orientation_error_deg"] = np.degrees(result.orientation_error)
     cols["reason"] = np.array(log.reason, dtype=object)
-    return cols
+    names = episode_column_names(ArmKind(log.arm))
+    if set(cols) != set(names):
+        drift = sorted(set(cols).symmetric_difference(names))
+        raise RuntimeError(f"episode.csv columns drifted from the log schema: {drift}")
+    return {name: cols[name] for name in names}
+
+
+def _pose_columns(
+    cols: dict[str, np.ndarray], prefix: str, T: FloatArray, quat: FloatArray
+) -> None:
+    """Add ``<prefix>_x/y/z`` (translations of ``T`` (N, 4, 4)) and ``_qw..qz`` (``quat``)."""
+    cols.update(zip(xyz_names(prefix), T[:, :3, 3].T, strict=True))
+    cols.update(zip(quat_names(prefix), quat.T, strict=True))
 
 
 def _quaternions(T: FloatArray) -> FloatArray:

@@ -63,11 +63,19 @@ class EpisodeWorld:
         return len(self.t)
 
 
+def control_step_count(duration: float, dt: float) -> int:
+    """Control steps of an episode ``duration`` s long at period ``dt`` s: ``t = 0, dt, ...``.
+
+    The last step is at or (by less than 1e-9 of a step, round-off) before ``duration``.
+    """
+    return math.floor(duration / dt + 1e-9) + 1
+
+
 def episode_world(config: ExperimentConfig, trajectory: RingTrajectory) -> EpisodeWorld:
     """The world of an episode on ``trajectory``: one row per control step of its duration."""
     ep = config.episode
     dt = 1.0 / ep.control_rate
-    n = math.floor(trajectory.duration / dt + 1e-9) + 1
+    n = control_step_count(trajectory.duration, dt)
     t = np.arange(n, dtype=float) * dt
     T_ring = trajectory.poses(t)
     t_ring = capture_times(t, ep.sensing_latency)
