@@ -36,7 +36,9 @@ lint: $(STAMP)
 unit: $(STAMP)
 	$(VENV)/bin/pytest -n 2 --dist worksteal
 
-test: lint unit
+# Lint (mypy: one core) runs beside the suite (two workers), so no core idles while mypy runs.
+test: $(STAMP)
+	@$(MAKE) --no-print-directory -j2 lint unit
 
 bench: $(STAMP)
 	$(VENV)/bin/pytest bench/bench_*.py --benchmark-enable --benchmark-only -p no:cacheprovider -o addopts=""
