@@ -12,7 +12,7 @@ from endocam.cli import main
 from endocam.config import load_config
 from endocam.runner.experiments import ground_truth
 from endocam.study.counterbalance import presentation_orders
-from endocam.study.hypothesis import HYPOTHESIS_JSON, SEEDS_DIR, TRUTH_JSON, hypothesis_table
+from endocam.study.hypothesis import HYPOTHESIS_JSON, SEEDS_DIR, TRUTH_JSON
 from endocam.study.make import (
     DESIGN_JSON,
     STUDY_TRAJECTORIES,
@@ -30,6 +30,7 @@ from endocam.study.observability import OBSERVABILITY_CSV, OBSERVABILITY_JSON, l
 from endocam.study.observer import OBSERVER_HTML, OBSERVER_JSON, ColourKeys
 from endocam.study.report import kinds_text, share_text
 from endocam.study.responses import ResponseRow, rows_to_csv
+from endocam.study.tables import hypothesis_table
 from endocam.study.visibility import ShareCI
 from endocam.task.trajectory import TrajectoryKind
 

@@ -142,3 +142,12 @@ def test_a_manifest_of_four_conditions_and_their_williams_orders_is_valid() -> N
     m = parse_manifest(_text(doc))
     assert len(m.conditions) == 4 and len(m.orders) == 4
     assert [v.id for v in m.videos_of("endocam")] == ["w0", "w1", "w2"]
+
+
+def test_condition_policies_come_from_the_design_or_the_legacy_names() -> None:
+    from endocam.study.manifest import condition_policies
+
+    four = ["fixed", "centering", "orientation", "endocam"]
+    assert condition_policies({"conditions": {c: c for c in four}}, four) == {c: c for c in four}
+    legacy = condition_policies({}, ["fixed", "centering", "orientation"])  # before round 9
+    assert legacy == {"fixed": "fixed", "centering": "centering", "orientation": "endocam"}

@@ -83,7 +83,8 @@ def _bind(host: str, port: int) -> socket.socket:
 def _print_hypothesis(folder: Path) -> None:
     import json
 
-    from endocam.study.hypothesis import HYPOTHESIS_JSON, hypothesis_table
+    from endocam.study.hypothesis import HYPOTHESIS_JSON
+    from endocam.study.tables import hypothesis_table
 
     print(hypothesis_table(json.loads((folder / HYPOTHESIS_JSON).read_text("utf-8"))), end="")
 

@@ -37,7 +37,7 @@ import numpy as np
 
 from endocam.runner.outputs import write_atomic
 from endocam.runner.pool import DEFAULT_WORKERS, executor
-from endocam.study.manifest import Manifest, condition_policy, load_manifest
+from endocam.study.manifest import Manifest, condition_policies, load_manifest
 from endocam.study.observability import (
     OBSERVABILITY_CSV,
     OBSERVABILITY_JSON,
@@ -333,80 +333,6 @@ def _gap_shares(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def _fmt(value: float | None, spec: str) -> str:
-    return "–" if value is None else format(value, spec)
-
-
-def _share(value: dict[str, Any] | None) -> str:
-    """A share with its interval, ``52 % (38–66 %)`` (``–``: not recorded)."""
-    if value is None:
-        return "–"
-    if value.get("ci95") is None:
-        return f"{value['share']:.0%}"
-    lo, hi = value["ci95"]
-    return f"{value['share']:.0%} ({lo:.0%}–{hi:.0%})"
-
-
-def gap_table(doc: dict[str, Any]) -> str:
-    """The closing gap per condition (``hypothesis.json``), as a Markdown table: the lead."""
-    extra = doc["extra_seeds"]
-    lines = [
-        f"| condition | {doc['trajectory']}: resolved | in sight (either eye) | "
-        f"median gap (px) | {extra['n']} extra seeds: resolved (95 % CI) | "
-        "in sight, either eye (95 % CI) | left eye (95 % CI) | hidden from both by |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for c, row in doc["study"].items():
-        e = extra["conditions"].get(c) or {}
-        hidden = e.get("hidden_from_both")
-        lines.append(
-            f"| {c} | {_fmt(row.get('resolved_share'), '.0%')} | "
-            f"{_fmt(row.get('gap_in_sight_either_share'), '.0%')} | "
-            f"{_fmt(row.get('median_gap_px'), '.1f')} | {_share(e.get('resolved'))} | "
-            f"{_share(e.get('gap_in_sight_either'))} | {_share(e.get('gap_in_sight_left'))} | "
-            + ("–" if not hidden else ", ".join(f"{k} {n}" for k, n in hidden.items()))
-            + " |"
-        )
-    return "\n".join(lines) + "\n"
-
-
-def hypothesis_table(doc: dict[str, Any]) -> str:
-    """``hypothesis.json`` as Markdown: the closing gap (:func:`gap_table`), then the observer."""
-    return gap_table(doc) + "\n" + observer_table(doc)
-
-
-def observer_table(doc: dict[str, Any]) -> str:
-    """The observer's counts per condition (``hypothesis.json``), as a Markdown table."""
-    extra = doc["extra_seeds"]
-    stale = "" if extra.get("recounted", True) else " (earlier observer)"
-    lines = [
-        f"| condition | {doc['trajectory']}: counted / true, abs. error | precision / recall | "
-        f"gap before (px) | closes visibly | gap in sight | {extra['n']} extra seeds{stale}: "
-        "mean abs. error (SD) | precision / recall | gap before (px) | closes visibly | "
-        "gap in sight |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for c, row in doc["study"].items():
-        e = extra["conditions"].get(c)
-        tail = (
-            "– | – | – | – | –"
-            if e is None
-            else f"{e['mean_abs_error']:.2f} ({_fmt(e['sd_abs_error'], '.2f')}) | "
-            f"{e['precision']:.2f} / {e['recall']:.2f} | "
-            f"{_fmt(e['median_gap_before_px'], '.1f')} | "
-            f"{_fmt(e['closes_visibly_share'], '.0%')} | "
-            f"{_fmt(e.get('gap_in_sight_share'), '.0%')}"
-        )
-        lines.append(
-            f"| {c} | {row['counted_touches']} / {row['true_touches']}, {row['abs_error']} | "
-            f"{row['precision']:.2f} / {row['recall']:.2f} | "
-            f"{_fmt(row['median_gap_before_px'], '.1f')} | "
-            f"{_fmt(row['closes_visibly_share'], '.0%')} | "
-            f"{_fmt(row.get('gap_in_sight_share'), '.0%')} | {tail} |"
-        )
-    return "\n".join(lines) + "\n"
-
-
 # ------------------------------------------------------------------------------ re-analysis
 def _write_text(path: Path, text: str) -> None:
     write_atomic(path, lambda p: p.write_text(text, "utf-8"))
@@ -559,6 +485,7 @@ def replay_gap_in_sight(study: Path, workers: int = DEFAULT_WORKERS) -> int:
     if not videos and not seeds:
         return 0
     design = json.loads((study / "design.json").read_text("utf-8"))
+    policies = condition_policies(design, conditions)
     by_id = {v.id: v for v in manifest.videos}
     paths = {t["name"]: t for t in design["trajectories"]}
 
@@ -577,7 +504,7 @@ def replay_gap_in_sight(study: Path, workers: int = DEFAULT_WORKERS) -> int:
                 logged_config(vid),
                 path["control_points"],
                 path["noise_seed"],
-                [v.condition],
+                {v.condition: policies[v.condition]},
                 starts,
             )
             jobs[fut] = ("video", vid)
@@ -585,7 +512,7 @@ def replay_gap_in_sight(study: Path, workers: int = DEFAULT_WORKERS) -> int:
             hardest = manifest.most_difficult(manifest.conditions[0])
             cfg, cp = logged_config(hardest.id), paths[hardest.trajectory]["control_points"]
             for s, ev in seeds:
-                fut = pool.submit(_replay, cfg, cp, s, conditions, [a for a, _ in ev])
+                fut = pool.submit(_replay, cfg, cp, s, policies, [a for a, _ in ev])
                 jobs[fut] = ("seed", s)
         results = {key: fut.result() for fut, key in jobs.items()}
     for (kind, key), gaps in results.items():
@@ -613,10 +540,13 @@ def _replay(
     config: dict[str, Any],
     control_points: int,
     seed: int,
-    conditions: Sequence[str],
+    policies: Mapping[str, str],
     t_starts: Sequence[float],
 ) -> Gaps:
-    """Run one trajectory's episodes again; per condition, each touch's closing gap (a row)."""
+    """Run one trajectory's episodes again; per condition, each touch's closing gap (a row).
+
+    ``policies``: condition → the policy that filmed it (:func:`condition_policies`).
+    """
     from endocam.config import ExperimentConfig
     from endocam.runner.episode import EpisodeSpec, run_episode
     from endocam.runner.experiments import ground_truth
@@ -633,8 +563,8 @@ def _replay(
             "the folder was made by other code or another config"
         )
     out: Gaps = {}
-    for c in conditions:
-        spec = EpisodeSpec(condition_policy(c), kind, control_points, seed)
+    for c, policy in policies.items():
+        spec = EpisodeSpec(policy, kind, control_points, seed)
         result = run_episode(cfg, spec, touches=touches)
         with WireChaserScene(cfg.task, result.camera) as scene:
             out[c] = [gap_row(closing_gap(result, scene, t)) for t in t_starts]

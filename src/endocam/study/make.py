@@ -86,7 +86,6 @@ from endocam.study.manifest import (
     Manifest,
     PracticeVideo,
     Video,
-    condition_policy,
     manifest_json,
 )
 from endocam.study.observability import (
@@ -548,7 +547,7 @@ def design_dict(
         )
     return {
         "seed": seed,
-        "conditions": {c: condition_policy(c) for c in conds},
+        "conditions": {c: c for c in conds},  # each condition is named by its policy
         "eye": "left",
         "width_px": config.camera.width,
         "height_px": config.camera.height,

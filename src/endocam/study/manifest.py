@@ -33,9 +33,10 @@ counts.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping, Sequence
 from datetime import datetime
 from pathlib import Path, PurePosixPath
-from typing import Annotated, Self
+from typing import Annotated, Any, Self
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -64,9 +65,16 @@ LEGACY_CONDITION_POLICY = {"orientation": "endocam"}
 MIN_CONDITIONS = 2  # a study compares at least two conditions
 
 
-def condition_policy(condition: str) -> str:
-    """The registry policy that filmed ``condition``'s videos (a legacy name mapped)."""
-    return LEGACY_CONDITION_POLICY.get(condition, condition)
+def condition_policies(design: Mapping[str, Any], conditions: Sequence[str]) -> dict[str, str]:
+    """The registry policy that filmed each condition's videos, from a study's ``design.json``.
+
+    Its ``conditions`` map (round 9 on: each condition named by its policy); a folder made
+    before it has none, and its names are mapped by :data:`LEGACY_CONDITION_POLICY`.
+    """
+    recorded = design.get("conditions")
+    if isinstance(recorded, Mapping):
+        return {c: str(recorded.get(c, c)) for c in conditions}
+    return {c: LEGACY_CONDITION_POLICY.get(c, c) for c in conditions}
 
 
 URL_PARAM_PATTERN = r"^[A-Za-z][A-Za-z0-9_]{0,31}$"  # recruitment URL parameter names
