@@ -11,7 +11,7 @@ import numpy as np
 
 from endocam.study.counterbalance import presentation_orders
 
-CONDITIONS = ("fixed", "centering", "orientation")
+CONDITIONS = ("fixed", "centering", "orientation")  # the condition names of studies before round 9
 # trajectory name, difficulty, true touches per condition (fixed, centering, orientation)
 TRAJECTORIES = (
     ("t1-36-low", 1, (2, 2, 2)),
@@ -61,7 +61,7 @@ def manifest_dict() -> dict:
         "created": "2024-05-01T12:00:00+00:00",
         "conditions": list(CONDITIONS),
         "videos": videos,
-        "orders": [[c.value for c in order] for order in presentation_orders()],
+        "orders": [list(order) for order in presentation_orders(CONDITIONS)],
         "attention": {"question": "To show you are paying attention, enter four.", "answer": 4},
     }
 

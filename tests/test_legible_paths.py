@@ -12,10 +12,13 @@ from endocam.task.config import TaskConfig, TrajectoryConfig
 from endocam.task.study_paths import STUDY_LEGIBLE_BAND, STUDY_TRAJECTORIES
 from endocam.task.touches import touch_events
 from endocam.task.trajectory import (
+    IllegiblePathError,
     TrajectoryKind,
     ambiguous_extrema,
     control_points,
+    legible_control_points,
     make_trajectory,
+    redraw_seed,
 )
 from endocam.task.wire import Wire
 
@@ -123,3 +126,19 @@ def test_band_wider_than_the_centred_clearance_is_refused() -> None:
     data["trajectory"]["legible_band"] = (0.25e-3, 5.0e-3)  # the centred ring is 3 mm clear
     with pytest.raises(ValidationError, match="below the centred ring's clearance"):
         TaskConfig.model_validate(data)
+
+
+ILLEGIBLE_SEED = 14  # noise seed whose first draw of the 71-point study path is illegible
+
+
+def test_an_illegible_draw_is_redrawn_from_a_derived_seed(wire: Wire) -> None:
+    # Issue 27: `study make` failed on this seed ("cannot make the path legible in 60 rounds").
+    cfg = study_path_config(ExperimentConfig(), STUDY_TRAJECTORIES[2]).task
+    first = control_points(wire, 71, TrajectoryKind.NOISY, cfg.trajectory, ILLEGIBLE_SEED)
+    with pytest.raises(IllegiblePathError):
+        legible_control_points(first, wire, cfg.ring, cfg.trajectory.duration, BAND_M)
+    path = make_trajectory(cfg, TrajectoryKind.NOISY, 71, ILLEGIBLE_SEED, wire)
+    assert path.control_points.noise_seed == redraw_seed(ILLEGIBLE_SEED, 1)
+    c = touch_events(path, wire, cfg.ring, dt=EXACT_DT_S).clearance
+    assert ambiguous_extrema(c, BAND_M).size == 0
+    assert len({redraw_seed(ILLEGIBLE_SEED, k) for k in range(1, 5)}) == 4

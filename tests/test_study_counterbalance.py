@@ -6,50 +6,74 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from endocam.study.counterbalance import (
-    DEFAULT_CONDITIONS,
     assign_order,
-    latin_square,
-    mirror,
     presentation_orders,
+    williams_design,
+    williams_first_row,
 )
+from endocam.study.manifest import DEFAULT_CONDITIONS
+
+Orders = tuple[tuple[object, ...], ...]
 
 
-def _is_latin(square: tuple[tuple[object, ...], ...], items: tuple[object, ...]) -> bool:
-    n = len(items)
-    rows_ok = all(sorted(map(str, row)) == sorted(map(str, items)) for row in square)
-    cols_ok = all(
-        sorted(str(square[r][c]) for r in range(n)) == sorted(map(str, items)) for c in range(n)
-    )
-    return len(square) == n and rows_ok and cols_ok
+def williams_problems(orders: Orders, items: tuple[object, ...]) -> list[str]:
+    """Where ``orders`` break the Williams design's defining properties (empty: none)."""
+    k = len(items)
+    problems = []
+    if len(orders) != (k if k % 2 == 0 else 2 * k):
+        problems.append(f"{len(orders)} orders")
+    if any(sorted(map(str, row)) != sorted(map(str, items)) for row in orders):
+        problems.append("an order is not a permutation")
+    for position in range(k):  # each condition equally often in every position
+        counts = Counter(row[position] for row in orders if len(row) == k)
+        if len(set(counts.values())) != 1 or set(counts) != set(items):
+            problems.append(f"position {position} unbalanced: {counts}")
+    follows = Counter((row[j], row[j + 1]) for row in orders for j in range(len(row) - 1))
+    pairs = [(a, b) for a in items for b in items if a != b]
+    if pairs and len({follows[p] for p in pairs}) != 1:  # each ordered pair adjacent equally often
+        problems.append(f"carry-over unbalanced: {dict(follows)}")
+    return problems
 
 
-def test_both_squares_are_balanced_latin_squares() -> None:
-    orders = presentation_orders()
-    first, second = orders[:3], orders[3:]
-    assert _is_latin(first, DEFAULT_CONDITIONS)
-    assert _is_latin(second, DEFAULT_CONDITIONS)
-    for square in (first, second):
-        for position in range(3):  # each condition once per position
-            assert Counter(row[position] for row in square) == Counter(DEFAULT_CONDITIONS)
+@pytest.mark.parametrize("k", [3, 4, 5])
+def test_williams_design_is_balanced_for_carry_over(k: int) -> None:
+    items = tuple(f"c{i}" for i in range(k))
+    orders = williams_design(items)
+    assert williams_problems(orders, items) == []
+    assert len(set(orders)) == len(orders)  # the manifest needs distinct orders
+    follows = Counter((row[j], row[j + 1]) for row in orders for j in range(k - 1))
+    assert set(follows.values()) == {1 if k % 2 == 0 else 2}
 
 
-def test_second_square_mirrors_the_first() -> None:
-    orders = presentation_orders()
-    assert orders[3:] == tuple(tuple(reversed(row)) for row in orders[:3])
+def test_williams_first_rows_are_the_standard_ones() -> None:
+    assert williams_first_row(4) == (0, 1, 3, 2)
+    assert williams_first_row(5) == (0, 1, 4, 2, 3)
+    assert williams_first_row(6) == (0, 1, 5, 2, 4, 3)
 
 
-def test_six_distinct_orders_are_all_permutations() -> None:
+@pytest.mark.parametrize("k", [4, 5])
+def test_the_balance_check_catches_a_broken_construction(k: int) -> None:
+    items = tuple(range(k))
+    cyclic = tuple(tuple(items[(i + j) % k] for j in range(k)) for i in range(k))
+    assert williams_problems(cyclic, items)  # a plain cyclic Latin square: carry-over unbalanced
+    orders = williams_design(items)
+    swapped = tuple((row[1], row[0], *row[2:]) for row in orders)
+    assert williams_problems(swapped, items)
+    if k % 2:
+        assert williams_problems(orders[:k], items)  # odd k: one square alone is not enough
+
+
+@given(st.lists(st.integers(), min_size=2, max_size=9, unique=True))
+def test_williams_design_any_size(items: list[int]) -> None:
+    orders = williams_design(items)
+    assert williams_problems(orders, tuple(items)) == []
+    assert len(set(orders)) == len(orders)
+
+
+def test_three_conditions_give_all_six_permutations() -> None:
     orders = presentation_orders()
     assert len(orders) == 6
-    assert len(set(orders)) == 6
     assert set(orders) == set(permutations(DEFAULT_CONDITIONS))
-
-
-@given(st.lists(st.integers(), min_size=1, max_size=7, unique=True))
-def test_latin_square_any_size(items: list[int]) -> None:
-    square = latin_square(items)
-    assert _is_latin(square, tuple(items))
-    assert _is_latin(mirror(square), tuple(items))
 
 
 def _assign_all(n_participants: int, n_orders: int) -> list[int]:
@@ -78,9 +102,9 @@ def test_a_gap_left_by_an_abandoned_session_is_filled_first() -> None:
 
 
 @pytest.mark.parametrize("bad", [[], ["a", "a"]])
-def test_latin_square_rejects_bad_items(bad: list[str]) -> None:
+def test_williams_design_rejects_bad_items(bad: list[str]) -> None:
     with pytest.raises(ValueError, match="items"):
-        latin_square(bad)
+        williams_design(bad)
 
 
 def test_assign_order_rejects_bad_arguments() -> None:

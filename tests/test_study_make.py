@@ -10,27 +10,32 @@ from markupsafe import escape
 
 from endocam.cli import main
 from endocam.config import load_config
-from endocam.runner.experiments import CONDITION_POLICY, ground_truth
+from endocam.runner.experiments import ground_truth
 from endocam.study.counterbalance import presentation_orders
 from endocam.study.hypothesis import HYPOTHESIS_JSON, SEEDS_DIR, TRUTH_JSON
 from endocam.study.make import (
     DESIGN_JSON,
     STUDY_TRAJECTORIES,
+    ExtraSeeds,
     extra_seed_values,
+    make_study,
     practice_seed,
     run_extra_seeds,
     trajectory_config,
     trajectory_seeds,
     video_ids,
 )
-from endocam.study.manifest import Condition, load_manifest
+from endocam.study.manifest import DEFAULT_CONDITIONS, load_manifest
 from endocam.study.observability import OBSERVABILITY_CSV, OBSERVABILITY_JSON, load_summary
 from endocam.study.observer import OBSERVER_HTML, OBSERVER_JSON, ColourKeys
-from endocam.study.report import hidden_by_text
+from endocam.study.report import kinds_text, share_text
 from endocam.study.responses import ResponseRow, rows_to_csv
+from endocam.study.tables import hypothesis_table
+from endocam.study.visibility import ShareCI
 from endocam.task.trajectory import TrajectoryKind
 
 SEED = 7
+CONDITIONS = DEFAULT_CONDITIONS  # the default study's: fixed, centering, endocam
 WIDTH_PX, HEIGHT_PX, FPS, DURATION_S = 160, 120, 10.0, 1.5
 N_FRAMES = int(DURATION_S * FPS) + 1  # frames per video, t = 0 .. duration
 TINY = f"""
@@ -82,7 +87,8 @@ def test_manifest_is_valid_with_nine_videos_and_six_orders(study: Path) -> None:
     manifest = load_manifest(study)  # also checks that every file exists
     assert len(manifest.videos) == 9
     assert manifest.orders == presentation_orders()
-    for condition in Condition:
+    assert manifest.conditions == CONDITIONS
+    for condition in CONDITIONS:
         videos = manifest.videos_of(condition)
         assert [v.difficulty for v in videos] == [1, 2, 3]
         assert [v.trajectory for v in videos] == [t.name for t in STUDY_TRAJECTORIES]
@@ -127,9 +133,11 @@ def test_true_touches_equal_the_simulator_counts(study: Path, config_file: Path)
                 duration = truth.t[-1] - truth.t[0]
                 assert v.contact_fraction == pytest.approx(spent / duration)
                 assert entry["contact_fraction"] == pytest.approx(spent / duration)
-                assert entry["videos"][v.condition.value] == v.id
+                assert entry["videos"][v.condition] == v.id
                 metrics = json.loads((study / "logs" / v.id / "metrics.json").read_text())
-                assert metrics["episode"]["policy"] == CONDITION_POLICY[v.condition.value]
+                assert (
+                    metrics["episode"]["policy"] == v.condition == design["conditions"][v.condition]
+                )
                 assert metrics["touches"] == truth.count
     assert design["trajectories"][0]["angle_noise_deg"] == pytest.approx([5.0, 10.0])
 
@@ -156,7 +164,7 @@ def test_practice_video_is_the_easiest_path_with_its_own_seed_and_fixed_camera(
     assert next(reader)["size"] == (WIDTH_PX, HEIGHT_PX)
     assert sum(1 for _ in reader) == N_FRAMES
     metrics = json.loads((study / "logs" / "practice" / "metrics.json").read_text())
-    assert metrics["episode"]["policy"] == CONDITION_POLICY[Condition.FIXED.value]
+    assert metrics["episode"]["policy"] == "fixed"
     assert metrics["touches"] == truth.count
 
 
@@ -182,7 +190,7 @@ def test_no_practice_flag_writes_no_practice_video(
     args = ["study", "make", "--out", str(out), "--config", str(shortest_file), "--no-practice"]
     _one_trajectory(monkeypatch)
     assert main(args) == 0
-    assert len(load_manifest(out).videos) == len(Condition)  # the easiest trajectory's
+    assert len(load_manifest(out).videos) == len(CONDITIONS)  # the easiest trajectory's
     assert load_manifest(out).practice is None
     assert not (out / "videos" / "practice.mp4").exists()
     assert not (out / "logs" / "practice").exists()
@@ -199,10 +207,11 @@ def test_observability_covers_every_touch(study: Path) -> None:
     manifest = load_manifest(study)
     summary = load_summary(study / OBSERVABILITY_JSON)
     doc = json.loads((study / OBSERVABILITY_JSON).read_text())
-    for condition in Condition:
+    assert list(summary.conditions) == list(CONDITIONS)
+    for condition in CONDITIONS:
         expected = sum(v.true_touches for v in manifest.videos_of(condition))
         assert summary.conditions[condition].touches == expected
-        rows = [t for t in doc["touches"] if t["condition"] == condition.value]
+        rows = [t for t in doc["touches"] if t["condition"] == condition]
         assert len(rows) == expected
         assert {t["video_id"] for t in rows} <= {v.id for v in manifest.videos_of(condition)}
     csv_rows = (study / OBSERVABILITY_CSV).read_text().splitlines()
@@ -217,7 +226,7 @@ def test_observer_json_has_the_issue_schema(study: Path) -> None:
     manifest = load_manifest(study)
     doc = json.loads((study / OBSERVER_JSON).read_text())
     assert set(doc) == {"conditions", "videos"}
-    assert set(doc["conditions"]) == {c.value for c in Condition}
+    assert set(doc["conditions"]) == set(CONDITIONS)
     for row in doc["conditions"].values():
         assert set(row) == {"videos", "mean_abs_error", "sd_abs_error"} and row["videos"] == 3
     assert [v["id"] for v in doc["videos"]] == [v.id for v in manifest.videos]
@@ -235,7 +244,7 @@ def test_observer_json_has_the_issue_schema(study: Path) -> None:
     )
     hypothesis = json.loads((study / HYPOTHESIS_JSON).read_text())
     assert hypothesis["trajectory"] == STUDY_TRAJECTORIES[-1].name
-    assert set(hypothesis["study"]) == {c.value for c in Condition}
+    assert list(hypothesis["study"]) == list(CONDITIONS)
     assert hypothesis["extra_seeds"]["n"] == 1  # --seeds 1: one more seed, three conditions
     assert len(hypothesis["extra_seeds"]["videos"]) == 3
 
@@ -269,14 +278,24 @@ def test_analyze_report_shows_observability(study: Path, tmp_path: Path) -> None
     assert "Objective touch observability" in html
     # the report's rows carry what hides each condition's gaps, as observability.json counts them
     summary = json.loads((study / OBSERVABILITY_JSON).read_text())["conditions"]
-    for c in Condition:
-        share = summary[c.value]["gap_in_sight_share"]
-        hidden = escape(hidden_by_text(summary[c.value]["gap_hidden_by"]))
-        cell = "–" if share is None else f"{100 * share:.0f} %"
-        assert f'<td>{cell}</td><td style="text-align: left">{hidden}</td>' in html
+    for c in CONDITIONS:  # the closing gap leads: resolved, then in sight from either eye
+        cells = [share_text(ShareCI.model_validate(summary[c][k])) for k in RESOLVED_FIRST]
+        assert f"<td>{cells[0]}</td><td>{cells[1]}</td>" in html
+        hidden = escape(kinds_text(summary[c]["hidden_from_both"]))
+        assert f'<td style="text-align: left">{hidden}</td></tr>' in html
     out2 = tmp_path / "results2"
     assert main([*args, str(study), "--out", str(out2), "--outliers", "none"]) == 0
     assert "Objective touch observability" in (out2 / "report.html").read_text()
+
+
+RESOLVED_FIRST = ("resolved", "gap_in_sight_either")  # the report's first two closing-gap columns
+STEREO_COLUMNS = (
+    "gap_in_sight_right",
+    "gap_hidden_by_right",
+    "gap_in_sight_either",
+    "gap_px",
+    "resolved",
+)
 
 
 def test_seeds_and_ids_are_deterministic_and_distinct() -> None:
@@ -339,10 +358,12 @@ def test_extra_seeds_in_the_process_pool_equal_a_serial_run(
     config = load_config(shortest_file)
     hardest = max(STUDY_TRAJECTORIES, key=lambda t: t.difficulty)
     keys = ColourKeys.from_scene(config.task.scene)
-    serial = run_extra_seeds(config, hardest, SEED, 2, keys, tmp_path, workers=1)
-    pooled = run_extra_seeds(config, hardest, SEED, 2, keys, tmp_path, workers=2)
+    extra = ExtraSeeds(hardest, SEED, 2, CONDITIONS)
+    serial, skipped = run_extra_seeds(config, extra, keys, tmp_path, workers=1)
+    pooled, _ = run_extra_seeds(config, extra, keys, tmp_path, workers=2)
+    assert skipped == []
     assert [(r["seed"], r["condition"]) for r in serial] == [
-        (s, c.value) for s in extra_seed_values(SEED, 2) for c in Condition
+        (s, c) for s in extra_seed_values(SEED, 2) for c in CONDITIONS
     ]
     assert json.dumps(pooled) == json.dumps(serial)  # NaN gaps compare equal as text
     assert not list(tmp_path.iterdir())  # the seeds' videos are deleted
@@ -367,8 +388,8 @@ def test_kept_seed_videos_hold_the_three_conditions_and_the_true_touches(
     (s,) = extra_seed_values(SEED, 1)
     folder = study / SEEDS_DIR / str(s)
     assert sorted(p.name for p in (study / SEEDS_DIR).iterdir()) == [str(s)]
-    for c in Condition:
-        assert _frames(folder / f"{c.value}.mp4") == N_FRAMES
+    for c in CONDITIONS:
+        assert _frames(folder / f"{c}.mp4") == N_FRAMES
     truth = json.loads((folder / TRUTH_JSON).read_text())
     hardest = max(STUDY_TRAJECTORIES, key=lambda t: t.difficulty)
     cfg = trajectory_config(load_config(config_file), hardest)
@@ -417,11 +438,11 @@ def test_study_observe_names_a_kept_seed_without_its_video(
 ) -> None:
     copy = _copy(study, tmp_path)
     (s,) = extra_seed_values(SEED, 1)
-    (copy / SEEDS_DIR / str(s) / "orientation.mp4").unlink()
+    (copy / SEEDS_DIR / str(s) / "endocam.mp4").unlink()
     before = (copy / OBSERVER_JSON).read_text()
     assert main(["study", "observe", "--study", str(copy)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "missing video(s) orientation" in err[0]
+    assert len(err) == 1 and "missing video(s) endocam" in err[0]
     assert (copy / OBSERVER_JSON).read_text() == before  # nothing rewritten
 
 
@@ -491,7 +512,7 @@ def test_gap_in_sight_and_what_hides_it_are_recorded_for_every_touch_and_seed(st
     assert records and all(isinstance(r["gap_in_sight"], bool) for r in records)
     (s,) = extra_seed_values(SEED, 1)
     truth = json.loads((study / SEEDS_DIR / str(s) / TRUTH_JSON).read_text())
-    assert set(truth["gap_in_sight"]) == {c.value for c in Condition}
+    assert set(truth["gap_in_sight"]) == set(CONDITIONS)
     for flags in truth["gap_in_sight"].values():
         assert len(flags) == len(truth["true_events"])
     # what hides a gap is named exactly when the gap is not in sight
@@ -499,17 +520,28 @@ def test_gap_in_sight_and_what_hides_it_are_recorded_for_every_touch_and_seed(st
     for c, hiders in truth["gap_hidden_by"].items():
         assert [h is None for h in hiders] == truth["gap_in_sight"][c]
     hypothesis = json.loads((study / HYPOTHESIS_JSON).read_text())
-    for c in Condition:
-        rows = [r for r in records if r["video_id"] == hypothesis["study"][c.value]["video"]]
-        share = hypothesis["study"][c.value]["gap_in_sight_share"]
+    for c in CONDITIONS:
+        rows = [r for r in records if r["video_id"] == hypothesis["study"][c]["video"]]
+        share = hypothesis["study"][c]["gap_in_sight_share"]
         if rows:
             assert share == pytest.approx(sum(r["gap_in_sight"] for r in rows) / len(rows))
         else:
             assert share is None
-        counts = hypothesis["study"][c.value]["gap_hidden_by"]
+        counts = hypothesis["study"][c]["gap_hidden_by"]
         assert sum(counts.values()) == sum(not r["gap_in_sight"] for r in rows)
-        seed_counts = hypothesis["extra_seeds"]["conditions"][c.value]["gap_hidden_by"]
-        assert sum(seed_counts.values()) == truth["gap_in_sight"][c.value].count(False)
+        seed_counts = hypothesis["extra_seeds"]["conditions"][c]["gap_hidden_by"]
+        assert sum(seed_counts.values()) == truth["gap_in_sight"][c].count(False)
+        # the closing gap from both eyes: resolved only where an eye sees it
+        gaps = truth["closing_gap"][c]
+        assert len(gaps) == len(truth["true_events"])
+        assert all(
+            g["in_sight_either"] == (g["in_sight_left"] or g["in_sight_right"]) for g in gaps
+        )
+        assert all(g["in_sight_either"] for g in gaps if g["resolved"])
+        resolved = hypothesis["extra_seeds"]["conditions"][c]["resolved"]
+        if gaps:
+            assert resolved["share"] == pytest.approx(sum(g["resolved"] for g in gaps) / len(gaps))
+            assert resolved["ci95"] is None  # one seed: nothing to resample
 
 
 def test_study_observe_replays_the_episodes_for_a_missing_gap_in_sight(
@@ -539,12 +571,14 @@ def test_study_observe_replays_the_episodes_for_a_missing_gap_in_sight(
     ]
     assert len(stripped) > 2
     for k, r in enumerate(stripped):
+        for column in STEREO_COLUMNS:  # round 8 and before
+            del r[column]
         if k % 2:  # round 3
             del r["gap_in_sight"], r["gap_hidden_by"]
         else:  # round 5
             del r["gap_hidden_by"]
     (copy / OBSERVABILITY_JSON).write_text(json.dumps(old))
-    older = {k: v for k, v in truth.items() if k != "gap_hidden_by"}
+    older = {k: v for k, v in truth.items() if k not in ("gap_hidden_by", "closing_gap")}
     truth_path.write_text(json.dumps({**older, "assessor_note": "kept by the replay"}))
     assert main(["study", "observe", "--study", str(copy), "--workers", "1"]) == 0
     assert json.loads((copy / OBSERVABILITY_JSON).read_text()) == observability
@@ -562,3 +596,46 @@ def test_study_observe_names_a_malformed_observability_file(
     assert main(["study", "observe", "--study", str(copy), "--workers", "1"]) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if "endocam:" in line]
     assert len(errors) == 1 and OBSERVABILITY_JSON in errors[0]  # (the progress bar aside)
+
+
+FOUR = ("fixed", "centering", "orientation", "endocam")  # registered policies, k = 4
+
+
+def test_a_study_of_four_conditions_is_made_observed_and_tabulated(
+    shortest_file: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "study"
+    config = load_config(shortest_file)
+    kwargs: dict[str, Any] = {"seed": SEED, "practice": False, "workers": 1}
+    make_study(config, out, trajectories=STUDY_TRAJECTORIES[:1], conditions=FOUR, **kwargs)
+    manifest = load_manifest(out)
+    assert manifest.conditions == FOUR and len(manifest.videos) == len(FOUR)
+    assert manifest.orders == presentation_orders(FOUR) and len(manifest.orders) == len(FOUR)
+    design = json.loads((out / DESIGN_JSON).read_text())
+    assert design["conditions"] == {c: c for c in FOUR}
+    assert list(design["trajectories"][0]["videos"]) == list(FOUR)
+    assert list(load_summary(out / OBSERVABILITY_JSON).conditions) == list(FOUR)
+    hypothesis = json.loads((out / HYPOTHESIS_JSON).read_text())
+    assert list(hypothesis["study"]) == list(FOUR)
+    assert set(json.loads((out / OBSERVER_JSON).read_text())["conditions"]) == set(FOUR)
+    table = hypothesis_table(hypothesis)
+    assert all(f"| {c} |" in table for c in FOUR)
+    assert table.index("resolved") < table.index("counted")  # the closing gap leads
+
+
+@pytest.mark.parametrize(
+    ("conditions", "needle"),
+    [
+        ("fixed,warp", "unknown condition 'warp'; choose policies from: fixed, centering"),
+        ("fixed,endocam,fixed", "repeated: fixed"),
+        ("endocam", "at least 2 conditions"),
+    ],
+)
+def test_bad_conditions_are_one_line_exit_2(
+    conditions: str, needle: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out"
+    assert main(["study", "make", "--out", str(out), "--conditions", conditions]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--conditions" in err[0] and needle in err[0]
+    assert not out.exists()

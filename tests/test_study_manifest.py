@@ -6,7 +6,6 @@ import pytest
 from endocam.study.flow import StepKind, attention_after_set, next_step, video_sequence
 from endocam.study.manifest import (
     DEFAULT_TOUCH_DEFINITION,
-    Condition,
     ManifestError,
     load_manifest,
     parse_manifest,
@@ -21,8 +20,8 @@ def _text(doc: dict) -> str:
 def test_valid_manifest_parses_and_answers_queries() -> None:
     m = parse_manifest(_text(manifest_dict()))
     assert len(m.videos) == 9
-    assert m.most_difficult(Condition.CENTERING).id == "v06"
-    assert [v.id for v in m.videos_of(Condition.ORIENTATION)] == ["v07", "v08", "v09"]
+    assert m.most_difficult("centering").id == "v06"
+    assert [v.id for v in m.videos_of("orientation")] == ["v07", "v08", "v09"]
     assert parse_manifest(m.model_dump_json()) == m
 
 
@@ -51,6 +50,9 @@ def _broken(edit) -> str:
         (lambda d: d["videos"][0].update(file="/abs/x.mp4"), "relative POSIX path"),
         (lambda d: d["videos"][0].update(condition="zoom"), "condition"),
         (lambda d: d.update(conditions=["fixed", "centering"]), "conditions"),
+        (lambda d: d.update(conditions=["fixed"]), "at least 2 distinct conditions"),
+        (lambda d: d.update(conditions=["fixed", "fixed", "orientation"]), "distinct"),
+        (lambda d: d["videos"][0].update(condition="Fixed!"), "pattern"),
         (lambda d: d["orders"].append(["fixed", "fixed", "orientation"]), "permutation"),
         (lambda d: d["orders"].append(d["orders"][0]), "distinct"),
         (lambda d: d.update(orders=[]), "orders"),
@@ -124,3 +126,28 @@ def test_flow_puts_attention_between_set_two_and_three() -> None:
     ]
     with pytest.raises(ValueError, match="order_index"):
         video_sequence(m, 6, seed=0)
+
+
+def test_a_manifest_of_four_conditions_and_their_williams_orders_is_valid() -> None:
+    from endocam.study.counterbalance import presentation_orders
+
+    doc = manifest_dict()
+    extra = [
+        dict(v, id=f"w{k}", condition="endocam", file=f"videos/w{k}.mp4")
+        for k, v in enumerate(doc["videos"][:3])
+    ]
+    doc["videos"] += extra
+    doc["conditions"] = [*doc["conditions"], "endocam"]
+    doc["orders"] = [list(o) for o in presentation_orders(doc["conditions"])]
+    m = parse_manifest(_text(doc))
+    assert len(m.conditions) == 4 and len(m.orders) == 4
+    assert [v.id for v in m.videos_of("endocam")] == ["w0", "w1", "w2"]
+
+
+def test_condition_policies_come_from_the_design_or_the_legacy_names() -> None:
+    from endocam.study.manifest import condition_policies
+
+    four = ["fixed", "centering", "orientation", "endocam"]
+    assert condition_policies({"conditions": {c: c for c in four}}, four) == {c: c for c in four}
+    legacy = condition_policies({}, ["fixed", "centering", "orientation"])  # before round 9
+    assert legacy == {"fixed": "fixed", "centering": "centering", "orientation": "endocam"}

@@ -20,8 +20,22 @@ from endocam.study.observability import (
     pixel_scales,
     summarize,
 )
+from endocam.study.visibility import (
+    GAP_SEEN,
+    OUTSIDE_IMAGE,
+    RESOLVED_PX,
+    ClosingGap,
+    EyeGap,
+    gap_row,
+    hider_kind,
+    seed_bootstrap_ci,
+    share_ci,
+    view_gap,
+)
 from endocam.task.config import TaskConfig
-from endocam.task.touches import contact_normal
+from endocam.task.touches import clearances, contact_normal
+from endocam.task.wire import Wire
+from endocam.view import look_at_pose
 
 CFG = TaskConfig()
 CAMERA = StereoCamera(Intrinsics.from_fovy(160, 120, math.radians(60.0)))
@@ -184,7 +198,7 @@ RECORDS = [
 
 
 def test_summarize_per_condition() -> None:
-    s = summarize(RECORDS)
+    s = summarize(RECORDS, conditions=("fixed", "centering", "orientation"))
     fixed = s.conditions["fixed"]
     assert fixed.touches == 3
     assert fixed.visible_share == pytest.approx(1 / 3)
@@ -195,6 +209,8 @@ def test_summarize_per_condition() -> None:
     assert s.conditions["orientation"].visible_share == pytest.approx(1.0)
     empty = s.conditions["centering"]
     assert empty.touches == 0 and empty.visible_share is None and empty.median_px_per_mm is None
+    assert empty.resolved is None
+    assert list(summarize(RECORDS).conditions) == ["fixed", "orientation"]  # as recorded
 
 
 def test_json_round_trip_csv_and_bad_files(tmp_path: Path) -> None:
@@ -224,7 +240,7 @@ def test_gap_in_sight_is_false_for_a_camera_looking_away() -> None:
     from endocam.config import ExperimentConfig
     from endocam.runner.episode import EpisodeSpec, run_episode
     from endocam.sim.render import WireChaserScene
-    from endocam.study.observability import OUTSIDE_IMAGE, gap_hidden_by, gap_in_sight
+    from endocam.study.visibility import OUTSIDE_IMAGE, gap_hidden_by, gap_in_sight
     from endocam.task.trajectory import TrajectoryKind
 
     data = ExperimentConfig().model_dump(mode="json")
@@ -255,3 +271,128 @@ def test_gap_in_sight_is_false_for_a_camera_looking_away() -> None:
         hidden = {gap_hidden_by(walled, scene, e.t_start) for e in result.touches.events}
         assert hidden == {"wall_front"}
     assert any(facing)  # the tracking camera sees some of its gaps close
+
+
+# ------------------------------------------------------------------- the closing gap (issue 27)
+WIRE = Wire(CFG.wire)
+S_GAP_M = 0.5 * WIRE.length  # m, arc length where the analytic gap closes
+S_BEHIND_M = 15e-3  # m, a farther wire point lies this far along the wire
+BEYOND_M = 20e-3  # m, the eye sits this far beyond that point
+FY_PX = float(CAMERA.intrinsics.K[1, 1])  # px, focal length
+Z_RESOLVED_M = FY_PX * GAP_SEEN / RESOLVED_PX  # m, depth at which the gap spans RESOLVED_PX
+ATOL_CLEARANCE_M = 1e-6  # m, the placed gap against the exact clearance query
+
+
+def closing_ring() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A ring around the wire at ``S_GAP_M``, its rim ``GAP_SEEN`` from it on one side.
+
+    Returns ``T_world_ring``, the gap's midpoint ``p`` (3,) and the direction it opens, ``e``.
+    """
+    w, t = WIRE.points(np.array([S_GAP_M]))[0], WIRE.tangent(np.array([S_GAP_M]))[0]
+    e = np.cross(t, [0.0, 0.0, 1.0])
+    e /= np.linalg.norm(e)  # horizontal, across the wire
+    T = make_pose(
+        np.column_stack([-e, np.cross(t, -e), t]),
+        w - e * (R_MAJOR - R_MINOR - WIRE.radius - GAP_SEEN),
+    )
+    p = w + e * (WIRE.radius + 0.5 * GAP_SEEN)
+    return T, p, e
+
+
+def eye_at(p_eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Camera pose whose left eye sits at ``p_eye`` looking at ``target``."""
+    T = look_at_pose(p_eye, target)
+    T[:3, 3] -= (T @ CAMERA.T_cam_left)[:3, 3] - T[:3, 3]
+    return T
+
+
+def test_the_analytic_gap_is_the_exact_closest_approach() -> None:
+    T, p, e = closing_ring()
+    c, p_exact = clearances(T[None], WIRE, CFG.ring)
+    assert c[0] == pytest.approx(GAP_SEEN, abs=ATOL_CLEARANCE_M)
+    np.testing.assert_allclose(p_exact[0], p, atol=ATOL_CLEARANCE_M)
+    np.testing.assert_allclose(contact_normal(p, T, R_MAJOR), e, atol=1e-9)
+
+
+def _beside(distance: float) -> np.ndarray:
+    """Eye ``distance`` from the gap, 45° off the ring normal, across the opening (above)."""
+    T, p, e = closing_ring()
+    t = T[:3, 2]
+    v = np.cross(t, e)
+    v *= np.sign(v[2])  # upwards
+    d = (t + v) / np.linalg.norm(t + v)
+    return eye_at(p + distance * d, p)
+
+
+def test_a_camera_behind_the_wire_has_the_gap_hidden_by_the_wire(scene: WireChaserScene) -> None:
+    T_ring, p, _ = closing_ring()
+    b = WIRE.points(np.array([S_GAP_M + S_BEHIND_M]))[0]  # the wire's own far part
+    ray = (b - p) / np.linalg.norm(b - p)
+    gap = view_gap(scene, T_ring, eye_at(b + BEYOND_M * ray, p), p)
+    # both eyes look along the wire: its own near part covers the gap beside it
+    assert gap.left.hidden_by == gap.right.hidden_by == gap.hidden_by == "wire"
+    assert not gap.in_sight_either and not gap.resolved
+
+
+def test_either_eye_and_resolved_combine_the_two_eyes() -> None:
+    seen_wide, seen_narrow = EyeGap(True, None, 3.0), EyeGap(True, None, 1.0)
+    hidden_wide = EyeGap(False, "wire", 3.0)
+    one = ClosingGap(math.nan, hidden_wide, seen_wide)  # only the right eye sees it
+    assert one.in_sight_either and one.resolved and one.hidden_by is None
+    other = ClosingGap(math.nan, seen_narrow, hidden_wide)  # wide only where it is hidden
+    assert other.in_sight_either and not other.resolved and other.gap_px == 1.0
+    neither = ClosingGap(math.nan, hidden_wide, EyeGap(False, "ring_torus", 2.5))
+    assert not neither.in_sight_either and not neither.resolved
+    assert neither.hidden_by == "wire" and neither.gap_px == 3.0  # the left eye names it
+
+
+def test_a_camera_beside_the_gap_sees_it_resolved(scene: WireChaserScene) -> None:
+    T_ring, p, _ = closing_ring()
+    distance = 0.6 * Z_RESOLVED_M
+    gap = view_gap(scene, T_ring, _beside(distance), p)
+    assert gap.left.in_sight and gap.right.in_sight and gap.resolved
+    # the gap opens across the left eye's view: GAP_SEEN spans f / depth of it
+    assert gap.left.gap_px == pytest.approx(GAP_SEEN * FY_PX / distance, rel=1e-9)
+    assert gap.gap_px >= gap.left.gap_px >= RESOLVED_PX
+
+
+def test_a_camera_far_away_sees_the_gap_but_does_not_resolve_it(scene: WireChaserScene) -> None:
+    T_ring, p, _ = closing_ring()
+    gap = view_gap(scene, T_ring, _beside(4.0 * Z_RESOLVED_M), p)
+    assert gap.left.in_sight and gap.in_sight_either
+    assert not gap.resolved and gap.gap_px < RESOLVED_PX
+    row = gap_row(gap)
+    assert row["in_sight_either"] and not row["resolved"] and row["hidden_by_left"] is None
+
+
+def test_a_gap_outside_the_image_is_named_so(scene: WireChaserScene) -> None:
+    T_ring, p, _ = closing_ring()
+    T = _beside(0.6 * Z_RESOLVED_M)
+    T[:3, :3] = T[:3, :3] @ np.diag([-1.0, 1.0, -1.0])  # turned round
+    gap = view_gap(scene, T_ring, T, p)
+    assert gap.left.hidden_by == gap.right.hidden_by == OUTSIDE_IMAGE and not gap.resolved
+
+
+def test_hider_kinds_name_the_scene_geoms() -> None:
+    names = ["wire", "ring_torus", "ring_handle", "psm2_shaft", "board", "wall_front", "post_left"]
+    kinds = ["wire", "rim", "handle", "instrument", "board", "box", "post"]
+    assert [hider_kind(n) for n in names] == kinds
+    assert hider_kind(OUTSIDE_IMAGE) == OUTSIDE_IMAGE
+
+
+def test_the_bootstrap_resamples_seeds_not_touches() -> None:
+    # two seeds, one all seen and one all hidden: seed-level resampling spans 0..1 (a touch-level
+    # one would give about 0.5 ± 0.2)
+    assert seed_bootstrap_ci([10, 0], [10, 10]) == (0.0, 1.0)
+    rng = np.random.default_rng(3)
+    totals = rng.integers(1, 12, size=8)
+    hits = rng.integers(0, totals + 1)
+    lo, hi = seed_bootstrap_ci(hits, totals)
+    assert lo <= hits.sum() / totals.sum() <= hi
+    assert seed_bootstrap_ci(hits, totals) == (lo, hi)  # seeded: reproducible
+    assert seed_bootstrap_ci([3, 6], [6, 12]) == (0.5, 0.5)  # equal shares: no spread
+    assert seed_bootstrap_ci([3], [6]) is None  # one seed: nothing to resample
+    share = share_ci({"a": [True, False], "b": [True, True], "c": []})
+    assert share is not None and share.share == pytest.approx(0.75) and share.seeds == 2
+    with pytest.raises(ValueError, match="hits"):
+        seed_bootstrap_ci([3], [2])

@@ -213,9 +213,7 @@ def test_match_events_is_one_to_one() -> None:
 
 def test_summary_errors_per_condition() -> None:
     manifest = parse_manifest(__import__("json").dumps(manifest_dict()))
-    counted = {
-        v.id: v.true_touches + (2 if v.condition.value == "fixed" else 0) for v in manifest.videos
-    }
+    counted = {v.id: v.true_touches + (2 if v.condition == "fixed" else 0) for v in manifest.videos}
     summary = observer_summary(manifest, counted)
     assert summary["fixed"]["mean_abs_error"] == 2.0 and summary["fixed"]["sd_abs_error"] == 0.0
     assert summary["orientation"]["mean_abs_error"] == 0.0

@@ -235,7 +235,7 @@ def test_exports_match_the_database_and_the_codebook(client: TestClient, db_path
     manifest = client.app.state.manifest
     for r in doc["responses"]:
         video = manifest.video(r["video_id"])
-        assert (r["true_touches"], r["condition"]) == (video.true_touches, video.condition.value)
+        assert (r["true_touches"], r["condition"]) == (video.true_touches, video.condition)
         assert r["abs_error"] == abs(r["reported_touches"] - video.true_touches)
         assert r["in_analysis"] == (r["attempt"] == 1)
     people = {(p["participant_id"], p["attempt"]): p for p in doc["participants"]}

@@ -32,13 +32,17 @@ _EXTRA_HINT = "install the study extra: pip install 'endocam[study]'"
 def _make(args: argparse.Namespace) -> int:
     from endocam.config import ExperimentConfig, load_config
     from endocam.runner.outputs import check_writable
-    from endocam.study.make import check_study_config, make_study
+    from endocam.study.make import check_conditions, check_study_config, make_study
 
     if args.seed < 0:
         raise UsageError(f"--seed must be ≥ 0, got {args.seed}")
     if args.seeds < 0:
         raise UsageError(f"--seeds must be ≥ 0, got {args.seeds}")
     check_workers(args.workers)
+    try:
+        conditions = check_conditions([c.strip() for c in args.conditions.split(",")])
+    except ValueError as exc:
+        raise UsageError(f"--conditions: {exc}") from None
     try:
         config = ExperimentConfig() if args.config is None else load_config(args.config)
         check_study_config(config)
@@ -53,9 +57,10 @@ def _make(args: argparse.Namespace) -> int:
         practice=args.practice,
         workers=args.workers,
         keep_seed_videos=args.keep_seed_videos,
+        conditions=conditions,
     )
     for v in manifest.videos:
-        print(f"{v.id}  {v.condition.value:12s} {v.trajectory:12s} {v.true_touches:3d} touches")
+        print(f"{v.id}  {v.condition:16s} {v.trajectory:12s} {v.true_touches:3d} touches")
     print(f"study written to {args.out} ({len(manifest.videos)} videos)")
     _print_hypothesis(Path(args.out))
     return 0
@@ -83,7 +88,8 @@ def _bind(host: str, port: int) -> socket.socket:
 def _print_hypothesis(folder: Path) -> None:
     import json
 
-    from endocam.study.hypothesis import HYPOTHESIS_JSON, hypothesis_table
+    from endocam.study.hypothesis import HYPOTHESIS_JSON
+    from endocam.study.tables import hypothesis_table
 
     print(hypothesis_table(json.loads((folder / HYPOTHESIS_JSON).read_text("utf-8"))), end="")
 
@@ -101,10 +107,10 @@ def _observe(args: argparse.Namespace) -> int:
     folder = Path(args.study)
     try:
         manifest = load_manifest(folder)
-        n_seeds = len(kept_seeds(folder))
+        n_seeds = len(kept_seeds(folder, manifest.conditions))
     except (ManifestError, ValueError) as exc:
         raise UsageError(str(exc)) from None
-    total = len(manifest.videos) + 3 * n_seeds
+    total = len(manifest.videos) + len(manifest.conditions) * n_seeds
     with tqdm(total=total, desc="observer", unit="video", leave=False) as bar:
         try:
             hypothesis = recount_study(folder, args.workers, progress=bar.update)
@@ -271,16 +277,24 @@ def _analyze(args: argparse.Namespace) -> int:
 
 
 def _add_make(sub: argparse._SubParsersAction) -> None:
-    from endocam.study.make import DEFAULT_SEED
+    from endocam.registry import POLICIES
+    from endocam.study.make import DEFAULT_CONDITIONS, DEFAULT_SEED
 
     p = sub.add_parser(
         "make",
-        help="render the nine study videos and write manifest.json",
+        help="render the study videos and write manifest.json",
         description="Simulate three noisy trajectories of increasing difficulty (36 points with "
-        "5-10° angle noise, 36 and 71 points with the config's noise) with the fixed, centering "
-        "and orientation cameras; write videos/, manifest.json, design.json, "
-        "observability.json/.csv, observer.json/.html, hypothesis.json and logs/ into --out "
-        "(replaced atomically).",
+        "5-10° angle noise, 36 and 71 points with the config's noise) with each camera "
+        "condition; write videos/, manifest.json (presentation orders: a Williams design), "
+        "design.json, observability.json/.csv, observer.json/.html, hypothesis.json and logs/ "
+        "into --out (replaced atomically).",
+    )
+    p.add_argument(
+        "--conditions",
+        default=",".join(DEFAULT_CONDITIONS),
+        metavar="P1,P2,...",
+        help="the camera conditions, two or more distinct policy names, comma-separated "
+        f"(choices: {', '.join(POLICIES)}; default: %(default)s, the paper's conditions I-III)",
     )
     p.add_argument("--out", required=True, metavar="DIR", help="study folder to write")
     p.add_argument("--config", metavar="FILE", help="TOML or YAML config (see `endocam config`)")

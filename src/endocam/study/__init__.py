@@ -2,7 +2,7 @@
 
 - :mod:`~endocam.study.manifest`: the study folder's ``manifest.json`` (the contract with
   ``endocam study make``);
-- :mod:`~endocam.study.counterbalance`: Latin-square presentation orders, round-robin assignment;
+- :mod:`~endocam.study.counterbalance`: Williams-design presentation orders, round-robin assignment;
 - :mod:`~endocam.study.flow`: a participant's path through the sets and the attention question;
 - :mod:`~endocam.study.db`: the SQLite store, :mod:`~endocam.study.records` its records;
   :mod:`~endocam.study.app`: the web app (``study`` extra), :mod:`~endocam.study.admin_auth` its
@@ -11,7 +11,7 @@
 """
 
 from endocam.study.analysis import AnalysisConfig, AnalysisResult, OutlierRule, analyze
-from endocam.study.counterbalance import assign_order, latin_square, mirror, presentation_orders
+from endocam.study.counterbalance import assign_order, presentation_orders, williams_design
 from endocam.study.manifest import (
     AttentionQuestion,
     Condition,
@@ -35,12 +35,11 @@ __all__ = [
     "Video",
     "analyze",
     "assign_order",
-    "latin_square",
     "load_manifest",
-    "mirror",
     "parse_manifest",
     "presentation_orders",
     "read_responses_csv",
     "rows_from_csv",
     "rows_to_csv",
+    "williams_design",
 ]

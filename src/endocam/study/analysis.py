@@ -13,10 +13,15 @@ Pipeline (each step is a pure function; :func:`analyze` chains them):
    condition only**: the per-condition n, mean and SD use every value that is not an outlier in
    that condition.
 3. **Tests** are within-subject and need complete cases, so they use only the participants that
-   have a kept value in all three conditions (``tests.n_complete``): a Friedman test, then
-   pairwise two-sided Wilcoxon signed-rank tests with Holm's step-down correction.
-4. **Reductions**: ``100 · (ref − orientation) / ref`` of the mean and of the SD, for
-   ref = centering and ref = fixed (the paper's 25 %/21 % and 31 %/32 %).
+   have a kept value in every condition (``tests.n_complete``): a Friedman test (three or more
+   conditions), then pairwise two-sided Wilcoxon signed-rank tests with Holm's step-down
+   correction.
+4. **Reductions**: ``100 · (ref − last) / ref`` of the mean and of the SD, for the manifest's
+   last condition (the study's proposed camera: ``endocam``, the paper's orientation camera)
+   against each other one, nearest first: with the default conditions ref = centering and
+   ref = fixed (the paper's 25 %/21 % and 31 %/32 %).
+
+Any number k ≥ 2 of conditions is analysed, in the manifest's order.
 """
 
 from __future__ import annotations
@@ -32,12 +37,12 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 from scipy import stats
 
-from endocam.study.manifest import Condition, Manifest
+from endocam.study.manifest import Manifest
 from endocam.study.responses import ResponseRow
 
 MIN_TEST_N = 3  # participants with complete cases needed before any test is run
 ZSCORE_THRESHOLD = 3.0  # |z| above which a value is an outlier (z-score rule)
-ORDERED_CONDITIONS = (Condition.FIXED, Condition.CENTERING, Condition.ORIENTATION)
+FRIEDMAN_MIN_CONDITIONS = 3  # conditions a Friedman test needs (with two, Wilcoxon is the test)
 
 
 class OutlierRule(StrEnum):
@@ -83,7 +88,7 @@ class ConditionSummary(_Frozen):
 
 
 class Reduction(_Frozen):
-    """Percentage reduction of orientation against a reference condition (None if ref is 0)."""
+    """Percentage reduction of the last condition against a reference one (None if ref is 0)."""
 
     mean_error_pct: float | None
     sd_error_pct: float | None
@@ -136,8 +141,8 @@ def _finite_or_none(x: float) -> float | None:
 
 
 def assessment_errors(
-    rows: Sequence[ResponseRow], manifest: Manifest, video_ids: Mapping[Condition, Sequence[str]]
-) -> tuple[dict[str, dict[Condition, float]], list[Exclusion]]:
+    rows: Sequence[ResponseRow], manifest: Manifest, video_ids: Mapping[str, Sequence[str]]
+) -> tuple[dict[str, dict[str, float]], list[Exclusion]]:
     """Assessment error per participant and condition, and the participants left out.
 
     Parameters
@@ -146,12 +151,12 @@ def assessment_errors(
         Every answer.
     manifest : Manifest
         Ground truth (``true_touches``).
-    video_ids : mapping Condition → sequence of video ids
+    video_ids : mapping condition → sequence of video ids
         The videos whose errors are averaged per condition.
 
     Returns
     -------
-    errors : dict participant id → {Condition: mean |reported − true|, touches}
+    errors : dict participant id → {condition: mean |reported − true|, touches}
         Only participants who passed the attention question and answered every needed video.
     excluded : list of Exclusion
         Attention failures first, then incomplete participants.
@@ -173,7 +178,7 @@ def assessment_errors(
         own[r.video_id] = r.reported_touches
         if attention.setdefault(r.participant_id, r.attention_passed) != r.attention_passed:
             raise ValueError(f"rows: {r.participant_id} has inconsistent attention_passed")
-    errors: dict[str, dict[Condition, float]] = {}
+    errors: dict[str, dict[str, float]] = {}
     excluded: list[Exclusion] = []
     incomplete: list[Exclusion] = []
     for pid in sorted(answers):
@@ -268,46 +273,58 @@ def holm(p_values: Sequence[float]) -> list[float]:
     return [float(x) for x in adjusted]
 
 
-def within_subject_tests(complete: Mapping[Condition, NDArray[np.float64]]) -> WithinSubjectTests:
-    """Friedman test, then pairwise Wilcoxon signed-rank tests with Holm correction.
+def within_subject_tests(complete: Mapping[str, NDArray[np.float64]]) -> WithinSubjectTests:
+    """Friedman test (k ≥ 3 conditions), then pairwise Wilcoxon signed-rank tests with Holm.
 
     Parameters
     ----------
-    complete : mapping Condition → (n,) float array
-        Errors of the same n participants (complete cases) in each condition, same order.
+    complete : mapping condition → (n,) float array
+        Errors of the same n participants (complete cases) in each condition, same order; the
+        conditions in the study's order.
 
     Returns
     -------
     WithinSubjectTests
-        ``friedman`` is None and ``wilcoxon`` empty when n < ``MIN_TEST_N``.
+        ``friedman`` is None and ``wilcoxon`` empty when n < ``MIN_TEST_N``; ``friedman`` is
+        None with two conditions (the one Wilcoxon test is the test).
     """
-    conds = [c for c in ORDERED_CONDITIONS if c in complete]
+    conds = list(complete)
     n = len(complete[conds[0]]) if conds else 0
     if n < MIN_TEST_N:
         note = f"tests need at least {MIN_TEST_N} complete cases, have {n}"
         return WithinSubjectTests(n_complete=n, friedman=None, wilcoxon={}, note=note)
     with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
         warnings.simplefilter("ignore", RuntimeWarning)  # scipy warns when all values tie
-        fr = stats.friedmanchisquare(*(complete[c] for c in conds))
+        fr = (
+            stats.friedmanchisquare(*(complete[c] for c in conds))
+            if len(conds) >= FRIEDMAN_MIN_CONDITIONS
+            else None
+        )
         pairs = list(combinations(conds, 2))
         raw = [stats.wilcoxon(complete[a], complete[b]) for a, b in pairs]
     p_raw = [float(r.pvalue) if np.isfinite(r.pvalue) else 1.0 for r in raw]
     p_adj = holm(p_raw)
     wilcoxon = {
-        f"{a.value}_vs_{b.value}": PairwiseResult(
+        f"{a}_vs_{b}": PairwiseResult(
             statistic=_finite_or_none(r.statistic),
             p_value=_finite_or_none(r.pvalue),
             p_holm=p_adj[i] if np.isfinite(r.pvalue) else None,
         )
         for i, ((a, b), r) in enumerate(zip(pairs, raw, strict=True))
     }
+    if fr is None:
+        why: str | None = f"two conditions: no Friedman test (it needs {FRIEDMAN_MIN_CONDITIONS})"
+    else:
+        why = None if np.isfinite(fr.pvalue) else "all errors tie: the Friedman test is undefined"
     return WithinSubjectTests(
         n_complete=n,
-        friedman=StatResult(
+        friedman=None
+        if fr is None
+        else StatResult(
             statistic=_finite_or_none(fr.statistic), p_value=_finite_or_none(fr.pvalue)
         ),
         wilcoxon=wilcoxon,
-        note=None if np.isfinite(fr.pvalue) else "all errors tie: the Friedman test is undefined",
+        note=why,
     )
 
 
@@ -356,38 +373,39 @@ def analyze(
         c: [v.id for v in manifest.videos_of(c)]
         if config.all_videos
         else [manifest.most_difficult(c).id]
-        for c in ORDERED_CONDITIONS
+        for c in manifest.conditions
     }
     errors, excluded = assessment_errors(rows, manifest, video_ids)
     pids = sorted(errors)
-    kept: dict[Condition, set[str]] = {}
-    for cond in ORDERED_CONDITIONS:
+    kept: dict[str, set[str]] = {}
+    for cond in manifest.conditions:
         values = np.array([errors[p][cond] for p in pids], dtype=np.float64)
         mask, rule = outlier_mask(values, config.outliers, config.tukey_k, config.z_threshold)
         for pid, value in zip(np.array(pids)[mask], values[mask], strict=True):
-            reason = f"outlier in {cond.value}: error {value:g} outside {rule}"
+            reason = f"outlier in {cond}: error {value:g} outside {rule}"
             excluded.append(Exclusion(participant_id=str(pid), reason=reason))
         kept[cond] = {p for p, out in zip(pids, mask, strict=True) if not out}
     kept_errors = {c: np.array([errors[p][c] for p in pids if p in kept[c]]) for c in kept}
-    summaries = {c.value: _summary(kept_errors[c]) for c in ORDERED_CONDITIONS}
-    complete_ids = [p for p in pids if all(p in kept[c] for c in ORDERED_CONDITIONS)]
-    complete = {c: np.array([errors[p][c] for p in complete_ids]) for c in ORDERED_CONDITIONS}
-    orient = summaries[Condition.ORIENTATION.value]
+    summaries = {c: _summary(kept_errors[c]) for c in manifest.conditions}
+    complete_ids = [p for p in pids if all(p in kept[c] for c in manifest.conditions)]
+    complete = {c: np.array([errors[p][c] for p in complete_ids]) for c in manifest.conditions}
+    *refs, last = manifest.conditions
+    new = summaries[last]
     reductions = {
-        f"orientation_vs_{ref.value}": Reduction(
-            mean_error_pct=_reduction(summaries[ref.value].mean_error, orient.mean_error),
-            sd_error_pct=_reduction(summaries[ref.value].sd_error, orient.sd_error),
+        f"{last}_vs_{ref}": Reduction(
+            mean_error_pct=_reduction(summaries[ref].mean_error, new.mean_error),
+            sd_error_pct=_reduction(summaries[ref].sd_error, new.sd_error),
         )
-        for ref in (Condition.CENTERING, Condition.FIXED)
+        for ref in reversed(refs)
     }
     return AnalysisResult(
         conditions=summaries,
         reductions=reductions,
         tests=within_subject_tests(complete),
         excluded=excluded,
-        kept_errors={c.value: [float(x) for x in v] for c, v in kept_errors.items()},
+        kept_errors={c: [float(x) for x in v] for c, v in kept_errors.items()},
         config=config,
-        video_ids={c.value: ids for c, ids in video_ids.items()},
+        video_ids=dict(video_ids),
     )
 
 

@@ -599,7 +599,7 @@ def create_app(
         progress = [
             {
                 "index": i,
-                "order": " > ".join(c.value for c in order),
+                "order": " > ".join(order),
                 **{
                     s.value: sum(
                         1

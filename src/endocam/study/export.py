@@ -156,7 +156,7 @@ MODELS: dict[TableName, type[_Row]] = {
 
 def order_text(manifest: Manifest, order_index: int) -> str:
     """The conditions of order ``order_index`` as text, e.g. ``fixed>centering>orientation``."""
-    return ORDER_SEPARATOR.join(c.value for c in manifest.orders[order_index])
+    return ORDER_SEPARATOR.join(manifest.orders[order_index])
 
 
 def _seconds_between(start: str | None, end: str) -> float | None:
@@ -207,15 +207,13 @@ def export_tables(
                 attempt=p.attempt,
                 in_analysis=p.pk in analysed,
                 order_index=p.order_index,
-                condition_order=ORDER_SEPARATOR.join(
-                    c.value for c in manifest.orders[p.order_index]
-                ),
+                condition_order=ORDER_SEPARATOR.join(c for c in manifest.orders[p.order_index]),
                 set_number=where[0] + 1,
                 position_in_set=where[1] + 1,
                 position=where[2] + 1,
                 after_attention=where[0] >= attention_after_set(len(p.video_order)),
                 video_id=video.id,
-                condition=video.condition.value,
+                condition=video.condition,
                 trajectory=video.trajectory,
                 difficulty=video.difficulty,
                 true_touches=video.true_touches,

@@ -1,4 +1,4 @@
-"""``endocam study make``: render the nine study videos, their manifest and raw material.
+"""``endocam study make``: render the study videos, their manifest and raw material.
 
 Design (paper Sec. IV-D: "three randomised trajectories of increasing difficulty"):
 
@@ -10,8 +10,11 @@ diff  name             control points  noise per control point (magnitude range,
 3     ``t3-71-high``   71              the config's; twice the control points = more turns
 ====  ===============  ==============  =======================================================
 
-Each trajectory is rendered with the three camera conditions (``fixed``, ``centering``,
-``orientation``): nine videos, left eye, the config's resolution and frame rate. The noise seed
+Each trajectory is rendered with each of the study's k ≥ 2 camera **conditions**, each a policy
+of ``endocam.registry.POLICIES`` named by its policy (default ``DEFAULT_CONDITIONS``: ``fixed``,
+``centering`` and ``endocam``, the paper's conditions I-III; ``--conditions``): 3k videos, left
+eye, the config's resolution and frame rate. The manifest's presentation orders are the
+conditions' Williams design (:mod:`endocam.study.counterbalance`). The noise seed
 of trajectory ``k`` is the ``k``-th draw of ``numpy.random.default_rng(seed).integers(0, 2**31)``;
 video ids are eight hex digits drawn from ``default_rng([seed, ID_STREAM])``, so nothing in a URL
 reveals the condition and the same ``--seed`` gives the same study.
@@ -21,24 +24,30 @@ before the first set: the easiest trajectory's kind and control points with its 
 (:func:`practice_seed`, stream ``PRACTICE_STREAM``; never one of the nine trajectories' seeds),
 filmed by the **fixed** camera only, so the practice trains participants on none of the moving
 conditions more than on another. Its ``true_touches`` comes from the same ground truth as the
-nine videos'; it is not counted in the observability, observer or hypothesis files.
+study's videos'; it is not counted in the observability, observer or hypothesis files.
+
+A drawn path that cannot be made legible is drawn again from a derived seed
+(:func:`endocam.task.trajectory.redraw_seed`; ``design.json`` names it as ``drawn_seed``); an
+extra seed none of whose draws is legible is skipped and listed (``skipped_extra_seeds``).
 
 Written (atomically: a temporary folder renamed at the end)::
 
     manifest.json          the contract with `study serve` / `study analyze`
-    videos/<id>.mp4        the nine videos (H.264)
+    videos/<id>.mp4        the 3k videos (H.264)
     videos/practice.mp4    the practice video (fixed camera), unless ``practice=False``
-    design.json            trajectories (seeds, noise, touches), the key id → condition and the
-                           practice video's trajectory, seed and touches
+    design.json            the conditions and their policies, trajectories (seeds, noise,
+                           touches), the key id → condition, the practice video's trajectory,
+                           seed and touches, skipped extra seeds
     observability.json     objective touch observability (endocam.study.observability) + CSV
     observability.csv
     observer.json          the automatic observer's counts (endocam.study.observer) + HTML
     observer.html
-    hypothesis.json        per condition: observer counting error and image-space observability
-                           on the most difficult trajectory and over ``extra_seeds`` more seeds
+    hypothesis.json        per condition: the closing gap (resolved, in sight), observer
+                           counting error and image-space observability on the most difficult
+                           trajectory and over ``extra_seeds`` more seeds
     logs/<id>/             scene.json, episode.csv, metrics.json, tracking.png, report.html
     logs/practice/         the same for the practice video
-    seeds/<seed>/          with ``keep_seed_videos``: the extra seeds' three videos and truth.json
+    seeds/<seed>/          with ``keep_seed_videos``: the extra seeds' k videos and truth.json
 """
 
 from __future__ import annotations
@@ -49,6 +58,7 @@ import json
 import math
 import shutil
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -69,10 +79,10 @@ from endocam.study.hypothesis import (
     write_truth,
 )
 from endocam.study.manifest import (
+    DEFAULT_CONDITIONS,
     MANIFEST_NAME,
-    STUDY_CONDITIONS,
+    MIN_CONDITIONS,
     AttentionQuestion,
-    Condition,
     Manifest,
     PracticeVideo,
     Video,
@@ -82,7 +92,6 @@ from endocam.study.observability import (
     OBSERVABILITY_CSV,
     OBSERVABILITY_JSON,
     TouchObservation,
-    gap_hidden_by,
     observability_csv,
     observability_json,
     observe_episode,
@@ -97,6 +106,7 @@ from endocam.study.observer import (
     observer_document,
     observer_html,
 )
+from endocam.study.visibility import closing_gap, gap_row
 from endocam.task.study_paths import (
     DEFAULT_STUDY_SEED,
     STUDY_TRAJECTORIES,
@@ -115,7 +125,7 @@ DESIGN_JSON = "design.json"
 EXTRA_STREAM = 2  # second entry of the extra seeds' generator seed (ids use ID_STREAM)
 PRACTICE_STREAM = 3  # second entry of the practice seed's generator seed
 PRACTICE_NAME = "practice"  # stem of the practice video and name of its log folder
-PRACTICE_CONDITION = Condition.FIXED  # no moving condition is trained more than another
+PRACTICE_CONDITION = "fixed"  # the practice's policy: no moving condition is trained more
 VIDEOS_DIR = "videos"
 LOGS_DIR = "logs"
 PRACTICE_FILE = f"{VIDEOS_DIR}/{PRACTICE_NAME}.mp4"  # the manifest's practice.file
@@ -155,6 +165,30 @@ def practice_seed(seed: int, n: int = len(STUDY_TRAJECTORIES)) -> int:
     while (value := int(rng.integers(0, 2**31))) in taken:
         pass
     return value
+
+
+def check_conditions(conditions: Sequence[str]) -> tuple[str, ...]:
+    """The study's conditions, checked: registered policy names, distinct, at least two.
+
+    Raises
+    ------
+    ValueError
+        One line naming the problem (an unknown name lists the choices).
+    """
+    from endocam.registry import POLICIES
+
+    names = tuple(conditions)
+    unknown = [c for c in names if c not in POLICIES]
+    if unknown:
+        raise ValueError(
+            f"unknown condition {unknown[0]!r}; choose policies from: {', '.join(POLICIES)}"
+        )
+    repeated = sorted({c for c in names if names.count(c) > 1})
+    if repeated:
+        raise ValueError(f"each condition once, repeated: {', '.join(repeated)}")
+    if len(names) < MIN_CONDITIONS:
+        raise ValueError(f"a study needs at least {MIN_CONDITIONS} conditions, got {len(names)}")
+    return names
 
 
 def check_study_config(config: ExperimentConfig) -> None:
@@ -199,6 +233,7 @@ def make_study(
     practice: bool = True,
     workers: int = DEFAULT_WORKERS,
     keep_seed_videos: bool = False,
+    conditions: Sequence[str] = DEFAULT_CONDITIONS,
 ) -> Manifest:
     """Simulate, render and write a complete study folder (see the module docstring).
 
@@ -214,7 +249,7 @@ def make_study(
         The design; distinct names and difficulties in 1..3.
     extra_seeds : int
         More noise seeds of the most difficult trajectory (≥ 0): each is simulated, rendered
-        with the three conditions and counted by the observer for ``hypothesis.json``.
+        with every condition and counted by the observer for ``hypothesis.json``.
     practice : bool
         Also render the practice video (easiest trajectory, fixed camera, :func:`practice_seed`)
         and name it in the manifest.
@@ -223,6 +258,9 @@ def make_study(
     keep_seed_videos : bool
         Keep the extra seeds' videos and true touches in ``seeds/<noise seed>/``, so that
         ``study observe`` can count them again (:mod:`endocam.study.hypothesis`).
+    conditions : sequence of str
+        The conditions (registered policy names, distinct, at least two), in the order of the
+        manifest, the tables and the Williams design's first order.
 
     Returns
     -------
@@ -230,11 +268,12 @@ def make_study(
         The manifest written (validated).
     """
     from endocam.runner.episode import EpisodeSpec
-    from endocam.runner.experiments import CONDITION_POLICY, ground_truth, run_with_progress
+    from endocam.runner.experiments import ground_truth, run_with_progress
     from endocam.runner.outputs import atomic_dir, check_writable, frame_indices, write_run
     from endocam.sim.render import WireChaserScene
 
     check_study_config(config)
+    conds = check_conditions(conditions)
     if extra_seeds < 0:
         raise ValueError(f"extra_seeds must be ≥ 0, got {extra_seeds}")
     if workers < 1:
@@ -242,18 +281,17 @@ def make_study(
     out = Path(out_dir)
     check_writable(out)
     seeds = trajectory_seeds(seed, len(trajectories))
-    ids = iter(video_ids(seed, len(trajectories) * len(STUDY_CONDITIONS)))
+    ids = iter(video_ids(seed, len(trajectories) * len(conds)))
     kind = TrajectoryKind.NOISY
 
     runs: list[tuple[StudyTrajectory, int, list[EpisodeResult]]] = []
-    with tqdm(total=len(trajectories) * len(STUDY_CONDITIONS), desc="episodes", leave=False) as bar:
+    with tqdm(total=len(trajectories) * len(conds), desc="episodes", leave=False) as bar:
         for traj, traj_seed in zip(trajectories, seeds, strict=True):
             cfg = trajectory_config(config, traj)
             touches = ground_truth(cfg, kind, traj.control_points, traj_seed)
             results = []
-            for condition in STUDY_CONDITIONS:
-                policy = CONDITION_POLICY[condition.value]
-                spec = EpisodeSpec(policy, kind, traj.control_points, traj_seed)
+            for condition in conds:
+                spec = EpisodeSpec(condition, kind, traj.control_points, traj_seed)
                 results.append(run_with_progress(cfg, spec, touches))
                 bar.update(1)
             runs.append((traj, traj_seed, results))
@@ -264,15 +302,14 @@ def make_study(
         p_seed = practice_seed(seed, len(trajectories))
         cfg = trajectory_config(config, easiest)
         touches = ground_truth(cfg, kind, easiest.control_points, p_seed)
-        policy = CONDITION_POLICY[PRACTICE_CONDITION.value]
-        spec = EpisodeSpec(policy, kind, easiest.control_points, p_seed)
+        spec = EpisodeSpec(PRACTICE_CONDITION, kind, easiest.control_points, p_seed)
         practice_run = (easiest, p_seed, run_with_progress(cfg, spec, touches))
 
-    key: dict[tuple[str, Condition], str] = {
-        (traj.name, c): next(ids) for traj, _, _ in runs for c in STUDY_CONDITIONS
+    key: dict[tuple[str, str], str] = {
+        (traj.name, c): next(ids) for traj, _, _ in runs for c in conds
     }
     videos = []
-    for c_index, c in enumerate(STUDY_CONDITIONS):  # condition-major, easy to hard in each set
+    for c_index, c in enumerate(conds):  # condition-major, easy to hard in each set
         for traj, _, results in sorted(runs, key=lambda r: r[0].difficulty):
             vid = key[(traj.name, c)]
             videos.append(
@@ -289,9 +326,9 @@ def make_study(
     manifest = Manifest(
         endocam_version=__version__,
         created=datetime.now(UTC).replace(microsecond=0),
-        conditions=STUDY_CONDITIONS,
+        conditions=conds,
         videos=tuple(videos),
-        orders=presentation_orders(STUDY_CONDITIONS),
+        orders=presentation_orders(conds),
         attention=DEFAULT_ATTENTION,
         practice=None
         if practice_run is None
@@ -304,22 +341,22 @@ def make_study(
     with atomic_dir(out) as tmp:
         # cheap outputs first: a failure there must not waste the long render
         for traj, _, results in tqdm(runs, desc="logs", leave=False):
-            for c, result in zip(STUDY_CONDITIONS, results, strict=True):
+            for c, result in zip(conds, results, strict=True):
                 write_run(result, tmp / LOGS_DIR / key[(traj.name, c)], video=False)
         if practice_run is not None:
             write_run(practice_run[2], tmp / LOGS_DIR / PRACTICE_NAME, video=False)
         first = runs[0][2][0]
         with WireChaserScene(first.config.task, first.camera) as scene:
             for traj, _, results in tqdm(runs, desc="observability", leave=False):
-                for c, result in zip(STUDY_CONDITIONS, results, strict=True):
+                for c, result in zip(conds, results, strict=True):
                     vid = key[(traj.name, c)]
                     records += observe_episode(
-                        result, scene, video_id=vid, condition=c.value, trajectory=traj.name
+                        result, scene, video_id=vid, condition=c, trajectory=traj.name
                     )
         (tmp / VIDEOS_DIR).mkdir()
         with tqdm(total=n_frames + n_practice, desc="render", unit="frame", leave=False) as bar:
             for traj, _, results in runs:
-                paths = [tmp / VIDEOS_DIR / f"{key[(traj.name, c)]}.mp4" for c in STUDY_CONDITIONS]
+                paths = [tmp / VIDEOS_DIR / f"{key[(traj.name, c)]}.mp4" for c in conds]
                 render_conditions(results, paths, bar.update)
             if practice_run is not None:
                 render_conditions([practice_run[2]], [tmp / PRACTICE_FILE], bar.update)
@@ -329,21 +366,29 @@ def make_study(
             for v in manifest.videos:
                 observations[v.id] = observe_video(tmp / v.file, keys, bar.update)
         records = [with_gaps(r, observations[r.video_id]) for r in records]
-        summary = summarize(records)
+        summary = summarize(records, conditions=conds)
         (tmp / OBSERVABILITY_JSON).write_text(observability_json(summary, records), "utf-8")
         (tmp / OBSERVABILITY_CSV).write_text(observability_csv(records), "utf-8")
         observer = observer_document(manifest, observations)
         (tmp / OBSERVER_JSON).write_text(json.dumps(observer, indent=2) + "\n", "utf-8")
         (tmp / OBSERVER_HTML).write_text(observer_html(manifest, observations), "utf-8")
         hardest = max(trajectories, key=lambda t: t.difficulty)
-        extra = run_extra_seeds(
-            config, hardest, seed, extra_seeds, keys, tmp, workers, keep_seed_videos
+        extra, skipped = run_extra_seeds(
+            config,
+            ExtraSeeds(hardest, seed, extra_seeds, conds),
+            keys,
+            tmp,
+            workers,
+            keep_seed_videos,
         )
+        frame_s = 1.0 / config.episode.video_fps
         hypothesis = hypothesis_dict(
-            manifest, observer, records, hardest.name, extra, 1.0 / config.episode.video_fps
+            manifest, observer, records, hardest.name, extra, frame_s, skipped=skipped
         )
         (tmp / HYPOTHESIS_JSON).write_text(json.dumps(hypothesis, indent=2) + "\n", "utf-8")
-        design = design_dict(config, runs, key, seed, practice_run)
+        design = design_dict(config, runs, key, seed, practice_run) | {
+            "skipped_extra_seeds": skipped
+        }
         (tmp / DESIGN_JSON).write_text(json.dumps(design, indent=2) + "\n", "utf-8")
         (tmp / MANIFEST_NAME).write_text(manifest_json(manifest), "utf-8")
     return manifest
@@ -355,34 +400,59 @@ def extra_seed_values(seed: int, n: int) -> tuple[int, ...]:
     return tuple(int(s) for s in rng.integers(0, 2**31, size=n))
 
 
+@dataclass(frozen=True)
+class ExtraSeeds:
+    """The extra seeds of a study: ``n`` more noise seeds of ``trajectory``, each condition.
+
+    Attributes
+    ----------
+    trajectory : StudyTrajectory
+        The path (the study's most difficult).
+    seed : int
+        The study seed; the noise seeds are :func:`extra_seed_values` ``(seed, n)``.
+    n : int
+        How many (≥ 0).
+    conditions : tuple of str
+        The study's conditions (policy names).
+    """
+
+    trajectory: StudyTrajectory
+    seed: int
+    n: int
+    conditions: tuple[str, ...]
+
+
 def run_extra_seeds(
     config: ExperimentConfig,
-    trajectory: StudyTrajectory,
-    seed: int,
-    n: int,
+    extra: ExtraSeeds,
     keys: ColourKeys,
     work_dir: Path,
     workers: int = DEFAULT_WORKERS,
     keep_videos: bool = False,
-) -> list[dict[str, Any]]:
-    """Simulate, render and observe ``n`` more seeds of ``trajectory`` (three conditions each).
+) -> tuple[list[dict[str, Any]], list[int]]:
+    """Simulate, render and observe the extra seeds (every condition each).
 
     The seeds run in the runner's process pool (:func:`endocam.runner.pool.executor`,
     ``workers`` processes started by ``spawn``, as they render; 1: in this process), one job per
-    seed; the rows are in seed order
-    whatever order the jobs finish in, so the result equals a serial run's.
+    seed; the rows are in seed order whatever order the jobs finish in, so the result equals a
+    serial run's.
 
-    Returns one dict per seed and condition (:func:`endocam.study.hypothesis.seed_rows`). The
-    videos are rendered into ``work_dir/seeds/<noise seed>/`` with the seed's ``truth.json``;
-    unless ``keep_videos``, each seed's folder is deleted once it is counted.
+    Returns one dict per seed and condition (:func:`endocam.study.hypothesis.seed_rows`) and
+    the seeds skipped because no draw of their path was legible
+    (:class:`~endocam.task.trajectory.IllegiblePathError`). The videos are rendered into
+    ``work_dir/seeds/<noise seed>/`` with the seed's ``truth.json``; unless ``keep_videos``,
+    each seed's folder is deleted once it is counted.
     """
-    if n == 0:
-        return []
-    seeds = extra_seed_values(seed, n)
-    rows: dict[int, list[dict[str, Any]]] = {}
-    with tqdm(total=n, desc="extra seeds", unit="seed") as bar, executor(workers, "spawn") as pool:
+    if extra.n == 0:
+        return [], []
+    seeds = extra_seed_values(extra.seed, extra.n)
+    rows: dict[int, list[dict[str, Any]] | None] = {}
+    with (
+        tqdm(total=extra.n, desc="extra seeds", unit="seed") as bar,
+        executor(workers, "spawn") as pool,
+    ):
         futures = {
-            pool.submit(_extra_seed_rows, config, trajectory, s, keys, work_dir, keep_videos): k
+            pool.submit(_extra_seed_rows, config, extra, s, keys, work_dir, keep_videos): k
             for k, s in enumerate(seeds)
         }
         for fut in concurrent.futures.as_completed(futures):
@@ -391,46 +461,48 @@ def run_extra_seeds(
     if not keep_videos:
         with contextlib.suppress(OSError):
             (work_dir / SEEDS_DIR).rmdir()  # empty unless someone else put files there
-    return [row for k in range(n) for row in rows[k]]
+    skipped = [seeds[k] for k in range(extra.n) if rows[k] is None]
+    return [row for k in range(extra.n) for row in rows[k] or []], skipped
 
 
 def _extra_seed_rows(
     config: ExperimentConfig,
-    trajectory: StudyTrajectory,
+    extra: ExtraSeeds,
     s: int,
     keys: ColourKeys,
     work_dir: Path,
     keep_videos: bool,
-) -> list[dict[str, Any]]:
-    """One extra seed's rows (see :func:`run_extra_seeds`); a pool job, no progress bar."""
+) -> list[dict[str, Any]] | None:
+    """One extra seed's rows (see :func:`run_extra_seeds`); None: its path is illegible."""
     from endocam.runner.episode import EpisodeSpec, run_episode
-    from endocam.runner.experiments import CONDITION_POLICY, ground_truth
+    from endocam.runner.experiments import ground_truth
     from endocam.sim.render import WireChaserScene
+    from endocam.task.trajectory import IllegiblePathError
 
-    cfg = trajectory_config(config, trajectory)
+    cfg = trajectory_config(config, extra.trajectory)
     kind = TrajectoryKind.NOISY
-    touches = ground_truth(cfg, kind, trajectory.control_points, s)
+    points = extra.trajectory.control_points
+    try:
+        touches = ground_truth(cfg, kind, points, s)
+    except IllegiblePathError:
+        return None
     results = [
-        run_episode(
-            cfg,
-            EpisodeSpec(CONDITION_POLICY[c.value], kind, trajectory.control_points, s),
-            touches=touches,
-        )
-        for c in STUDY_CONDITIONS
+        run_episode(cfg, EpisodeSpec(c, kind, points, s), touches=touches) for c in extra.conditions
     ]
     events = [(e.t_start, e.t_end) for e in touches.events]
     with WireChaserScene(cfg.task, results[0].camera) as scene:
-        hidden = {
-            c.value: [gap_hidden_by(r, scene, e.t_start) for e in touches.events]
-            for c, r in zip(STUDY_CONDITIONS, results, strict=True)
+        gaps = {
+            c: [gap_row(closing_gap(r, scene, e.t_start)) for e in touches.events]
+            for c, r in zip(extra.conditions, results, strict=True)
         }
+    hidden = {c: [g["hidden_by_left"] for g in rows] for c, rows in gaps.items()}
     folder = work_dir / SEEDS_DIR / str(s)
     folder.mkdir(parents=True, exist_ok=True)
     try:
-        render_conditions(results, [folder / f"{c.value}.mp4" for c in STUDY_CONDITIONS])
-        rows = seed_rows(folder, s, events, keys, hidden)
+        render_conditions(results, [folder / f"{c}.mp4" for c in extra.conditions])
+        rows = seed_rows(folder, s, events, keys, extra.conditions, gaps=gaps)
         if keep_videos:
-            write_truth(folder, s, cfg.episode.video_fps, events, hidden)
+            write_truth(folder, s, cfg.episode.video_fps, events, hidden, gaps=gaps)
     except BaseException:
         shutil.rmtree(folder, ignore_errors=True)
         raise
@@ -442,14 +514,19 @@ def _extra_seed_rows(
 def design_dict(
     config: ExperimentConfig,
     runs: Sequence[tuple[StudyTrajectory, int, list[EpisodeResult]]],
-    key: dict[tuple[str, Condition], str],
+    key: dict[tuple[str, str], str],
     seed: int,
     practice: tuple[StudyTrajectory, int, EpisodeResult] | None = None,
 ) -> dict[str, Any]:
-    """``design.json``: the study seed, each trajectory's parameters and the video key.
+    """``design.json``: the study seed, the conditions, each trajectory's parameters, the key.
 
-    ``practice`` (trajectory, noise seed, episode) adds a ``practice`` entry (else ``null``).
+    ``conditions`` maps each condition to the registry policy that filmed it (the same name).
+    Per trajectory, ``noise_seed`` is the seed drawn for it and ``drawn_seed`` the one its path
+    was drawn with (another only when the first draw was illegible and re-drawn,
+    :func:`endocam.task.trajectory.redraw_seed`). ``practice`` (trajectory, noise seed, episode)
+    adds a ``practice`` entry (else ``null``).
     """
+    conds = list(dict.fromkeys(c for _, c in key))
     trajectories = []
     for traj, traj_seed, results in runs:
         cfg = results[0].config.task.trajectory
@@ -459,16 +536,18 @@ def design_dict(
                 "difficulty": traj.difficulty,
                 "control_points": traj.control_points,
                 "noise_seed": traj_seed,
+                "drawn_seed": results[0].trajectory.control_points.noise_seed,
                 "position_noise_mm": [v * 1e3 for v in cfg.position_noise],
                 "angle_noise_deg": [math.degrees(v) for v in cfg.angle_noise],
                 "duration_s": cfg.duration,
                 "true_touches": results[0].touches.count,
                 "contact_fraction": results[0].touches.contact_fraction,
-                "videos": {c.value: key[(traj.name, c)] for c in STUDY_CONDITIONS},
+                "videos": {c: key[(traj.name, c)] for c in conds},
             }
         )
     return {
         "seed": seed,
+        "conditions": {c: c for c in conds},  # each condition is named by its policy
         "eye": "left",
         "width_px": config.camera.width,
         "height_px": config.camera.height,
@@ -481,7 +560,7 @@ def design_dict(
         else {
             "trajectory": practice[0].name,
             "noise_seed": practice[1],
-            "condition": PRACTICE_CONDITION.value,
+            "condition": PRACTICE_CONDITION,
             "true_touches": practice[2].touches.count,
             "file": PRACTICE_FILE,
         },

@@ -4,15 +4,18 @@
 ``endocam study make`` (which writes it), ``endocam study serve`` and ``endocam study analyze``::
 
     {"endocam_version": "0.1.0", "created": "2024-05-01T12:00:00+00:00",
-     "conditions": ["fixed", "centering", "orientation"],
+     "conditions": ["fixed", "centering", "endocam"],
      "videos": [{"id": "v01", "condition": "fixed", "trajectory": "t3-71-high",
                  "difficulty": 3, "true_touches": 7, "file": "videos/v01.mp4"}, ...],
-     "orders": [["fixed", "centering", "orientation"], ...],
+     "orders": [["fixed", "centering", "endocam"], ...],
      "attention": {"question": "...", "answer": 4},
      "touch_definition": "A touch is ..."}
 
-``difficulty`` runs from 1 to 3 (3 = most difficult, the paper's 71-point trajectory). ``file`` is
-relative to the study folder.
+``conditions`` are two or more distinct names, each the camera policy that filmed its videos
+(``endocam.registry.POLICIES``; ``"orientation"``, in studies made before round 9, is the endocam
+tracker); ``orders`` are the presentation orders (``study make`` writes a Williams design,
+:mod:`endocam.study.counterbalance`). ``difficulty`` runs from 1 to 3 (3 = most difficult, the
+paper's 71-point trajectory). ``file`` is relative to the study folder.
 
 Optional fields configure the online study (all have defaults, so older manifests still load):
 ``touch_definition`` (shown on the practice page and with every video), ``consent_file`` (plain
@@ -30,10 +33,10 @@ counts.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping, Sequence
 from datetime import datetime
-from enum import StrEnum
 from pathlib import Path, PurePosixPath
-from typing import Annotated, Self
+from typing import Annotated, Any, Self
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -48,15 +51,30 @@ DEFAULT_TOUCH_DEFINITION = (
 )  # what the simulator counts (endocam.task.touches: one event per interval of contact)
 
 
-class Condition(StrEnum):
-    """Camera condition of a study video (paper Sec. IV-D, conditions I-III)."""
+CONDITION_PATTERN = r"^[a-z][a-z0-9_-]{0,31}$"  # condition names appear in file names and keys
+Condition = Annotated[str, Field(pattern=CONDITION_PATTERN)]
+"""A study condition: the name of the camera policy that filmed its videos
+(``endocam.registry.POLICIES``); ``orientation`` in studies made before round 9 (the endocam
+tracker, :data:`LEGACY_CONDITION_POLICY`)."""
 
-    FIXED = "fixed"
-    CENTERING = "centering"
-    ORIENTATION = "orientation"
+# The paper's conditions I-III as endocam films them: the fixed and centering cameras and the
+# endocam tracker (the orientation camera). ``study make``'s default.
+DEFAULT_CONDITIONS = ("fixed", "centering", "endocam")
+# Condition names of studies made before conditions were policy names, and their policy.
+LEGACY_CONDITION_POLICY = {"orientation": "endocam"}
+MIN_CONDITIONS = 2  # a study compares at least two conditions
 
 
-STUDY_CONDITIONS = (Condition.FIXED, Condition.CENTERING, Condition.ORIENTATION)  # I, II, III
+def condition_policies(design: Mapping[str, Any], conditions: Sequence[str]) -> dict[str, str]:
+    """The registry policy that filmed each condition's videos, from a study's ``design.json``.
+
+    Its ``conditions`` map (round 9 on: each condition named by its policy); a folder made
+    before it has none, and its names are mapped by :data:`LEGACY_CONDITION_POLICY`.
+    """
+    recorded = design.get("conditions")
+    if isinstance(recorded, Mapping):
+        return {c: str(recorded.get(c, c)) for c in conditions}
+    return {c: LEGACY_CONDITION_POLICY.get(c, c) for c in conditions}
 
 
 URL_PARAM_PATTERN = r"^[A-Za-z][A-Za-z0-9_]{0,31}$"  # recruitment URL parameter names
@@ -189,11 +207,16 @@ class Manifest(_Frozen):
 
     @model_validator(mode="after")
     def _consistent(self) -> Self:
-        if sorted(self.conditions) != sorted(Condition):
+        if len(self.conditions) < MIN_CONDITIONS or len(set(self.conditions)) != len(
+            self.conditions
+        ):
             raise ValueError(
-                f"conditions must list each of {[c.value for c in Condition]} once, "
-                f"got {[c.value for c in self.conditions]}"
+                f"conditions must list at least {MIN_CONDITIONS} distinct conditions, "
+                f"got {list(self.conditions)}"
             )
+        strangers = sorted({v.condition for v in self.videos} - set(self.conditions))
+        if strangers:
+            raise ValueError(f"videos of conditions not in conditions: {strangers}")
         ids = [v.id for v in self.videos]
         duplicates = sorted({i for i in ids if ids.count(i) > 1})
         if duplicates:
@@ -205,7 +228,7 @@ class Manifest(_Frozen):
             seen = sorted(v.trajectory for v in self.videos if v.condition == condition)
             if seen != trajectories:
                 raise ValueError(
-                    f"condition {condition.value!r} must have exactly one video per trajectory "
+                    f"condition {condition!r} must have exactly one video per trajectory "
                     f"{trajectories}, has {seen}"
                 )
         levels: dict[str, set[int]] = {}
@@ -221,9 +244,7 @@ class Manifest(_Frozen):
             raise ValueError("orders must not be empty")
         for order in self.orders:
             if sorted(order) != sorted(self.conditions):
-                raise ValueError(
-                    f"order {[c.value for c in order]} is not a permutation of conditions"
-                )
+                raise ValueError(f"order {list(order)} is not a permutation of conditions")
         if len(set(self.orders)) != len(self.orders):
             raise ValueError("orders must be distinct")
         return self
@@ -235,11 +256,11 @@ class Manifest(_Frozen):
                 return v
         raise KeyError(video_id)
 
-    def videos_of(self, condition: Condition) -> tuple[Video, ...]:
+    def videos_of(self, condition: str) -> tuple[Video, ...]:
         """Videos of one condition, in manifest order (the order they are shown within a set)."""
         return tuple(v for v in self.videos if v.condition == condition)
 
-    def most_difficult(self, condition: Condition) -> Video:
+    def most_difficult(self, condition: str) -> Video:
         """The video of ``condition`` on the most difficult trajectory (the paper's analysis)."""
         return max(self.videos_of(condition), key=lambda v: v.difficulty)
 

@@ -35,8 +35,13 @@ The whole event is also **sampled at the video's frames**: ``frames`` counts the
 time falls inside ``[t_start, t_end]`` (a touch shorter than a frame interval may show in none),
 and ``visible_frames`` those in which the contact point of that instant is visible (same test).
 
+Beside the onset, each touch's **closing gap** (:mod:`endocam.study.visibility`): the gap at
+0.5 mm just before the onset, from the left eye, the right eye and either, its size in pixels
+and ``resolved`` (in sight and at least 2 px): the measure the report leads with.
+
 :func:`observe_contact` works on one pose pair and a scene; :func:`summarize` condenses records
-per condition (share visible, medians) into what ``observability.json`` and the study report show.
+per condition (shares with seed-level intervals, medians) into what ``observability.json`` and
+the study report show.
 """
 
 from __future__ import annotations
@@ -48,25 +53,30 @@ import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from endocam.camera import MIN_DEPTH, Eye, StereoCamera, points_in_eye
+from endocam.camera import Eye
 from endocam.geometry import as_pose, as_vector3
 from endocam.metrics import orientation_error
-from endocam.study.manifest import Condition
-from endocam.study.observer import PRE_TOUCH_S
+from endocam.study.visibility import (
+    ClosingGap,
+    ShareCI,
+    closing_gap,
+    control_step,
+    hider_kind,
+    in_image,
+    pixel_scales,
+    share_ci,
+)
 from endocam.task.touches import contact_normal
 
 if TYPE_CHECKING:
     from endocam.runner.episode import EpisodeResult
     from endocam.sim.render import WireChaserScene
-
-GAP_SEEN = 0.5e-3  # m, a ring-wire gap this wide is "still open": where its closing is judged
-GAP_SEEN_DT = 1e-3  # s, sampling of the clearance when finding that instant
 
 OBSERVABILITY_JSON = "observability.json"
 OBSERVABILITY_CSV = "observability.csv"
@@ -74,59 +84,7 @@ MM_PER_M = 1e3  # mm / m
 _EPS = 1e-12  # m, below this a direction is undefined
 
 
-# --------------------------------------------------------------------------- pure geometry
-def in_image(
-    camera: StereoCamera, T_world_cam: ArrayLike, p_world: ArrayLike, eye: Eye = "left"
-) -> bool:
-    """Whether ``p_world`` (3,), m, projects inside ``eye``'s image (and lies in front of it)."""
-    T = as_pose(T_world_cam, "T_world_cam")
-    return bool(camera.in_image(T, as_vector3(p_world, "p_world"), eye))
-
-
-def pixel_scales(
-    camera: StereoCamera,
-    T_world_cam: ArrayLike,
-    p_world: ArrayLike,
-    u_world: ArrayLike,
-    eye: Eye = "left",
-) -> tuple[float, float]:
-    r"""Image scale at a point and the image length of a unit step along a direction.
-
-    With the point in the eye frame :math:`(X, Y, Z)` and the direction :math:`(a, b, c)`, the
-    projection's Jacobian gives the image velocity
-    :math:`(f_x (a - c X/Z)/Z,\; f_y (b - c Y/Z)/Z)`.
-
-    Parameters
-    ----------
-    camera : StereoCamera
-    T_world_cam : (4, 4)
-        Camera pose (optical frame), m.
-    p_world : (3,)
-        Point in world, m.
-    u_world : (3,)
-        Unit direction in world.
-    eye : {"left", "right"}
-
-    Returns
-    -------
-    px_per_m : float
-        :math:`f_y / Z`, px per m perpendicular to the line of sight at the point's depth
-        (NaN behind the eye).
-    step_px_per_m : float
-        Image length of a step along ``u_world``, px per m (NaN behind the eye).
-    """
-    T = as_pose(T_world_cam, "T_world_cam")
-    p = points_in_eye(camera, T, as_vector3(p_world, "p_world"), eye)[0]
-    R_world_eye = (T @ camera.T_cam_eye(eye))[:3, :3]
-    a, b, c = R_world_eye.T @ as_vector3(u_world, "u_world")
-    K = camera.intrinsics.K
-    if not p[2] >= MIN_DEPTH:
-        return math.nan, math.nan
-    du = K[0, 0] * (a - c * p[0] / p[2]) / p[2]
-    dv = K[1, 1] * (b - c * p[1] / p[2]) / p[2]
-    return float(K[1, 1] / p[2]), float(math.hypot(du, dv))
-
-
+# ---------------------------------------------------------------------------- one contact
 @dataclass(frozen=True)
 class ContactView:
     """What one eye sees of one contact point (see the module docstring).
@@ -234,8 +192,17 @@ class TouchObservation:
         unoccluded from the eye. An observer-independent upper bound on what any assessor can
         see close. ``None``: not computed (files written before the column existed).
     gap_hidden_by : str
-        What hides that gap (:func:`gap_hidden_by`): ``OUTSIDE_IMAGE`` or a geom's name; empty
-        when it is in sight or not computed.
+        What hides that gap (:func:`~endocam.study.visibility.gap_hidden_by`):
+        ``OUTSIDE_IMAGE`` or a geom's name; empty when it is in sight or not computed.
+    gap_in_sight_right, gap_hidden_by_right : bool or None, str
+        The same from the right eye (:mod:`endocam.study.visibility`).
+    gap_in_sight_either : bool or None
+        Either eye sees the closing gap.
+    gap_px : float
+        Pixels the 0.5 mm closing gap spans along the contact normal, in the eye that sees it
+        best (both if neither does), px; NaN: not computed or undefined.
+    resolved : bool or None
+        In sight from an eye where it spans at least ``RESOLVED_PX`` (2 px): the headline.
     """
 
     video_id: str
@@ -257,61 +224,11 @@ class TouchObservation:
     closes_visibly: bool = False
     gap_in_sight: bool | None = None
     gap_hidden_by: str = ""
-
-
-def _step(result: EpisodeResult, t: float) -> int:
-    """Control step nearest to time ``t`` (s)."""
-    rate = result.config.episode.control_rate
-    return int(np.clip(round(t * rate), 0, len(result.log.t) - 1))
-
-
-OUTSIDE_IMAGE = "outside the image"  # what hides a gap outside the eye's frustum
-
-
-def gap_hidden_by(
-    result: EpisodeResult, scene: WireChaserScene, t_start: float, eye: Eye = "left"
-) -> str | None:
-    """What hides the gap that closes at a touch's onset ``t_start`` (s) from ``eye``.
-
-    The instant: the first one in the ``PRE_TOUCH_S`` (the observer's "just before") before the
-    onset at which the exact clearance (``task.touches.clearances``, sampled every
-    ``GAP_SEEN_DT``) is at most ``GAP_SEEN`` (the window's start if it is smaller throughout).
-    There the closest-approach point between the wire and the ring's tube, in the open gap,
-    must project into the image in front of the eye and be unoccluded (MuJoCo ray cast through
-    every geom: the wire's near part, the rim, the handle, an instrument), with the logged
-    camera pose and PSM2 tip of the nearest control step: the test every validation clip's view
-    passes (:func:`endocam.study.observer_clips.gap_visible`).
-
-    Returns
-    -------
-    str or None
-        None when the gap is in sight; ``OUTSIDE_IMAGE``; or the name of the first geom in front
-        of it (:meth:`~endocam.sim.render.WireChaserScene.occluder`, e.g. ``"wire"``: the wire's
-        own near part, ``"ring_torus"``: the rim).
-    """
-    from endocam.task.touches import clearances
-
-    t0 = max(t_start - PRE_TOUCH_S, 0.0)
-    ts = np.append(np.arange(t0, t_start, GAP_SEEN_DT), t_start)
-    T_rings = result.trajectory.poses(ts)
-    c, p = clearances(T_rings, result.wire, result.config.task.ring)
-    closing = np.flatnonzero(c <= GAP_SEEN)
-    i = int(closing[0]) if closing.size else len(ts) - 1
-    k = _step(result, float(ts[i]))
-    T_cam = result.log.T_world_cam[k]
-    scene.set_psm2_tip(result.log.p_world_tips[k, 1])
-    scene.set_ring_pose(T_rings[i])
-    scene.set_camera_pose(T_cam)
-    if not in_image(scene.camera, T_cam, p[i], eye):
-        return OUTSIDE_IMAGE
-    return scene.occluder(p[i], T_cam, eye)
-
-
-def gap_in_sight(
-    result: EpisodeResult, scene: WireChaserScene, t_start: float, eye: Eye = "left"
-) -> bool:
-    """Whether the gap that closes at ``t_start`` (s) can be seen: :func:`gap_hidden_by` is None."""
-    return gap_hidden_by(result, scene, t_start, eye) is None
+    gap_in_sight_right: bool | None = None
+    gap_hidden_by_right: str = ""
+    gap_in_sight_either: bool | None = None
+    gap_px: float = math.nan
+    resolved: bool | None = None
 
 
 def hidden_counts(records: Sequence[TouchObservation]) -> dict[str, int] | None:
@@ -332,6 +249,56 @@ def count_hiders(hiders: Sequence[str]) -> dict[str, int]:
     for h in hiders:
         counts[h] = counts.get(h, 0) + 1
     return dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+
+
+def gap_columns(gap: ClosingGap) -> dict[str, Any]:
+    """The closing-gap fields of a :class:`TouchObservation`, from both eyes' view of the gap."""
+    return {
+        "gap_in_sight": gap.left.in_sight,
+        "gap_hidden_by": gap.left.hidden_by or "",
+        "gap_in_sight_right": gap.right.in_sight,
+        "gap_hidden_by_right": gap.right.hidden_by or "",
+        "gap_in_sight_either": gap.in_sight_either,
+        "gap_px": gap.gap_px,
+        "resolved": gap.resolved,
+    }
+
+
+def row_columns(row: dict[str, Any]) -> dict[str, Any]:
+    """:func:`gap_columns` from a closing gap's JSON row (``visibility.gap_row``)."""
+    return {
+        "gap_in_sight": row["in_sight_left"],
+        "gap_hidden_by": row["hidden_by_left"] or "",
+        "gap_in_sight_right": row["in_sight_right"],
+        "gap_hidden_by_right": row["hidden_by_right"] or "",
+        "gap_in_sight_either": row["in_sight_either"],
+        "gap_px": math.nan if row["gap_px"] is None else row["gap_px"],
+        "resolved": row["resolved"],
+    }
+
+
+def hidden_from_both(records: Sequence[TouchObservation]) -> dict[str, int] | None:
+    """What hides the closing gaps no eye sees, by kind (:func:`hider_kind`), most first.
+
+    The left eye's hider names each such touch. None when not recorded (a folder made before
+    the stereo columns).
+    """
+    if any(r.gap_in_sight_either is None for r in records):
+        return None
+    return count_hiders(
+        [hider_kind(r.gap_hidden_by) for r in records if r.gap_in_sight_either is False]
+    )
+
+
+def by_seed(records: Sequence[TouchObservation], field: str) -> dict[str, list[bool]] | None:
+    """Per video (one noise seed each), the flags ``field`` of its touches; None if unknown."""
+    out: dict[str, list[bool]] = {}
+    for r in records:
+        flag = getattr(r, field)
+        if flag is None:
+            return None
+        out.setdefault(r.video_id, []).append(bool(flag))
+    return out
 
 
 def observe_episode(
@@ -374,9 +341,9 @@ def observe_episode(
     for i, ev in enumerate(result.touches.events):
         T_ring = result.trajectory.pose(ev.t_start)
         _, p_onset = clearances(T_ring[None], result.wire, ring_cfg)
-        scene.set_psm2_tip(result.log.p_world_tips[_step(result, ev.t_start), 1])
+        scene.set_psm2_tip(result.log.p_world_tips[control_step(result, ev.t_start), 1])
         view = observe_contact(
-            scene, T_ring, result.log.T_world_cam[_step(result, ev.t_start)], p_onset[0], eye
+            scene, T_ring, result.log.T_world_cam[control_step(result, ev.t_start)], p_onset[0], eye
         )
         inside = frame_t[(frame_t >= ev.t_start) & (frame_t <= ev.t_end)]
         seen = 0
@@ -384,14 +351,14 @@ def observe_episode(
             T_rings = result.trajectory.poses(inside)
             _, p_frames = clearances(T_rings, result.wire, ring_cfg)
             for t, T_r, p in zip(inside, T_rings, p_frames, strict=True):
-                k = _step(result, float(t))
+                k = control_step(result, float(t))
                 T_cam = result.log.T_world_cam[k]
                 scene.set_psm2_tip(result.log.p_world_tips[k, 1])
                 scene.set_ring_pose(T_r)
                 scene.set_camera_pose(T_cam)
                 if in_image(scene.camera, T_cam, p, eye) and scene.ray_visible(p, T_cam, eye):
                     seen += 1
-        hider = gap_hidden_by(result, scene, float(ev.t_start), eye)
+        gap = closing_gap(result, scene, float(ev.t_start))
         records.append(
             TouchObservation(
                 video_id=video_id,
@@ -408,8 +375,7 @@ def observe_episode(
                 gap_px_per_mm=view.gap_px_per_mm,
                 frames=int(inside.size),
                 visible_frames=seen,
-                gap_in_sight=hider is None,
-                gap_hidden_by=hider or "",
+                **gap_columns(gap),
             )
         )
     return records
@@ -439,14 +405,20 @@ class ConditionObservability(_Frozen):
     closes_visibly_share: float | None = None
     gap_in_sight_share: float | None = None
     gap_hidden_by: dict[str, int] | None = None  # touches per hider; None: not recorded
+    resolved: ShareCI | None = None  # the headline (endocam.study.visibility)
+    gap_in_sight_either: ShareCI | None = None
+    gap_in_sight_left: ShareCI | None = None
+    gap_in_sight_right_share: float | None = None
+    median_gap_px: float | None = None
+    hidden_from_both: dict[str, int] | None = None  # touches per hider kind; None: not recorded
 
 
 class ObservabilitySummary(_Frozen):
-    """The summary part of ``observability.json``, keyed by condition value."""
+    """The summary part of ``observability.json``, keyed by condition name (in study order)."""
 
     eye: str
     instant: str
-    conditions: dict[Condition, ConditionObservability]
+    conditions: dict[str, ConditionObservability]
 
 
 def finite_median(values: Sequence[float]) -> float | None:
@@ -461,8 +433,26 @@ def known_share(flags: Sequence[bool | None]) -> float | None:
     return float(np.mean(known)) if known else None
 
 
-def summarize(records: Sequence[TouchObservation], eye: Eye = "left") -> ObservabilitySummary:
+def seed_share(records: Sequence[TouchObservation], field: str) -> ShareCI | None:
+    """Share of ``field`` over the records with its seed-level interval (one video = one seed)."""
+    flags = by_seed(records, field)
+    return None if flags is None else share_ci(flags)
+
+
+def summarize(
+    records: Sequence[TouchObservation],
+    eye: Eye = "left",
+    conditions: Sequence[str] | None = None,
+) -> ObservabilitySummary:
     """Per-condition summary: share visible (in image, unoccluded), medians, frame coverage.
+
+    ``conditions``: the study's conditions, in order (an entry each, empty ones too); default:
+    the conditions of ``records`` in order of appearance.
+
+    The closing gap (:mod:`endocam.study.visibility`): ``resolved`` (the headline),
+    ``gap_in_sight_either`` and ``gap_in_sight_left``, each a share with a seed-level bootstrap
+    95 % interval (each video is one noise seed), the right eye's share, the median ``gap_px``
+    and ``hidden_from_both`` (what hides the gaps neither eye sees, by kind).
 
     The image-space columns: ``median_gap_before_px`` (median over touches of the gap seen just
     before each onset) and ``closes_visibly_share`` (share of touches whose gap closes visibly).
@@ -471,9 +461,10 @@ def summarize(records: Sequence[TouchObservation], eye: Eye = "left") -> Observa
     which the contact point was visible; ``touches_without_frame`` counts touches that no video
     frame shows (shorter than a frame interval).
     """
+    names = list(dict.fromkeys(r.condition for r in records)) if conditions is None else conditions
     out = {}
-    for condition in Condition:
-        rs = [r for r in records if r.condition == condition.value]
+    for condition in names:
+        rs = [r for r in records if r.condition == condition]
         frames = sum(r.frames for r in rs)
         out[condition] = ConditionObservability(
             touches=len(rs),
@@ -489,6 +480,12 @@ def summarize(records: Sequence[TouchObservation], eye: Eye = "left") -> Observa
             closes_visibly_share=known_share([r.closes_visibly for r in rs]),
             gap_in_sight_share=known_share([r.gap_in_sight for r in rs]),
             gap_hidden_by=hidden_counts(rs),
+            resolved=seed_share(rs, "resolved"),
+            gap_in_sight_either=seed_share(rs, "gap_in_sight_either"),
+            gap_in_sight_left=seed_share(rs, "gap_in_sight"),
+            gap_in_sight_right_share=known_share([r.gap_in_sight_right for r in rs]),
+            median_gap_px=finite_median([r.gap_px for r in rs]),
+            hidden_from_both=hidden_from_both(rs),
         )
     return ObservabilitySummary(eye=eye, instant="touch onset (t_start)", conditions=out)
 

@@ -327,7 +327,7 @@ def observer_summary(
     out: dict[str, dict[str, float | int | None]] = {}
     for c in manifest.conditions:
         errors = [abs(counted[v.id] - v.true_touches) for v in manifest.videos_of(c)]
-        out[c.value] = {
+        out[c] = {
             "videos": len(errors),
             "mean_abs_error": float(np.mean(errors)),
             "sd_abs_error": float(np.std(errors, ddof=1)) if len(errors) > 1 else None,
@@ -345,7 +345,7 @@ def observer_document(
         "videos": [
             {
                 "id": v.id,
-                "condition": v.condition.value,
+                "condition": v.condition,
                 "true_touches": v.true_touches,
                 "counted_touches": counted[v.id],
                 "events": [asdict(t) for t in observations[v.id].touches],

@@ -54,8 +54,8 @@ from scipy.spatial.transform import Rotation
 from endocam.camera import StereoCamera
 from endocam.config import CameraConfig
 from endocam.geometry import FloatArray, make_pose
-from endocam.study.observability import GAP_SEEN
 from endocam.study.observer import ColourKeys, Match, match_events, observe_video
+from endocam.study.visibility import GAP_SEEN
 from endocam.task.config import TaskConfig, WireConfig
 from endocam.task.trajectory import ideal_ring_rotations
 from endocam.task.wire import Wire

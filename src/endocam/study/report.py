@@ -16,14 +16,29 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from endocam import __version__
-from endocam.study.analysis import ORDERED_CONDITIONS, AnalysisResult, result_json
+from endocam.study.analysis import AnalysisResult, result_json
 from endocam.study.observability import ObservabilitySummary
+from endocam.study.visibility import ShareCI
 
 ANALYSIS_JSON = "analysis.json"
 BOXPLOT_PNG = "assessment_errors.png"
 REPORT_HTML = "report.html"
 _TEMPLATES = Path(__file__).parent / "templates"
-_LABELS = {"fixed": "Fixed", "centering": "Centering", "orientation": "Orientation"}
+
+
+class Labels(dict[str, str]):
+    """Condition names as the report words them; a name without a label stands for itself."""
+
+    def __missing__(self, key: str) -> str:
+        return key
+
+
+LABELS = Labels(
+    fixed="Fixed",
+    centering="Centering",
+    orientation="Orientation",
+    endocam="endocam (orientation)",
+)
 BOXPLOT_DPI = 150  # dots per inch of the PNG
 # What hides a gap, by the scene's geom names (endocam.sim.scene), as the report words it.
 _HIDER_LABELS = (  # (geom-name prefix, label); first match wins
@@ -57,6 +72,23 @@ def hidden_by_text(counts: dict[str, int] | None) -> str:
     return ", ".join(f"{label} {n}" for label, n in ranked) or "–"
 
 
+def share_text(value: ShareCI | None) -> str:
+    """``"52 % (38–66 %)"``: a share with its seed-level 95 % interval (``–``: not recorded)."""
+    if value is None:
+        return "–"
+    if value.ci95 is None:
+        return f"{100 * value.share:.0f} %"
+    lo, hi = value.ci95
+    return f"{100 * value.share:.0f} % ({100 * lo:.0f}–{100 * hi:.0f} %)"
+
+
+def kinds_text(counts: dict[str, int] | None) -> str:
+    """Counts by hider kind in words, ``"wire 12, rim 3"`` (``–``: none; None: not recorded)."""
+    if counts is None:
+        return NOT_RECORDED
+    return ", ".join(f"{kind} {n}" for kind, n in counts.items()) or "–"
+
+
 def plot_errors(result: AnalysisResult, path: Path) -> None:
     """Box plot of the kept assessment errors per condition (like the paper's Fig. 7).
 
@@ -67,7 +99,7 @@ def plot_errors(result: AnalysisResult, path: Path) -> None:
     path : Path
         PNG file to write.
     """
-    names = [c.value for c in ORDERED_CONDITIONS]
+    names = list(result.conditions)
     data = [result.kept_errors.get(name, []) for name in names]
     fig = Figure(figsize=(5.0, 4.0), layout="constrained")
     FigureCanvasAgg(fig)
@@ -77,7 +109,7 @@ def plot_errors(result: AnalysisResult, path: Path) -> None:
         ax.boxplot(
             [data[p - 1] for p in positions], positions=positions, showmeans=True, widths=0.5
         )
-    ax.set_xticks(range(1, len(names) + 1), labels=[_LABELS[n] for n in names])
+    ax.set_xticks(range(1, len(names) + 1), labels=[LABELS[n] for n in names])
     ax.set_xlim(0.5, len(names) + 0.5)
     ax.set_xlabel("Camera condition")
     ax.set_ylabel("Assessment error (touches)")
@@ -112,7 +144,10 @@ def render_report(result: AnalysisResult, observability: ObservabilitySummary | 
     return env.get_template("report.html").render(
         result=result,
         observability=observability,
-        labels=_LABELS,
+        labels=LABELS,
+        last=list(result.conditions)[-1],
+        share=share_text,
+        hidden_kinds=kinds_text,
         boxplot=BOXPLOT_PNG,
         version=__version__,
         fmt=lambda x, digits=2: "–" if x is None else f"{x:.{digits}f}",

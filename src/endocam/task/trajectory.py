@@ -28,6 +28,7 @@ clearance is a touch at least ``d`` deep or a pass at least ``g`` clear.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from enum import StrEnum
@@ -46,6 +47,16 @@ _EPS_DIR = 1e-9  # unitless, below this the tangent is taken as vertical
 LEGIBLE_DT = 4.0e-3  # s, clearance sampling step when looking for ambiguous extrema
 LEGIBLE_OVERSHOOT = 20.0e-6  # m, a moved extremum aims this far past the band's edge
 LEGIBLE_MAX_ROUNDS = 60  # count, rounds of moves before a path is declared illegible
+# count, rounds without fewer ambiguous extrema before a path is declared illegible: the moves
+# then undo each other (two extrema pulling one control point to opposite edges). Over 120
+# drawn study paths (seeds 0-39 of the three) the longest such plateau before success was 8.
+LEGIBLE_STALL_ROUNDS = 12
+LEGIBLE_REDRAWS = 8  # count, fresh draws of an illegible noisy path before giving up
+LEGIBLE_REDRAW_STREAM = 5  # second entry of a re-draw's seed sequence ([seed, stream, attempt])
+
+
+class IllegiblePathError(ValueError):
+    """A noisy path that :func:`legible_control_points` cannot make legible (one line)."""
 
 
 class TrajectoryKind(StrEnum):
@@ -72,6 +83,9 @@ class ControlPoints:
         0 for ideal points.
     angle_threshold : float
         Drawn bound on every angle offset ``|dα|, |dβ|, |dγ|``, rad; 0 for ideal points.
+    noise_seed : int or None
+        Seed the noise was drawn with (None for ideal points); :func:`make_trajectory`'s
+        ``seed`` unless that path was illegible and re-drawn (:func:`redraw_seed`).
     """
 
     positions: FloatArray
@@ -79,6 +93,7 @@ class ControlPoints:
     arc_length: FloatArray
     position_threshold: float = 0.0
     angle_threshold: float = 0.0
+    noise_seed: int | None = None
 
     def __post_init__(self) -> None:
         n = self.positions.shape[0] if self.positions.ndim == 2 else -1
@@ -249,7 +264,7 @@ def control_points(
         t_a, da = angle_offsets(rng, cfg.angle_noise, int(n))
         for ends in (dp, da):  # clean ends: start and finish centred on the wire, clear of it
             ends[[0, -1]] = 0.0
-        return ControlPoints(positions + dp, euler + da, s, t_p, t_a)
+        return ControlPoints(positions + dp, euler + da, s, t_p, t_a, int(seed))
     return ControlPoints(positions=positions, euler_xyz=euler, arc_length=s)
 
 
@@ -305,9 +320,10 @@ def legible_control_points(
 
     Raises
     ------
-    ValueError
-        If ambiguous extrema remain after ``LEGIBLE_MAX_ROUNDS`` rounds, or no edge of the band
-        can be reached within ``t_p``.
+    IllegiblePathError
+        If ambiguous extrema remain after ``LEGIBLE_MAX_ROUNDS`` rounds, or after
+        ``LEGIBLE_STALL_ROUNDS`` rounds in a row without fewer of them than before, or no edge
+        of the band can be reached within ``t_p``.
     """
     depth, gap = band
     middle = 0.5 * (gap - depth)
@@ -316,15 +332,20 @@ def legible_control_points(
     positions = cps.positions.copy()
     t = np.arange(0.0, duration, LEGIBLE_DT)
     t_points = np.linspace(0.0, duration, n)
+    fewest, stalled = math.inf, 0
     for _ in range(LEGIBLE_MAX_ROUNDS):
-        moved = ControlPoints(
-            positions, cps.euler_xyz, cps.arc_length, cps.position_threshold, cps.angle_threshold
-        )
+        moved = dataclasses.replace(cps, positions=positions.copy())
         T = RingTrajectory(moved, duration).poses(t)
         c, p = clearances(T, wire, ring_cfg)
         ambiguous = ambiguous_extrema(c, band)
         if ambiguous.size == 0:
             return moved
+        fewest, stalled = (ambiguous.size, 0) if ambiguous.size < fewest else (fewest, stalled + 1)
+        if stalled >= LEGIBLE_STALL_ROUNDS:
+            raise IllegiblePathError(
+                f"cannot make the path legible: {ambiguous.size} ambiguous approaches left after "
+                f"{LEGIBLE_STALL_ROUNDS} rounds without progress (band {band} m)"
+            )
         for j in ambiguous.tolist():
             k = int(np.clip(np.argmin(np.abs(t_points - t[j])), 1, n - 2))
             normal = contact_normal(p[j], T[j], ring_cfg.major_radius)
@@ -336,11 +357,11 @@ def legible_control_points(
                     positions[k] = candidate
                     break
             else:
-                raise ValueError(
+                raise IllegiblePathError(
                     f"cannot make the path legible: control point {k} would leave the position "
                     f"threshold {cps.position_threshold} m"
                 )
-    raise ValueError(
+    raise IllegiblePathError(
         f"cannot make the path legible in {LEGIBLE_MAX_ROUNDS} rounds of moves (band {band} m)"
     )
 
@@ -445,12 +466,42 @@ def make_trajectory(
     -------
     RingTrajectory
         Lasting ``task_cfg.trajectory.duration`` s; a noisy one made legible
-        (:func:`legible_control_points`) when ``task_cfg.trajectory.legible_band`` is set.
+        (:func:`legible_control_points`) when ``task_cfg.trajectory.legible_band`` is set. A
+        drawn path that cannot be made legible is drawn again, deterministically, from
+        :func:`redraw_seed` ``(seed, 1)``, ``(seed, 2)``, ... (at most ``LEGIBLE_REDRAWS``
+        times); ``control_points.noise_seed`` says which seed the path was drawn with.
+
+    Raises
+    ------
+    IllegiblePathError
+        If no draw can be made legible.
     """
     w = Wire(task_cfg.wire) if wire is None else wire
     cfg = task_cfg.trajectory
     count = cfg.control_points if n is None else n
     cps = control_points(w, count, kind, cfg, seed)
     if TrajectoryKind(kind) is TrajectoryKind.NOISY and cfg.legible_band is not None:
-        cps = legible_control_points(cps, w, task_cfg.ring, cfg.duration, cfg.legible_band)
+        assert seed is not None  # control_points refused a noisy path without one
+        for attempt in range(1, LEGIBLE_REDRAWS + 2):
+            try:
+                cps = legible_control_points(cps, w, task_cfg.ring, cfg.duration, cfg.legible_band)
+                break
+            except IllegiblePathError as exc:
+                if attempt > LEGIBLE_REDRAWS:
+                    raise IllegiblePathError(
+                        f"noise seed {seed}: {exc}, and in {LEGIBLE_REDRAWS} re-draws"
+                    ) from None
+                cps = control_points(w, count, kind, cfg, redraw_seed(seed, attempt))
     return RingTrajectory(cps, cfg.duration)
+
+
+def redraw_seed(seed: int, attempt: int) -> int:
+    """Noise seed of the ``attempt``-th re-draw (≥ 1) of an illegible path drawn with ``seed``.
+
+    A draw of ``numpy.random.default_rng([seed, LEGIBLE_REDRAW_STREAM, attempt])`` in
+    ``[0, 2**31)``: the same seed always gives the same path, and no other seed's first draw is
+    reused on purpose.
+    """
+    if seed < 0 or attempt < 1:
+        raise ValueError(f"seed must be ≥ 0 and attempt ≥ 1, got {seed}, {attempt}")
+    return int(np.random.default_rng([seed, LEGIBLE_REDRAW_STREAM, attempt]).integers(0, 2**31))
