@@ -20,6 +20,7 @@ from endocam.cli import main
 from endocam.config import ExperimentConfig
 from endocam.runner import experiments, sweep
 from endocam.runner.episode import LOG_STATES
+from endocam.runner.outputs import OUTPUT_MARKER
 from endocam.runner.summary import mean_ci
 from endocam.runner.sweep import (
     LOST,
@@ -94,6 +95,9 @@ def test_the_confidence_interval_is_students() -> None:
         (["--seeds", "1"], "names no policy"),
         (["--policy", "fixed", "--address", "x:1"], "--backend ray"),
         (["--config", "missing.toml"], "cannot read sweep"),
+        # grids bounded before a list is built: MAX_SWEEP_EPISODES = 100000
+        (["--policy", "fixed", "--seeds", "0-300000000"], "names 300000001 seeds, more than"),
+        (["--policy", "fixed,centering", "--seeds", "0-99999"], "1 = 200000 episodes, more than"),
     ],
 )
 def test_mistakes_exit_2_with_one_line(
@@ -285,6 +289,7 @@ def test_a_dead_worker_loses_its_episode_not_the_sweep(
     rows = pq.read_table(lost.results).to_pylist()
     assert [r["error"] for r in rows] == [LOST] * 2
     monkeypatch.undo()
+    assert (tmp_path / "s" / OUTPUT_MARKER).is_file()  # endocam's folder: resumed, not refused
     again = run_sweep(tasks, tmp_path / "s", make_backend("local", workers=1))
     assert (again.ran, again.failed) == (2, 0)  # a rerun retries exactly the lost ones
 

@@ -25,6 +25,7 @@ from endocam.task.config import TaskConfig
 
 _FROZEN = ConfigDict(frozen=True, extra="forbid")
 MAX_CONTROL_STEPS = 400_000  # count: duration × control rate (≈ 0.4 GB of logged poses)
+MAX_CONFIG_BYTES = 1_000_000  # bytes: a config or sweep file (the full default config is ~10 kB)
 
 # The pickup camera's optical centre on the PSM tool-tip z axis (the approach direction), m:
 # the dVRK's PROGRASP tip frame sits at the jaw pivot (wrist-yaw axis); ≈ 10 mm of jaw plus
@@ -133,7 +134,8 @@ def _one_line(exc: ValidationError) -> str:
     err = exc.errors()[0]
     where = ".".join(str(p) for p in err["loc"]) or "config"
     more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
-    return f"{where}: {err['msg']}{more}"
+    msg = str(err["msg"]).removeprefix("Value error, ")
+    return f"{where}: {msg}{more}"
 
 
 def config_from_mapping(data: Any, source: str = "config") -> ExperimentConfig:
@@ -148,6 +150,7 @@ def config_from_mapping(data: Any, source: str = "config") -> ExperimentConfig:
         data = {}
     if not isinstance(data, dict):
         raise ValueError(f"{source}: the top level must be a table of sections")
+    refuse_nan(data, source)
     try:
         return ExperimentConfig.model_validate(data)
     except ValidationError as exc:
@@ -185,33 +188,76 @@ def load_faults(path: str | Path) -> FaultsConfig:
         data = data["faults"]
     if not isinstance(data, dict):
         raise ValueError(f"{path}: the top level must be the faults section")
+    refuse_nan(data, f"{path}: faults")
     try:
         return FaultsConfig.model_validate(data)
     except ValidationError as exc:
         raise ValueError(f"{path}: faults.{_one_line(exc)}") from None
 
 
-def read_mapping(path: str | Path) -> Any:
-    """The parsed content of a ``.toml``, ``.yaml`` or ``.yml`` file (not yet validated).
+def refuse_nan(data: Any, source: str, where: str = "") -> None:
+    """Raise ``ValueError`` naming the first NaN in parsed ``data`` (TOML ``nan``, YAML ``.nan``).
+
+    A bound such as ``le=3600`` would reject a NaN with a misleading message (NaN compares
+    false), and a field without a bound would accept it; no config value may be NaN.
+    """
+    if isinstance(data, float) and math.isnan(data):
+        raise ValueError(f"{source}: {where or 'value'}: not a number (nan)")
+    if isinstance(data, dict):
+        items: Any = data.items()
+    elif isinstance(data, list | tuple):
+        items = enumerate(data)
+    else:
+        return
+    for key, value in items:
+        refuse_nan(value, source, f"{where}.{key}" if where else str(key))
+
+
+def read_text(path: str | Path, what: str = "config") -> str:
+    """The text of a UTF-8 file of at most :data:`MAX_CONFIG_BYTES`, a byte-order mark dropped.
 
     Raises
     ------
     ValueError
-        One line if the file is missing, unreadable or malformed.
+        One line naming the file if it is missing, unreadable, too large or not UTF-8.
     """
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        with p.open("rb") as fh:
+            data = fh.read(MAX_CONFIG_BYTES + 1)
     except OSError as exc:
-        raise ValueError(f"cannot read config {p}: {exc.strerror or exc}") from None
+        raise ValueError(f"cannot read {what} {p}: {exc.strerror or exc}") from None
+    if len(data) > MAX_CONFIG_BYTES:
+        raise ValueError(f"{what} {p} is larger than MAX_CONFIG_BYTES = {MAX_CONFIG_BYTES} bytes")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ValueError(
+            f"{what} {p} is not UTF-8 text (byte {exc.start}: 0x{data[exc.start]:02x}); "
+            "save it as UTF-8"
+        ) from None
+
+
+def read_mapping(path: str | Path) -> Any:
+    """The parsed content of a ``.toml``, ``.yaml`` or ``.yml`` file (not yet validated).
+
+    UTF-8 with or without a byte-order mark (a file of only the mark is an empty config).
+
+    Raises
+    ------
+    ValueError
+        One line if the file is missing, unreadable, not UTF-8, malformed or of another format.
+    """
+    p = Path(path)
     suffix = p.suffix.lower()
+    if suffix not in (".toml", ".yaml", ".yml"):
+        raise ValueError(f"config {p}: unknown format {suffix!r}; use .toml, .yaml or .yml")
+    text = read_text(p)
     try:
         if suffix == ".toml":
             data: Any = tomllib.loads(text)
-        elif suffix in (".yaml", ".yml"):
-            data = yaml.safe_load(text)
         else:
-            raise ValueError(f"config {p}: unknown format {suffix!r}; use .toml, .yaml or .yml")
+            data = yaml.safe_load(text)
     except (tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ValueError(f"config {p} is malformed: {first}") from None

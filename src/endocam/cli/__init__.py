@@ -19,12 +19,14 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
 import sys
 import threading
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from types import FrameType
+from typing import Any, TextIO
 
 from endocam import __version__
 from endocam.cli import check, policies, run, study, sweep
@@ -59,7 +61,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     handler: Handler = args.handler
     try:
-        with _sigterm_interrupts():
+        with _sigterm_interrupts(), _named_stdout():
             code = handler(args)
     except UsageError as exc:
         print(f"endocam: error: {exc}", file=sys.stderr)
@@ -73,8 +75,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:  # the file system refused: where and why, in one line
         if args.debug:
             traceback.print_exc()
-        where = f" {exc.filename}" if exc.filename else ""
-        print(f"endocam: error:{where}: {exc.strerror or exc}", file=sys.stderr)
+        where = f" {exc.filename}:" if exc.filename else ""
+        print(f"endocam: error:{where} {exc.strerror or exc}", file=sys.stderr)
         return EXIT_USAGE
     except Exception as exc:
         if args.debug:
@@ -83,6 +85,66 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"endocam: internal error: {type(exc).__name__}: {exc}{hint}", file=sys.stderr)
         return EXIT_INTERNAL
     return int(code or 0)
+
+
+STDOUT = "standard output"
+
+
+class _NamedStdout:
+    """``sys.stdout`` while a command runs: a failed write names standard output.
+
+    A full disk (``endocam config > /dev/full``) or a closed pipe then ends as the one line
+    ``endocam: error: standard output: No space left on device``.
+    """
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self.stream.write(text)
+        except OSError as exc:
+            raise _stdout_error(exc) from None
+
+    def flush(self) -> None:
+        try:
+            self.stream.flush()
+        except OSError as exc:
+            raise _stdout_error(exc) from None
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.stream, name)
+
+
+def _stdout_error(exc: OSError) -> OSError:
+    return OSError(exc.errno, exc.strerror or str(exc), STDOUT)
+
+
+@contextlib.contextmanager
+def _named_stdout() -> Iterator[None]:
+    """Run a command with :class:`_NamedStdout`, flushed at its end (so errors surface here).
+
+    After a failed write, the stream's file descriptor is pointed at ``os.devnull``: what is
+    still buffered cannot fail again at exit with a second message.
+    """
+    stream = sys.stdout
+    sys.stdout = _NamedStdout(stream)
+    try:
+        yield
+        sys.stdout.flush()
+    except OSError as exc:
+        if exc.filename == STDOUT:
+            _silence(stream)
+        raise
+    finally:
+        sys.stdout = stream
+
+
+def _silence(stream: TextIO) -> None:
+    with contextlib.suppress(OSError, ValueError):  # a stream without a file descriptor
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, stream.fileno())
+        os.close(devnull)
 
 
 def _interrupt(signum: int, frame: FrameType | None) -> None:

@@ -66,12 +66,15 @@ def with_faults(config: ExperimentConfig, path: str | None) -> ExperimentConfig:
 
 
 def out_dir(path: str) -> Path:
-    """An output folder that can be written (else a :class:`UsageError`)."""
-    from endocam.runner.outputs import check_writable
+    """The ``--out`` folder, checked before any work (else a :class:`UsageError`).
 
-    out = Path(path)
+    Refused: an empty path, ``.``, the home folder or a folder holding the current or the home
+    folder, a file in the way, a non-empty folder endocam did not write (no ``.endocam-output``
+    marker), a place that cannot be written (:func:`endocam.runner.outputs.check_output_folder`).
+    """
+    from endocam.runner.outputs import check_output_folder
+
     try:
-        check_writable(out)
+        return check_output_folder(path)
     except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    return out
+        raise UsageError(f"--out: {exc}") from None

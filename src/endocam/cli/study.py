@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from endocam.cli.common import UsageError, check_workers, integer
+from endocam.cli.common import UsageError, check_workers, integer, out_dir
 from endocam.runner.pool import DEFAULT_WORKERS
 from endocam.study.analysis import AnalysisConfig, OutlierRule
 from endocam.study.db import ABANDON_AFTER_S
@@ -31,7 +31,6 @@ _EXTRA_HINT = "install the study extra: pip install 'endocam[study]'"
 
 def _make(args: argparse.Namespace) -> int:
     from endocam.config import ExperimentConfig, load_config
-    from endocam.runner.outputs import check_writable
     from endocam.study.make import check_conditions, check_study_config, make_study
 
     if args.seed < 0:
@@ -46,9 +45,9 @@ def _make(args: argparse.Namespace) -> int:
     try:
         config = ExperimentConfig() if args.config is None else load_config(args.config)
         check_study_config(config)
-        check_writable(Path(args.out))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    out_dir(args.out)
     manifest = make_study(
         config,
         args.out,
@@ -243,6 +242,7 @@ def _analyze(args: argparse.Namespace) -> int:
 
     if not (math.isfinite(args.tukey_k) and args.tukey_k > 0):
         raise UsageError(f"--tukey-k must be a finite number > 0, got {args.tukey_k}")
+    out_dir(args.out)
     try:
         manifest = load_manifest(args.manifest, check_files=False)
         if args.db is not None:
@@ -394,7 +394,12 @@ def _add_analyze(sub: argparse._SubParsersAction) -> None:
         metavar="FILE",
         help="the study's manifest.json (an observability.json beside it adds a report section)",
     )
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="DIR",
+        help="output folder (created; an existing one must be empty or endocam's own)",
+    )
     p.add_argument(
         "--all-videos",
         action="store_true",

@@ -5,7 +5,14 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from endocam.cli.common import ARM_CHOICES, UsageError, integer, load_config_arg, out_dir
+from endocam.cli.common import (
+    ARM_CHOICES,
+    UsageError,
+    check_workers,
+    integer,
+    load_config_arg,
+    out_dir,
+)
 from endocam.registry import POLICIES
 from endocam.runner.pool import DEFAULT_WORKERS
 from endocam.task.trajectory import TrajectoryKind
@@ -82,8 +89,7 @@ def _sweep(args: argparse.Namespace) -> int:
         run_sweep,
     )
 
-    if args.workers < 1:
-        raise UsageError(f"--workers must be ≥ 1, got {args.workers}")
+    check_workers(args.workers)
     try:
         short = _short_forms(args)
         if args.sweep is not None:

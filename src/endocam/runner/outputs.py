@@ -5,7 +5,10 @@ before, :mod:`endocam.runner.check`), ``metrics.json`` (with the check's summary
 ``video.mp4``, ``tracking.png`` and ``report.html``.
 Raw files are SI unless a column or key says its unit (``image_error_px``, ``center_error_mm``).
 Everything is written into a temporary folder next to the destination and moved into place when
-complete, so an interrupted run never leaves output that looks finished.
+complete, so an interrupted run never leaves output that looks finished. Every folder written so
+holds the marker file :data:`OUTPUT_MARKER`; endocam replaces an existing folder only if it holds
+that marker or is empty (:func:`check_output_folder`), so ``--out`` never deletes what a person
+put there.
 """
 
 from __future__ import annotations
@@ -69,17 +72,101 @@ Progress = Callable[[int], object]
 
 
 # --------------------------------------------------------------------------- atomic folders
+OUTPUT_MARKER = ".endocam-output"
+"""The file endocam writes into every output folder it creates: endocam replaces (or resumes) an
+existing folder only if it holds this file, or is empty."""
+_MARKER_TEXT = (
+    "endocam {version} wrote this folder; endocam may replace it. Delete this file to keep "
+    "endocam from ever replacing the folder (docs/conventions.md, 'Output folders').\n"
+)
+
+
+def write_marker(folder: Path) -> None:
+    """Write :data:`OUTPUT_MARKER` into ``folder`` (which endocam created)."""
+    (Path(folder) / OUTPUT_MARKER).write_text(
+        _MARKER_TEXT.format(version=__version__), encoding="utf-8"
+    )
+
+
+def check_replaceable(out_dir: str | Path) -> None:
+    """Raise ``ValueError`` (one line) unless endocam may replace or fill ``out_dir``.
+
+    Refused: an empty path; the current folder, the home folder or any folder holding either;
+    a file in the way; an existing folder that is not empty and holds no :data:`OUTPUT_MARKER`.
+    Nothing is created (see :func:`check_output_folder` for the writability probe too).
+    """
+    if not str(out_dir).strip():
+        raise ValueError("output folder: the path is empty; name a folder, e.g. out/run")
+    out = Path(out_dir)
+    resolved = out.resolve()
+    for what, base in (("the current folder", Path.cwd()), ("your home folder", _home())):
+        if base is not None and (resolved == base or resolved in base.parents):
+            which = "is" if resolved == base else "contains"
+            raise ValueError(
+                f"output folder {str(out)!r} {which} {what}, which endocam would replace; "
+                "name a new folder, e.g. out/run"
+            )
+    if resolved.exists() and not resolved.is_dir():
+        raise ValueError(f"output {out} exists and is not a folder")
+    if resolved.is_dir() and not (resolved / OUTPUT_MARKER).is_file():
+        try:
+            empty = next(resolved.iterdir(), None) is None
+        except OSError as exc:
+            raise ValueError(f"cannot read output folder {out}: {exc.strerror}") from None
+        if not empty:
+            raise ValueError(
+                f"output folder {out} is not empty and endocam did not write it (no "
+                f"{OUTPUT_MARKER} file); choose a new or empty folder"
+            )
+
+
+def _home() -> Path | None:
+    try:
+        return Path.home().resolve()
+    except (RuntimeError, KeyError):  # no HOME and no password entry
+        return None
+
+
+def check_output_folder(out_dir: str | Path) -> Path:
+    """The output folder ``out_dir`` checked before any work starts; returns it as a ``Path``.
+
+    Raises
+    ------
+    ValueError
+        One line: what :func:`check_replaceable` refuses, or a place that cannot be written.
+    """
+    check_replaceable(out_dir)
+    check_writable(Path(out_dir))
+    return Path(out_dir)
+
+
 @contextlib.contextmanager
 def atomic_dir(out_dir: Path) -> Iterator[Path]:
-    """Yield a temporary folder that replaces ``out_dir`` only if the block completes."""
-    out_dir = Path(out_dir)
+    """Yield a temporary folder that replaces ``out_dir`` only if the block completes.
+
+    The folder gets :data:`OUTPUT_MARKER`. ``out_dir`` must be one endocam may replace
+    (:func:`check_replaceable`, checked before the block runs and again before the swap).
+
+    Raises
+    ------
+    ValueError
+        ``out_dir`` is not replaceable (then nothing is written), or stopped being so while the
+        block ran (then the finished folder is kept under its temporary name, named in the error).
+    """
+    check_replaceable(out_dir)
+    out_dir = Path(out_dir).resolve()
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=out_dir.parent))
     try:
         yield tmp
+        write_marker(tmp)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    try:
+        check_replaceable(out_dir)
+    except ValueError as exc:  # someone filled the folder meanwhile: keep both
+        raise ValueError(f"{exc}; the finished output is in {tmp}") from None
     old = None
     if out_dir.exists():
         old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}")
@@ -107,7 +194,7 @@ def check_writable(out_dir: Path) -> None:
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise ValueError(f"output {out_dir} exists and is not a folder")
-    parent = out_dir.parent
+    parent = out_dir.resolve().parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

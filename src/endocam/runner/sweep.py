@@ -29,6 +29,7 @@ import functools
 import hashlib
 import itertools
 import json
+import math
 import os
 import re
 import shutil
@@ -47,7 +48,16 @@ from tqdm import tqdm
 from endocam.config import ExperimentConfig, config_from_mapping
 from endocam.runner.episode import DEFAULT_SEED, LOG_STATES, EpisodeSpec, run_episode
 from endocam.runner.experiments import ground_truth
-from endocam.runner.outputs import METRICS_JSON, json_safe, write_atomic, write_json, write_run
+from endocam.runner.outputs import (
+    METRICS_JSON,
+    OUTPUT_MARKER,
+    check_output_folder,
+    json_safe,
+    write_atomic,
+    write_json,
+    write_marker,
+    write_run,
+)
 from endocam.runner.pool import DEFAULT_WORKERS, executor
 from endocam.task.touches import TouchReport
 from endocam.task.trajectory import TrajectoryKind
@@ -64,6 +74,11 @@ TASK_JSON = "task.json"
 RESULTS_PARQUET = "results.parquet"
 EPISODES = "episodes"
 ERROR_MAX_CHARS = 500  # characters of an error message kept in task.json and the table
+MAX_SWEEP_EPISODES = 100_000
+"""Episodes of one sweep at most (count). A headless 60 s episode takes ≥ 0.86 s of CPU (the
+control loop runs ≥ 70× real time) and leaves a ~5 MB folder (``episode.csv`` with the PSM's
+joints), so the bound is already ≥ 1 CPU-day and ~0.5 TB; above it a typo
+(``--seeds 0-300000000``) is refused before any list is built."""
 STATS = ("mean", "p95", "max")
 ERRORS = ("image_error_px", "center_error_mm", "orientation_error_deg")
 METRIC_COLUMNS: tuple[str, ...] = (
@@ -133,7 +148,7 @@ def parse_seeds(text: str) -> list[int]:
     SweepError
         For anything else, or a negative or repeated seed.
     """
-    seeds: list[int] = []
+    ranges: list[range] = []
     for part in str(text).split(","):
         m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
         if m is None:
@@ -142,7 +157,14 @@ def parse_seeds(text: str) -> list[int]:
         hi = int(m.group(2)) if m.group(2) is not None else lo
         if hi < lo:
             raise SweepError(f"seeds: empty range {part.strip()!r}")
-        seeds.extend(range(lo, hi + 1))
+        ranges.append(range(lo, hi + 1))
+    count = sum(len(r) for r in ranges)
+    if count > MAX_SWEEP_EPISODES:
+        raise SweepError(
+            f"seeds: {text!r} names {count} seeds, more than a sweep's "
+            f"MAX_SWEEP_EPISODES = {MAX_SWEEP_EPISODES} episodes"
+        )
+    seeds = [seed for r in ranges for seed in r]
     if len(set(seeds)) != len(seeds):
         raise SweepError(f"seeds: repeated in {text!r}")
     return seeds
@@ -204,6 +226,13 @@ def expand(
     """
     grid = {name: _values(name, v) for name, v in grid.items()}
     points = [dict(p) for p in points] or [{}]
+    count = math.prod(len(v) for v in grid.values()) * len(points)
+    if count > MAX_SWEEP_EPISODES:
+        sizes = " × ".join(str(n) for n in [*(len(v) for v in grid.values()), len(points)])
+        raise SweepError(
+            f"the sweep has {sizes} = {count} episodes, more than "
+            f"MAX_SWEEP_EPISODES = {MAX_SWEEP_EPISODES}"
+        )
     for name in {*grid, *(k for p in points for k in p)}:
         check_param(name)
     for p in points:
@@ -251,15 +280,15 @@ def load_sweep(path: str | Path) -> tuple[ExperimentConfig, dict[str, Any], list
     """
     import tomllib
 
-    from endocam.config import load_config
+    from endocam.config import load_config, read_text
 
     p = Path(path)
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise SweepError(f"cannot read sweep {p}: {exc.strerror or exc}") from None
+        data = tomllib.loads(read_text(p, "sweep"))
     except tomllib.TOMLDecodeError as exc:
         raise SweepError(f"sweep {p} is malformed: {exc}") from None
+    except ValueError as exc:  # missing, unreadable, too large, not UTF-8
+        raise SweepError(str(exc)) from None
     unknown = sorted(set(data) - {"config", "base", "grid", "list"})
     if unknown:
         raise SweepError(f"sweep {p}: unknown key {unknown[0]!r} (config, base, grid, list)")
@@ -480,7 +509,8 @@ def run_sweep(
     tasks : sequence of SweepTask
         From :func:`expand`.
     out_dir : Path
-        The sweep folder (created; kept between runs to resume).
+        The sweep folder (created and marked with ``.endocam-output``; kept between runs to
+        resume). An existing folder must be empty or endocam's own.
     backend : Backend
         From :func:`make_backend`.
     description : mapping, optional
@@ -488,9 +518,11 @@ def run_sweep(
     """
     from endocam.runner.summary import write_summary
 
-    out_dir = Path(out_dir)
+    out_dir = check_output_folder(out_dir)  # empty, or endocam's own (a sweep to resume)
     episodes_dir = out_dir / EPISODES
     episodes_dir.mkdir(parents=True, exist_ok=True)
+    if not (out_dir / OUTPUT_MARKER).is_file():
+        write_marker(out_dir)
     clean_partial(episodes_dir)
     write_atomic(out_dir / SWEEP_JSON, lambda p: write_json(p, json_safe(dict(description or {}))))
     todo = [t for t in tasks if not done(t, episodes_dir)]

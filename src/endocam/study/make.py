@@ -269,7 +269,7 @@ def make_study(
     """
     from endocam.runner.episode import EpisodeSpec
     from endocam.runner.experiments import ground_truth, run_with_progress
-    from endocam.runner.outputs import atomic_dir, check_writable, frame_indices, write_run
+    from endocam.runner.outputs import atomic_dir, check_output_folder, frame_indices, write_run
     from endocam.sim.render import WireChaserScene
 
     check_study_config(config)
@@ -279,7 +279,7 @@ def make_study(
     if workers < 1:
         raise ValueError(f"workers must be ≥ 1, got {workers}")
     out = Path(out_dir)
-    check_writable(out)
+    check_output_folder(out)
     seeds = trajectory_seeds(seed, len(trajectories))
     ids = iter(video_ids(seed, len(trajectories) * len(conds)))
     kind = TrajectoryKind.NOISY

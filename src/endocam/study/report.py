@@ -168,7 +168,8 @@ def write_outputs(
     result : AnalysisResult
         What to write.
     out_dir : str or Path
-        Output folder, created if missing; existing files of the same names are replaced.
+        Output folder, created if missing (marked with ``.endocam-output``); an existing one
+        must be empty or endocam's own, and its files of the same names are replaced.
     observability : ObservabilitySummary, optional
         Shown as a section of ``report.html`` when given.
 
@@ -177,9 +178,14 @@ def write_outputs(
     dict name → Path
         The written files.
     """
+    from endocam.runner.outputs import OUTPUT_MARKER, check_replaceable, write_marker
+
     out = Path(out_dir)
+    check_replaceable(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
+        if not (out / OUTPUT_MARKER).is_file():
+            write_marker(out)
         tmp = Path(tempfile.mkdtemp(prefix=".analysis-", dir=out))
     except OSError as exc:
         raise ValueError(f"out_dir: cannot write to {out}: {exc.strerror or exc}") from None

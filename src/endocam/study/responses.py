@@ -18,7 +18,7 @@ import csv
 import io
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -104,6 +104,14 @@ def rows_from_csv(text: str) -> list[ResponseRow]:
         A missing column, a bad cell or no data rows at all; the message names the line.
     """
     reader = csv.reader(io.StringIO(text.removeprefix("\ufeff")))
+    try:
+        return _rows(reader)
+    except csv.Error as exc:  # a field over csv.field_size_limit(), a NUL byte, ...
+        raise ValueError(f"line {reader.line_num}: {exc}") from None
+
+
+def _rows(reader: Any) -> list[ResponseRow]:
+    """The rows of a CSV reader (see :func:`rows_from_csv`)."""
     header = [h.strip() for h in next(reader, None) or []]
     missing = [c for c in CSV_COLUMNS if c not in header]
     if missing:

@@ -14,6 +14,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from endocam.geometry import FloatArray, R_from_euler_xyz, make_pose
+from endocam.task.centreline import centre_line_length
 
 Vec3 = tuple[float, float, float]
 Range = tuple[float, float]
@@ -435,4 +436,26 @@ class TaskConfig(BaseModel):
             )
         if self.instruments.psm2_tip[2] <= 0.0:
             raise ValueError("instruments.psm2_tip must be above the board (z > 0)")
+        reach = self.max_position_noise
+        if self.trajectory.position_noise[1] > reach:
+            raise ValueError(
+                f"trajectory.position_noise {list(self.trajectory.position_noise)} m goes beyond "
+                f"{reach:.4g} m = ring.major_radius + ring.minor_radius + wire.radius: farther "
+                "than that from the wire a control point takes the ring off it"
+            )
+        length = centre_line_length(self.wire.knots)
+        if not 2.0 * self.trajectory.end_margin < length:
+            raise ValueError(
+                f"trajectory.end_margin {self.trajectory.end_margin} m leaves no wire to follow: "
+                f"the wire is {length:.4g} m long, so end_margin must be below {length / 2:.4g} m"
+            )
         return self
+
+    @property
+    def max_position_noise(self) -> float:
+        """Largest position threshold t_p a trajectory may draw, m.
+
+        A ring centre farther than ``major_radius + minor_radius + wire.radius`` from the
+        wire's centre line no longer has the wire through its hole.
+        """
+        return self.ring.major_radius + self.ring.minor_radius + self.wire.radius

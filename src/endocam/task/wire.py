@@ -14,15 +14,14 @@ from typing import overload
 import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
-from scipy.integrate import cumulative_simpson
 from scipy.interpolate import make_interp_spline
 from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
 
 from endocam.geometry import FloatArray, as_vector3
+from endocam.task.centreline import chord_spline
 from endocam.task.config import WireConfig
 
-_PARAM_SAMPLES = 20001  # count, dense samples of the chord-length spline for the arc-length map
 _SEARCH_SAMPLES_PER_M = 4000  # 1/m, KD-tree sample density for nearest-point seeds (0.25 mm)
 _CELL = 2.0e-3  # m, grid cell of the cached nearest-point candidates (nearest_surface)
 _CELL_RANGE = 0.03  # m, cells whose centre is farther from the wire search every point
@@ -163,12 +162,7 @@ class Wire:
 
     def __init__(self, cfg: WireConfig) -> None:
         self.cfg = cfg
-        knots = np.asarray(cfg.knots, dtype=float)
-        chord = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(knots, axis=0), axis=1))])
-        param = make_interp_spline(chord, knots, k=3, bc_type="natural")
-        u = np.linspace(0.0, chord[-1], _PARAM_SAMPLES)
-        speed = np.linalg.norm(param.derivative()(u), axis=1)
-        s = np.concatenate([[0.0], cumulative_simpson(speed, x=u)])
+        param, u, s = chord_spline(cfg.knots)
         self._length = float(s[-1])
         self._spline = make_interp_spline(s, param(u), k=3)
         self._d_spline = self._spline.derivative()
