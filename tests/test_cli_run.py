@@ -145,6 +145,7 @@ def test_run_writes_everything(short_config: Path, tmp_path: Path) -> None:
     assert code == 0
     names = {p.name for p in out.iterdir()}
     assert names == {
+        ".endocam-output",  # the marker: endocam may replace this folder
         "scene.json",
         "episode.csv",
         "check.json",

@@ -143,6 +143,7 @@ def test_outputs_are_complete_and_consistent(noisy_orientation, tmp_path: Path) 
     out = outputs.write_run(r, tmp_path / "run", video=False)
     names = sorted(p.name for p in out.iterdir())
     assert names == [
+        outputs.OUTPUT_MARKER,
         "check.json",
         "episode.csv",
         "metrics.json",

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from endocam.runner.outputs import OUTPUT_MARKER
 from endocam.study.analysis import (
     AnalysisConfig,
     OutlierRule,
@@ -184,7 +185,7 @@ def test_outputs_are_written_with_the_exact_shape(tmp_path: Path) -> None:
     result = analyze(_study_rows(), MANIFEST)
     out = tmp_path / "out"
     written = write_outputs(result, out)
-    assert sorted(p.name for p in out.iterdir()) == sorted(written)  # no temp leftovers
+    assert sorted(p.name for p in out.iterdir()) == sorted([*written, OUTPUT_MARKER])  # no temp
     doc = json.loads((out / "analysis.json").read_text())
     assert set(doc) == {"conditions", "reductions", "tests", "excluded"}
     assert set(doc["conditions"]) == {"fixed", "centering", "orientation"}

@@ -142,8 +142,9 @@ def _named_stdout() -> Iterator[None]:
 
 def _silence(stream: TextIO) -> None:
     with contextlib.suppress(OSError, ValueError):  # a stream without a file descriptor
+        fd = stream.fileno()
         devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, stream.fileno())
+        os.dup2(devnull, fd)
         os.close(devnull)
 
 

@@ -150,7 +150,8 @@ class TrajectoryConfig(BaseModel):
         (3.0e-3, 3.5e-3),
         description="Range [lo, hi] of the position threshold t_p, m, drawn uniformly once per "
         "noisy trajectory; every control point's position offset is uniform in the ball of "
-        "radius t_p (paper Sec. IV-B: 3-3.5 mm).",
+        "radius t_p (paper Sec. IV-B: 3-3.5 mm). hi ≤ ring.major_radius + ring.minor_radius + "
+        "wire.radius (the ring's reach of the wire, 7 mm by default).",
     )
     angle_noise: Range = Field(
         (math.radians(10.0), math.radians(30.0)),
@@ -169,7 +170,7 @@ class TrajectoryConfig(BaseModel):
         10.0e-3,
         ge=0.0,
         description="Arc length kept free at each wire end (posts), m: control points span "
-        "[end_margin, length − end_margin].",
+        "[end_margin, length − end_margin]; below half the wire's length.",
     )
     legible_band: Range | None = Field(
         None,
