@@ -251,6 +251,7 @@ class CameraArm:
         self._last_target: TargetAnswer | None = None  # the last goal's answer
         self._via_port = False  # on the path through the port view after a target jump
         self._stalled: int | None = None  # a stalled joint (fault injection)
+        self._slide_dq: FloatArray | None = None  # the last slid step (rad / m), while sliding
         self.workspace = workspace
 
     @property
@@ -489,6 +490,7 @@ class CameraArm:
         self._k_prev = None
         self._last_key, self._last_target = None, None
         self._via_port = False
+        self._slide_dq = None
         if look_distance is None:
             look_distance = self._port_distance(T)
         self._q = _frozen(natural_pose(self.model))
@@ -583,6 +585,8 @@ class CameraArm:
                 action = GuardAction.BRAKED if T_checked is None else GuardAction.SLID
                 if T_checked is None:
                     self.guard.brake(self._arm, before)
+            else:
+                self._slide_dq = None  # the motion towards the command is admissible again
         self._q = self._arm.measured_jp()
         self._T_cam = (
             T_checked if T_checked is not None else arm_camera_pose(self.guard.consts, self._q)
@@ -623,7 +627,9 @@ class CameraArm:
         The guard refused the step towards ``q_cmd`` (rad / m): its stopping point could take
         the camera out. Tried in turn from the state ``before`` (joints, velocities), each
         checked by the guard like any step: the straight joint-space line to the target
-        ``q_line`` (when ``q_cmd`` is a camera-path point), then the step towards ``q_cmd``
+        ``q_line`` (when ``q_cmd`` is a camera-path point), the last slid step again (the
+        joint line it started: the motion goes on without a new profile), then the step
+        towards ``q_cmd``
         and towards ``q_line`` slid along the workspace's boundary (:meth:`BrakingGuard.slide`),
         pushed inwards by each of ``SLIDE_PUSHES_M`` in turn, moved along the joint-space line
         the slide is computed for (phase-synchronised joints).
@@ -638,9 +644,14 @@ class CameraArm:
 
         if straight and (T := attempt(q_line)) is not None:
             return T
+        q0 = before[0]
+        if self._slide_dq is not None and (T := attempt(q0 + self._slide_dq, True)) is not None:
+            return T  # on along the last slide's line (its motion continues: no new profile)
         for push in SLIDE_PUSHES_M:
             for q_to in (q_cmd, q_line) if straight else (q_cmd,):
-                q_try = self.guard.slide(workspace, before[0], np.asarray(q_to), push)
+                q_try = self.guard.slide(workspace, q0, np.asarray(q_to), push)
                 if q_try is not None and (T := attempt(q_try, line=True)) is not None:
+                    self._slide_dq = q_try - q0
                     return T
+        self._slide_dq = None
         return None
