@@ -1,4 +1,4 @@
-"""A PSM camera at the floor whose motion towards the command starts below it: it must not sit still.
+"""A PSM camera on the floor whose every step towards the command dips below it must not sit still.
 
 The scene of the noisy 71-point path, seed 7, at 33 s (from its log): the camera rests on the
 floor (``min_camera_height``), the command is 60 mm away, 1 mm above the floor. Every joint
@@ -42,9 +42,7 @@ def _pose(row: tuple[float, ...]) -> np.ndarray:
 def test_a_blocked_arm_slides_or_reports_it() -> None:
     cfg = ExperimentConfig()
     workspace = cfg.controller.workspace(np.array(cfg.task.scene.rcm_position), np.array(P_RING0))
-    arm = CameraArm(
-        ArmKind.PSM, cfg.task.scene.T_world_rcm, cfg.episode.T_tip_cam, 0.01, workspace
-    )
+    arm = CameraArm(ArmKind.PSM, cfg.task.scene.T_world_rcm, cfg.episode.T_tip_cam, 0.01, workspace)
     arm.reset(arm.camera_pose(np.array(Q0)), LOOK_M)
     np.testing.assert_allclose(arm.q, Q0, atol=1e-6)  # the logged configuration, at rest
     T_cmd = _pose(CMD)
