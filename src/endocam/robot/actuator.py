@@ -44,6 +44,20 @@ class ActuatorStatus(enum.Enum):
     """Even the port view is out of reach: nearest feasible configuration (least squares)."""
 
 
+class GuardAction(enum.Enum):
+    """What the carrier's workspace guard did with one control step's motion."""
+
+    FREE = "free"
+    """The motion towards the command keeps the camera able to stop inside: taken as planned."""
+    SLID = "slid"
+    """The motion towards the command could take the camera out of the workspace; the carrier
+    took the admissible motion nearest to it instead (the straight joint line, or the motion
+    slid along the workspace's boundary), checked like any other."""
+    BRAKED = "braked"
+    """No admissible motion towards the command: the carrier brakes to the stopping point it
+    checked before. Repeated, the camera stands still while the command is elsewhere."""
+
+
 class ActuatorStep(NamedTuple):
     """Outcome of one control step of a carrier (immutable; a named tuple: cheap per step).
 
@@ -67,6 +81,8 @@ class ActuatorStep(NamedTuple):
         Whether the carrier delivers what the policy asked of it: PSM — the command exactly;
         ECM — the command's view through the port (its missing orientation is the 4-DoF
         scope's expected residual, measured by ``orientation_error``); free — always.
+    guard : GuardAction
+        What the workspace guard did with the step's motion (``FREE`` without a guard).
     """
 
     T_world_cam: FloatArray
@@ -76,6 +92,7 @@ class ActuatorStep(NamedTuple):
     position_error: float
     orientation_error: float
     reachable: bool
+    guard: GuardAction = GuardAction.FREE
 
 
 class WorkspaceBound(Protocol):

@@ -211,6 +211,7 @@ class SimulatedArm:
         self._inp.max_velocity = self._max_velocity.tolist()
         self._inp.max_acceleration = self._max_acceleration.tolist()
         self._inp.max_jerk = self._max_jerk.tolist()
+        self._line = False  # the last set point's synchronisation: phase (line) or time
         # the community ruckig accepts but does not enforce these; the clamp below does
         self._inp.min_position = self._lower
         self._inp.max_position = self._upper
@@ -310,13 +311,17 @@ class SimulatedArm:
         return self._target.copy()
 
     # ------------------------------------------------------------------ CRTK: commands
-    def servo_jp(self, q: object) -> IKStatus:
+    def servo_jp(self, q: object, line: bool = False) -> IKStatus:
         """Set the joint set point; clipped into the joint limits.
 
         Parameters
         ----------
         q : (n,) array_like
             Joint positions, rad / m.
+        line : bool
+            Move along the straight joint-space line to ``q`` (ruckig's phase synchronisation,
+            when the current velocity allows it: from rest always); default: time-synchronised
+            joints (they arrive together, each on its own profile, off the line on the way).
 
         Returns
         -------
@@ -330,6 +335,11 @@ class SimulatedArm:
         status = IKStatus.OK if inside else IKStatus.CLAMPED_TO_LIMITS
         self._target = np.array(clipped)
         self._inp.target_position = clipped
+        if line is not self._line:
+            self._line = line
+            self._inp.synchronization = (
+                ruckig.Synchronization.Phase if line else ruckig.Synchronization.Time
+            )
         self._command_status = status
         return status
 

@@ -40,12 +40,14 @@ __all__ = [
     "BRAKE_ACC_SHARE",
     "NO_ROWS",
     "PROFILE_READ_STEPS",
+    "SLIDE_PUSHES_M",
     "BrakingGuard",
     "BrakingPath",
     "GuardConsts",
     "StopPoint",
     "arm_camera_pose",
     "braking_inside",
+    "slid_step",
     "stop_point",
 ]
 
@@ -59,6 +61,55 @@ BRAKE_ACC_SHARE = 0.99  # unitless: share of a joint's acceleration limit its br
 # m: added to the camera's distance from the RCM to bound every revolute joint's lever arm on
 # the camera (the wrist, the jaw and the camera mount beyond the shaft are shorter than this)
 ARM_LEVER_SLACK_M = 0.05
+
+
+# The slide (BrakingGuard.slide): a joint step the guard refused, turned along the boundary
+SLIDE_LEAD_M = 5e-3  # m: the slid set point's camera displacement, at most (first order)
+SLIDE_PUSHES_M = (0.5e-3, 2e-3, 5e-3)  # m: how far inwards the slid set point aims (first
+# order), tried in turn: the least covers the joints' camera path's curvature over SLIDE_LEAD_M
+# (~0.1 mm); the arm's time-synchronised joints leave the joint-space line on their way, so a
+# step from rest need not follow it: a larger push turns the motion further inwards
+SLIDE_FD_Q = 1e-6  # rad / m: finite-difference step of the camera position's joint Jacobian
+SLIDE_FD_M = 1e-5  # m: finite-difference step of the workspace margin's gradient
+
+
+def slid_step(
+    dq: FloatArray, J: FloatArray, g: FloatArray, lead: float, push: float
+) -> FloatArray | None:
+    r"""A joint step turned along the workspace's boundary: no outward motion, ``push`` inwards.
+
+    The step is first shortened so its camera displacement ``J dq`` is at most ``lead``; then
+    the least joint change along :math:`a = J^T g` makes the margin's first-order change
+    ``push``:
+
+    .. math:: dq' = dq + \frac{\text{push} - a \cdot dq}{a \cdot a} a
+
+    Parameters
+    ----------
+    dq : (n,) ndarray
+        The joint step towards the command, rad / m.
+    J : (3, n) ndarray
+        The camera position's joint Jacobian, world, m per rad / m.
+    g : (3,) ndarray
+        The workspace margin's gradient at the camera (unit length: the inward normal), world.
+    lead, push : float
+        m.
+
+    Returns
+    -------
+    (n,) ndarray or None
+        ``dq'``; ``None`` when the joints cannot move the camera along ``g`` (``a = 0``) or the
+        inputs are not finite.
+    """
+    v = J @ dq
+    nv = float(np.linalg.norm(v))
+    if nv > lead:
+        dq = dq * (lead / nv)
+    a = J.T @ g
+    aa = float(a @ a)
+    if not (aa > 0.0 and math.isfinite(aa) and np.all(np.isfinite(dq))):
+        return None
+    return dq + ((push - float(a @ dq)) / aa) * a
 
 
 class GuardConsts(NamedTuple):
@@ -357,6 +408,58 @@ class BrakingGuard:
         inside = braking_inside(self.consts, state, compiled, path, q_rows, points)
         return bool(inside) if compiled else workspace.all_inside(points)
 
+    def accept(self, arm: SimulatedArm, workspace: WorkspaceBound) -> FloatArray | None:
+        """Check the joint step the arm has just taken; take its stopping point if it is safe.
+
+        Returns the camera pose after the step (4, 4), m, or ``None`` when the step could take
+        the camera out (then nothing changes here: undo it, and try another or :meth:`brake`).
+        """
+        stop, safe, T_now = self.stop_point(arm, workspace)
+        if self._safe and not safe:
+            return None
+        self._safe, self._stop = safe, stop
+        return T_now
+
+    def brake(self, arm: SimulatedArm, before: tuple[FloatArray, FloatArray]) -> None:
+        """Undo the step: from ``before`` (joints, velocities), brake towards the checked stop."""
+        arm.reset(*before)
+        arm.servo_jp(self._stop)  # the stopping point checked the step before
+        arm.step()
+        self.braked += 1  # on the braking path of a safe state, towards the same stopping point
+
+    def slide(
+        self, workspace: WorkspaceBound, q: FloatArray, q_to: FloatArray, push: float
+    ) -> FloatArray | None:
+        """A joint set point near ``q_to`` whose motion from ``q`` slides along the boundary.
+
+        The step ``q_to − q`` (rad / m) turned by :func:`slid_step` with the camera's joint
+        Jacobian (forward differences of :func:`arm_camera_pose`) and the margin's gradient at
+        the camera (central differences of ``workspace.margin``): a motion that, to first order,
+        keeps to the boundary's tangent plane and aims ``push`` (m) inwards. The guard still
+        checks the step it gives (:meth:`accept`). ``None``: no such motion.
+        """
+        g = self.consts
+        p0 = arm_camera_pose(g, q)[:3, 3]
+        n = len(q)
+        J = np.empty((3, n))
+        for i in range(n):
+            dq_i = np.array(q, dtype=float)
+            dq_i[i] += SLIDE_FD_Q
+            J[:, i] = (arm_camera_pose(g, dq_i)[:3, 3] - p0) / SLIDE_FD_Q
+        grad = np.empty(3)
+        for i in range(3):
+            hi, lo = p0.copy(), p0.copy()
+            hi[i] += SLIDE_FD_M
+            lo[i] -= SLIDE_FD_M
+            grad[i] = (workspace.margin(hi.tolist()) - workspace.margin(lo.tolist())) / (
+                2.0 * SLIDE_FD_M
+            )
+        norm = float(np.linalg.norm(grad))
+        if not (norm > 0.0 and math.isfinite(norm)):
+            return None
+        dq = slid_step(np.asarray(q_to) - q, J, grad / norm, SLIDE_LEAD_M, push)
+        return None if dq is None else q + dq
+
     def keep_inside(
         self,
         arm: SimulatedArm,
@@ -368,12 +471,7 @@ class BrakingGuard:
         ``before``: the joints and their velocities before the step (rad / m, per s). Returns
         the camera pose after the step (4, 4), m, or ``None`` when it braked.
         """
-        stop, safe, T_now = self.stop_point(arm, workspace)
-        if self._safe and not safe:
-            arm.reset(*before)
-            arm.servo_jp(self._stop)  # the stopping point checked the step before
-            arm.step()
-            self.braked += 1
-            return None  # on the braking path of a safe state, towards the same stopping point
-        self._safe, self._stop = safe, stop
+        T_now = self.accept(arm, workspace)
+        if T_now is None:
+            self.brake(arm, before)
         return T_now

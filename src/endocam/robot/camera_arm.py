@@ -41,7 +41,13 @@ import numpy as np
 
 from endocam.camera import StereoCamera
 from endocam.geometry import FloatArray, as_pose, invert_pose
-from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, WorkspaceBound
+from endocam.robot.actuator import (
+    ActuatorStatus,
+    ActuatorStep,
+    ArmKind,
+    GuardAction,
+    WorkspaceBound,
+)
 from endocam.robot.arm import (
     ECM_MAX_ACCELERATION,
     ECM_MAX_VELOCITY,
@@ -49,7 +55,13 @@ from endocam.robot.arm import (
     PSM_MAX_VELOCITY,
     SimulatedArm,
 )
-from endocam.robot.arm_guard import BRAKE_ACC_SHARE, BrakingGuard, GuardConsts, arm_camera_pose
+from endocam.robot.arm_guard import (
+    BRAKE_ACC_SHARE,
+    SLIDE_PUSHES_M,
+    BrakingGuard,
+    GuardConsts,
+    arm_camera_pose,
+)
 from endocam.robot.arm_targets import (
     ECM_EXACT,
     ECM_NEAREST,
@@ -239,6 +251,7 @@ class CameraArm:
         self._last_target: TargetAnswer | None = None  # the last goal's answer
         self._via_port = False  # on the path through the port view after a target jump
         self._stalled: int | None = None  # a stalled joint (fault injection)
+        self._slide_dq: FloatArray | None = None  # the last slid step (rad / m), while sliding
         self.workspace = workspace
 
     @property
@@ -477,6 +490,7 @@ class CameraArm:
         self._k_prev = None
         self._last_key, self._last_target = None, None
         self._via_port = False
+        self._slide_dq = None
         if look_distance is None:
             look_distance = self._port_distance(T)
         self._q = _frozen(natural_pose(self.model))
@@ -557,17 +571,22 @@ class CameraArm:
         reachable = approach is ActuatorStatus.EXACT or (
             self.kind is ArmKind.ECM and approach is ActuatorStatus.VIEW
         )
+        q_line = q_cmd  # the straight joint-space line to the target
         if self.camera_path and approach is not ActuatorStatus.NEAREST:
             q_cmd = self._on_path(q_cmd, T_target, look_distance)
         before = self._arm.state_view()  # (replaced, never written, as the arm moves)
-        if self._stalled is not None:
-            q_cmd = list(q_cmd)
-            q_cmd[self._stalled] = float(self._q[self._stalled])
-        self._arm.servo_jp(q_cmd)
-        self._arm.step()
+        self._move(q_cmd)
         T_checked = None
+        action = GuardAction.FREE
         if self.workspace is not None:
-            T_checked = self.guard.keep_inside(self._arm, self.workspace, before)
+            T_checked = self.guard.accept(self._arm, self.workspace)
+            if T_checked is None:
+                T_checked = self._admissible(self.workspace, before, q_cmd, q_line)
+                action = GuardAction.BRAKED if T_checked is None else GuardAction.SLID
+                if T_checked is None:
+                    self.guard.brake(self._arm, before)
+            else:
+                self._slide_dq = None  # the motion towards the command is admissible again
         self._q = self._arm.measured_jp()
         self._T_cam = (
             T_checked if T_checked is not None else arm_camera_pose(self.guard.consts, self._q)
@@ -582,4 +601,57 @@ class CameraArm:
             found.error.position,
             found.error.angle,
             reachable,
+            action,
         )
+
+    def _move(self, q_cmd: list[float] | FloatArray, line: bool = False) -> None:
+        """One joint step towards the set point ``q_cmd`` (a stalled joint held where it is).
+
+        ``line``: along the straight joint-space line (``SimulatedArm.servo_jp``).
+        """
+        if self._stalled is not None:
+            q_cmd = list(q_cmd)
+            q_cmd[self._stalled] = float(self._q[self._stalled])
+        self._arm.servo_jp(q_cmd, line)
+        self._arm.step()
+
+    def _admissible(
+        self,
+        workspace: WorkspaceBound,
+        before: tuple[FloatArray, FloatArray],
+        q_cmd: list[float],
+        q_line: list[float],
+    ) -> FloatArray | None:
+        """The admissible step nearest to a refused one: its camera pose (4, 4), m; else None.
+
+        The guard refused the step towards ``q_cmd`` (rad / m): its stopping point could take
+        the camera out. Tried in turn from the state ``before`` (joints, velocities), each
+        checked by the guard like any step: the straight joint-space line to the target
+        ``q_line`` (when ``q_cmd`` is a camera-path point), the last slid step again (the
+        joint line it started: the motion goes on without a new profile), then the step
+        towards ``q_cmd``
+        and towards ``q_line`` slid along the workspace's boundary (:meth:`BrakingGuard.slide`),
+        pushed inwards by each of ``SLIDE_PUSHES_M`` in turn, moved along the joint-space line
+        the slide is computed for (phase-synchronised joints).
+        ``None``: none is admissible; the arm is left at ``before``'s state after a step.
+        """
+        straight = q_line is not q_cmd
+
+        def attempt(q_try: list[float] | FloatArray, line: bool = False) -> FloatArray | None:
+            self._arm.reset(*before)
+            self._move(q_try, line)
+            return self.guard.accept(self._arm, workspace)
+
+        if straight and (T := attempt(q_line)) is not None:
+            return T
+        q0 = before[0]
+        if self._slide_dq is not None and (T := attempt(q0 + self._slide_dq, True)) is not None:
+            return T  # on along the last slide's line (its motion continues: no new profile)
+        for push in SLIDE_PUSHES_M:
+            for q_to in (q_cmd, q_line) if straight else (q_cmd,):
+                q_try = self.guard.slide(workspace, q0, np.asarray(q_to), push)
+                if q_try is not None and (T := attempt(q_try, line=True)) is not None:
+                    self._slide_dq = q_try - q0
+                    return T
+        self._slide_dq = None
+        return None

@@ -72,7 +72,7 @@ from endocam.robot.arm import (
     PSM_MAX_VELOCITY,
 )
 from endocam.robot.camera_arm import CameraArm, arm_model
-from endocam.runner.episode import UNREACHABLE
+from endocam.runner.episode import BLOCKED, UNREACHABLE
 from endocam.runner.log_schema import (
     TIME_TOL_S,
     LogHeader,
@@ -93,7 +93,12 @@ POSITION_TOL_M = 1e-9  # m: round-off of a logged position (repr floats, product
 ANGLE_TOL_RAD = 1e-9  # rad: round-off of a logged orientation (quaternion → matrix)
 JOINT_TOL = 1e-9  # rad or m: round-off of a logged joint position
 ARRIVED_TOL_M = 1e-9  # m: a held command repeats the last one to this round-off
-AUTONOMOUS_STATES = (TrackingState.TRACKING.value, TrackingState.PLANNING.value, UNREACHABLE)
+AUTONOMOUS_STATES = (
+    TrackingState.TRACKING.value,
+    TrackingState.PLANNING.value,
+    UNREACHABLE,
+    BLOCKED,
+)
 """States in which the controller drives the camera (the cone applies)."""
 HOLD_STATES = (TrackingState.LOST_TRACKING.value, TrackingState.HOLDING.value)
 """States that answer a lost observation: the camera holds its last command."""

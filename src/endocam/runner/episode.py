@@ -30,7 +30,7 @@ from endocam.metrics import (
     saturate_image_error,
 )
 from endocam.registry import POLICIES, make_policy
-from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind
+from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, GuardAction
 from endocam.runner.step import EpisodeLoop, StepRecord, episode_world, start_carrier
 from endocam.task.config import MAX_CONTROL_POINTS
 from endocam.task.layout import overview_camera_pose
@@ -40,7 +40,14 @@ from endocam.task.wire import Wire
 
 UNREACHABLE = "unreachable"
 """Log state of a step whose goal the carrier concedes (``ActuatorStep.reachable`` is false)."""
-LOG_STATES = (*(s.value for s in TrackingState), UNREACHABLE)
+BLOCKED = "blocked"
+"""Log state of a step the carrier's workspace guard braked: no admissible motion towards the
+command (``ActuatorStep.guard`` is ``GuardAction.BRAKED``)."""
+BLOCKED_REASON = (
+    "no motion towards the command keeps the camera able to stop inside the workspace (cone, "
+    "floor, wire zone): braking"
+)
+LOG_STATES = (*(s.value for s in TrackingState), UNREACHABLE, BLOCKED)
 """Every value of the log's ``state`` column: the controller's states, then the carrier's."""
 
 
@@ -213,7 +220,9 @@ def run_episode(
     :func:`episode_arm`) the camera is carried by that dVRK arm (:class:`CameraArm`): it
     starts at the configuration nearest to the overview pose, every logged camera pose is
     ``FK(q)`` of the logged joints, and steps whose goal the arm cannot reach are logged as
-    ``unreachable`` (unless the policy is already frozen or has lost tracking).
+    ``unreachable`` (unless the policy is already frozen or has lost tracking); steps on which
+    the carrier's workspace guard found no admissible motion towards the command and braked
+    are logged as ``blocked`` (the same exceptions).
 
     Parameters
     ----------
@@ -353,7 +362,10 @@ class _Recorder:
             self.joints[k] = rec.q
             self.pos_err.append(out.position_error)
             self.ori_err.append(out.orientation_error)
-        if not out.reachable and cmd.state not in _SAFETY_STATES:
+        if out.guard is GuardAction.BRAKED and cmd.state not in _SAFETY_STATES:
+            self.state.append(BLOCKED)
+            self.reason.append(BLOCKED_REASON)
+        elif not out.reachable and cmd.state not in _SAFETY_STATES:
             self.state.append(UNREACHABLE)
             self.reason.append(_unreachable_reason(self.kind, out))
         else:

@@ -43,7 +43,7 @@ from endocam.runner.check import (
     check_run,
     write_check,
 )
-from endocam.runner.episode import UNREACHABLE, EpisodeResult, state_fractions
+from endocam.runner.episode import BLOCKED, UNREACHABLE, EpisodeResult, state_fractions
 from endocam.runner.log_schema import (
     episode_column_names,
     joint_column,
@@ -66,6 +66,7 @@ _SHADE = {
     TrackingState.FROZEN_OUTSIDE_CONE.value: ("#9aa5b1", "frozen outside cone"),
     TrackingState.LOST_TRACKING.value: ("#e06666", "lost tracking"),
     UNREACHABLE: ("#c27ba0", "unreachable"),
+    BLOCKED: ("#8e44ad", "blocked (braked at the workspace)"),
 }
 
 Progress = Callable[[int], object]

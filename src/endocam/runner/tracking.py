@@ -23,7 +23,8 @@ goal, whatever the controller calls that stretch (way-points, or a direct move l
 tracking); after it, each step's phase is its state: ``tracking``
 → *tracking*, ``planning`` (way-points, side-change orbits) → *transfer*,
 ``frozen_outside_cone`` → *frozen*, ``lost_tracking`` → *lost*, ``unreachable`` (the arm concedes
-the goal) → *unreachable*, ``holding`` → *holding*.
+the goal) → *unreachable*, ``blocked`` (the arm's workspace guard braked: no admissible motion
+towards the command) → *blocked*, ``holding`` → *holding*.
 
 Rows average the episode means (each episode weighs the same, as the paper averages its three
 trials); a phase's errors average the means of the episodes that have that phase.
@@ -44,7 +45,7 @@ from endocam.config import ExperimentConfig
 from endocam.geometry import FloatArray, so3_log
 from endocam.robot.actuator import ArmKind
 from endocam.robot.arm import ECM_MAX_VELOCITY, PSM_MAX_VELOCITY
-from endocam.runner.episode import UNREACHABLE, EpisodeResult, EpisodeSpec, run_episode
+from endocam.runner.episode import BLOCKED, UNREACHABLE, EpisodeResult, EpisodeSpec, run_episode
 from endocam.runner.experiments import PAPER_MEANS, PathSpec, paper_paths
 from endocam.runner.outputs import (
     PLOT_DPI,
@@ -68,13 +69,14 @@ CONTROLLERS["oracle"] = "oracle"
 DEFAULT_CONTROLLERS = ("paper", "endocam", "centering", "oracle")
 DEFAULT_CARRIERS = (ArmKind.FREE.value, ArmKind.PSM.value)
 SETS = ("ideal", "noisy")
-PHASES = ("approach", "tracking", "transfer", "frozen", "lost", "unreachable", "holding")
+PHASES = ("approach", "tracking", "transfer", "frozen", "lost", "unreachable", "blocked", "holding")
 _STATE_PHASE = {
     "tracking": "tracking",
     "planning": "transfer",
     "frozen_outside_cone": "frozen",
     "lost_tracking": "lost",
     UNREACHABLE: "unreachable",
+    BLOCKED: "blocked",
     "holding": "holding",
 }
 ERRORS = (  # key in rows, label, PNG
