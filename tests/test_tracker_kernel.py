@@ -59,6 +59,16 @@ ATOL_ORTHO = 1e-9  # unitless: a commanded rotation is orthonormal to this
 ATOL_INV_M = 1e-9  # m: round-off allowed on the invariants (cone, floor, wire)
 ATOL_TWIST = 1e-9  # rad/s: the small-angle twist against scipy's rotation vector, per rad²
 
+# the observation gate opened wide (every bound at its largest): these scenarios jump the ring
+GATE_OFF = {
+    "ring_max_speed": 10.0,
+    "ring_max_rate": 1000.0,
+    "ring_max_acceleration": 1e6,
+    "ring_max_angular_acceleration": 1e8,
+    "ring_gate_position": 10.0,
+    "ring_gate_angle": math.pi,
+}
+
 
 def unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
@@ -230,8 +240,7 @@ def test_random_tracker_episodes_keep_the_safety_invariants(name: str, wire: boo
             tracker=tracker,
             side_rule=rule,
             centre_left_eye=centre,
-            ring_max_speed=10.0,  # the normal jumps: the gate is opened wide
-            ring_max_rate=1000.0,
+            **GATE_OFF,  # the normal jumps: the gate is opened wide
         )
         states |= run_episode(EndocamPolicy(cfg), 10 * seed + len(name), wire, follows).states
     assert states & {TrackingState.TRACKING, TrackingState.PLANNING}  # commands were issued
@@ -247,9 +256,7 @@ def test_random_paper_episodes_keep_the_safety_invariants(name: str, wire: bool)
     for seed, (rule, centre) in enumerate(
         [(SideRule.PORT, True), (SideRule.UP, False), (SideRule.UP, True)]
     ):
-        cfg = ControllerConfig(
-            side_rule=rule, centre_left_eye=centre, ring_max_speed=10.0, ring_max_rate=1000.0
-        )
+        cfg = ControllerConfig(side_rule=rule, centre_left_eye=centre, **GATE_OFF)
         states |= run_episode(MOVING[name](cfg), 100 + 10 * seed + len(name), wire).states
     assert states & {TrackingState.TRACKING, TrackingState.PLANNING}  # commands were issued
 
@@ -257,7 +264,7 @@ def test_random_paper_episodes_keep_the_safety_invariants(name: str, wire: bool)
 def test_the_random_episodes_reach_every_branch() -> None:
     """The episodes above change side, orbit, detour, see every window status, and the kernel
     asks the guard itself (a clear view, with and without a detour) or leaves it to Python."""
-    cfg = ControllerConfig(ring_max_speed=10.0, ring_max_rate=1000.0)
+    cfg = ControllerConfig(**GATE_OFF)
     policy = EndocamPolicy(cfg)
     plan_step = policy._plan_step
     answers: list[PlanResult] = []
@@ -345,7 +352,7 @@ def oracle_context() -> PolicyContext:
 def test_the_oracle_keeps_the_safety_invariants_on_the_true_future(plan: bool) -> None:
     """The oracle's compiled step gets the true future (``_give_predictions``): its commands
     keep the invariants, and its tracking commands look at the true ring ``lead`` ahead."""
-    cfg = ControllerConfig(ring_max_speed=10.0, ring_max_rate=1000.0)
+    cfg = ControllerConfig(**GATE_OFF)
     policy = OraclePolicy(cfg, OracleConfig(plan=plan))
     context = oracle_context()
     policy.reset(context)
@@ -541,7 +548,7 @@ def test_a_subclass_changing_the_goal_does_not_skip_the_wire_guard() -> None:
 
     Found in review: before the fix half of these commands were inside the keep-out zone.
     """
-    cfg = ControllerConfig(ring_max_speed=10.0, ring_max_rate=1000.0, jump_threshold=0.2)
+    cfg = ControllerConfig(**GATE_OFF, jump_threshold=0.2)
     observations = random_observations(0, wire=False)
     T0 = observations[0][1]
     policy = _GoalNearTheWire(cfg)
@@ -733,7 +740,7 @@ def test_the_plan_steps_last_gate_on_its_view_is_the_trackers() -> None:
     ``inside_kernel`` of the view it wrote, for every view found in random episodes."""
     answers = set()
     for seed, height in enumerate((0.10, 0.25)):
-        cfg = ControllerConfig(cone_height=height, ring_max_speed=10.0, ring_max_rate=1000.0)
+        cfg = ControllerConfig(cone_height=height, **GATE_OFF)
         policy = EndocamPolicy(cfg)
         plan_step = policy._plan_step
         seen: list[tuple[PlanResult, np.ndarray]] = []
@@ -810,7 +817,7 @@ def test_a_freeze_does_not_commit_the_working_distance() -> None:
     """With every tip outside the outer window the windows' rule lengthens ``d_f`` each step;
     while the goal is outside the cone the camera freezes and ``d_f`` holds; once back inside
     it resumes from the held value, one step at a time."""
-    cfg = ControllerConfig(ring_max_speed=10.0, ring_max_rate=1000.0)  # the gate lets it jump
+    cfg = ControllerConfig(**GATE_OFF)  # the gate lets it jump
     for policy in (EndocamPolicy(cfg), OrientationPolicy(cfg), CenteringPolicy(cfg)):
         T0 = ring_pose(np.array([0.0, 0.0, 0.03]), np.array([0.0, 0.0, 1.0]))
         policy.reset(context_for(T0, False))
