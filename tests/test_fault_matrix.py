@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from endocam.cli import main
+from endocam.cli import EXIT_UNSAFE, main
 from endocam.faults import ARM_FAULTS, FAULT_NAMES
 from endocam.robot.actuator import ArmKind
 from endocam.runner import fault_matrix
@@ -23,9 +23,14 @@ def test_rows_each_fault_twice_then_all() -> None:
     free = [r for r in rows if r[0] is ArmKind.FREE]
     psm = [r for r in rows if r[0] is ArmKind.PSM]
     n_sev = len(fault_matrix.SEVERITIES)
-    assert len(free) == 2 + n_sev * (len(FAULT_NAMES) - len(ARM_FAULTS))
-    assert len(psm) == 2 + n_sev * len(FAULT_NAMES)
+    assert len(psm) == 2 + n_sev * len(FAULT_NAMES) + len(fault_matrix.SMALL_OUTLIERS)
     assert free[0][1] == "none" and free[-1][1] == "all"
+    n_small = len(fault_matrix.SMALL_OUTLIERS)
+    assert len(free) == 2 + n_sev * (len(FAULT_NAMES) - len(ARM_FAULTS)) + n_small
+    outliers = {
+        fault_matrix.row_faults(f, s).ring_outlier for _, f, s in free if s in ("1cm", "5deg")
+    }
+    assert {(o.distance, round(math.degrees(o.angle))) for o in outliers} == {(0.01, 0), (0.0, 5)}
     every = fault_matrix.row_faults("all", "high")
     assert all(getattr(every, name).rate > 0 for name in FAULT_NAMES)
     assert not fault_matrix.row_faults("none", "").any
@@ -72,3 +77,22 @@ def test_a_small_matrix_writes_every_row(
     assert "step_overrun" in everything  # 5 bursts/s: some in the second after start_after
     assert data["rows"][-1]["bursts"] > 0
     assert (out / fault_matrix.FAULTS_HTML).is_file()
+
+
+def test_an_unsafe_experiment_exits_3_and_says_so(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An experiment whose written runs break an invariant: exit 3, the last line says so."""
+
+    def unsafe_matrix(config: object, out_dir: Path, **kwargs: object) -> str:
+        run = Path(out_dir) / "free-ring_outlier-2cm"
+        run.mkdir(parents=True)
+        check = {"ok": False, "violations": 216, "counts": {"lost_hold": 216}}
+        (run / "metrics.json").write_text(json.dumps({"check": check}))
+        return "| table |"
+
+    monkeypatch.setattr(fault_matrix, "run_fault_matrix", unsafe_matrix)
+    out = tmp_path / "faults"
+    assert main(["experiment", "faults", "--out", str(out), "--workers", "1"]) == EXIT_UNSAFE
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.startswith("safety check: 216 violations (lost_hold 216)") and str(out) in last

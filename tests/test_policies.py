@@ -40,7 +40,15 @@ def _context(ring0: np.ndarray, rcm: np.ndarray | None = None) -> PolicyContext:
 
 # These scenarios teleport the ring between steps; the observation gate (tested in
 # test_faults.py) would reject such jumps as outliers, so it is opened wide here.
-GATE_OFF = {"ring_max_speed": 10.0, "ring_max_rate": 1000.0}
+# the observation gate opened wide (every bound at its largest): these scenarios jump the ring
+GATE_OFF = {
+    "ring_max_speed": 10.0,
+    "ring_max_rate": 1000.0,
+    "ring_max_acceleration": 1e6,
+    "ring_max_angular_acceleration": 1e8,
+    "ring_gate_position": 10.0,
+    "ring_gate_angle": math.pi,
+}
 WIDE = ControllerConfig(cone_height=0.6, cone_base_radius=0.6, **GATE_OFF)  # cone never binds
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from endocam import StereoCamera, look_at_pose
-from endocam.control.gate import GATE_STATE, RingGate
+from endocam.control.gate import GATE_STATE, RingGate, RingLimits
 from endocam.control.windows import (
     D_F_STEP,
     ImageWindows,
@@ -178,7 +178,7 @@ def test_cone_first_outside_is_the_scalar_decision() -> None:
 
 def test_the_gate_remembers_by_name_and_forgets_at_reset() -> None:
     """``RingGate.state``'s named fields: the accepted and the last seen pose, the rejections."""
-    gate = RingGate(max_speed=0.1, max_rate=1.0, horizon=0.5, reacquire=1.0)
+    gate = RingGate(RingLimits(0.1, 1.0, 1.0, 10.0, 0.005, 0.05, 0.5, 1.0))
     up = (0.0, 0.0, 1.0)
     assert gate.accept(0.0, (0.0, 0.0, 0.05), up)
     assert not gate.accept(0.01, (0.5, 0.0, 0.05), up)  # 50 m/s: refused

@@ -6,7 +6,7 @@ the section's seed, which control steps each fault covers (never before ``start_
 cone is fixed from the first observation). The episode runner then
 
 * rewrites the observations before the control loop (:func:`apply_observation_faults`): ring
-  pose dropouts (missing), NaN or infinite poses, wild outliers (metres or 180° away), a frozen
+  pose dropouts (missing), NaN or infinite poses, outliers (an offset and a turned normal), a frozen
   tracker (the same pose repeated), latency spikes (an older pose), tool-tip dropouts;
 * and, in the loop, at one hook (:meth:`StepFaults.command`): control-step overruns (the
   carrier receives the command one step late), and on a camera arm a goal beyond the wrist or
@@ -44,7 +44,12 @@ class FaultSpec(BaseModel):
 
 
 class OutlierFault(FaultSpec):
-    """Wild ring poses: a pose ``distance`` away in a random direction, turned by ``angle``."""
+    """Wrong ring poses: ``distance`` away in a random direction, the normal turned by ``angle``.
+
+    Each burst draws one offset (world) and one axis in the ring's face (the ring's frame),
+    so the observed centre is exactly ``distance`` and the observed normal exactly ``angle``
+    off the true ones at every step of the burst.
+    """
 
     distance: float = Field(1.0, ge=0.0, le=100.0, description="Position offset, m.")
     angle: float = Field(math.pi, ge=0.0, le=math.pi, description="Rotation offset, rad.")
@@ -316,9 +321,10 @@ def apply_observation_faults(
     for b in schedule.bursts.get("ring_outlier", ()):
         spec = cfg.ring_outlier
         offset = spec.distance * _unit_from(b.draw[0], b.draw[1])
-        R = _rotation(_unit_from(b.draw[2], b.draw[3]), spec.angle)
+        phi = 2.0 * math.pi * b.draw[2]  # an axis in the ring's face: the normal turns by angle
+        R_ring_outlier = _rotation(np.array([math.cos(phi), math.sin(phi), 0.0]), spec.angle)
         T[b.start : b.stop, :3, 3] += offset
-        T[b.start : b.stop, :3, :3] = R @ T[b.start : b.stop, :3, :3]
+        T[b.start : b.stop, :3, :3] = T[b.start : b.stop, :3, :3] @ R_ring_outlier
     for name, value in (("ring_nan", math.nan), ("ring_inf", math.inf)):
         for b in schedule.bursts.get(name, ()):
             i, j = int(b.draw[0] * 3), int(b.draw[1] * 4)  # one entry of the top 3 rows

@@ -14,6 +14,7 @@ from endocam.robot.carriers import ArmKind
 
 EXIT_USAGE = 2
 EXIT_INTERNAL = 1
+EXIT_UNSAFE = 3  # a run or experiment wrote its results, and its safety check found violations
 ARM_CHOICES = tuple(k.value for k in ArmKind)  # the carrier choices, from their one source
 MAX_WORKERS = 64  # count: --workers
 

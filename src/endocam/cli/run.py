@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import json
+from collections import Counter
+from pathlib import Path
 
 import yaml
 
 from endocam.cli.common import (
     ARM_CHOICES,
+    EXIT_UNSAFE,
     UsageError,
     check_workers,
     integer,
@@ -34,6 +38,28 @@ def _config(args: argparse.Namespace) -> ExperimentConfig:
 def _control_points(n: int) -> None:
     if not 2 <= n <= MAX_CONTROL_POINTS:
         raise UsageError(f"--control-points must be in 2..{MAX_CONTROL_POINTS}, got {n}")
+
+
+def safety_exit(out: Path) -> int:
+    """The exit code after writing ``out``: 0, or :data:`EXIT_UNSAFE` after a last line.
+
+    :data:`EXIT_UNSAFE` when a run written under ``out`` broke a safety invariant (its
+    ``metrics.json``'s ``check``, as ``endocam check`` finds it).
+    """
+    total, counts, runs = 0, Counter[str](), 0
+    for path in sorted(Path(out).rglob("metrics.json")):
+        check = json.loads(path.read_text(encoding="utf-8")).get("check")
+        if check is None:
+            continue
+        runs += 1
+        total += int(check["violations"])
+        counts.update({k: int(v) for k, v in check["counts"].items()})
+    if total == 0:
+        return 0
+    broken = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()) if v)
+    where = f"{out}" if runs == 1 else f"{out} ({runs} runs)"
+    print(f"safety check: {total} violations ({broken}) in {where} — see check.json")
+    return EXIT_UNSAFE
 
 
 def _with_arm(cfg: ExperimentConfig, arm: str | None) -> ExperimentConfig:
@@ -63,7 +89,7 @@ def _run(args: argparse.Namespace) -> int:
         f"orientation {metrics['orientation_error_deg']['mean']:.2f} deg, "
         f"{metrics['touches']} touches, {safety} -> {out / 'report.html'}"
     )
-    return 0
+    return safety_exit(out)
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -78,7 +104,7 @@ def _demo(args: argparse.Namespace) -> int:
         cfg, out, control_points=args.control_points, seed=args.seed, video=not args.no_video
     )
     print(f"demo report: {report}")
-    return 0
+    return safety_exit(out)
 
 
 def _experiment(args: argparse.Namespace) -> int:
@@ -88,7 +114,7 @@ def _experiment(args: argparse.Namespace) -> int:
     out = out_dir(args.out)
     table = run_paper_experiment(_with_arm(cfg, args.arm), out, policy=args.policy)
     print(table)
-    return 0
+    return safety_exit(out)
 
 
 def _tracking(args: argparse.Namespace) -> int:
@@ -114,7 +140,7 @@ def _tracking(args: argparse.Namespace) -> int:
         workers=args.workers,
     )
     print(table)
-    return 0
+    return safety_exit(out)
 
 
 def _faults(args: argparse.Namespace) -> int:
@@ -125,7 +151,7 @@ def _faults(args: argparse.Namespace) -> int:
     out = out_dir(args.out)
     table = run_fault_matrix(cfg, out, workers=args.workers)
     print(table)
-    return 0
+    return safety_exit(out)
 
 
 def _faults_arg(parser: argparse.ArgumentParser) -> None:

@@ -16,6 +16,8 @@ from numba.extending import register_jitable
 
 from endocam.control.gate import (
     CLOCK_TOL,
+    GATE_ACCEPT,
+    GATE_REACQUIRE,
     STALE_REASON,
     GateBounds,
     GateState,
@@ -49,7 +51,7 @@ __all__ = [
 ]
 
 MIN_NORMAL = 1e-9  # unitless, a ring normal shorter than this is degenerate
-GATE_REASON = "ring pose rejected by the observation gate (moved too fast); holding"
+GATE_REASON = "ring pose rejected by the observation gate (off the ring's predicted track); holding"
 CAMERA_REASON = "camera pose not finite; holding"
 RING_REASON = "ring pose missing or not finite"
 DEGENERATE_REASON = "ring pose degenerate (zero normal)"
@@ -124,8 +126,9 @@ def observed(checks: RingChecks, seen: Sighting) -> int:
     ``seen``'s camera or ring pose not finite: ``OBS_CAMERA`` / ``OBS_RING``. The ring pose
     captured at ``seen.t_ring`` is stale at ``seen.t`` beyond ``checks.max_age`` or
     ``CLOCK_TOL`` in the future (``safety.is_stale``): ``OBS_STALE``. Then the normal
-    (``checks.unit_normal``) and the gate (``safety.RingGate``'s rule on ``checks.gate``;
-    re-acquired only inside ``checks.cone``): ``OBS_GATE`` when it rejects.
+    (``checks.unit_normal``) and the gate (``gate.RingGate``'s rule on ``checks.gate``, at
+    the pose's capture time ``seen.t_ring``; re-acquired only inside ``checks.cone``):
+    ``OBS_GATE`` when it rejects.
     """
     T_ring = seen.T_ring
     if not finite_pose(seen.T_cam):
@@ -143,13 +146,13 @@ def observed(checks: RingChecks, seen: Sighting) -> int:
     elif not dist3(n[0], n[1], n[2], 0.0, 0.0, 0.0) > MIN_NORMAL:
         return OBS_OK
     x = (T_ring[0, 3], T_ring[1, 3], T_ring[2, 3], n[0], n[1], n[2])
-    decision = gate_decide(checks.gate, checks.bounds, seen.t, x)
-    ok = decision == 1
-    if decision == 2:  # re-acquired only inside the workspace (ConeWorkspace.contains)
+    decision = gate_decide(checks.gate, checks.bounds, seen.t_ring, x)  # at its capture time
+    ok = decision == GATE_ACCEPT
+    if decision == GATE_REACQUIRE:  # re-acquired only inside the workspace (ConeWorkspace.contains)
         a, axis, tan_half, cos_half, height = checks.cone
         margin = cone_margin(x[0], x[1], x[2], a, axis, tan_half, cos_half, height)
         ok = math.isfinite(margin) and margin >= 0.0
-    gate_commit(checks.gate, seen.t, x, ok)
+    gate_commit(checks.gate, seen.t_ring, x, ok)
     return OBS_OK if ok else OBS_GATE
 
 

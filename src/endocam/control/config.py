@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from endocam.control.clearance import WIRE_CLEARANCE, ClearanceGuard
-from endocam.control.gate import RingGate
+from endocam.control.gate import RingGate, RingLimits
 from endocam.control.goal import SIDE_HYSTERESIS
 from endocam.control.windows import D_F_STEP, ImageWindows
 from endocam.task.wire import Wire
@@ -205,22 +205,57 @@ class ControllerConfig(BaseModel):
         0.5,
         gt=0,
         le=10.0,
-        description="observation gate: fastest plausible ring centre, m/s; a ring pose farther "
-        "from the last accepted one is rejected like a missing one (the camera holds). The "
-        "default task's ring moves ≤ 0.013 m/s, a 3 s episode's ≤ 0.26 m/s",
+        description="observation gate: fastest plausible ring centre, m/s: how far a ring pose "
+        "that returns after a refused outlier burst may lie from the last accepted one (over at "
+        "most ring_gate_horizon). The default task's ring moves ≤ 0.013 m/s, a 3 s episode's "
+        "≤ 0.26 m/s",
     )
     ring_max_rate: float = Field(
         25.0,
         gt=0,
         le=1000.0,
-        description="observation gate: fastest plausible turn of the ring normal, rad/s (a 3 s "
-        "episode's ≤ 20 rad/s); with ring_gate_horizon it rejects a pose turned 180°",
+        description="observation gate: fastest plausible turn of the ring normal, rad/s (same "
+        "use; a 3 s episode's ≤ 25 rad/s)",
+    )
+    ring_max_acceleration: float = Field(
+        30.0,
+        gt=0,
+        le=1e6,
+        description="observation gate: largest ring-centre acceleration, m/s²: a ring pose may "
+        "be 0.5 mm + ½·a·Δt² from the accepted track's constant-velocity prediction, Δt after "
+        "its last pose (up to ring_gate_position). The default task's ring ≤ 0.05 m/s², a "
+        "10 s episode's ≤ 1.5, a 3 s episode's ≤ 15",
+    )
+    ring_max_angular_acceleration: float = Field(
+        500.0,
+        gt=0,
+        le=1e8,
+        description="observation gate: largest second derivative of the ring's unit normal, "
+        "1/s²: the normal may be 0.5° + ½·α·Δt² from its prediction (up to ring_gate_angle). "
+        "The default task's ≤ 5, a 10 s episode's ≤ 200, a 3 s episode's ≤ 1700: faster "
+        "tasks than ~5 s need a larger value (and cannot tell a 5° outlier from the ring)",
+    )
+    ring_gate_position: float = Field(
+        0.005,
+        gt=0,
+        le=10.0,
+        description="observation gate: the position innovation's cap, m: a ring pose farther "
+        "from the accepted track's prediction is never taken as it comes, however long the "
+        "gate has refused (outliers > 5 mm are refused; endocam check requires the hold)",
+    )
+    ring_gate_angle: float = Field(
+        math.radians(3.0),
+        gt=0,
+        le=math.pi,
+        description="observation gate: the normal's innovation cap, rad (3°: outliers turned "
+        "more are refused)",
     )
     ring_gate_horizon: float = Field(
         0.1,
         gt=0,
         le=1.0,
-        description="longest time the gate's bounds grow over after the last accepted pose, s",
+        description="observation gate: longest gap between two ring poses compared step to "
+        "step, s, and longest time a returning pose's reach grows over",
     )
     ring_max_age: float = Field(
         0.25,
@@ -231,11 +266,12 @@ class ControllerConfig(BaseModel):
         "tracker re-sending its last pose, is answered by holding",
     )
     ring_reacquire: float = Field(
-        1.0,
+        0.5,
         gt=0,
         le=60.0,
-        description="after this long without an accepted ring pose, s, two consecutive poses "
-        "that agree are accepted (the ring moved while lost)",
+        description="observation gate: a run of refused ring poses that agree with each other "
+        "step to step for this long, s, is taken as the ring (inside the cone only): it moved "
+        "while lost, or the tracker now sees it there. Longer than any outlier burst to refuse",
     )
     window_inner_frac: float = Field(0.5, gt=0, le=1, description="inner window, image fraction")
     window_outer_frac: float = Field(0.9, gt=0, le=1, description="outer window, image fraction")
@@ -278,8 +314,20 @@ class ControllerConfig(BaseModel):
 
     def ring_gate(self) -> RingGate:
         """A fresh observation gate with these bounds."""
-        return RingGate(
-            self.ring_max_speed, self.ring_max_rate, self.ring_gate_horizon, self.ring_reacquire
+        return RingGate(self.ring_limits)
+
+    @property
+    def ring_limits(self) -> RingLimits:
+        """The observation gate's bounds (``control.gate.RingLimits``)."""
+        return RingLimits(
+            self.ring_max_speed,
+            self.ring_max_rate,
+            self.ring_max_acceleration,
+            self.ring_max_angular_acceleration,
+            self.ring_gate_position,
+            self.ring_gate_angle,
+            self.ring_gate_horizon,
+            self.ring_reacquire,
         )
 
     @property

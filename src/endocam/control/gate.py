@@ -1,15 +1,20 @@
 """The observation gate: ring poses checked for staleness and plausible motion before use.
 
 * :func:`is_stale`: a ring pose too old (or stamped in the future) to act on.
-* :class:`RingGate`: a ring pose that moved or turned faster than plausible since the last
-  accepted one is refused (the camera holds); its rule (:func:`gate_decide`,
-  :func:`gate_commit`) is compiled, so the policies' own kernels run it too.
+* :class:`RingGate`: a tracker's outlier rejection. Each ring pose is judged against a
+  constant-velocity prediction from the *accepted* track; an innovation beyond a bound that
+  grows with the ring's largest acceleration but never past a fixed cap
+  (:attr:`RingLimits.position_gate`, :attr:`RingLimits.angle_gate`) is refused and the camera
+  holds. Its rule (:func:`gate_decide`, :func:`gate_commit`) is compiled, so the policies' own
+  kernels run it too. :func:`outlier_detected` is the one definition of the outliers it
+  promises to refuse, which the safety check (``runner.check``) requires a hold on.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import astuple, dataclass, fields
 from typing import Protocol
 
 import numpy as np
@@ -18,11 +23,14 @@ from numba.extending import register_jitable
 from numpy.typing import NDArray
 
 from endocam.geometry import FloatArray
-from endocam.kernels import dist3
+from endocam.kernels import dist3, dot3
 from endocam.workspace.cone import ConeWorkspace
 
 STALE_REASON = "ring pose stale (older than ring_max_age, or stamped in the future); holding"
 CLOCK_TOL = 1e-6  # s, a capture stamp this far after the control time is round-off, not a fault
+FLOOR_M = 0.5e-3  # m: innovation always allowed (a tracker's position noise)
+FLOOR_RAD = math.radians(0.5)  # rad: innovation always allowed (a tracker's normal noise)
+MIN_DT = 1e-4  # s: two stamps closer than this give no velocity (a repeated pose)
 
 
 def is_stale(t: float, t_ring: float | None, max_age: float) -> bool:
@@ -40,16 +48,48 @@ def is_stale(t: float, t_ring: float | None, max_age: float) -> bool:
 GATE_REJECT, GATE_ACCEPT, GATE_REACQUIRE = 0, 1, 2  # gate_decide's answers
 
 
-GATE_BOUNDS = np.dtype(
-    [
-        ("max_speed", np.float64),  # m/s, fastest plausible ring centre
-        ("max_rate", np.float64),  # rad/s, fastest plausible turn of the ring normal
-        ("horizon", np.float64),  # s, longest time the bounds grow over
-        ("reacquire", np.float64),  # s, time without an accepted observation to re-acquire
-    ],
-    align=True,
-)
-"""How fast a real ring can move (:attr:`RingGate.bounds` is a (1,) array of it)."""
+@dataclass(frozen=True)
+class RingLimits:
+    """How a real ring can move, and how far from its prediction a pose may be.
+
+    Attributes
+    ----------
+    max_speed : float
+        Fastest ring centre, m/s: two poses ``Δt`` apart agree only if the centre moved at
+        most ``FLOOR_M + max_speed · Δt``.
+    max_rate : float
+        Fastest turn of the ring normal, rad/s (same use).
+    max_acceleration : float
+        Largest acceleration of the ring centre, m/s²: the position innovation allowed after
+        ``Δt`` is ``FLOOR_M + ½ a Δt²``, up to ``position_gate``.
+    max_angular_acceleration : float
+        Largest second derivative of the unit normal, 1/s² (rad/s² for a steady turn): the
+        angle innovation allowed is ``FLOOR_RAD + ½ α Δt²``, up to ``angle_gate``.
+    position_gate : float
+        The position innovation's cap, m: a pose farther from the prediction is never taken
+        as it comes, however long the gate has refused.
+    angle_gate : float
+        The normal's innovation cap, rad.
+    horizon : float
+        Longest gap, s, over which two poses are compared step to step (a longer gap breaks a
+        run), and over which a returning pose's reach grows.
+    reacquire : float
+        A refused run of poses that agree step to step for this long, s, is the ring (it moved,
+        or the tracker now sees it there): it is taken, inside the workspace only.
+    """
+
+    max_speed: float
+    max_rate: float
+    max_acceleration: float
+    max_angular_acceleration: float
+    position_gate: float
+    angle_gate: float
+    horizon: float
+    reacquire: float
+
+
+GATE_BOUNDS = np.dtype([(f.name, np.float64) for f in fields(RingLimits)], align=True)
+""":class:`RingLimits` as a record (:attr:`RingGate.bounds` is a (1,) array of it)."""
 
 GateBounds = NDArray[np.void]  # a (1,) array of GATE_BOUNDS
 
@@ -59,25 +99,47 @@ class GateLimits(Protocol):
 
     max_speed: float
     max_rate: float
+    max_acceleration: float
+    max_angular_acceleration: float
+    position_gate: float
+    angle_gate: float
     horizon: float
     reacquire: float
+
+
+def outlier_detected(distance: float, angle: float, limits: RingLimits) -> bool:
+    """Whether the gate promises to refuse a ring pose ``distance`` (m) and ``angle`` (rad) off.
+
+    One definition for the gate and the safety check: an offset beyond either innovation cap
+    (``position_gate``, ``angle_gate``) is never acted on; a smaller one may be (it is
+    within what the ring itself could do between two observations after a gap).
+    """
+    return distance > limits.position_gate or angle > limits.angle_gate
 
 
 GATE_MEMORY = np.dtype(
     [
         ("held", np.bool_),  # whether there is one
-        ("t", np.float64),  # when it was seen, s
+        ("t", np.float64),  # when it was captured, s
         ("centre", np.float64, (3,)),  # the ring centre, world, m
         ("normal", np.float64, (3,)),  # the ring's unit normal, world
+        ("velocity", np.float64, (3,)),  # the centre's velocity, world, m/s
+        ("normal_rate", np.float64, (3,)),  # the normal's derivative, world, 1/s
     ],
     align=True,
 )
-"""One remembered ring observation (a record; :func:`gate_remember` stores one)."""
+"""One track's last observation and its rates (a record; :func:`gate_remember` stores one)."""
 
 GATE_STATE = np.dtype(
     [
-        ("accepted", GATE_MEMORY),  # the last accepted observation: the bounds' reference
-        ("seen", GATE_MEMORY),  # the last finite observation, accepted or not
+        ("accepted", GATE_MEMORY),  # the accepted track: the prediction's reference
+        ("seen", GATE_MEMORY),  # the last finite observation's track, accepted or not
+        ("refusing", np.bool_),  # whether the last seen observation was refused
+        ("onset", np.bool_),  # the refused run began by jumping off the accepted track
+        ("run_start", np.float64),  # when the refused run began, s
+        ("shift", np.float64, (6,)),  # the run's jump off the accepted track (centre, normal)
+        ("jump", np.bool_),  # the decided observation broke from the seen track
+        ("after_gap", np.bool_),  # the decided observation came more than horizon after seen
         ("rejected", np.int64),  # observations rejected this episode
     ],
     align=True,
@@ -97,35 +159,116 @@ class GateMemory(Protocol):
     t: float
     centre: FloatArray
     normal: FloatArray
+    velocity: FloatArray
+    normal_rate: FloatArray
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
-def gate_remember(memory: GateMemory, t: float, x: Sequence[float]) -> None:
-    """Store the observation ``x`` (centre (3,), world, m; unit normal (3,)) seen at ``t`` s.
+def normal_angle(n: Sequence[float], x: Sequence[float]) -> float:
+    """Angle, rad, between the direction ``n`` (3,) (any length > 0) and ``x[3:6]``.
 
-    ``memory``: a :data:`GATE_MEMORY` record (compiled callers only: numba's record views).
+    ``atan2(|n × x|, n · x)``: exact near 0 and π; π for a zero ``n``.
     """
-    memory.held = True
-    memory.t = t
-    for i in range(3):
-        memory.centre[i] = x[i]
-        memory.normal[i] = x[3 + i]
+    cx = n[1] * x[5] - n[2] * x[4]
+    cy = n[2] * x[3] - n[0] * x[5]
+    cz = n[0] * x[4] - n[1] * x[3]
+    c = math.sqrt(cx * cx + cy * cy + cz * cz)
+    d = dot3(n[0], n[1], n[2], x[3], x[4], x[5])
+    if c == 0.0 and d <= 0.0:
+        return math.pi
+    return math.atan2(c, d)
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
-def gate_agrees(memory: GateMemory, limits: GateLimits, t: float, x: Sequence[float]) -> bool:
-    """Whether ``x`` (centre, m; unit normal) at ``t`` (s) agrees with the remembered one.
+def gate_fits(
+    memory: GateMemory, limits: GateLimits, t: float, x: Sequence[float], shift: Sequence[float]
+) -> bool:
+    """Whether ``x`` (centre (3,), m; unit normal (3,)) seen at ``t`` (s) fits ``memory``'s track.
 
-    The centre moved at most ``max_speed · Δt`` and the normal turned at most
-    ``max_rate · Δt``, ``Δt`` the time since ``memory``'s observation (a :data:`GATE_MEMORY`
-    record) capped at ``horizon`` (``limits``: a :data:`GATE_BOUNDS` record).
+    The track (``memory``: a :data:`GATE_MEMORY` record) moved by ``−shift`` (6,: centre, m;
+    normal; zeros for the track itself), predicted at constant velocity to ``t``, is within
+    ``FLOOR_M + ½ a Δt²`` (capped at ``position_gate``) of the centre and
+    ``FLOOR_RAD + ½ α Δt²`` (capped at ``angle_gate``) of the normal, ``Δt = |t − memory.t|``.
     """
-    dt = min(max(t - memory.t, 0.0), limits.horizon)
+    dt = t - memory.t
+    c, v = memory.centre, memory.velocity
+    dp = dist3(
+        x[0],
+        x[1],
+        x[2],
+        c[0] - shift[0] + v[0] * dt,
+        c[1] - shift[1] + v[1] * dt,
+        c[2] - shift[2] + v[2] * dt,
+    )
+    n, w = memory.normal, memory.normal_rate
+    predicted = (
+        n[0] - shift[3] + w[0] * dt,
+        n[1] - shift[4] + w[1] * dt,
+        n[2] - shift[5] + w[2] * dt,
+    )
+    turn = normal_angle(predicted, x)
+    half = 0.5 * dt * dt
+    p_tol = min(limits.position_gate, FLOOR_M + half * limits.max_acceleration)
+    a_tol = min(limits.angle_gate, FLOOR_RAD + half * limits.max_angular_acceleration)
+    return dp <= p_tol and turn <= a_tol
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def gate_step(memory: GateMemory, limits: GateLimits, t: float, x: Sequence[float]) -> bool:
+    """Whether ``x`` at ``t`` (s) lies where the ring could have gone since ``memory``'s pose.
+
+    The centre moved at most ``FLOOR_M + max_speed · Δt`` and the normal turned at most
+    ``FLOOR_RAD + max_rate · Δt``, ``Δt = |t − memory.t|``.
+    """
+    dt = abs(t - memory.t)
     c, n = memory.centre, memory.normal
     dp = dist3(x[0], x[1], x[2], c[0], c[1], c[2])
-    cos = x[3] * n[0] + x[4] * n[1] + x[5] * n[2]
-    turn = math.acos(max(-1.0, min(1.0, cos)))
-    return dp <= limits.max_speed * dt and turn <= limits.max_rate * dt
+    turn = normal_angle((n[0], n[1], n[2]), x)
+    return dp <= FLOOR_M + limits.max_speed * dt and turn <= FLOOR_RAD + limits.max_rate * dt
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def gate_offset(memory: GateMemory, t: float, x: Sequence[float]) -> tuple[float, ...]:
+    """``x`` (6,) less ``memory``'s track predicted to ``t`` (s): centre, m; unit normal."""
+    dt = t - memory.t
+    c, v, n, w = memory.centre, memory.velocity, memory.normal, memory.normal_rate
+    px, py, pz = n[0] + w[0] * dt, n[1] + w[1] * dt, n[2] + w[2] * dt
+    length = math.sqrt(px * px + py * py + pz * pz)
+    if length > 0.0:
+        px, py, pz = px / length, py / length, pz / length
+    return (
+        x[0] - c[0] - v[0] * dt,
+        x[1] - c[1] - v[1] * dt,
+        x[2] - c[2] - v[2] * dt,
+        x[3] - px,
+        x[4] - py,
+        x[5] - pz,
+    )
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
+def gate_remember(
+    memory: GateMemory, t: float, x: Sequence[float], rates: GateMemory, difference: bool
+) -> None:
+    """Store ``x`` (centre (3,), m; unit normal (3,)) captured at ``t`` s in ``memory``.
+
+    Its rates: with ``difference``, differenced from ``memory``'s last pose (when it is held
+    and at least ``MIN_DT`` apart; else kept); without, those of ``rates`` (another
+    :data:`GATE_MEMORY` record, when held; else zero). Compiled callers only.
+    """
+    dt = t - memory.t
+    for i in range(3):
+        if difference:
+            if memory.held and abs(dt) >= MIN_DT:
+                memory.velocity[i] = (x[i] - memory.centre[i]) / dt
+                memory.normal_rate[i] = (x[3 + i] - memory.normal[i]) / dt
+        else:
+            memory.velocity[i] = rates.velocity[i] if rates.held else 0.0
+            memory.normal_rate[i] = rates.normal_rate[i] if rates.held else 0.0
+        memory.centre[i] = x[i]
+        memory.normal[i] = x[3 + i]
+    memory.held = True
+    memory.t = t
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
@@ -133,29 +276,68 @@ def gate_decide(state: GateState, bounds: GateBounds, t: float, x: Sequence[floa
     """:meth:`RingGate.accept`'s rule, up to the workspace: a ``GATE_*`` answer.
 
     ``state`` and ``bounds``: :class:`RingGate`'s; ``x`` (6,) the ring centre, world, m, and
-    its unit normal seen at ``t`` (s). ``GATE_REACQUIRE``: accept if the centre may be
-    re-acquired (the gate's ``inside``). Records ``x`` as the last finite observation; the
-    caller ends with :func:`gate_commit`. Compiled callers only.
+    its unit normal captured at ``t`` (s). While tracking, ``x`` is accepted when it fits the
+    accepted track (:func:`gate_fits`). While refusing, ``x`` that continues the refused run
+    (fits its track and :func:`gate_step`, at most ``horizon`` later) is refused until the
+    run has lasted ``reacquire`` s (then ``GATE_REACQUIRE``: accepted if inside the
+    workspace); ``x`` that breaks from the run is accepted when it fits the accepted track,
+    or when the run began by jumping off that track and ``x`` fits the run's track less that
+    jump (the ring back after an outlier burst: the run moved as the ring did).
+    Records ``x`` as the last seen observation; the caller ends with :func:`gate_commit`.
+    Compiled callers only.
     """
-    accepted, seen, limits = state[0].accepted, state[0].seen, bounds[0]
+    st, limits = state[0], bounds[0]
+    accepted, seen = st.accepted, st.seen
+    still = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    after_gap = not seen.held or abs(t - seen.t) > limits.horizon
+    jump = (
+        after_gap or not gate_fits(seen, limits, t, x, still) or not gate_step(seen, limits, t, x)
+    )
     decision = GATE_REJECT
-    if not accepted.held or gate_agrees(accepted, limits, t, x):
+    if not accepted.held:
         decision = GATE_ACCEPT
-    elif t - accepted.t > limits.reacquire and seen.held:
-        age = t - seen.t
-        if 0.0 < age <= limits.horizon and gate_agrees(seen, limits, t, x):
+    elif not st.refusing:
+        if gate_fits(accepted, limits, t, x, still):
+            decision = GATE_ACCEPT
+    elif not jump:  # the refused run goes on
+        if t - st.run_start >= limits.reacquire:
             decision = GATE_REACQUIRE
-    gate_remember(seen, t, x)
+    elif gate_fits(accepted, limits, t, x, still):
+        decision = GATE_ACCEPT
+    elif st.onset and not after_gap:
+        s = st.shift
+        if gate_fits(seen, limits, t, x, (s[0], s[1], s[2], s[3], s[4], s[5])):
+            decision = GATE_ACCEPT  # back: the run's track less the jump it began with
+    st.jump = jump
+    st.after_gap = after_gap
+    gate_remember(seen, t, x, accepted, not jump)  # a jump keeps the accepted rates
     return decision
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
 def gate_commit(state: GateState, t: float, x: Sequence[float], ok: bool) -> None:
-    """Record :func:`gate_decide`'s final answer ``ok``: ``x`` at ``t`` is the new reference."""
+    """Record :func:`gate_decide`'s final answer ``ok`` for ``x`` at ``t``.
+
+    Accepted: ``x`` and its rates (the seen track's, or differenced from the accepted pose
+    when it returns from a refused run) are the new reference. Refused: counted, and a new
+    refused run begins unless ``x`` continues one.
+    """
+    st = state[0]
     if ok:
-        gate_remember(state[0].accepted, t, x)
-    else:
-        state[0].rejected += 1
+        # back from a refused run: the mean rates across it; else the seen track's rates
+        back = st.refusing and st.jump
+        gate_remember(st.accepted, t, x, st.seen, back)
+        st.refusing = False
+        return
+    st.rejected += 1
+    if not st.refusing or st.jump:
+        st.onset = not st.refusing and not st.after_gap
+        st.run_start = t
+        if st.onset:  # the jump off the accepted track
+            offset = gate_offset(st.accepted, t, x)
+            for i in range(6):
+                st.shift[i] = offset[i]
+    st.refusing = True
 
 
 @njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
@@ -175,17 +357,23 @@ def _gate_commit_kernel(
 
 
 class RingGate:
-    """Gates ring observations by a speed bound before they reach the goal.
+    """A tracker's outlier rejection for ring poses, before they reach the goal.
 
-    An observation is accepted when its centre moved at most ``max_speed · Δt`` and its normal
-    turned at most ``max_rate · Δt`` from the last accepted one, with ``Δt`` the time since
-    then, capped at ``horizon`` (so a wild outlier is rejected however long tracking was
-    lost). Rejected observations are answered like missing ones: the camera holds. After
-    ``reacquire`` seconds without an accepted observation, two consecutive observations (at
-    most ``horizon`` apart) that agree with each other are accepted if the ring centre lies in
-    the workspace (the cone, given at :meth:`reset`): the ring may really have moved while it
-    was lost. (A tracker locked onto a wrong pose inside the cone for longer than that is
-    indistinguishable from a moved ring.)
+    Each pose is judged against a constant-velocity prediction from the accepted track (rates
+    differenced from the last two accepted poses); the innovation allowed grows with the
+    ring's largest acceleration over the time since the last accepted pose, but never past
+    :attr:`RingLimits.position_gate` and :attr:`RingLimits.angle_gate`. A refused pose starts
+    a refused run; the poses that continue it (agree with it step to step) are refused too,
+    so an outlier is not taken by waiting. A pose that breaks from the run is accepted when it
+    fits the prediction, or, if the run began by jumping off the accepted track, when it fits
+    the run's track less that jump: the true ring back after an outlier burst (the run moved
+    as the ring did), however far the ring went meanwhile. A run that has agreed with itself
+    for ``reacquire`` s is taken if its centre lies in the workspace (the cone, given at
+    :meth:`reset`): the ring moved while it was lost, or a persistent offset is the ring as
+    the tracker now sees it.
+
+    Refused poses are answered like missing ones: the camera holds. Times are capture
+    stamps (a latency spike's older pose is predicted at its own time).
 
     The rule is compiled (:func:`gate_decide`, :func:`gate_commit` on :attr:`state`, a
     :data:`GATE_STATE` record, with :attr:`bounds`, a :class:`GateBounds`); the policies' compiled
@@ -194,19 +382,12 @@ class RingGate:
 
     Parameters
     ----------
-    max_speed : float
-        Fastest plausible ring centre, m/s.
-    max_rate : float
-        Fastest plausible turn of the ring normal, rad/s.
-    horizon : float
-        Longest time the bounds grow over, s.
-    reacquire : float
-        Time without an accepted observation after which consecutive agreeing ones are, s.
+    limits : RingLimits
     """
 
-    def __init__(self, max_speed: float, max_rate: float, horizon: float, reacquire: float) -> None:
-        limits = (float(max_speed), float(max_rate), float(horizon), float(reacquire))
-        self.bounds: GateBounds = np.array([limits], dtype=GATE_BOUNDS)
+    def __init__(self, limits: RingLimits) -> None:
+        self.limits = limits
+        self.bounds: GateBounds = np.array([astuple(limits)], dtype=GATE_BOUNDS)
         self.state: GateState = np.zeros(1, dtype=GATE_STATE)
         self._inside: Callable[[Sequence[float]], bool] | None = None
         self.cone: ConeWorkspace | None = None  # the workspace, when it is a cone

@@ -35,7 +35,8 @@ by step:
     the log's round-off. No speed × dt term: the carriers keep the camera itself out of the
     zone at every control step, not only its command;
 ``lost_hold``
-    a lost or invalid observation (an invalid ring pose injected by a fault, :mod:`endocam.faults`)
+    a lost or invalid observation (an invalid ring pose injected by a fault, :mod:`endocam.faults`;
+    an outlier only when the gate promises to refuse it, ``control.gate.outlier_detected``)
     answered in the same control step by holding: state ``lost_tracking`` and the command of
     the step before. A frozen tracker (fault ``tracker_frozen``: the same pose, its capture
     stamp kept) counts as lost from the step at which the repeated pose is surely older than
@@ -61,6 +62,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from endocam.config import ExperimentConfig
+from endocam.control.gate import outlier_detected
 from endocam.control.types import TrackingState
 from endocam.faults import OBSERVATION_INVALID_FAULTS, fault_names
 from endocam.geometry import FloatArray, R_from_quat_wxyz, so3_log
@@ -545,7 +547,11 @@ def _fk(log: RunLog) -> list[Violation]:
 
 def _lost_hold(log: RunLog) -> list[Violation]:
     names = [fault_names(f) for f in log.columns["fault"]]
-    invalid = np.array([bool(f & OBSERVATION_INVALID_FAULTS) for f in names])
+    refused = OBSERVATION_INVALID_FAULTS  # an outlier the gate does not promise to see is not
+    spec, limits = log.config.faults.ring_outlier, log.config.controller.ring_limits
+    if not outlier_detected(spec.distance, spec.angle, limits):
+        refused = refused - {"ring_outlier"}
+    invalid = np.array([bool(f & refused) for f in names])
     frozen = np.array(["tracker_frozen" in f for f in names], dtype=bool)
     invalid |= _frozen_age(log.columns["t"], frozen, log.config.episode.sensing_latency) > (
         log.config.controller.ring_max_age + TIME_TOL_S

@@ -3,7 +3,8 @@
 The orientation camera (condition III, played by the ``endocam`` controller) runs one noisy
 trajectory (:data:`MATRIX_PATH`, :data:`MATRIX_DURATION_S` long) on the free camera and on the
 PSM: once without faults (the reference), then with each fault of :mod:`endocam.faults` alone
-at two severities (:data:`SEVERITIES`), then with all of them at once (``high``). Arm faults
+at two severities (:data:`SEVERITIES`; the ring outlier also 1, 2 and 5 cm off and turned 5°
+and 15°, :data:`SMALL_OUTLIERS`), then with all of them at once (``high``). Arm faults
 (a stalled joint, a goal beyond reach) run on the PSM only.
 
 Written (atomically)::
@@ -82,13 +83,26 @@ SEVERITIES: dict[str, dict[str, dict[str, float]]] = {
         "goal_beyond_reach": {"rate": 0.3, "burst": 0.3, "overshoot": 0.5},
     },
 }
+# Small ring outliers beside the large ones: each alone, as often and as long as the high
+# severity's (a tracker locked onto a nearby feature), a centre offset or a turned normal.
+SMALL_OUTLIERS: dict[str, dict[str, float]] = {
+    "1cm": {"rate": 0.5, "burst": 0.3, "distance": 0.01, "angle": 0.0},
+    "2cm": {"rate": 0.5, "burst": 0.3, "distance": 0.02, "angle": 0.0},
+    "5cm": {"rate": 0.5, "burst": 0.3, "distance": 0.05, "angle": 0.0},
+    "5deg": {"rate": 0.5, "burst": 0.3, "distance": 0.0, "angle": math.radians(5.0)},
+    "15deg": {"rate": 0.5, "burst": 0.3, "distance": 0.0, "angle": math.radians(15.0)},
+}
 FAULTS_JSON = "faults.json"
 FAULTS_MD = "faults.md"
 FAULTS_HTML = "faults.html"
 
 
 def matrix_rows(carriers: Sequence[ArmKind] = CARRIERS) -> list[tuple[ArmKind, str, str]]:
-    """(carrier, fault, severity) of every row: the reference, each fault twice, all at once."""
+    """(carrier, fault, severity) of every row: the reference, each fault, all at once.
+
+    Each fault at both :data:`SEVERITIES`, the ring outlier also at each of
+    :data:`SMALL_OUTLIERS`.
+    """
     rows = []
     for carrier in carriers:
         rows.append((carrier, NONE, ""))
@@ -96,6 +110,8 @@ def matrix_rows(carriers: Sequence[ArmKind] = CARRIERS) -> list[tuple[ArmKind, s
             if fault in ARM_FAULTS and carrier is ArmKind.FREE:
                 continue
             rows += [(carrier, fault, sev) for sev in SEVERITIES]
+            if fault == "ring_outlier":
+                rows += [(carrier, fault, sev) for sev in SMALL_OUTLIERS]
         rows.append((carrier, ALL, "high"))
     return rows
 
@@ -106,7 +122,10 @@ def row_faults(fault: str, severity: str) -> FaultsConfig:
         return FaultsConfig()
     names = FAULT_NAMES if fault == ALL else (fault,)
     data: dict[str, Any] = {"seed": FAULTS_SEED}
-    data.update({name: SEVERITIES[severity][name] for name in names})
+    if severity in SMALL_OUTLIERS:
+        data["ring_outlier"] = SMALL_OUTLIERS[severity]
+    else:
+        data.update({name: SEVERITIES[severity][name] for name in names})
     return FaultsConfig.model_validate(data)
 
 
@@ -250,6 +269,7 @@ def run_fault_matrix(
             duration=MATRIX_DURATION_S,
             path=MATRIX_PATH,
             severities=SEVERITIES,
+            small_outliers=SMALL_OUTLIERS,
             total=sum(r["violations"] for r in rows),
             arrived_mm=ARRIVED_M * 1e3,
             arrived_deg=math.degrees(ARRIVED_RAD),
