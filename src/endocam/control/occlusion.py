@@ -64,7 +64,7 @@ GAP_M = 0.5e-3  # m: the gap whose closing is judged (the study's GAP_SEEN)
 RAY_TOLERANCE_M = 2.0e-3  # m: the ray cast's allowance before a point (DEFAULT_RAY_TOLERANCE)
 RIM_SAMPLE_M = 0.4e-3  # m: spacing of the samples along a ray tested against the rim
 WINDOW_SPACING_M = 2.0e-3  # m: spacing of the wire polyline near the ring (sagitta ≪ r_w)
-WEIGHT_FLOOR = 0.1  # unitless: gap points weighing less than this share of the most are dropped
+WEIGHT_FLOOR = 0.2  # unitless: gap points weighing less than this share of the most are dropped
 _EPS = 1e-12  # m or unitless: below this a length or a direction is degenerate
 _UP = np.array([0.0, 0.0, 1.0])
 
@@ -120,7 +120,7 @@ def wire_window(wire: Wire, p_world: FloatArray, half_length: float) -> FloatArr
     ``p_world`` (3,), world, m (the ring centre). Returns (K, 3) points, world, m, about
     ``WINDOW_SPACING_M`` apart (K ≥ 2), consecutive points forming the segments.
     """
-    k = int(wire.nearest_index(np.asarray(p_world, dtype=float))[0])
+    _, k = wire.nearest_surface((float(p_world[0]), float(p_world[1]), float(p_world[2])))
     pts = wire.search_points
     stride = max(1, round(WINDOW_SPACING_M / wire.search_spacing))
     half = max(1, math.ceil(half_length / wire.search_spacing))
@@ -206,6 +206,9 @@ def segment_distances(a: FloatArray, b: FloatArray, p: FloatArray, q: FloatArray
     s = np.where(t < 0.0, np.clip(-cc / aa_safe, 0.0, 1.0), s)
     s = np.where(t > 1.0, np.clip((bb - cc) / aa_safe, 0.0, 1.0), s)
     t = np.clip(t, 0.0, 1.0)
+    point = ee <= _EPS  # a zero-length p→q: its point, the nearest on a→b
+    s = np.where(point, np.clip(-cc / aa_safe, 0.0, 1.0), s)
+    t = np.where(point, 0.0, t)
     gap = r + s[..., None] * d1[:, None, :] - t[..., None] * d2[None, :, :]
     return np.asarray(np.sqrt(np.einsum("isk,isk->is", gap, gap)), dtype=float)
 
@@ -217,7 +220,7 @@ def hidden(
     wire_radius: float,
     T_world_ring: FloatArray,
     ring: RingShape,
-) -> FloatArray:
+) -> np.ndarray:
     """Whether each target is hidden from each eye by the wire, the handle or the rim.
 
     Parameters

@@ -99,7 +99,7 @@ def segment_distance(
     if denom > _EPS * max(aa * ee, _EPS):
         s = min(max((bb * ff - cc * ee) / denom, 0.0), 1.0)
     t = (bb * s + ff) / max(ee, _EPS)
-    if t < 0.0:
+    if t < 0.0 or ee <= _EPS:  # (a zero-length p→q: its point)
         t = 0.0
         s = min(max(-cc / max(aa, _EPS), 0.0), 1.0)
     elif t > 1.0:

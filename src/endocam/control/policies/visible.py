@@ -69,6 +69,7 @@ __all__ = ["Candidates", "SideScore", "VisibleConfig", "VisiblePolicy", "choose_
 
 _ZERO = (0.0, 0.0, 0.0)
 _MIN_NORMAL = 1e-9  # unitless: a shorter ring normal is degenerate (the checks answer it)
+TIME_TOL_S = 1e-9  # s: round-off allowed on the scoring times (sums of periods)
 
 
 @dataclass(frozen=True)
@@ -120,8 +121,8 @@ class VisibleConfig:
 
     max_tilt: float = math.radians(20.0)
     tilt_steps: int = 2
-    azimuths: int = 8
-    score_period: float = 0.1
+    azimuths: int = 6
+    score_period: float = 0.2
     rim_points: int = 12
     weight_scale: float = 1.5e-3
     window: float = 0.03
@@ -191,7 +192,7 @@ def choose_side(
     if not scores[-side].utility > scores[side].utility + cfg.side_margin:
         return side, None
     since = t if since is None else since
-    if t - since >= cfg.side_hold:
+    if t - since >= cfg.side_hold - TIME_TOL_S:
         return -side, None
     return side, since
 
@@ -349,9 +350,13 @@ class VisiblePolicy(EndocamPolicy):
         limit[: c.per_side] = min(math.cos(vc.port_angle), cos_port[0])
         limit[c.per_side :] = min(math.cos(vc.port_angle), cos_port[c.per_side])
         ok = (cos_port >= limit) & (centres[:, 2] >= self._aim_floor)
-        ok &= self._wire.surface_distance(centres) >= self.config.wire_clearance + vc.wire_slack
+        clearance = self.config.wire_clearance + vc.wire_slack
         for i in np.flatnonzero(ok & ~bases):
-            ok[i] = self.cone.margin(centres[i]) >= vc.cone_slack
+            p = centres[i].tolist()
+            ok[i] = (
+                self.cone.margin(p) >= vc.cone_slack
+                and self._wire.nearest_surface(p)[0] >= clearance
+            )
         beyond = np.maximum(np.arccos(np.clip(cos_port, -1.0, 1.0)) - vc.port_angle, 0.0)
         return ok | bases, beyond
 
