@@ -321,7 +321,7 @@ def test_unknown_tool_positions_hold_the_working_distance() -> None:
 LATENCY_S = 0.05  # s, the default sensing delay: a fresh pose is this old
 
 
-@pytest.mark.parametrize("name", ["centering", "orientation", "endocam"])
+@pytest.mark.parametrize("name", ["centering", "orientation", "endocam", "endocam-visible"])
 @pytest.mark.parametrize(
     ("age_s", "stale"),
     [(LATENCY_S, False), (None, False), (0.3, True), (-1e-3, True), (math.nan, True)],

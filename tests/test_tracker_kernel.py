@@ -34,6 +34,7 @@ from endocam.control.policies import (
     MovingPolicy,
     OraclePolicy,
     OrientationPolicy,
+    VisiblePolicy,
 )
 from endocam.control.policies.endocam import FLOOR_TOL_M
 from endocam.control.policies.oracle import OracleConfig
@@ -244,6 +245,26 @@ def test_random_tracker_episodes_keep_the_safety_invariants(name: str, wire: boo
         )
         states |= run_episode(EndocamPolicy(cfg), 10 * seed + len(name), wire, follows).states
     assert states & {TrackingState.TRACKING, TrackingState.PLANNING}  # commands were issued
+
+
+@pytest.mark.parametrize("wire", [False, True])
+def test_random_visible_episodes_keep_the_safety_invariants(wire: bool) -> None:
+    """``endocam-visible`` turns the tracker's viewing axis (with a wire model): the same
+    invariants hold, and with the wire it tilts the axis and changes side on its own."""
+    states: set[TrackingState] = set()
+    tilted = changes = 0
+    for seed, (rule, centre, follows) in enumerate(
+        [(SideRule.PORT, True, True), (SideRule.UP, False, False)]
+    ):
+        cfg = ControllerConfig(
+            side_rule=rule, centre_left_eye=centre, ring_max_speed=10.0, ring_max_rate=1000.0
+        )
+        policy = VisiblePolicy(cfg)
+        states |= run_episode(policy, 200 + seed, wire, follows).states
+        tilted += policy._offset != (0.0, 0.0, 0.0)
+        changes += policy.side_changes
+    assert states & {TrackingState.TRACKING, TrackingState.PLANNING}  # commands were issued
+    assert (tilted > 0 and changes > 0) if wire else (tilted == 0 and changes == 0)
 
 
 MOVING = {"centering": CenteringPolicy, "orientation": OrientationPolicy}
@@ -604,7 +625,7 @@ def faulty_observations(seed: int) -> list[tuple[Observation, bool]]:
     return out
 
 
-FAULTY = {"endocam": EndocamPolicy, **MOVING}
+FAULTY = {"endocam": EndocamPolicy, "endocam-visible": VisiblePolicy, **MOVING}
 
 
 @pytest.mark.parametrize("name", sorted(FAULTY))
@@ -645,7 +666,7 @@ def test_faulty_observations_are_answered_by_holding(name: str) -> None:
             T_cam[:3, 3] += rng.normal(scale=1e-3, size=3)
         rejected += policy._gate.rejected
     expected = {"camera pose not finite; holding", RING_REASON, STALE_REASON, GATE_REASON}
-    if name == "endocam":
+    if name.startswith("endocam"):
         expected.add("ring pose degenerate (zero normal)")
     assert expected <= reasons, expected - reasons  # every check answered at least once
     assert rejected > 0

@@ -18,6 +18,7 @@ from endocam.control.policies import (
     OraclePolicy,
     OrientationEcmPolicy,
     OrientationPolicy,
+    VisiblePolicy,
 )
 from endocam.control.types import CameraPolicy
 from endocam.robot.actuator import ArmKind
@@ -60,6 +61,11 @@ POLICIES: dict[str, PolicyEntry] = {
     "endocam": PolicyEntry(
         EndocamPolicy,
         "orientation goal kept on one side, orbit transfers, latency prediction, left-eye centring",
+    ),
+    "endocam-visible": PolicyEntry(
+        VisiblePolicy,
+        "endocam turned to show the touch: side and tilt (≤ 20°) where the wire and rim leave "
+        "the gap in sight",
     ),
     "oracle": PolicyEntry(
         OraclePolicy,

@@ -245,8 +245,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     ep.set_defaults(handler=_experiment)
     et = esub.add_parser(
         "tracking",
-        help="the tracking protocol: controllers (paper, endocam, centering, oracle) × carriers "
-        "× 3 ideal + 3 study trajectories; table, plots and errors by phase",
+        help="the tracking protocol: controllers (paper, endocam, centering, oracle, "
+        "endocam-visible) × carriers × 3 ideal + 3 study trajectories; table, plots and errors "
+        "by phase",
     )
     et.add_argument("--out", required=True, help="output folder (replaced atomically)")
     et.add_argument(
@@ -257,8 +258,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     et.add_argument(
         "--controllers",
-        default="paper,endocam,centering,oracle",
-        help="comma-separated controllers (default paper,endocam,centering,oracle)",
+        default="paper,endocam,centering,oracle,endocam-visible",
+        help="comma-separated controllers (default paper,endocam,centering,oracle,"
+        "endocam-visible)",
     )
     et.add_argument(
         "--carriers", default="free,psm", help="comma-separated carriers (default free,psm)"

@@ -15,6 +15,7 @@ import numpy as np
 
 from endocam.camera import StereoCamera
 from endocam.geometry import FloatArray
+from endocam.task.config import RingConfig
 from endocam.task.wire import Wire
 
 __all__ = [
@@ -67,6 +68,9 @@ class PolicyContext:
         The structure the camera must keep ``ControllerConfig.wire_clearance`` from: a
         pre-operative model (centre line and radius, world, m), as a real system has from
         planning images. ``None``: no model, no clearance constraint.
+    ring : RingConfig or None
+        The ring's geometry (radii, handle): a known instrument. ``None``: the default ring
+        (``RingConfig()``). The ``endocam-visible`` camera judges what the rim hides with it.
     """
 
     camera: StereoCamera
@@ -79,6 +83,7 @@ class PolicyContext:
     future_duration: float = 0.0
     follows_twist: bool = True
     wire: Wire | None = None
+    ring: RingConfig | None = None
 
 
 _NO_TIPS = np.zeros((0, 3))

@@ -305,6 +305,7 @@ class WireChaserEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             future_duration=float(self.trajectory.duration),
             follows_twist=False,  # action_towards maps the pose alone; a twist would be ignored
             wire=self.wire,
+            ring=self.config.experiment.task.ring,
         )
 
     def action_towards(self, T_world_cmd: FloatArray, d_f: float) -> np.ndarray:

@@ -283,6 +283,7 @@ def run_episode(
             future_duration=float(trajectory.duration),
             follows_twist=actuator.follows_twist,  # a dVRK arm ignores the feed-forward twist
             wire=wire,  # the pre-operative model the camera keeps its clearance from
+            ring=config.task.ring,  # the ring's known geometry
         )
     )
 

@@ -1,7 +1,8 @@
 """``endocam experiment tracking``: the standard tracking protocol, controllers × carriers × paths.
 
 Every controller (``paper`` = the registered ``orientation`` policy, ``endocam``, ``centering``,
-``oracle``) runs on every carrier (``free``, ``psm``) over the same trajectories:
+``oracle``, ``endocam-visible``: its tilt off the normal, for the view of the touch, shows as its
+orientation error) runs on every carrier (``free``, ``psm``) over the same trajectories:
 
 * the **ideal** set: the ideal path with 36, 54 and 71 control points (as ``experiment paper``);
 * the **noisy** set: the three study trajectories (``t1-36-low``, ``t2-36-high``,
@@ -65,8 +66,9 @@ from endocam.task.wire import Wire
 
 CONTROLLERS = {"paper": "orientation", "endocam": "endocam", "centering": "centering"}
 CONTROLLERS["oracle"] = "oracle"
+CONTROLLERS["endocam-visible"] = "endocam-visible"  # turned to show the touch: its tilt costs
 """Controller name in the protocol → registered policy name."""
-DEFAULT_CONTROLLERS = ("paper", "endocam", "centering", "oracle")
+DEFAULT_CONTROLLERS = ("paper", "endocam", "centering", "oracle", "endocam-visible")
 DEFAULT_CARRIERS = (ArmKind.FREE.value, ArmKind.PSM.value)
 SETS = ("ideal", "noisy")
 PHASES = ("approach", "tracking", "transfer", "frozen", "lost", "unreachable", "blocked", "holding")

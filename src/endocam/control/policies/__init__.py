@@ -4,6 +4,7 @@
 * :mod:`.paper`: ``fixed``, ``centering``, ``orientation`` and ``orientation-ecm`` (the paper's
   conditions I–III).
 * :mod:`.endocam`: the ``endocam`` tracker (side keeping, orbits, prediction, left-eye centring).
+* :mod:`.visible`: ``endocam-visible``, the tracker turned to where the touch is in sight.
 * :mod:`.oracle`: the non-causal reference that knows the ring's future.
 """
 
@@ -22,6 +23,7 @@ from endocam.control.policies.paper import (
     OrientationEcmPolicy,
     OrientationPolicy,
 )
+from endocam.control.policies.visible import VisibleConfig, VisiblePolicy
 
 __all__ = [
     "DETOUR_REASON",
@@ -36,4 +38,6 @@ __all__ = [
     "OraclePolicy",
     "OrientationEcmPolicy",
     "OrientationPolicy",
+    "VisibleConfig",
+    "VisiblePolicy",
 ]

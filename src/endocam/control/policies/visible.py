@@ -1,0 +1,414 @@
+r"""``endocam-visible``: the ``endocam`` tracker, turned to where the touch can be seen.
+
+The paper's orientation view looks along the ring normal, and the normal runs nearly along the
+wire: from one end the wire's near part leans over the ring's hole and hides the gap that
+closes at a touch. This camera keeps everything of :class:`EndocamPolicy` (the ring centred at
+the working distance, prediction, orbits, and every safety rule: the input checks and the
+observation gate, the cone freeze, the wire clearance and its detours, the floor, the carriers'
+speed and joint limits) and changes one thing: the **viewing axis** it holds the camera on.
+
+Every ``score_period`` s it scores candidate axes from the observed ring pose and the
+pre-operative wire model (:mod:`endocam.control.occlusion`, compiled in
+:mod:`endocam.control.sightline`): on each side ``s = ±1`` of the ring, the normal ``s n``
+itself (as the tracker would take it, held above the floor) and the directions tilted
+``θ ∈ tilts`` (at most ``max_tilt``) off it at ``azimuths`` angles around it. A candidate's
+score is the weighted share of the rim's likely contact points whose 0.5 mm gap both eyes
+(mean of the two) would see clear of the wire, the handle and the rim, and resolved
+(``resolved_px``); its utility is the score less ``tilt_cost · θ``. Candidates whose camera would
+leave the cone (with ``cone_slack``), go under the floor or into the wire's clearance zone are
+not taken; the untilted axis always may be (the tracker and its guard handle it as before).
+
+* **Tilt** (on the side the camera is on): the best candidate becomes the target when its
+  utility beats the current target's by ``tilt_margin``. The axis moves towards the target at
+  ``tilt_rate`` (rad/s of the offset), never in a jump.
+* **Side**: the other side is taken only when its best utility beats this side's by
+  ``side_margin`` at every score for ``side_hold`` s (never for a moment's gain); the camera
+  then moves there by the tracker's orbit (``TrackerConfig.side_transfer``). The first side is
+  the better one outright.
+
+The axis reaches the tracker as the observed ring pose with its normal turned to the axis,
+:math:`n' = \operatorname{normalize}(n + \tau_\perp)`, where ``τ`` (world) is the axis' offset
+and :math:`\tau_\perp` its part across the observed normal (the tracker's step reads only the
+ring's centre and normal): ``n'`` moves with the ring, at most ``max_tilt`` from it and at most
+``tilt_rate`` faster, so the observation gate (``ring_max_rate``) and the predictor see a
+smooth normal. A faulty or degenerate ring pose is passed on untouched (the checks answer it).
+Without a wire model (``PolicyContext.wire``) nothing is scored and the camera is ``endocam``.
+
+The tilt is the orientation error this camera pays for the view: ``experiment tracking``
+reports it (``orientation_error_deg`` against the true normal).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from endocam.control.config import ControllerConfig
+from endocam.control.occlusion import (
+    RingShape,
+    direction_table,
+    eye_positions,
+    gap_points,
+    occluders,
+    sight,
+    view_directions,
+    wire_window,
+)
+from endocam.control.plan import PlanResult
+from endocam.control.policies.endocam import EndocamPolicy
+from endocam.control.side_view import view_of
+from endocam.control.sightline import view_shares
+from endocam.control.types import Observation, PolicyContext
+from endocam.geometry import FloatArray
+from endocam.task.config import RingConfig
+
+__all__ = ["Candidates", "SideScore", "VisibleConfig", "VisiblePolicy", "choose_side"]
+
+_ZERO = (0.0, 0.0, 0.0)
+_MIN_NORMAL = 1e-9  # unitless: a shorter ring normal is degenerate (the checks answer it)
+TIME_TOL_S = 1e-9  # s: round-off allowed on the scoring times (sums of periods)
+
+
+@dataclass(frozen=True)
+class VisibleConfig:
+    """Parameters of the ``endocam-visible`` camera (SI; see the module docstring).
+
+    Attributes
+    ----------
+    max_tilt : float
+        The largest tilt of the viewing axis off the ring normal, rad (≤ 25°: the mean
+        orientation error must stay ≤ 10° with the tracker's own ~4–5°).
+    tilt_steps : int
+        Tilts tried: ``max_tilt · k / tilt_steps``, ``k = 1..tilt_steps``.
+    azimuths : int
+        Directions around the normal tried at each tilt.
+    score_period : float
+        Time between two scorings, s.
+    rim_points : int
+        Points around the rim where a touch may close (``occlusion.gap_points``).
+    weight_scale : float
+        How fast a rim point's weight falls with its clearance to the wire, m.
+    window : float
+        Arc length of wire either side of the ring tested as an occluder, m.
+    tilt_cost : float
+        Utility lost per rad of tilt (score units per rad).
+    tilt_margin : float
+        Utility a new tilt must gain over the current target to replace it.
+    tilt_rate : float
+        Fastest change of the axis' offset, rad/s (small-angle: the offset is ``tan θ``).
+    side_margin : float
+        Utility the other side must gain over this side's to be taken ...
+    side_hold : float
+        ... at every scoring for this long, s.
+    resolved_px : float
+        Pixels 0.5 mm of gap must span to count as seen.
+    cone_slack : float
+        Cone margin a tilted candidate's camera needs, m (the ring moves between scorings).
+    wire_slack : float
+        Distance beyond ``wire_clearance`` a tilted candidate's camera keeps from the wire, m
+        (a camera at the clearance zone's edge detours round it on every move).
+    port_angle : float
+        The largest angle between a tilted candidate's optical axis and the line from the port
+        (the camera arm's RCM) through the ring, rad, unless the tracker's own view is already
+        farther (then no farther than it): a PSM-held camera's wrist reaches ~68° (the
+        tracker's commands on the study paths; farther ones are conceded), so a tilt must not
+        take the view out of its reach. The ECM's axis always passes through the port, the
+        free camera has no such limit.
+    """
+
+    max_tilt: float = math.radians(20.0)
+    tilt_steps: int = 2
+    azimuths: int = 6
+    score_period: float = 0.2
+    rim_points: int = 12
+    weight_scale: float = 1.5e-3
+    window: float = 0.03
+    tilt_cost: float = 0.3
+    tilt_margin: float = 0.1
+    tilt_rate: float = 1.0
+    side_margin: float = 0.3
+    side_hold: float = 1.0
+    resolved_px: float = 2.0
+    cone_slack: float = 2e-3
+    port_angle: float = math.radians(55.0)
+    wire_slack: float = 3e-3
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.max_tilt <= math.radians(25.0):
+            raise ValueError(f"max_tilt must be in (0, 25°] rad, got {self.max_tilt}")
+        for name in ("tilt_steps", "azimuths", "rim_points"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be ≥ 1, got {getattr(self, name)}")
+        for name in ("score_period", "weight_scale", "window", "tilt_rate", "resolved_px"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if not 0.0 < self.port_angle <= math.pi:
+            raise ValueError(f"port_angle must be in (0, π] rad, got {self.port_angle}")
+        for name in (
+            "tilt_cost",
+            "tilt_margin",
+            "side_margin",
+            "side_hold",
+            "cone_slack",
+            "wire_slack",
+        ):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"{name} must be ≥ 0, got {getattr(self, name)}")
+
+    @property
+    def tilts(self) -> FloatArray:
+        """(tilt_steps,) the tilts tried, rad."""
+        return self.max_tilt * np.arange(1, self.tilt_steps + 1) / self.tilt_steps
+
+
+@dataclass(frozen=True)
+class SideScore:
+    """The best view on one side at one scoring.
+
+    ``utility``: its score less the tilt's cost (``-inf``: no candidate feasible); ``offset``:
+    the axis offset ``τ`` (world) that gives it; ``current``: the utility of the side's current
+    target (``-inf``: none feasible, or not this side).
+    """
+
+    utility: float
+    offset: tuple[float, float, float]
+    current: float = -math.inf
+
+
+def choose_side(
+    side: float, scores: dict[float, SideScore], since: float | None, t: float, cfg: VisibleConfig
+) -> tuple[float, float | None]:
+    """The side to look from after a scoring at ``t`` (s), and since when the other is better.
+
+    ``side``: the side now (0: none yet: the better side outright); ``scores`` per side;
+    ``since``: when the other side started beating this one by ``side_margin`` (``None``:
+    it does not). The other side is returned only once it has done so for ``side_hold`` s.
+    """
+    if side == 0.0:
+        return (1.0 if scores[1.0].utility >= scores[-1.0].utility else -1.0), None
+    if not scores[-side].utility > scores[side].utility + cfg.side_margin:
+        return side, None
+    since = t if since is None else since
+    if t - since >= cfg.side_hold - TIME_TOL_S:
+        return -side, None
+    return side, since
+
+
+class VisiblePolicy(EndocamPolicy):
+    """``endocam`` with its viewing axis turned to where the touch is in sight (see the module)."""
+
+    name = "endocam-visible"
+
+    def __init__(
+        self, config: ControllerConfig | None = None, visible: VisibleConfig | None = None
+    ) -> None:
+        super().__init__(config)
+        self.visible = visible or VisibleConfig()
+        self._table = direction_table(self.visible.tilts, self.visible.azimuths)
+        self._tilt = np.concatenate([[0.0], np.repeat(self.visible.tilts, self.visible.azimuths)])
+        self._reset_memory()
+
+    def _reset_memory(self) -> None:
+        self._offset = _ZERO  # τ applied, world
+        self._targets: dict[float, tuple[float, float, float]] = {1.0: _ZERO, -1.0: _ZERO}
+        self._want = 0.0  # the side the scorer wants (0: none yet)
+        self._since: float | None = None  # when the other side started being better
+        self._next_score = -math.inf
+        self.side_changes = 0  # side changes the scorer asked for this episode
+        self.last_scores: dict[float, SideScore] = {}
+
+    def reset(self, context: PolicyContext) -> None:
+        """The tracker's reset; the axis back on the normal, no side yet."""
+        super().reset(context)
+        self._reset_memory()
+        self._wire = context.wire
+        self._shape = RingShape.of(context.ring or RingConfig())
+        self._focal_px = float(context.camera.intrinsics.K[1, 1])
+        self._baseline = float(context.camera.baseline)
+        self._dt = context.dt
+
+    # -- the side ----------------------------------------------------------------------------
+
+    def _preferred_side(self) -> float:
+        """The scorer's side while the camera is not on it (the tracker then orbits there)."""
+        return self._want if self._want != self._side else 0.0
+
+    # -- the axis ----------------------------------------------------------------------------
+
+    def _plan_step(self, obs: Observation, T_cam: FloatArray, T_ring: FloatArray) -> PlanResult:
+        """The tracker's step on the ring pose with its normal turned to the viewing axis."""
+        t = float(obs.t)
+        n = _unit_normal(T_ring)
+        if n is not None and self._wire is not None and t >= self._next_score:
+            self._next_score = t + self.visible.score_period
+            self._score(T_ring, n, t)
+        self._advance()
+        ox, oy, oz = self._offset
+        if n is None or (ox == 0.0 and oy == 0.0 and oz == 0.0):
+            return super()._plan_step(obs, T_cam, T_ring)
+        return super()._plan_step(obs, T_cam, _turned(T_ring, n, self._offset))
+
+    def _advance(self) -> None:
+        """Move the applied offset towards the current side's target at ``tilt_rate``."""
+        side = self._side if self._side != 0.0 else self._want
+        target = self._targets.get(side, _ZERO)
+        o = self._offset
+        dx, dy, dz = target[0] - o[0], target[1] - o[1], target[2] - o[2]
+        dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if dist == 0.0:
+            return
+        k = min(1.0, self.visible.tilt_rate * self._dt / dist)
+        self._offset = (o[0] + k * dx, o[1] + k * dy, o[2] + k * dz)
+
+    # -- the scoring -------------------------------------------------------------------------
+
+    def _score(self, T_ring: FloatArray, n: tuple[float, float, float], t: float) -> None:
+        """Score both sides' candidates; update the targets and the wanted side."""
+        wire, vc = self._wire, self.visible
+        assert wire is not None
+        p_c = T_ring[:3, 3]
+        window = wire_window(wire, p_c, vc.window)
+        gaps = gap_points(T_ring, window, self._shape, wire.radius, vc.rim_points,
+                          vc.weight_scale)  # fmt: skip
+        n_arr = np.array(n)
+        side_now = self._side if self._side != 0.0 else self._want
+        if side_now == 0.0:  # the tracker's first side: above the feature
+            side_now = 1.0 if n[2] >= 0.0 else -1.0
+        c = self._candidates(p_c, n_arr, side_now)
+        left, right = eye_positions(p_c, c.dirs, self.d_f, self._baseline)
+        feasible, beyond = self._feasible(c, p_c, left + 0.5 * (right - left))
+        shares = view_shares(
+            np.vstack([left, right]),
+            np.vstack([-c.dirs, -c.dirs]),
+            sight(gaps, self._focal_px, vc.resolved_px),
+            occluders(window, wire.radius, T_ring, self._shape),
+        )
+        m = len(c.dirs)
+        score = 0.5 * (shares[:m] + shares[m:])
+        cost = vc.tilt_cost * (c.tilt + beyond)  # the orientation error it is expected to pay
+        utility = np.where(feasible, score - cost, -np.inf)
+        half = (m - 1) // 2  # the two sides' candidates, then the current target's axis
+        scores = {}
+        for i, s in enumerate((1.0, -1.0)):
+            u = utility[i * half : (i + 1) * half]
+            j = int(np.argmax(u))
+            offset = _ZERO if j == 0 else _offset_of(s, n_arr, c.dirs[i * half + j])
+            now = u[0] if self._targets[s] == _ZERO else utility[-1]
+            scores[s] = SideScore(float(u[j]), offset, float(now) if s == side_now else -math.inf)
+        self.last_scores = scores
+        want, self._since = choose_side(side_now, scores, self._since, t, vc)
+        if want != self._want and self._want != 0.0:
+            self.side_changes += 1
+        self._want = want
+        for s in (1.0, -1.0):
+            best = scores[s]
+            if s != side_now or best.utility > best.current + vc.tilt_margin:
+                self._targets[s] = best.offset
+
+    def _candidates(self, p_c: FloatArray, n: FloatArray, side_now: float) -> Candidates:
+        """Both sides' candidate axes, then the current side's target axis.
+
+        Side ``+1``'s first, each side's led by the tracker's own view.
+        """
+        up = view_directions(n, self._table)  # (C, 3) about +n, the first n itself
+        dirs = np.vstack([up, -up, up[:1]])
+        tilt = np.concatenate([self._tilt, self._tilt, [0.0]])
+        p, nn = (float(p_c[0]), float(p_c[1]), float(p_c[2])), (float(n[0]), float(n[1]),
+                                                                 float(n[2]))  # fmt: skip
+        for i, s in enumerate((1.0, -1.0)):
+            base = view_of(self._view_rule, p, nn, s, self.d_f)
+            if base.found:
+                dirs[i * len(up)] = base.u  # the tracker's own view (held above the floor)
+                tilt[i * len(up)] = base.error
+        side = side_now if side_now != 0.0 else 1.0
+        dirs[-1] = _axis(side, n, self._targets[side])
+        tilt[-1] = _angle(dirs[-1], side * n)
+        return Candidates(dirs, tilt, len(up))
+
+    def _feasible(
+        self, c: Candidates, p_c: FloatArray, centres: FloatArray
+    ) -> tuple[np.ndarray, FloatArray]:
+        """(C,) whether each candidate may be taken, and how far beyond the port angle, rad.
+
+        The tracker's own views always; a tilted one above the floor, inside the cone by
+        ``cone_slack``, clear of the wire by ``wire_slack``, and no farther than ``port_angle``
+        from the port's line (or than the tracker's own view). ``centres`` (C, 3): the cameras,
+        world, m. Beyond ``port_angle`` an arm concedes the view: that angle is expected
+        orientation error.
+        """
+        vc = self.visible
+        assert self._wire is not None and self._ctx is not None
+        port = p_c - np.asarray(self._ctx.p_world_rcm, dtype=float)
+        port = port / max(float(np.linalg.norm(port)), _MIN_NORMAL)
+        cos_port = -(c.dirs @ port)  # the optical axis is -dir
+        bases = np.zeros(len(c.dirs), dtype=bool)
+        bases[[0, c.per_side]] = True
+        limit = np.empty(len(c.dirs))
+        limit[: c.per_side] = min(math.cos(vc.port_angle), cos_port[0])
+        limit[c.per_side :] = min(math.cos(vc.port_angle), cos_port[c.per_side])
+        ok = (cos_port >= limit) & (centres[:, 2] >= self._aim_floor)
+        clearance = self.config.wire_clearance + vc.wire_slack
+        for i in np.flatnonzero(ok & ~bases):
+            p = centres[i].tolist()
+            ok[i] = (
+                self.cone.margin(p) >= vc.cone_slack
+                and self._wire.nearest_surface(p)[0] >= clearance
+            )
+        beyond = np.maximum(np.arccos(np.clip(cos_port, -1.0, 1.0)) - vc.port_angle, 0.0)
+        return ok | bases, beyond
+
+
+class Candidates(NamedTuple):
+    """Candidate viewing axes at one scoring.
+
+    ``dirs`` (C, 3) unit directions from the ring centre to the camera, world: side +1's
+    ``per_side`` (the tracker's own view first), side −1's, then the current target's axis;
+    ``tilt`` (C,) each one's angle off its side's normal, rad.
+    """
+
+    dirs: FloatArray
+    tilt: FloatArray
+    per_side: int
+
+
+def _unit_normal(T_ring: FloatArray) -> tuple[float, float, float] | None:
+    """The ring pose's unit normal (its z column), or ``None`` if not finite or degenerate."""
+    x, y, z = float(T_ring[0, 2]), float(T_ring[1, 2]), float(T_ring[2, 2])
+    length = math.sqrt(x * x + y * y + z * z)
+    if not (math.isfinite(length) and length > _MIN_NORMAL) or not np.isfinite(T_ring).all():
+        return None
+    return (x / length, y / length, z / length)
+
+
+def _turned(
+    T_ring: FloatArray, n: tuple[float, float, float], offset: tuple[float, float, float]
+) -> FloatArray:
+    """``T_ring`` (4, 4) with its normal turned to ``normalize(n + τ⊥)`` (a new array)."""
+    k = offset[0] * n[0] + offset[1] * n[1] + offset[2] * n[2]
+    a = (n[0] + offset[0] - k * n[0], n[1] + offset[1] - k * n[1], n[2] + offset[2] - k * n[2])
+    length = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    T = T_ring.copy()
+    T[0, 2], T[1, 2], T[2, 2] = a[0] / length, a[1] / length, a[2] / length
+    return T
+
+
+def _offset_of(s: float, n: FloatArray, v: FloatArray) -> tuple[float, float, float]:
+    """The offset ``τ ⟂ n`` (world) whose axis ``s normalize(n + τ)`` is ``v`` (unit, world)."""
+    a = s * v
+    tau = a / float(a @ n) - n
+    return (float(tau[0]), float(tau[1]), float(tau[2]))
+
+
+def _axis(s: float, n: FloatArray, offset: tuple[float, float, float]) -> FloatArray:
+    """The viewing direction ``s normalize(n + τ⊥)`` (3,) of an offset, world."""
+    tau = np.array(offset)
+    a = n + tau - (tau @ n) * n
+    return s * a / np.linalg.norm(a)
+
+
+def _angle(a: FloatArray, b: FloatArray) -> float:
+    """Angle between unit vectors, rad."""
+    return math.atan2(float(np.linalg.norm(np.cross(a, b))), float(a @ b))

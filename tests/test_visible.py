@@ -1,0 +1,203 @@
+"""The ``endocam-visible`` camera: what the wire and the rim hide, the side it takes, hysteresis.
+
+The scorer's pieces (``control.occlusion``: numpy, and its compiled loop
+``control.sightline.view_shares``) on constructed scenes, the side rule (``choose_side``) and
+the policy on a scene built so that one side of the ring sees the contact and the other does
+not: a straight wire through the ring's hole, leaning over the contact on one side. The
+policy's safety invariants are the tracker's, checked in ``test_tracker_kernel.py``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from endocam import StereoCamera, look_at_pose
+from endocam.control.config import ControllerConfig
+from endocam.control.occlusion import (
+    RingShape,
+    direction_table,
+    eye_positions,
+    gap_points,
+    hidden,
+    occluders,
+    segment_distances,
+    sight,
+    view_directions,
+    view_scores,
+)
+from endocam.control.policies.visible import SideScore, VisibleConfig, VisiblePolicy, choose_side
+from endocam.control.sightline import view_shares
+from endocam.control.types import Observation, PolicyContext, TrackingState
+from endocam.task.config import RingConfig, WireConfig
+from endocam.task.wire import Wire
+
+RING = RingShape.of(RingConfig())
+WIRE_R = 1.0e-3  # m, the wire's radius
+CAMERA = StereoCamera()
+FOCAL_PX = float(CAMERA.intrinsics.K[1, 1])
+DT = 0.01  # s, control period
+ATOL_M = 1e-12  # m: two formulas for the same distance
+ATOL_SHARE = 1e-12  # unitless: the compiled and the numpy share of the same sight lines
+P_RING = np.array([0.0, 0.0, 0.06])  # m, the constructed scene's ring centre
+N_RING = np.array([1.0, 0.0, 0.1]) / math.hypot(1.0, 0.1)  # its normal: the first side is +1
+E_CONTACT = np.array([0.0, 1.0, 0.0])  # ⟂ N_RING: the wire sits towards the rim on this side
+
+
+def ring_pose(p: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(4, 4) ring pose at ``p`` (m) with unit normal ``n`` as its z axis."""
+    z = n / np.linalg.norm(n)
+    x = np.cross([0.0, 0.0, 1.0], z)
+    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-6 else np.array([1.0, 0.0, 0.0])
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    T[:3, 3] = p
+    return T
+
+
+def leaning_wire(lean: float) -> np.ndarray:
+    """(K, 3) a straight wire through the hole 2 mm towards ``E_CONTACT`` from the centre,
+    leaning ``lean`` (tan) towards it on the normal's side: from ``+n`` it covers the contact."""
+    d = N_RING + lean * E_CONTACT
+    d /= np.linalg.norm(d)
+    q = P_RING + 2.0e-3 * E_CONTACT
+    return q + np.linspace(-0.08, 0.08, 81)[:, None] * d
+
+
+def test_segment_distances_are_the_sampled_minimum() -> None:
+    """Ericson's clamped closest points against a dense sampling of both segments."""
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(6, 3)), rng.normal(size=(6, 3))
+    p, q = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    p[0], q[0] = p[1], p[1]  # a zero-length segment
+    b[1] = a[1] + 2.0 * (q[2] - p[2])  # a parallel pair
+    got = segment_distances(a, b, p, q)
+    s = np.linspace(0.0, 1.0, 201)
+    for i in range(6):
+        x = a[i] + s[:, None] * (b[i] - a[i])
+        for j in range(5):
+            y = p[j] + s[:, None] * (q[j] - p[j])
+            sampled = np.min(np.linalg.norm(x[:, None] - y[None], axis=2))
+            step = (np.linalg.norm(b[i] - a[i]) + np.linalg.norm(q[j] - p[j])) / 200
+            assert got[i, j] <= sampled + ATOL_M
+            assert got[i, j] >= sampled - step  # the sampling's resolution
+
+
+def test_a_point_behind_the_wire_or_the_rim_is_hidden() -> None:
+    """Behind a wire segment: hidden; beside it: not; through the rim's tube: hidden."""
+    T = ring_pose(P_RING, np.array([0.0, 0.0, 1.0]))
+    window = np.array([[-0.03, 0.0, 0.08], [0.03, 0.0, 0.08]])  # a wire 20 mm above the ring
+    target = P_RING + np.array([0.0, 0.0, 0.0])
+    eyes = np.array(
+        [
+            [0.0, 0.0, 0.12],  # straight above: through the wire
+            [0.0, 0.02, 0.12],  # beside it
+            [0.05, 0.0, P_RING[2]],  # edge-on from +x: through the rim's tube
+        ]
+    )
+    got = hidden(eyes, target[None], window, WIRE_R, T, RING)[:, 0]
+    assert got.tolist() == [True, False, True]
+
+
+def test_the_compiled_sight_lines_are_the_numpy_ones() -> None:
+    """``view_shares`` (compiled, coarse-to-fine rim test) against ``view_scores`` (numpy)."""
+    rng = np.random.default_rng(1)
+    table = direction_table(np.radians([15.0]), 5)
+    agree = 0
+    for lean in rng.uniform(-1.0, 1.0, size=4):
+        n = N_RING + rng.normal(scale=0.2, size=3)
+        T = ring_pose(P_RING, n / np.linalg.norm(n))
+        window = leaning_wire(float(lean))[::2]
+        gaps = gap_points(T, window, RING, WIRE_R, 12, 1.5e-3)
+        dirs = np.vstack([view_directions(T[:3, 2], table), -view_directions(T[:3, 2], table)])
+        eyes = eye_positions(P_RING, dirs, 0.045, CAMERA.baseline)
+        ref = view_scores(eyes, -dirs, gaps, window, T, RING, WIRE_R, FOCAL_PX, 2.0)
+        got = view_shares(
+            np.vstack(eyes),
+            np.vstack([-dirs, -dirs]),
+            sight(gaps, FOCAL_PX, 2.0),
+            occluders(window, WIRE_R, T, RING),
+        )
+        np.testing.assert_allclose(got, np.concatenate([ref[:, 0], ref[:, 1]]), atol=ATOL_SHARE)
+        agree += int(np.ptp(got) > 0.0)
+    assert agree >= 2  # the scenes tell views apart
+
+
+def test_the_clear_side_scores_higher() -> None:
+    """From ``+n`` the leaning wire covers the contact; from ``−n`` it leans away."""
+    T = ring_pose(P_RING, N_RING)
+    window = leaning_wire(0.6)
+    gaps = gap_points(T, window, RING, WIRE_R, 12, 1.5e-3)
+    heaviest = gaps.points[np.argmax(gaps.weights)]
+    assert (heaviest - P_RING) @ E_CONTACT > 0.9 * 2.0e-3  # the contact: towards E_CONTACT
+    dirs = np.array([N_RING, -N_RING])
+    eyes = eye_positions(P_RING, dirs, 0.045, CAMERA.baseline)
+    scores = view_scores(eyes, -dirs, gaps, window, T, RING, WIRE_R, FOCAL_PX, 2.0)
+    assert scores[1].min() > 0.95 and scores[0].max() < 0.7  # (C, eyes)
+    blocked = hidden(np.vstack(eyes), heaviest[None], window, WIRE_R, T, RING)[:, 0]
+    assert blocked.tolist() == [True, False, True, False]  # left +n, left -n, right +n, right -n
+
+
+def score(utility: float) -> SideScore:
+    return SideScore(utility, (0.0, 0.0, 0.0))
+
+
+def test_side_hysteresis_holds_against_a_flicker() -> None:
+    """The other side is taken only after beating this one by ``side_margin`` for
+    ``side_hold`` s at every scoring; a one-scoring flicker resets the wait."""
+    cfg = VisibleConfig()
+    better = {1.0: score(0.2), -1.0: score(0.2 + cfg.side_margin + 0.1)}
+    level = {1.0: score(0.2), -1.0: score(0.2 + cfg.side_margin)}  # not beyond the margin
+    assert choose_side(0.0, better, None, 0.0, cfg) == (-1.0, None)  # the first: outright
+    side, since = choose_side(1.0, better, None, 0.0, cfg)  # a flicker ...
+    assert (side, since) == (1.0, 0.0)
+    side, since = choose_side(side, level, since, cfg.score_period, cfg)  # ... gone
+    assert (side, since) == (1.0, None)
+    t = 1.0
+    side, since = choose_side(1.0, better, None, t, cfg)
+    while t < 1.0 + cfg.side_hold - 1e-9:
+        assert side == 1.0
+        t += cfg.score_period
+        side, since = choose_side(side, better, since, t, cfg)
+    assert side == -1.0 and since is None
+
+
+def test_visible_config_validates() -> None:
+    with pytest.raises(ValueError, match="max_tilt"):
+        VisibleConfig(max_tilt=math.radians(30.0))
+    with pytest.raises(ValueError, match="azimuths"):
+        VisibleConfig(azimuths=0)
+    with pytest.raises(ValueError, match="side_hold"):
+        VisibleConfig(side_hold=-1.0)
+
+
+def test_the_policy_orbits_to_the_side_with_the_clear_hole() -> None:
+    """On the leaning-wire scene the camera starts on ``+n`` (the tracker's first side), keeps
+    it for ``side_hold`` s, then orbits to ``−n`` and stays; every command keeps the wire
+    clearance."""
+    knots = leaning_wire(0.6)[::20]
+    wire = Wire(WireConfig(knots=tuple(tuple(k) for k in knots.tolist())))
+    T_ring = ring_pose(P_RING, N_RING)
+    up_perp = np.array([0.0, 0.0, 1.0]) - N_RING[2] * N_RING
+    rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)  # the same port angle either side
+    start = look_at_pose(P_RING + 0.05 * N_RING + [0.0, 0.0, 0.01], P_RING)
+    context = PolicyContext(CAMERA, start, T_ring, rcm, DT, wire=wire, ring=RingConfig())
+    cfg = VisibleConfig()
+    policy = VisiblePolicy(ControllerConfig(), cfg)
+    policy.reset(context)
+    T_cam = start
+    sides, states = [], set()
+    for k in range(400):
+        cmd = policy.step(Observation(k * DT, T_ring, T_cam))
+        d, _ = wire.nearest_surface(cmd.T_world_cam[:3, 3].tolist())
+        assert d >= policy.config.wire_clearance - ATOL_M
+        states.add(cmd.state)
+        sides.append(policy._side)
+        T_cam = cmd.T_world_cam
+    hold = round(cfg.side_hold / DT)
+    assert set(sides[1:hold]) == {1.0}  # held for side_hold
+    assert sides[-1] == -1.0 and set(sides[-100:]) == {-1.0}  # then taken, and kept
+    assert policy.side_changes == 1 and TrackingState.PLANNING in states  # by an orbit
+    assert policy.last_scores[-1.0].utility > policy.last_scores[1.0].utility
