@@ -256,9 +256,7 @@ def test_random_visible_episodes_keep_the_safety_invariants(wire: bool) -> None:
     for seed, (rule, centre, follows) in enumerate(
         [(SideRule.PORT, True, True), (SideRule.UP, False, False)]
     ):
-        cfg = ControllerConfig(
-            side_rule=rule, centre_left_eye=centre, ring_max_speed=10.0, ring_max_rate=1000.0
-        )
+        cfg = ControllerConfig(side_rule=rule, centre_left_eye=centre, **GATE_OFF)
         policy = VisiblePolicy(cfg)
         states |= run_episode(policy, 200 + seed, wire, follows).states
         tilted += policy._offset != (0.0, 0.0, 0.0)
