@@ -233,8 +233,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     et.add_argument(
         "--controllers",
         default="paper,endocam,centering,oracle,endocam-visible",
-        help="comma-separated controllers (default paper,endocam,centering,oracle,"
-        "endocam-visible)",
+        help="comma-separated controllers (default paper,endocam,centering,oracle,endocam-visible)",
     )
     et.add_argument(
         "--carriers", default="free,psm", help="comma-separated carriers (default free,psm)"
