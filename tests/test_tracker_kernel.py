@@ -259,7 +259,7 @@ def test_random_visible_episodes_keep_the_safety_invariants(wire: bool) -> None:
         cfg = ControllerConfig(side_rule=rule, centre_left_eye=centre, **GATE_OFF)
         policy = VisiblePolicy(cfg)
         states |= run_episode(policy, 200 + seed, wire, follows).states
-        tilted += policy._offset != (0.0, 0.0, 0.0)
+        tilted += policy.tilted_steps
         changes += policy.side_changes
     assert states & {TrackingState.TRACKING, TrackingState.PLANNING}  # commands were issued
     assert (tilted > 0 and changes > 0) if wire else (tilted == 0 and changes == 0)

@@ -18,8 +18,10 @@ from numba import njit
 from numba.extending import register_jitable
 
 from endocam.geometry import FloatArray
+from endocam.workspace.cone import Cone, cone_margin
+from endocam.workspace.keepout import KeepOutState, keep_out_nearest
 
-__all__ = ["Occluders", "Sight", "segment_distance", "view_shares"]
+__all__ = ["Occluders", "Sight", "segment_distance", "view_shares", "views_clear"]
 
 _EPS = 1e-12  # m or unitless: below this a length or a direction is degenerate
 RIM_COARSE = 5  # count: the rim test tries every RIM_COARSE-th sample first
@@ -208,4 +210,25 @@ def view_shares(
             if not blocked:
                 share += w
         out[e] = share / total
+    return out
+
+
+@njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
+def views_clear(
+    cameras: FloatArray, cone: Cone, floor: float, zone: KeepOutState, slack: FloatArray
+) -> np.ndarray:  # pragma: no cover - compiled
+    """(C,) whether each camera position (C, 3), world, m, may be aimed at.
+
+    At or above ``floor`` (m), inside ``cone`` by ``slack[0]`` (m) and ``slack[1]`` (m)
+    beyond the zone's clearance from the wire (``keep_out_nearest``: an exact query).
+    """
+    a, axis, tan_half, cos_half, height = cone
+    out = np.zeros(cameras.shape[0], dtype=np.bool_)
+    for i in range(cameras.shape[0]):
+        x, y, z = cameras[i, 0], cameras[i, 1], cameras[i, 2]
+        if not z >= floor:
+            continue
+        if not cone_margin(x, y, z, a, axis, tan_half, cos_half, height) >= slack[0]:
+            continue
+        out[i] = keep_out_nearest(zone, x, y, z).surface >= zone.clearance + slack[1]
     return out

@@ -9,22 +9,28 @@ speed and joint limits) and changes one thing: the **viewing axis** it holds the
 
 Every ``score_period`` s it scores candidate axes from the observed ring pose and the
 pre-operative wire model (:mod:`endocam.control.occlusion`, compiled in
-:mod:`endocam.control.sightline`): on each side ``s = ±1`` of the ring, the normal ``s n``
-itself (as the tracker would take it, held above the floor) and the directions tilted
-``θ ∈ tilts`` (at most ``max_tilt``) off it at ``azimuths`` angles around it. A candidate's
-score is the weighted share of the rim's likely contact points whose 0.5 mm gap both eyes
-(mean of the two) would see clear of the wire, the handle and the rim, and resolved
-(``resolved_px``); its utility is the score less ``tilt_cost · θ``. Candidates whose camera would
-leave the cone (with ``cone_slack``), go under the floor or into the wire's clearance zone are
-not taken; the untilted axis always may be (the tracker and its guard handle it as before).
+:mod:`endocam.control.sightline`): on the side ``s = ±1`` the camera is on, the normal ``s n``
+itself (as the tracker takes it, held above the floor) and the directions tilted ``θ ∈ tilts``
+(at most ``max_tilt``) off it at ``azimuths`` angles around it; on the other side, the
+tracker's own view. A candidate's score is the weighted share of the rim's likely contact
+points whose 0.5 mm gap the eyes (mean of the two) would see clear of the wire, the handle and
+the rim, and resolved (``resolved_px``), times the **urgency** ``exp(−c / urgency_scale)`` of
+the rim's clearance ``c`` to the wire (far from a touch, no view is worth a tilt). Its utility
+is the score less ``tilt_cost`` × the orientation error it is expected to pay: its tilt (or the
+floor's turn) and its angle beyond ``port_angle`` (an arm concedes a view its wrist cannot
+reach). A tilted candidate whose camera would leave the cone (``cone_slack``), go under the
+floor or near the wire's clearance zone (``wire_slack``), or turn the view farther from the
+port than ``port_angle``, is not taken; the tracker's own view always may be (the tracker and
+its guard handle it as before).
 
 * **Tilt** (on the side the camera is on): the best candidate becomes the target when its
   utility beats the current target's by ``tilt_margin``. The axis moves towards the target at
   ``tilt_rate`` (rad/s of the offset), never in a jump.
-* **Side**: the other side is taken only when its best utility beats this side's by
-  ``side_margin`` at every score for ``side_hold`` s (never for a moment's gain); the camera
-  then moves there by the tracker's orbit (``TrackerConfig.side_transfer``). The first side is
-  the better one outright.
+* **Side**: the first is the tracker's (above the feature); the other side is taken only when
+  its own view's utility beats this side's best by ``side_margin`` at every scoring for
+  ``side_hold`` s (never for a moment's gain, :func:`choose_side`); the camera then moves there
+  by the tracker's orbit (``TrackerConfig.side_transfer``), the axis back on the normal, and
+  tilts again from there.
 
 The axis reaches the tracker as the observed ring pose with its normal turned to the axis,
 :math:`n' = \operatorname{normalize}(n + \tau_\perp)`, where ``τ`` (world) is the axis' offset
@@ -59,8 +65,8 @@ from endocam.control.occlusion import (
 )
 from endocam.control.plan import PlanResult
 from endocam.control.policies.endocam import EndocamPolicy
-from endocam.control.side_view import view_of
-from endocam.control.sightline import view_shares
+from endocam.control.side_view import angle, view_of
+from endocam.control.sightline import view_shares, views_clear
 from endocam.control.types import Observation, PolicyContext
 from endocam.geometry import FloatArray
 from endocam.task.config import RingConfig
@@ -91,6 +97,9 @@ class VisibleConfig:
         Points around the rim where a touch may close (``occlusion.gap_points``).
     weight_scale : float
         How fast a rim point's weight falls with its clearance to the wire, m.
+    urgency_scale : float
+        How fast the score's worth falls with the rim's clearance to the wire, m: far from a
+        touch no tilt is worth its orientation error (``math.inf``: always worth it).
     window : float
         Arc length of wire either side of the ring tested as an occluder, m.
     tilt_cost : float
@@ -122,13 +131,14 @@ class VisibleConfig:
     max_tilt: float = math.radians(20.0)
     tilt_steps: int = 2
     azimuths: int = 6
-    score_period: float = 0.2
+    score_period: float = 0.25
     rim_points: int = 12
     weight_scale: float = 1.5e-3
+    urgency_scale: float = 3e-3
     window: float = 0.03
-    tilt_cost: float = 0.3
+    tilt_cost: float = 0.5
     tilt_margin: float = 0.1
-    tilt_rate: float = 1.0
+    tilt_rate: float = 2.0
     side_margin: float = 0.3
     side_hold: float = 1.0
     resolved_px: float = 2.0
@@ -142,7 +152,14 @@ class VisibleConfig:
         for name in ("tilt_steps", "azimuths", "rim_points"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be ≥ 1, got {getattr(self, name)}")
-        for name in ("score_period", "weight_scale", "window", "tilt_rate", "resolved_px"):
+        for name in (
+            "score_period",
+            "weight_scale",
+            "urgency_scale",
+            "window",
+            "tilt_rate",
+            "resolved_px",
+        ):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0.0 < self.port_angle <= math.pi:
@@ -218,6 +235,7 @@ class VisiblePolicy(EndocamPolicy):
         self._since: float | None = None  # when the other side started being better
         self._next_score = -math.inf
         self.side_changes = 0  # side changes the scorer asked for this episode
+        self.tilted_steps = 0  # steps the axis was off the normal this episode
         self.last_scores: dict[float, SideScore] = {}
 
     def reset(self, context: PolicyContext) -> None:
@@ -249,6 +267,7 @@ class VisiblePolicy(EndocamPolicy):
         ox, oy, oz = self._offset
         if n is None or (ox == 0.0 and oy == 0.0 and oz == 0.0):
             return super()._plan_step(obs, T_cam, T_ring)
+        self.tilted_steps += 1
         return super()._plan_step(obs, T_cam, _turned(T_ring, n, self._offset))
 
     def _advance(self) -> None:
@@ -266,7 +285,7 @@ class VisiblePolicy(EndocamPolicy):
     # -- the scoring -------------------------------------------------------------------------
 
     def _score(self, T_ring: FloatArray, n: tuple[float, float, float], t: float) -> None:
-        """Score both sides' candidates; update the targets and the wanted side."""
+        """Score the candidates; update this side's target and the wanted side."""
         wire, vc = self._wire, self.visible
         assert wire is not None
         p_c = T_ring[:3, 3]
@@ -287,46 +306,48 @@ class VisiblePolicy(EndocamPolicy):
             occluders(window, wire.radius, T_ring, self._shape),
         )
         m = len(c.dirs)
-        score = 0.5 * (shares[:m] + shares[m:])
+        nearest = max(float(np.min(gaps.clearances)), 0.0)  # the rim's to the wire, m
+        urgency = math.exp(-nearest / vc.urgency_scale)  # a touch near: the view matters
+        score = urgency * 0.5 * (shares[:m] + shares[m:])
         cost = vc.tilt_cost * (c.tilt + beyond)  # the orientation error it is expected to pay
         utility = np.where(feasible, score - cost, -np.inf)
-        half = (m - 1) // 2  # the two sides' candidates, then the current target's axis
-        scores = {}
-        for i, s in enumerate((1.0, -1.0)):
-            u = utility[i * half : (i + 1) * half]
-            j = int(np.argmax(u))
-            offset = _ZERO if j == 0 else _offset_of(s, n_arr, c.dirs[i * half + j])
-            now = u[0] if self._targets[s] == _ZERO else utility[-1]
-            scores[s] = SideScore(float(u[j]), offset, float(now) if s == side_now else -math.inf)
+        k = c.per_side
+        j = int(np.argmax(utility[:k]))
+        offset = _ZERO if j == 0 else _offset_of(side_now, n_arr, c.dirs[j])
+        now = utility[0] if self._targets[side_now] == _ZERO else utility[k + 1]
+        scores = {
+            side_now: SideScore(float(utility[j]), offset, float(now)),
+            -side_now: SideScore(float(utility[k]), _ZERO),  # the other side: its own view
+        }
         self.last_scores = scores
         want, self._since = choose_side(side_now, scores, self._since, t, vc)
         if want != self._want and self._want != 0.0:
             self.side_changes += 1
         self._want = want
-        for s in (1.0, -1.0):
-            best = scores[s]
-            if s != side_now or best.utility > best.current + vc.tilt_margin:
-                self._targets[s] = best.offset
+        best = scores[side_now]
+        if best.utility > best.current + vc.tilt_margin:
+            self._targets[side_now] = best.offset
+        self._targets[-side_now] = _ZERO  # a new side starts on its own view
 
-    def _candidates(self, p_c: FloatArray, n: FloatArray, side_now: float) -> Candidates:
-        """Both sides' candidate axes, then the current side's target axis.
+    def _candidates(self, p_c: FloatArray, n: FloatArray, side: float) -> Candidates:
+        """The candidate axes: this ``side``'s, the other side's own view, this side's target.
 
-        Side ``+1``'s first, each side's led by the tracker's own view.
+        This side's are led by the tracker's own view (on the normal, or held above the
+        floor), then the tilted ones; the other side is judged by the tracker's own view
+        there (a side change starts from it).
         """
-        up = view_directions(n, self._table)  # (C, 3) about +n, the first n itself
-        dirs = np.vstack([up, -up, up[:1]])
-        tilt = np.concatenate([self._tilt, self._tilt, [0.0]])
+        mine = side * view_directions(n, self._table)  # (C, 3), the first side·n itself
+        dirs = np.vstack([mine, -mine[:1], _axis(side, n, self._targets[side])[None]])
+        tilt = np.concatenate([self._tilt, [0.0, 0.0]])
+        tilt[-1] = _angle(dirs[-1], side * n)
         p, nn = (float(p_c[0]), float(p_c[1]), float(p_c[2])), (float(n[0]), float(n[1]),
                                                                  float(n[2]))  # fmt: skip
-        for i, s in enumerate((1.0, -1.0)):
+        for i, s in ((0, side), (len(mine), -side)):
             base = view_of(self._view_rule, p, nn, s, self.d_f)
             if base.found:
-                dirs[i * len(up)] = base.u  # the tracker's own view (held above the floor)
-                tilt[i * len(up)] = base.error
-        side = side_now if side_now != 0.0 else 1.0
-        dirs[-1] = _axis(side, n, self._targets[side])
-        tilt[-1] = _angle(dirs[-1], side * n)
-        return Candidates(dirs, tilt, len(up))
+                dirs[i] = base.u  # the tracker's own view (held above the floor)
+                tilt[i] = base.error
+        return Candidates(dirs, tilt, len(mine))
 
     def _feasible(
         self, c: Candidates, p_c: FloatArray, centres: FloatArray
@@ -346,17 +367,12 @@ class VisiblePolicy(EndocamPolicy):
         cos_port = -(c.dirs @ port)  # the optical axis is -dir
         bases = np.zeros(len(c.dirs), dtype=bool)
         bases[[0, c.per_side]] = True
-        limit = np.empty(len(c.dirs))
-        limit[: c.per_side] = min(math.cos(vc.port_angle), cos_port[0])
-        limit[c.per_side :] = min(math.cos(vc.port_angle), cos_port[c.per_side])
-        ok = (cos_port >= limit) & (centres[:, 2] >= self._aim_floor)
-        clearance = self.config.wire_clearance + vc.wire_slack
-        for i in np.flatnonzero(ok & ~bases):
-            p = centres[i].tolist()
-            ok[i] = (
-                self.cone.margin(p) >= vc.cone_slack
-                and self._wire.nearest_surface(p)[0] >= clearance
-            )
+        limit = np.full(len(c.dirs), min(math.cos(vc.port_angle), cos_port[0]))
+        assert self.guard is not None  # a wire model: its guard
+        slack = np.array([vc.cone_slack, vc.wire_slack])
+        ok = cos_port >= limit
+        ok &= views_clear(centres, self._view_rule.cone, self._aim_floor, self.guard.kernel_state,
+                          slack)  # fmt: skip
         beyond = np.maximum(np.arccos(np.clip(cos_port, -1.0, 1.0)) - vc.port_angle, 0.0)
         return ok | bases, beyond
 
@@ -364,9 +380,9 @@ class VisiblePolicy(EndocamPolicy):
 class Candidates(NamedTuple):
     """Candidate viewing axes at one scoring.
 
-    ``dirs`` (C, 3) unit directions from the ring centre to the camera, world: side +1's
-    ``per_side`` (the tracker's own view first), side −1's, then the current target's axis;
-    ``tilt`` (C,) each one's angle off its side's normal, rad.
+    ``dirs`` (C, 3) unit directions from the ring centre to the camera, world: this side's
+    ``per_side`` (the tracker's own view first), the other side's own view, then this side's
+    current target axis; ``tilt`` (C,) each one's angle off its side's normal, rad.
     """
 
     dirs: FloatArray
@@ -375,10 +391,13 @@ class Candidates(NamedTuple):
 
 
 def _unit_normal(T_ring: FloatArray) -> tuple[float, float, float] | None:
-    """The ring pose's unit normal (its z column), or ``None`` if not finite or degenerate."""
+    """The ring pose's unit normal (its z column), or ``None``.
+
+    ``None``: the pose is not finite or the normal degenerate (the tracker's checks answer it).
+    """
     x, y, z = float(T_ring[0, 2]), float(T_ring[1, 2]), float(T_ring[2, 2])
     length = math.sqrt(x * x + y * y + z * z)
-    if not (math.isfinite(length) and length > _MIN_NORMAL) or not np.isfinite(T_ring).all():
+    if not (math.isfinite(length) and length > _MIN_NORMAL and math.isfinite(T_ring.sum())):
         return None
     return (x / length, y / length, z / length)
 
@@ -404,11 +423,12 @@ def _offset_of(s: float, n: FloatArray, v: FloatArray) -> tuple[float, float, fl
 
 def _axis(s: float, n: FloatArray, offset: tuple[float, float, float]) -> FloatArray:
     """The viewing direction ``s normalize(n + τ⊥)`` (3,) of an offset, world."""
-    tau = np.array(offset)
-    a = n + tau - (tau @ n) * n
-    return s * a / np.linalg.norm(a)
+    k = offset[0] * n[0] + offset[1] * n[1] + offset[2] * n[2]
+    a = (n[0] + offset[0] - k * n[0], n[1] + offset[1] - k * n[1], n[2] + offset[2] - k * n[2])
+    length = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    return np.array([s * a[0] / length, s * a[1] / length, s * a[2] / length])
 
 
 def _angle(a: FloatArray, b: FloatArray) -> float:
-    """Angle between unit vectors, rad."""
-    return math.atan2(float(np.linalg.norm(np.cross(a, b))), float(a @ b))
+    """Angle between unit vectors (3,), rad (:func:`~endocam.control.side_view.angle`)."""
+    return angle((float(a[0]), float(a[1]), float(a[2])), (float(b[0]), float(b[1]), float(b[2])))
