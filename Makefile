@@ -8,7 +8,7 @@ SYSSTAMP := $(VENV)/.system-deps
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 
-.PHONY: demo test lint typecheck unit bench system-deps clean
+.PHONY: demo test lint typecheck unit kernels bench system-deps clean
 
 $(SYSSTAMP):
 	@./.ci/system-deps
@@ -36,9 +36,15 @@ lint: $(STAMP)
 unit: $(STAMP)
 	$(VENV)/bin/pytest -n 2 --dist worksteal
 
-# Lint (mypy: one core) runs beside the suite (two workers), so no core idles while mypy runs.
+# numba compiles each kernel in the first process that calls it: without this step both test
+# workers, and every process a test starts (pool workers, Ray, the CLI), compile the same kernels.
+# `endocam compile` fills the cache once (one core) while lint runs on the other.
+kernels: $(STAMP)
+	$(VENV)/bin/endocam compile
+
 test: $(STAMP)
-	@$(MAKE) --no-print-directory -j2 lint unit
+	@$(MAKE) --no-print-directory -j2 lint kernels
+	@$(MAKE) --no-print-directory unit
 
 bench: $(STAMP)
 	$(VENV)/bin/pytest bench/bench_*.py --benchmark-enable --benchmark-only -p no:cacheprovider -o addopts=""

@@ -45,7 +45,7 @@ CHROMIUM_ARGS = [
 ]
 SERVER_START_TIMEOUT_S = 10.0  # s
 MAX_TABS = 12  # Tab presses allowed to reach a field
-UI_TIMEOUT_MS = 5000  # ms, Playwright waits
+UI_TIMEOUT_MS = 30_000  # ms, Playwright waits: a bound on a hang, not a speed check
 PHONE = {"width": 390, "height": 844}  # px, CSS viewport of a typical phone
 CODE = "BROWSER1"
 PID = "60a1b2c3d4e5f6a7b8c9d0e1"  # Prolific-style participant id
