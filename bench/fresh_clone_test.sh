@@ -15,3 +15,4 @@ start=$(date +%s)
 make test
 end=$(date +%s)
 echo "fresh clone make test: $((end - start)) s wall"
+times  # user and system CPU of this shell, then of its children (make, pytest, ...)
