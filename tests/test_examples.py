@@ -91,13 +91,27 @@ def test_env_policies_reports_returns_side_by_side(run_here: Callable[..., str])
     assert rows["endocam"] != rows["fixed"]
 
 
+CLEARANCE_EPISODE_S = 10.0  # s of simulated time per run
+
+
 def test_camera_wire_clearance_reads_runs(tmp_path: Path, run_here: Callable[..., str]) -> None:
     from endocam.cli import main  # `endocam run` in this process: the example reads its files
 
+    config = tmp_path / "short.toml"  # long enough for the camera to come down to the wire
+    config.write_text(f"[task.trajectory]\nduration = {CLEARANCE_EPISODE_S}\n", encoding="utf-8")
     runs = []
     for policy in ("fixed", "endocam"):
         out = tmp_path / policy
-        args = ["--policy", policy, "--arm", "free", "--trajectory", "noisy"]
+        args = [
+            "--policy",
+            policy,
+            "--arm",
+            "free",
+            "--trajectory",
+            "noisy",
+            "--config",
+            str(config),
+        ]
         args += ["--control-points", "36", "--seed", "1", "--out", str(out)]
         assert main(["run", "--no-video", *args]) == 0
         runs.append(str(out))
