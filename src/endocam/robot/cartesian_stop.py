@@ -83,13 +83,15 @@ def box_corners(rows: FloatArray) -> FloatArray:
     lowest and highest position (:func:`~endocam.robot.braking.profile_extrema`, brake part
     not counted), corners in the order ``[[x, y, z] for x in xs for y in ys for z in zs]``.
     """
-    xs, ys, zs = profile_extrema(rows, 0), profile_extrema(rows, 1), profile_extrema(rows, 2)
+    ends = np.empty((3, 2))  # per axis: lowest, highest
+    for axis in range(3):  # a loop index, not three literal ints: one compiled profile_extrema
+        ends[axis, 0], ends[axis, 1] = profile_extrema(rows, axis)
     out = np.empty((8, 3))
     for i in range(2):
         for j in range(2):
             for k in range(2):
                 row = 4 * i + 2 * j + k
-                out[row, 0], out[row, 1], out[row, 2] = xs[i], ys[j], zs[k]
+                out[row, 0], out[row, 1], out[row, 2] = ends[0, i], ends[1, j], ends[2, k]
     return out
 
 
