@@ -16,7 +16,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from endocam.cli import main
+from endocam.cli import EXIT_UNSAFE, main
 from endocam.config import ExperimentConfig
 from endocam.runner import experiments, sweep
 from endocam.runner.episode import LOG_STATES
@@ -306,3 +306,24 @@ def test_list_valued_overrides_from_the_command_line(tmp_path: Path) -> None:
     for name in table.column("episode").to_pylist():
         scene = json.loads((out / "episodes" / name / "scene.json").read_text())
         assert scene["config"]["task"]["trajectory"]["angle_noise"] in ([0.1, 0.2], [0.2, 0.3])
+
+
+def test_a_sweep_with_an_unsafe_episode_exits_3_and_says_so(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """As `run` and every experiment: an episode whose safety check failed makes exit 3."""
+
+    def unsafe_sweep(tasks: object, out_dir: Path, backend: object, **kwargs: object) -> object:
+        for name, violations in (("a", 0), ("b", 7)):
+            run = Path(out_dir) / "episodes" / name
+            run.mkdir(parents=True)
+            check = {"ok": not violations, "violations": violations, "counts": {"cone": violations}}
+            (run / "metrics.json").write_text(json.dumps({"check": check}))
+        return sweep.SweepOutcome(2, 0, 0, Path(out_dir) / "r.parquet", Path(out_dir) / "s.html")
+
+    monkeypatch.setattr(sweep, "run_sweep", unsafe_sweep)
+    out = tmp_path / "grid"
+    args = ["sweep", "--policy", "fixed", "--seeds", "0", "--out", str(out), "--workers", "1"]
+    assert main(args) == EXIT_UNSAFE
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.startswith("safety check: 7 violations (cone 7)") and "(2 runs)" in last

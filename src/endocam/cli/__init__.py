@@ -3,9 +3,9 @@
 Every user mistake (unknown policy, bad number, unwritable folder, malformed config) ends as one
 line on stderr and exit code 2, never a traceback; an ``OSError`` (a file system refusing) and a
 port that cannot frame its task (``FramingError``) too.
-When ``run``, ``demo`` or an ``experiment`` has written its results and the safety check of
-what it wrote (``endocam check``'s invariants, every run) finds a violation, the exit code is 3
-and the last line says so (``safety check: N violations (lost_hold N) in OUT — see
+When ``run``, ``demo``, ``sweep`` or an ``experiment`` has written its results and the safety
+check of what it wrote (``endocam check``'s invariants, every run) finds a violation, the exit
+code is 3 and the last line says so (``safety check: N violations (lost_hold N) in OUT — see
 check.json``): the results are there to inspect, but the controller broke an invariant.
 Any other exception is an internal error: one line and exit code 1, its traceback only with
 ``--debug``. An interrupt (Ctrl-C, or ``SIGTERM`` as a job scheduler sends it) unwinds like an

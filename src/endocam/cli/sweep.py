@@ -13,6 +13,7 @@ from endocam.cli.common import (
     load_config_arg,
     out_dir,
 )
+from endocam.cli.run import safety_exit
 from endocam.registry import POLICIES
 from endocam.runner.pool import DEFAULT_WORKERS
 from endocam.task.trajectory import TrajectoryKind
@@ -109,7 +110,7 @@ def _sweep(args: argparse.Namespace) -> int:
         f"{len(tasks)} episodes ({outcome.ran} run now, {outcome.skipped} already done, "
         f"{outcome.failed} failed) -> {outcome.results}, {outcome.summary}"
     )
-    return 0
+    return safety_exit(out)  # 3 when an episode's safety check found violations
 
 
 def register(sub: argparse._SubParsersAction) -> None:
