@@ -47,11 +47,14 @@ reports it (``orientation_error_deg`` against the true normal).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from endocam.control.checks import OBS_OK
 from endocam.control.config import ControllerConfig
 from endocam.control.occlusion import (
     RingShape,
@@ -67,7 +70,7 @@ from endocam.control.plan import PlanResult
 from endocam.control.policies.endocam import EndocamPolicy
 from endocam.control.side_view import angle, view_of
 from endocam.control.sightline import view_shares, views_clear
-from endocam.control.types import Observation, PolicyContext
+from endocam.control.types import CameraCommand, Observation, PolicyContext
 from endocam.geometry import FloatArray
 from endocam.task.config import RingConfig
 
@@ -126,6 +129,20 @@ class VisibleConfig:
         tracker's commands on the study paths; farther ones are conceded), so a tilt must not
         take the view out of its reach. The ECM's axis always passes through the port, the
         free camera has no such limit.
+    lookahead : float
+        How far ahead of the step the scored ring pose is predicted, s (beyond the sensing
+        delay, which is always bridged): the camera should be on the good view when the gap
+        closes, not a scoring period, a tilt and an arm's lag after (0: the observed pose).
+    velocity_window : float
+        Span of the accepted ring poses the prediction's (constant) velocity is differenced
+        over, s.
+    max_predicted_turn : float
+        The largest turn of the ring the prediction extrapolates, rad (a faster ring is not
+        followed farther).
+    engage_clearance : float
+        Scoring only while the predicted ring's rim may be this close to the wire, m (a lower
+        bound from the ring's centre): farther, no touch is near, the axis goes back to the
+        normal and the side is held (``math.inf``: always score).
     """
 
     max_tilt: float = math.radians(20.0)
@@ -145,6 +162,10 @@ class VisibleConfig:
     cone_slack: float = 2e-3
     port_angle: float = math.radians(55.0)
     wire_slack: float = 3e-3
+    lookahead: float = 0.3
+    velocity_window: float = 0.1
+    max_predicted_turn: float = math.radians(30.0)
+    engage_clearance: float = 10e-3
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt <= math.radians(25.0):
@@ -159,6 +180,8 @@ class VisibleConfig:
             "window",
             "tilt_rate",
             "resolved_px",
+            "velocity_window",
+            "engage_clearance",
         ):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -171,6 +194,8 @@ class VisibleConfig:
             "side_hold",
             "cone_slack",
             "wire_slack",
+            "lookahead",
+            "max_predicted_turn",
         ):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"{name} must be ≥ 0, got {getattr(self, name)}")
@@ -237,6 +262,8 @@ class VisiblePolicy(EndocamPolicy):
         self.side_changes = 0  # side changes the scorer asked for this episode
         self.tilted_steps = 0  # steps the axis was off the normal this episode
         self.last_scores: dict[float, SideScore] = {}
+        self.idle_scorings = 0  # scorings skipped this episode (no touch near)
+        self._track: deque[tuple[float, FloatArray]] = deque()  # accepted (t_ring s, T_ring)
 
     def reset(self, context: PolicyContext) -> None:
         """The tracker's reset; the axis back on the normal, no side yet."""
@@ -247,6 +274,7 @@ class VisiblePolicy(EndocamPolicy):
         self._focal_px = float(context.camera.intrinsics.K[1, 1])
         self._baseline = float(context.camera.baseline)
         self._dt = context.dt
+        self._window = max(self.visible.velocity_window, context.dt)
 
     # -- the side ----------------------------------------------------------------------------
 
@@ -259,16 +287,52 @@ class VisiblePolicy(EndocamPolicy):
     def _plan_step(self, obs: Observation, T_cam: FloatArray, T_ring: FloatArray) -> PlanResult:
         """The tracker's step on the ring pose with its normal turned to the viewing axis."""
         t = float(obs.t)
+        t_ring = t if obs.t_ring is None else float(obs.t_ring)
         n = _unit_normal(T_ring)
         if n is not None and self._wire is not None and t >= self._next_score:
             self._next_score = t + self.visible.score_period
-            self._score(T_ring, n, t)
+            T_ahead = self._predicted(T_ring, t_ring, t + self.visible.lookahead)
+            self._score(T_ahead, t)
         self._advance()
         ox, oy, oz = self._offset
         if n is None or (ox == 0.0 and oy == 0.0 and oz == 0.0):
-            return super()._plan_step(obs, T_cam, T_ring)
-        self.tilted_steps += 1
-        return super()._plan_step(obs, T_cam, _turned(T_ring, n, self._offset))
+            plan = super()._plan_step(obs, T_cam, T_ring)
+        else:
+            self.tilted_steps += 1
+            plan = super()._plan_step(obs, T_cam, _turned(T_ring, n, self._offset))
+        if plan.check == OBS_OK and n is not None:  # the gate took it: a sample to predict from
+            self._track.append((t_ring, T_ring))
+            while len(self._track) > 2 and self._track[1][0] <= t_ring - self._window:
+                self._track.popleft()
+        return plan
+
+    def _lose(self, reason: str) -> CameraCommand:
+        """The tracker's lost tracking; the prediction's samples are forgotten too."""
+        self._track.clear()
+        return super()._lose(reason)
+
+    def _predicted(self, T_ring: FloatArray, t_ring: float, t_ahead: float) -> FloatArray:
+        """The ring pose (4, 4) at ``t_ahead`` (s) from the observed ``T_ring`` stamped ``t_ring``.
+
+        Constant linear and angular velocity differenced against the oldest accepted pose
+        within ``velocity_window`` (only poses the tracker's checks and gate took); the turn
+        is capped at ``max_predicted_turn``. Without an older pose: ``T_ring`` itself.
+        """
+        if not self._track:
+            return T_ring
+        t_old, T_old = self._track[0]
+        tau = t_ring - t_old
+        if not tau > TIME_TOL_S:
+            return T_ring
+        h = t_ahead - t_ring
+        rotvec = Rotation.from_matrix(T_ring[:3, :3] @ T_old[:3, :3].T).as_rotvec() * (h / tau)
+        turn = float(np.linalg.norm(rotvec))
+        if turn > self.visible.max_predicted_turn:
+            rotvec *= self.visible.max_predicted_turn / turn
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix() @ T_ring[:3, :3]
+        T[:3, 3] = T_ring[:3, 3] + (T_ring[:3, 3] - T_old[:3, 3]) * (h / tau)
+        return T
 
     def _advance(self) -> None:
         """Move the applied offset towards the current side's target at ``tilt_rate``."""
@@ -284,16 +348,29 @@ class VisiblePolicy(EndocamPolicy):
 
     # -- the scoring -------------------------------------------------------------------------
 
-    def _score(self, T_ring: FloatArray, n: tuple[float, float, float], t: float) -> None:
-        """Score the candidates; update this side's target and the wanted side."""
+    def _score(self, T_ring: FloatArray, t: float) -> None:
+        """Score the candidates at the (predicted) ring pose ``T_ring`` (4, 4); update this
+        side's target and the wanted side.
+
+        Farther than ``engage_clearance`` from the wire nothing is scored: the target goes
+        back to the normal and the side is held.
+        """
         wire, vc = self._wire, self.visible
         assert wire is not None
         p_c = T_ring[:3, 3]
+        n = _unit_normal(T_ring)
+        side_now = self._side if self._side != 0.0 else self._want
+        far, _ = wire.nearest_surface((float(p_c[0]), float(p_c[1]), float(p_c[2])))
+        if n is None or far - self._shape.major - self._shape.minor > vc.engage_clearance:
+            self.idle_scorings += 1
+            self._since = None
+            if side_now != 0.0:
+                self._targets[side_now] = _ZERO
+            return
         window = wire_window(wire, p_c, vc.window)
         gaps = gap_points(T_ring, window, self._shape, wire.radius, vc.rim_points,
                           vc.weight_scale)  # fmt: skip
         n_arr = np.array(n)
-        side_now = self._side if self._side != 0.0 else self._want
         if side_now == 0.0:  # the tracker's first side: above the feature
             side_now = 1.0 if n[2] >= 0.0 else -1.0
         c = self._candidates(p_c, n_arr, side_now)
