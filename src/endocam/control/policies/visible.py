@@ -140,9 +140,10 @@ class VisibleConfig:
         The largest turn of the ring the prediction extrapolates, rad (a faster ring is not
         followed farther).
     engage_clearance : float
-        Scoring only while the predicted ring's rim may be this close to the wire, m (a lower
-        bound from the ring's centre): farther, no touch is near, the axis goes back to the
-        normal and the side is held (``math.inf``: always score).
+        Scoring only while the predicted ring's rim comes this close to the wire, m (the
+        smallest of the gap points' clearances; a threaded ring's is at most ``R − r − r_w``):
+        farther, no touch is near, the axis goes back to the normal and the side is held
+        (``math.inf``: always score).
     """
 
     max_tilt: float = math.radians(20.0)
@@ -165,7 +166,7 @@ class VisibleConfig:
     lookahead: float = 0.3
     velocity_window: float = 0.1
     max_predicted_turn: float = math.radians(30.0)
-    engage_clearance: float = 10e-3
+    engage_clearance: float = 1.0e-3
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt <= math.radians(25.0):
@@ -360,16 +361,18 @@ class VisiblePolicy(EndocamPolicy):
         p_c = T_ring[:3, 3]
         n = _unit_normal(T_ring)
         side_now = self._side if self._side != 0.0 else self._want
-        far, _ = wire.nearest_surface((float(p_c[0]), float(p_c[1]), float(p_c[2])))
-        if n is None or far - self._shape.major - self._shape.minor > vc.engage_clearance:
+        if n is None:
+            return
+        window = wire_window(wire, p_c, vc.window)
+        gaps = gap_points(T_ring, window, self._shape, wire.radius, vc.rim_points,
+                          vc.weight_scale)  # fmt: skip
+        nearest = max(float(np.min(gaps.clearances)), 0.0)  # the rim's to the wire, m
+        if nearest > vc.engage_clearance:  # no touch near: the normal, the side held
             self.idle_scorings += 1
             self._since = None
             if side_now != 0.0:
                 self._targets[side_now] = _ZERO
             return
-        window = wire_window(wire, p_c, vc.window)
-        gaps = gap_points(T_ring, window, self._shape, wire.radius, vc.rim_points,
-                          vc.weight_scale)  # fmt: skip
         n_arr = np.array(n)
         if side_now == 0.0:  # the tracker's first side: above the feature
             side_now = 1.0 if n[2] >= 0.0 else -1.0
@@ -383,7 +386,6 @@ class VisiblePolicy(EndocamPolicy):
             occluders(window, wire.radius, T_ring, self._shape),
         )
         m = len(c.dirs)
-        nearest = max(float(np.min(gaps.clearances)), 0.0)  # the rim's to the wire, m
         urgency = math.exp(-nearest / vc.urgency_scale)  # a touch near: the view matters
         score = urgency * 0.5 * (shares[:m] + shares[m:])
         cost = vc.tilt_cost * (c.tilt + beyond)  # the orientation error it is expected to pay
