@@ -189,7 +189,10 @@ def main() -> None:
     print(f"study seeds {args.seeds}, paths {[t.name for t in paths]}, arm {args.arm}")
     if overrides:
         print(f"VisibleConfig overrides: {overrides}")
-    print("policy | touches | left | either | resolved | orient. deg | violations | CPU s/ep | hiders")
+    print(
+        "policy | touches | left | either | resolved | orient. deg | violations | CPU s/ep", end=""
+    )
+    print(" | hiders")
     for policy, t in tallies.items():
         n = max(t.touches, 1)
         print(

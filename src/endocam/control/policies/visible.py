@@ -74,7 +74,14 @@ from endocam.control.types import CameraCommand, Observation, PolicyContext
 from endocam.geometry import FloatArray
 from endocam.task.config import RingConfig
 
-__all__ = ["Candidates", "SideScore", "VisibleConfig", "VisiblePolicy", "choose_side"]
+__all__ = [
+    "Candidates",
+    "SideScore",
+    "VisibleConfig",
+    "VisiblePolicy",
+    "choose_side",
+    "predicted_pose",
+]
 
 _ZERO = (0.0, 0.0, 0.0)
 _MIN_NORMAL = 1e-9  # unitless: a shorter ring normal is degenerate (the checks answer it)
@@ -163,7 +170,7 @@ class VisibleConfig:
     cone_slack: float = 2e-3
     port_angle: float = math.radians(55.0)
     wire_slack: float = 3e-3
-    lookahead: float = 0.3
+    lookahead: float = 0.5
     velocity_window: float = 0.1
     max_predicted_turn: float = math.radians(30.0)
     engage_clearance: float = 1.0e-3
@@ -315,25 +322,15 @@ class VisiblePolicy(EndocamPolicy):
     def _predicted(self, T_ring: FloatArray, t_ring: float, t_ahead: float) -> FloatArray:
         """The ring pose (4, 4) at ``t_ahead`` (s) from the observed ``T_ring`` stamped ``t_ring``.
 
-        Constant linear and angular velocity differenced against the oldest accepted pose
-        within ``velocity_window`` (only poses the tracker's checks and gate took); the turn
-        is capped at ``max_predicted_turn``. Without an older pose: ``T_ring`` itself.
+        :func:`predicted_pose` from the oldest accepted pose within ``velocity_window`` (only
+        poses the tracker's checks and gate took). Without an older pose: ``T_ring`` itself.
         """
         if not self._track:
             return T_ring
         t_old, T_old = self._track[0]
-        tau = t_ring - t_old
-        if not tau > TIME_TOL_S:
-            return T_ring
-        h = t_ahead - t_ring
-        rotvec = Rotation.from_matrix(T_ring[:3, :3] @ T_old[:3, :3].T).as_rotvec() * (h / tau)
-        turn = float(np.linalg.norm(rotvec))
-        if turn > self.visible.max_predicted_turn:
-            rotvec *= self.visible.max_predicted_turn / turn
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix() @ T_ring[:3, :3]
-        T[:3, 3] = T_ring[:3, 3] + (T_ring[:3, 3] - T_old[:3, 3]) * (h / tau)
-        return T
+        return predicted_pose(
+            T_old, T_ring, t_ring - t_old, t_ahead - t_ring, self.visible.max_predicted_turn
+        )
 
     def _advance(self) -> None:
         """Move the applied offset towards the current side's target at ``tilt_rate``."""
@@ -350,11 +347,11 @@ class VisiblePolicy(EndocamPolicy):
     # -- the scoring -------------------------------------------------------------------------
 
     def _score(self, T_ring: FloatArray, t: float) -> None:
-        """Score the candidates at the (predicted) ring pose ``T_ring`` (4, 4); update this
-        side's target and the wanted side.
+        """Score the candidates at the predicted ring pose ``T_ring`` (4, 4) and decide.
 
-        Farther than ``engage_clearance`` from the wire nothing is scored: the target goes
-        back to the normal and the side is held.
+        This side's target and the wanted side are updated. Farther than ``engage_clearance``
+        from the wire nothing is scored: the target goes back to the normal and the side is
+        held.
         """
         wire, vc = self._wire, self.visible
         assert wire is not None
@@ -467,6 +464,28 @@ class Candidates(NamedTuple):
     dirs: FloatArray
     tilt: FloatArray
     per_side: int
+
+
+def predicted_pose(
+    T_old: FloatArray, T_now: FloatArray, tau: float, h: float, max_turn: float
+) -> FloatArray:
+    r"""The pose (4, 4) ``h`` s after ``T_now`` at the constant velocity from ``T_old`` to it.
+
+    ``T_old``, ``T_now`` (4, 4) world poses ``tau`` s apart (``tau ≤ 0``: ``T_now`` itself).
+    The centre moves by :math:`(p_1 - p_0)\,h/\tau`; the frame turns about the world axis of
+    :math:`R_1 R_0^\top` by its angle times :math:`h/\tau`, at most ``max_turn`` rad.
+    """
+    if not tau > TIME_TOL_S:
+        return np.array(T_now, dtype=float)
+    R_old, R_now = T_old[:3, :3], T_now[:3, :3]
+    rotvec = Rotation.from_matrix(R_now @ R_old.T).as_rotvec() * (h / tau)
+    turn = float(np.linalg.norm(rotvec))
+    if turn > max_turn:
+        rotvec *= max_turn / turn
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix() @ R_now
+    T[:3, 3] = T_now[:3, 3] + (T_now[:3, 3] - T_old[:3, 3]) * (h / tau)
+    return T
 
 
 def _unit_normal(T_ring: FloatArray) -> tuple[float, float, float] | None:
