@@ -52,7 +52,6 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from endocam.control.checks import OBS_OK
 from endocam.control.config import ControllerConfig
@@ -298,6 +297,7 @@ class VisiblePolicy(EndocamPolicy):
         t_ring = t if obs.t_ring is None else float(obs.t_ring)
         n = _unit_normal(T_ring)
         if n is not None and self._wire is not None and t >= self._next_score:
+            # a faulty pose (non-finite centre) is not scored: the checks answer it
             self._next_score = t + self.visible.score_period
             T_ahead = self._predicted(T_ring, t_ring, t + self.visible.lookahead)
             self._score(T_ahead, t)
@@ -358,7 +358,7 @@ class VisiblePolicy(EndocamPolicy):
         p_c = T_ring[:3, 3]
         n = _unit_normal(T_ring)
         side_now = self._side if self._side != 0.0 else self._want
-        if n is None:
+        if n is None or not np.isfinite(T_ring).all():
             return
         window = wire_window(wire, p_c, vc.window)
         gaps = gap_points(T_ring, window, self._shape, wire.radius, vc.rim_points,
@@ -472,30 +472,47 @@ def predicted_pose(
     r"""The pose (4, 4) ``h`` s after ``T_now`` at the constant velocity from ``T_old`` to it.
 
     ``T_old``, ``T_now`` (4, 4) world poses ``tau`` s apart (``tau ≤ 0``: ``T_now`` itself).
-    The centre moves by :math:`(p_1 - p_0)\,h/\tau`; the frame turns about the world axis of
-    :math:`R_1 R_0^\top` by its angle times :math:`h/\tau`, at most ``max_turn`` rad.
+    First order, as the tracker's predictor (:mod:`endocam.control.predictor`): the centre
+    and the frame's z and x axes are extrapolated linearly, :math:`a + (a - a_0)\,k`, and
+    the axes made orthonormal again (z first); :math:`k = h/\tau`, cut so that the normal's
+    turn since ``T_old`` times ``k`` is at most ``max_turn`` rad.
     """
+    T_now = np.asarray(T_now, dtype=float)
     if not tau > TIME_TOL_S:
-        return np.array(T_now, dtype=float)
-    R_old, R_now = T_old[:3, :3], T_now[:3, :3]
-    rotvec = Rotation.from_matrix(R_now @ R_old.T).as_rotvec() * (h / tau)
-    turn = float(np.linalg.norm(rotvec))
-    if turn > max_turn:
-        rotvec *= max_turn / turn
+        return T_now.copy()
+    k = h / tau
+    a, b = T_now.tolist(), np.asarray(T_old, dtype=float).tolist()  # rows; 3-vectors in floats
+    p = [a[i][3] + (a[i][3] - b[i][3]) * k for i in range(3)]
+    cos_turn = a[0][2] * b[0][2] + a[1][2] * b[1][2] + a[2][2] * b[2][2]
+    turn = math.acos(min(1.0, max(-1.0, cos_turn)))
+    if turn * k > max_turn:
+        k = max_turn / turn
+    z = [a[i][2] + (a[i][2] - b[i][2]) * k for i in range(3)]
+    x = [a[i][0] + (a[i][0] - b[i][0]) * k for i in range(3)]
+    z_len = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
+    z = [z[0] / z_len, z[1] / z_len, z[2] / z_len]
+    xz = x[0] * z[0] + x[1] * z[1] + x[2] * z[2]
+    x = [x[0] - xz * z[0], x[1] - xz * z[1], x[2] - xz * z[2]]
+    x_len = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix() @ R_now
-    T[:3, 3] = T_now[:3, 3] + (T_now[:3, 3] - T_old[:3, 3]) * (h / tau)
+    T[:3, 3] = p
+    if not x_len > _MIN_NORMAL:  # a half turn extrapolated: the newest frame's axes
+        T[:3, :3] = T_now[:3, :3]
+        return T
+    x = [x[0] / x_len, x[1] / x_len, x[2] / x_len]
+    y = [z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0]]
+    T[:3, :3] = np.array([x, y, z]).T
     return T
 
 
 def _unit_normal(T_ring: FloatArray) -> tuple[float, float, float] | None:
     """The ring pose's unit normal (its z column), or ``None``.
 
-    ``None``: the pose is not finite or the normal degenerate (the tracker's checks answer it).
+    ``None``: the normal is not finite or degenerate (the tracker's checks answer it).
     """
     x, y, z = float(T_ring[0, 2]), float(T_ring[1, 2]), float(T_ring[2, 2])
     length = math.sqrt(x * x + y * y + z * z)
-    if not (math.isfinite(length) and length > _MIN_NORMAL and math.isfinite(T_ring.sum())):
+    if not (math.isfinite(length) and length > _MIN_NORMAL):
         return None
     return (x / length, y / length, z / length)
 
