@@ -7,12 +7,18 @@ the working distance, prediction, orbits, and every safety rule: the input check
 observation gate, the cone freeze, the wire clearance and its detours, the floor, the carriers'
 speed and joint limits) and changes one thing: the **viewing axis** it holds the camera on.
 
-Every ``score_period`` s it scores candidate axes from the observed ring pose and the
-pre-operative wire model (:mod:`endocam.control.occlusion`, compiled in
-:mod:`endocam.control.sightline`): on the side ``s = ±1`` the camera is on, the normal ``s n``
-itself (as the tracker takes it, held above the floor) and the directions tilted ``θ ∈ tilts``
-(at most ``max_tilt``) off it at ``azimuths`` angles around it; on the other side, the
-tracker's own view. A candidate's score is the weighted share of the rim's likely contact
+Every ``score_period`` s it predicts the ring pose ``lookahead`` s ahead (beyond the sensing
+delay; constant velocity from the poses the tracker's checks and gate accepted,
+:func:`predicted_pose`), so the camera is on the good view when the gap closes rather than a
+scoring period, a tilt and an arm's lag after. If that ring's rim is no closer to the wire than
+``engage_clearance``, no touch is near: nothing is scored, the axis goes back to the normal (the
+orientation error is paid only ahead of a likely touch) and the side is held. Otherwise it
+scores candidate axes from the predicted ring pose and the pre-operative wire model
+(:mod:`endocam.control.occlusion`, compiled in :mod:`endocam.control.sightline`); the scorer
+never reads the true ring pose or the touches. On the side ``s = ±1`` the camera is on, the
+normal ``s n`` itself (as the tracker takes it, held above the floor) and the directions tilted
+``θ ∈ tilts`` (at most ``max_tilt``) off it at ``azimuths`` angles around it; on the other
+side, the tracker's own view. A candidate's score is the weighted share of the rim's likely contact
 points whose 0.5 mm gap the eyes (mean of the two) would see clear of the wire, the handle and
 the rim, and resolved (``resolved_px``), times the **urgency** ``exp(−c / urgency_scale)`` of
 the rim's clearance ``c`` to the wire (far from a touch, no view is worth a tilt). Its utility
@@ -297,7 +303,6 @@ class VisiblePolicy(EndocamPolicy):
         t_ring = t if obs.t_ring is None else float(obs.t_ring)
         n = _unit_normal(T_ring)
         if n is not None and self._wire is not None and t >= self._next_score:
-            # a faulty pose (non-finite centre) is not scored: the checks answer it
             self._next_score = t + self.visible.score_period
             T_ahead = self._predicted(T_ring, t_ring, t + self.visible.lookahead)
             self._score(T_ahead, t)
@@ -309,7 +314,7 @@ class VisiblePolicy(EndocamPolicy):
             self.tilted_steps += 1
             plan = super()._plan_step(obs, T_cam, _turned(T_ring, n, self._offset))
         if plan.check == OBS_OK and n is not None:  # the gate took it: a sample to predict from
-            self._track.append((t_ring, T_ring))
+            self._track.append((t_ring, T_ring.copy()))  # (the caller may reuse its array)
             while len(self._track) > 2 and self._track[1][0] <= t_ring - self._window:
                 self._track.popleft()
         return plan
