@@ -1,60 +1,52 @@
 """Does the camera show the touch? The closing gap per touch, for ``endocam`` and its rivals.
 
 For each study seed (the study's three noisy paths, noise seeds ``study_trajectory_seeds``), each
-policy runs the path headless (no video); at each ground-truth touch the closing gap (the
-closest approach at ``GAP_SEEN`` = 0.5 mm before the onset, :func:`gap_hidden_by`) is tested
-from the left and the right eye (MuJoCo ray casts through every geom), and the image length of
-0.5 mm of gap opening along the contact normal is measured there (``pixel_scales``). Per policy:
+policy runs the path headless (no video); at each ground-truth touch the closing gap is measured
+as the study measures it (:func:`endocam.study.visibility.closing_gap`: the first instant in the
+``PRE_TOUCH_S`` before the onset at which the clearance is down to ``GAP_SEEN`` = 0.5 mm, MuJoCo
+ray casts from both eyes, the image length of 0.5 mm of gap along the contact normal). Per
+policy:
 
 - ``left``: share of touches whose gap is in sight from the left eye;
 - ``either``: from at least one eye;
-- ``resolved``: in sight from either eye and 0.5 mm of gap spans ≥ ``RESOLVED_PX`` there (in
-  the eye that sees it; both: the larger span);
-- ``resolved_perp``: the same with 0.5 mm perpendicular to the line of sight (``f / Z``);
+- ``resolved``: in sight from an eye where 0.5 mm of gap spans ≥ ``RESOLVED_PX`` (2 px);
 - mean orientation error (deg, the episode means averaged), safety violations
   (``runner.check`` on the written run), CPU s per episode (the control loop alone);
-- what hides the gap from the left eye (touches per hider).
+- what hides the gap from a viewer with both eyes (touches per hider).
 
-Run::
+Run (``--seeds`` takes ranges, ``7-26``; ``--visible`` overrides ``VisibleConfig`` fields, for
+tuning; ``--touches-csv`` writes one row per touch)::
 
-    MUJOCO_GL=egl PYTHONPATH=src .venv/bin/python bench/visible_view.py --seeds 1,2,3 \\
+    MUJOCO_GL=egl PYTHONPATH=src .venv/bin/python bench/visible_view.py --seeds 3-6 \\
         --policies endocam,endocam-visible
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import dataclasses
 import math
 import tempfile
 import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+import endocam.control.policies.visible as visible
 from endocam.config import ExperimentConfig
 from endocam.robot.actuator import ArmKind
 from endocam.runner.check import check_run
-from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode
+from endocam.runner.episode import EpisodeSpec, run_episode
 from endocam.runner.experiments import ground_truth, study_path_config
 from endocam.runner.outputs import write_run
 from endocam.sim.render import WireChaserScene
-from endocam.study.observability import (
-    GAP_SEEN,
-    GAP_SEEN_DT,
-    OUTSIDE_IMAGE,
-    in_image,
-    pixel_scales,
-)
-from endocam.study.observer import PRE_TOUCH_S
+from endocam.study.visibility import closing_gap, control_step
 from endocam.task.study_paths import STUDY_TRAJECTORIES, study_trajectory_seeds
-from endocam.task.touches import clearances, contact_normal
 from endocam.task.trajectory import TrajectoryKind
-
-RESOLVED_PX = 2.0  # px: 0.5 mm of gap must span this many pixels to count as resolved
-GAP_M = 0.5e-3  # m, the gap whose image length is measured
-EYES = ("left", "right")
 
 
 @dataclass
@@ -65,78 +57,71 @@ class Tally:
     left: int = 0
     either: int = 0
     resolved: int = 0
-    resolved_perp: int = 0
     orientation_deg: list[float] = field(default_factory=list)
     violations: int = 0
     cpu_s: list[float] = field(default_factory=list)
     hiders: Counter[str] = field(default_factory=Counter)
 
 
-def closing_gap(result: EpisodeResult, t_start: float) -> tuple[int, np.ndarray, np.ndarray]:
-    """The step, ring pose (4, 4) and closest-approach point (3,), m, of a touch's closing gap.
-
-    The same instant as :func:`endocam.study.observability.gap_hidden_by`: the first time in the
-    ``PRE_TOUCH_S`` before the onset at which the clearance is at most ``GAP_SEEN``.
-    """
-    t0 = max(t_start - PRE_TOUCH_S, 0.0)
-    ts = np.append(np.arange(t0, t_start, GAP_SEEN_DT), t_start)
-    T_rings = result.trajectory.poses(ts)
-    c, p = clearances(T_rings, result.wire, result.config.task.ring)
-    closing = np.flatnonzero(c <= GAP_SEEN)
-    i = int(closing[0]) if closing.size else len(ts) - 1
-    rate = result.config.episode.control_rate
-    k = int(np.clip(round(float(ts[i]) * rate), 0, len(result.log.t) - 1))
-    return k, T_rings[i], p[i]
+def parse_seeds(text: str) -> list[int]:
+    """``"3,4,7-9"`` → ``[3, 4, 7, 8, 9]``."""
+    seeds: list[int] = []
+    for part in (p for p in text.split(",") if p):
+        lo, _, hi = part.partition("-")
+        seeds.extend(range(int(lo), int(hi or lo) + 1))
+    return seeds
 
 
-def observe(result: EpisodeResult, scene: WireChaserScene, tally: Tally) -> None:
-    """Add every touch of ``result`` to ``tally`` (left / right sight, pixel spans, hiders)."""
-    major = result.config.task.ring.major_radius
-    for ev in result.touches.events:
-        k, T_ring, p = closing_gap(result, float(ev.t_start))
-        T_cam = result.log.T_world_cam[k]
-        scene.set_psm2_tip(result.log.p_world_tips[k, 1])
-        scene.set_ring_pose(T_ring)
-        scene.set_camera_pose(T_cam)
-        try:
-            u = contact_normal(p, T_ring, major)
-        except ValueError:
-            u = T_cam[:3, 0]
-        seen, span, perp = {}, 0.0, 0.0
-        for eye in EYES:
-            inside = in_image(scene.camera, T_cam, p, eye)
-            hider = scene.occluder(p, T_cam, eye) if inside else OUTSIDE_IMAGE
-            seen[eye] = hider is None
-            if eye == "left" and hider is not None:
-                tally.hiders[hider] += 1
-            if seen[eye]:
-                px_per_m, gap_px_per_m = pixel_scales(scene.camera, T_cam, p, u, eye)
-                span = max(span, GAP_M * gap_px_per_m)
-                perp = max(perp, GAP_M * px_per_m)
-        tally.touches += 1
-        tally.left += seen["left"]
-        tally.either += seen["left"] or seen["right"]
-        tally.resolved += span >= RESOLVED_PX
-        tally.resolved_perp += perp >= RESOLVED_PX
+def parse_overrides(text: str) -> dict[str, Any]:
+    """``"tilt_cost=0.5,tilt_steps=2"`` → ``VisibleConfig`` field values (degrees for angles
+    named ``*_deg``: ``max_tilt_deg=15``)."""
+    out: dict[str, Any] = {}
+    types = {f.name: f.type for f in dataclasses.fields(visible.VisibleConfig)}
+    for item in (p for p in text.split(",") if p):
+        key, _, value = item.partition("=")
+        if key.endswith("_deg"):
+            out[key[:-4]] = math.radians(float(value))
+        elif types.get(key) in ("int", int):
+            out[key] = int(value)
+        elif types.get(key) in ("bool", bool):
+            out[key] = value.lower() in ("1", "true", "yes")
+        else:
+            out[key] = float(value)
+    return out
 
 
 def main() -> None:
     """Parse the arguments, run the episodes, print one row per policy."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", default="1,2,3", help="study seeds, comma-separated")
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    parser.add_argument("--seeds", default="1-3", help="study seeds: 3,4 or 7-26")
     parser.add_argument("--policies", default="endocam,endocam-visible")
     parser.add_argument("--arm", default="psm", choices=[a.value for a in ArmKind])
     parser.add_argument("--paths", default="", help="study path names (default: all three)")
+    parser.add_argument("--visible", default="", help="VisibleConfig overrides: key=value,...")
+    parser.add_argument("--touches-csv", default="", help="write one row per touch here")
     args = parser.parse_args()
-    seeds = [int(s) for s in args.seeds.split(",") if s]
+    seeds = parse_seeds(args.seeds)
     policies = [p for p in args.policies.split(",") if p]
     wanted = [p for p in args.paths.split(",") if p]
     paths = [t for t in STUDY_TRAJECTORIES if not wanted or t.name in wanted]
+    overrides = parse_overrides(args.visible)
+    if overrides:  # the registry builds VisiblePolicy() with the module's VisibleConfig()
+        base_cfg = visible.VisibleConfig
+        setattr(visible, "VisibleConfig", lambda: base_cfg(**overrides))  # noqa: B010
+    seen: list[visible.VisiblePolicy] = []  # the episode's endocam-visible, for its counts
+    reset = visible.VisiblePolicy.reset
+
+    def recording_reset(self: visible.VisiblePolicy, context: Any) -> None:
+        seen.append(self)
+        reset(self, context)
+
+    setattr(visible.VisiblePolicy, "reset", recording_reset)  # noqa: B010
     base = ExperimentConfig()
     base = base.model_copy(
         update={"episode": base.episode.model_copy(update={"arm": ArmKind(args.arm)})}
     )
     tallies = {p: Tally() for p in policies}
+    rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
             noise = study_trajectory_seeds(seed, len(STUDY_TRAJECTORIES))
@@ -158,21 +143,61 @@ def main() -> None:
                     write_run(result, run_dir, video=False)
                     tally.violations += check_run(run_dir).total
                     with WireChaserScene(cfg.task, result.camera) as scene:
-                        observe(result, scene, tally)
+                        for ev in result.touches.events:
+                            gap = closing_gap(result, scene, float(ev.t_start))
+                            tally.touches += 1
+                            tally.left += gap.left.in_sight
+                            tally.either += gap.in_sight_either
+                            tally.resolved += gap.resolved
+                            if gap.hidden_by is not None:
+                                tally.hiders[gap.hidden_by] += 1
+                            k = control_step(result, gap.t_s)
+                            rows.append(
+                                {
+                                    "seed": seed,
+                                    "path": traj.name,
+                                    "policy": policy,
+                                    "t_s": round(gap.t_s, 3),
+                                    "resolved": gap.resolved,
+                                    "either": gap.in_sight_either,
+                                    "gap_px": round(gap.gap_px, 2),
+                                    "hidden_by": gap.hidden_by or "",
+                                    "orientation_deg": round(
+                                        math.degrees(float(result.orientation_error[k])), 1
+                                    ),
+                                }
+                            )
+                    counts = ""
+                    if seen and policy == visible.VisiblePolicy.name:
+                        v = seen[-1]
+                        counts = (
+                            f", side changes {v.side_changes}, tilted "
+                            f"{v.tilted_steps / len(result.log.t):.0%} of steps"
+                        )
+                    seen.clear()
                     print(
                         f"  seed {seed} {traj.name} {policy}: {len(result.touches.events)} "
-                        f"touches, orientation {tally.orientation_deg[-1]:.1f} deg",
+                        f"touches, orientation {tally.orientation_deg[-1]:.1f} deg, "
+                        f"CPU {tally.cpu_s[-1]:.2f} s{counts}",
                         flush=True,
                     )
-    print(f"study seeds {seeds}, paths {[t.name for t in paths]}, arm {args.arm}")
-    head = "policy | touches | left | either | resolved | resolved (f/Z) | orient. deg"
-    print(head + " | violations | CPU s/episode | left-eye hiders")
+    if args.touches_csv and rows:
+        with open(args.touches_csv, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    print(f"study seeds {args.seeds}, paths {[t.name for t in paths]}, arm {args.arm}")
+    if overrides:
+        print(f"VisibleConfig overrides: {overrides}")
+    print(
+        "policy | touches | left | either | resolved | orient. deg | violations | CPU s/ep", end=""
+    )
+    print(" | hiders")
     for policy, t in tallies.items():
         n = max(t.touches, 1)
         print(
             f"{policy} | {t.touches} | {t.left / n:.0%} | {t.either / n:.0%} | "
-            f"{t.resolved / n:.0%} | {t.resolved_perp / n:.0%} | "
-            f"{np.mean(t.orientation_deg):.1f} | {t.violations} | "
+            f"{t.resolved / n:.0%} | {np.mean(t.orientation_deg):.1f} | {t.violations} | "
             f"{np.median(t.cpu_s):.2f} | {dict(t.hiders.most_common())}"
         )
 

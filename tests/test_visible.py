@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from endocam import StereoCamera, look_at_pose
 from endocam.control.config import ControllerConfig
@@ -28,7 +29,13 @@ from endocam.control.occlusion import (
     view_directions,
     view_scores,
 )
-from endocam.control.policies.visible import SideScore, VisibleConfig, VisiblePolicy, choose_side
+from endocam.control.policies.visible import (
+    SideScore,
+    VisibleConfig,
+    VisiblePolicy,
+    choose_side,
+    predicted_pose,
+)
 from endocam.control.sightline import view_shares
 from endocam.control.types import Observation, PolicyContext, TrackingState
 from endocam.task.config import RingConfig, WireConfig
@@ -201,3 +208,102 @@ def test_the_policy_orbits_to_the_side_with_the_clear_hole() -> None:
     assert sides[-1] == -1.0 and set(sides[-100:]) == {-1.0}  # then taken, and kept
     assert policy.side_changes == 1 and TrackingState.PLANNING in states  # by an orbit
     assert policy.last_scores[-1.0].utility > policy.last_scores[1.0].utility
+
+
+ATOL_PRED_M = 1e-9  # m: a constant-velocity motion extrapolated exactly (round-off only)
+ATOL_PRED = 1e-9  # unitless: rotation matrix entries, the same
+
+
+def test_the_prediction_extrapolates_a_constant_velocity_and_caps_the_turn() -> None:
+    """A ring moving at constant velocity is predicted where it will be; one turning at
+    1 rad/s nearly so (first order); a turn beyond ``max_turn`` is cut; the frame stays
+    orthonormal; no time between the samples: the newest pose."""
+    rng = np.random.default_rng(7)
+    tau, h = 0.1, 0.35  # s
+    first_order_rad = (1.0 * h) ** 2 / 2.0  # rad: an axis on its cone, extrapolated along
+    # the tangent, falls short by at most (ω h)² / 2 (ω = 1 rad/s)
+    for _ in range(20):
+        v = rng.normal(0.0, 0.05, 3)  # m/s
+        w = rng.normal(0.0, 1.0, 3)
+        w /= np.linalg.norm(w)  # 1 rad/s, world
+        T_old = np.eye(4)
+        T_old[:3, :3] = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
+        T_old[:3, 3] = rng.normal(0.0, 0.05, 3)
+
+        def at(t: float, T_old: np.ndarray = T_old, v: np.ndarray = v, w: np.ndarray = w):
+            T = np.eye(4)
+            T[:3, :3] = Rotation.from_rotvec(w * t).as_matrix() @ T_old[:3, :3]
+            T[:3, 3] = T_old[:3, 3] + v * t
+            return T
+
+        T_pred = predicted_pose(T_old, at(tau), tau, h, math.pi)
+        T_true = at(tau + h)
+        np.testing.assert_allclose(T_pred[:3, 3], T_true[:3, 3], atol=ATOL_PRED_M)
+        R = T_pred[:3, :3]
+        np.testing.assert_allclose(R.T @ R, np.eye(3), atol=ATOL_PRED)
+        assert np.linalg.det(R) > 0.0
+        lag = Rotation.from_matrix(T_true[:3, :3] @ at(tau)[:3, :3].T).magnitude()
+        error = Rotation.from_matrix(T_true[:3, :3] @ R.T).magnitude()
+        assert error <= first_order_rad and error < 0.5 * lag  # far better than the lag
+    T_old = np.eye(4)
+    T_now = np.eye(4)
+    T_now[:3, :3] = Rotation.from_rotvec([0.2, 0.0, 0.0]).as_matrix()  # the normal: 0.2 rad
+    capped = predicted_pose(T_old, T_now, tau, 10 * tau, 0.5)  # would turn 2 rad more
+    turned = math.acos(float(capped[:3, 2] @ T_now[:3, 2]))
+    assert 0.0 < turned <= 0.5
+    np.testing.assert_array_equal(predicted_pose(T_old, T_now, 0.0, h, 0.5), T_now)
+
+
+def centred_wire() -> Wire:
+    """A straight wire along ``N_RING`` through the ring's centre: the rim 3 mm clear."""
+    line = P_RING + np.linspace(-0.08, 0.08, 5)[:, None] * N_RING
+    return Wire(WireConfig(knots=tuple(tuple(k) for k in line.tolist())))
+
+
+def test_without_a_touch_near_the_camera_holds_the_normal() -> None:
+    """A ring threaded centrally (rim ``R − r − r_w`` = 3 mm from the wire, beyond
+    ``engage_clearance``) is not scored: the axis stays on the normal, the side held; with
+    the gate always open (``engage_clearance = inf``) the same scene is scored and tilted."""
+    T_ring = ring_pose(P_RING, N_RING)
+    up_perp = np.array([0.0, 0.0, 1.0]) - N_RING[2] * N_RING
+    rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)
+    start = look_at_pose(P_RING + 0.045 * N_RING, P_RING)
+    wire = centred_wire()
+    for engage, tilted in ((VisibleConfig().engage_clearance, False), (math.inf, True)):
+        context = PolicyContext(CAMERA, start, T_ring, rcm, DT, wire=wire, ring=RingConfig())
+        policy = VisiblePolicy(ControllerConfig(), VisibleConfig(engage_clearance=engage))
+        policy.reset(context)
+        T_cam = start
+        for k in range(30):
+            T_cam = policy.step(Observation(k * DT, T_ring, T_cam)).T_world_cam
+        assert (policy.tilted_steps > 0) is tilted
+        assert (policy.idle_scorings > 0) is not tilted
+
+
+def test_the_scorer_judges_the_ring_where_it_will_be() -> None:
+    """The scorer is handed the ring pose predicted ``lookahead`` s past the step (the
+    observation is 50 ms late), from the accepted poses: a ring sliding along the
+    wire at constant speed is scored where it will be, not where it was seen."""
+    latency_s, speed = 0.05, 0.02  # s, m/s
+    wire = centred_wire()
+    up_perp = np.array([0.0, 0.0, 1.0]) - N_RING[2] * N_RING
+    rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)
+    start = look_at_pose(P_RING + 0.045 * N_RING, P_RING)
+
+    def ring_at(t: float) -> np.ndarray:
+        return ring_pose(P_RING + speed * t * N_RING, N_RING)
+
+    context = PolicyContext(CAMERA, start, ring_at(0.0), rcm, DT, wire=wire, ring=RingConfig())
+    cfg = VisibleConfig(score_period=0.1)
+    policy = VisiblePolicy(ControllerConfig(), cfg)
+    policy.reset(context)
+    scored: list[tuple[float, np.ndarray]] = []
+    policy._score = lambda T, t: scored.append((t, T))  # type: ignore[method-assign]
+    T_cam = start
+    for k in range(1, 31):
+        t = k * DT
+        obs = Observation(t, ring_at(t - latency_s), T_cam, t_ring=t - latency_s)
+        T_cam = policy.step(obs).T_world_cam
+    assert len(scored) >= 2
+    t, T = scored[-1]
+    np.testing.assert_allclose(T[:3, 3], ring_at(t + cfg.lookahead)[:3, 3], atol=ATOL_PRED_M)

@@ -7,12 +7,18 @@ the working distance, prediction, orbits, and every safety rule: the input check
 observation gate, the cone freeze, the wire clearance and its detours, the floor, the carriers'
 speed and joint limits) and changes one thing: the **viewing axis** it holds the camera on.
 
-Every ``score_period`` s it scores candidate axes from the observed ring pose and the
-pre-operative wire model (:mod:`endocam.control.occlusion`, compiled in
-:mod:`endocam.control.sightline`): on the side ``s = ±1`` the camera is on, the normal ``s n``
-itself (as the tracker takes it, held above the floor) and the directions tilted ``θ ∈ tilts``
-(at most ``max_tilt``) off it at ``azimuths`` angles around it; on the other side, the
-tracker's own view. A candidate's score is the weighted share of the rim's likely contact
+Every ``score_period`` s it predicts the ring pose ``lookahead`` s ahead (beyond the sensing
+delay; constant velocity from the poses the tracker's checks and gate accepted,
+:func:`predicted_pose`), so the camera is on the good view when the gap closes rather than a
+scoring period, a tilt and an arm's lag after. If that ring's rim is no closer to the wire than
+``engage_clearance``, no touch is near: nothing is scored, the axis goes back to the normal (the
+orientation error is paid only ahead of a likely touch) and the side is held. Otherwise it
+scores candidate axes from the predicted ring pose and the pre-operative wire model
+(:mod:`endocam.control.occlusion`, compiled in :mod:`endocam.control.sightline`); the scorer
+never reads the true ring pose or the touches. On the side ``s = ±1`` the camera is on, the
+normal ``s n`` itself (as the tracker takes it, held above the floor) and the directions tilted
+``θ ∈ tilts`` (at most ``max_tilt``) off it at ``azimuths`` angles around it; on the other
+side, the tracker's own view. A candidate's score is the weighted share of the rim's likely contact
 points whose 0.5 mm gap the eyes (mean of the two) would see clear of the wire, the handle and
 the rim, and resolved (``resolved_px``), times the **urgency** ``exp(−c / urgency_scale)`` of
 the rim's clearance ``c`` to the wire (far from a touch, no view is worth a tilt). Its utility
@@ -47,11 +53,13 @@ reports it (``orientation_error_deg`` against the true normal).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 
+from endocam.control.checks import OBS_OK
 from endocam.control.config import ControllerConfig
 from endocam.control.occlusion import (
     RingShape,
@@ -67,11 +75,18 @@ from endocam.control.plan import PlanResult
 from endocam.control.policies.endocam import EndocamPolicy
 from endocam.control.side_view import angle, view_of
 from endocam.control.sightline import view_shares, views_clear
-from endocam.control.types import Observation, PolicyContext
+from endocam.control.types import CameraCommand, Observation, PolicyContext
 from endocam.geometry import FloatArray
 from endocam.task.config import RingConfig
 
-__all__ = ["Candidates", "SideScore", "VisibleConfig", "VisiblePolicy", "choose_side"]
+__all__ = [
+    "Candidates",
+    "SideScore",
+    "VisibleConfig",
+    "VisiblePolicy",
+    "choose_side",
+    "predicted_pose",
+]
 
 _ZERO = (0.0, 0.0, 0.0)
 _MIN_NORMAL = 1e-9  # unitless: a shorter ring normal is degenerate (the checks answer it)
@@ -126,6 +141,21 @@ class VisibleConfig:
         tracker's commands on the study paths; farther ones are conceded), so a tilt must not
         take the view out of its reach. The ECM's axis always passes through the port, the
         free camera has no such limit.
+    lookahead : float
+        How far ahead of the step the scored ring pose is predicted, s (beyond the sensing
+        delay, which is always bridged): the camera should be on the good view when the gap
+        closes, not a scoring period, a tilt and an arm's lag after (0: the observed pose).
+    velocity_window : float
+        Span of the accepted ring poses the prediction's (constant) velocity is differenced
+        over, s.
+    max_predicted_turn : float
+        The largest turn of the ring the prediction extrapolates, rad (a faster ring is not
+        followed farther).
+    engage_clearance : float
+        Scoring only while the predicted ring's rim comes this close to the wire, m (the
+        smallest of the gap points' clearances; a threaded ring's is at most ``R − r − r_w``):
+        farther, no touch is near, the axis goes back to the normal and the side is held
+        (``math.inf``: always score).
     """
 
     max_tilt: float = math.radians(20.0)
@@ -145,6 +175,10 @@ class VisibleConfig:
     cone_slack: float = 2e-3
     port_angle: float = math.radians(55.0)
     wire_slack: float = 3e-3
+    lookahead: float = 0.5
+    velocity_window: float = 0.1
+    max_predicted_turn: float = math.radians(30.0)
+    engage_clearance: float = 1.0e-3
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt <= math.radians(25.0):
@@ -159,6 +193,8 @@ class VisibleConfig:
             "window",
             "tilt_rate",
             "resolved_px",
+            "velocity_window",
+            "engage_clearance",
         ):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -171,6 +207,8 @@ class VisibleConfig:
             "side_hold",
             "cone_slack",
             "wire_slack",
+            "lookahead",
+            "max_predicted_turn",
         ):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"{name} must be ≥ 0, got {getattr(self, name)}")
@@ -237,6 +275,8 @@ class VisiblePolicy(EndocamPolicy):
         self.side_changes = 0  # side changes the scorer asked for this episode
         self.tilted_steps = 0  # steps the axis was off the normal this episode
         self.last_scores: dict[float, SideScore] = {}
+        self.idle_scorings = 0  # scorings skipped this episode (no touch near)
+        self._track: deque[tuple[float, FloatArray]] = deque()  # accepted (t_ring s, T_ring)
 
     def reset(self, context: PolicyContext) -> None:
         """The tracker's reset; the axis back on the normal, no side yet."""
@@ -247,6 +287,7 @@ class VisiblePolicy(EndocamPolicy):
         self._focal_px = float(context.camera.intrinsics.K[1, 1])
         self._baseline = float(context.camera.baseline)
         self._dt = context.dt
+        self._window = max(self.visible.velocity_window, context.dt)
 
     # -- the side ----------------------------------------------------------------------------
 
@@ -259,16 +300,42 @@ class VisiblePolicy(EndocamPolicy):
     def _plan_step(self, obs: Observation, T_cam: FloatArray, T_ring: FloatArray) -> PlanResult:
         """The tracker's step on the ring pose with its normal turned to the viewing axis."""
         t = float(obs.t)
+        t_ring = t if obs.t_ring is None else float(obs.t_ring)
         n = _unit_normal(T_ring)
         if n is not None and self._wire is not None and t >= self._next_score:
             self._next_score = t + self.visible.score_period
-            self._score(T_ring, n, t)
+            T_ahead = self._predicted(T_ring, t_ring, t + self.visible.lookahead)
+            self._score(T_ahead, t)
         self._advance()
         ox, oy, oz = self._offset
         if n is None or (ox == 0.0 and oy == 0.0 and oz == 0.0):
-            return super()._plan_step(obs, T_cam, T_ring)
-        self.tilted_steps += 1
-        return super()._plan_step(obs, T_cam, _turned(T_ring, n, self._offset))
+            plan = super()._plan_step(obs, T_cam, T_ring)
+        else:
+            self.tilted_steps += 1
+            plan = super()._plan_step(obs, T_cam, _turned(T_ring, n, self._offset))
+        if plan.check == OBS_OK and n is not None:  # the gate took it: a sample to predict from
+            self._track.append((t_ring, T_ring.copy()))  # (the caller may reuse its array)
+            while len(self._track) > 2 and self._track[1][0] <= t_ring - self._window:
+                self._track.popleft()
+        return plan
+
+    def _lose(self, reason: str) -> CameraCommand:
+        """The tracker's lost tracking; the prediction's samples are forgotten too."""
+        self._track.clear()
+        return super()._lose(reason)
+
+    def _predicted(self, T_ring: FloatArray, t_ring: float, t_ahead: float) -> FloatArray:
+        """The ring pose (4, 4) at ``t_ahead`` (s) from the observed ``T_ring`` stamped ``t_ring``.
+
+        :func:`predicted_pose` from the oldest accepted pose within ``velocity_window`` (only
+        poses the tracker's checks and gate took). Without an older pose: ``T_ring`` itself.
+        """
+        if not self._track:
+            return T_ring
+        t_old, T_old = self._track[0]
+        return predicted_pose(
+            T_old, T_ring, t_ring - t_old, t_ahead - t_ring, self.visible.max_predicted_turn
+        )
 
     def _advance(self) -> None:
         """Move the applied offset towards the current side's target at ``tilt_rate``."""
@@ -284,16 +351,31 @@ class VisiblePolicy(EndocamPolicy):
 
     # -- the scoring -------------------------------------------------------------------------
 
-    def _score(self, T_ring: FloatArray, n: tuple[float, float, float], t: float) -> None:
-        """Score the candidates; update this side's target and the wanted side."""
+    def _score(self, T_ring: FloatArray, t: float) -> None:
+        """Score the candidates at the predicted ring pose ``T_ring`` (4, 4) and decide.
+
+        This side's target and the wanted side are updated. Farther than ``engage_clearance``
+        from the wire nothing is scored: the target goes back to the normal and the side is
+        held.
+        """
         wire, vc = self._wire, self.visible
         assert wire is not None
         p_c = T_ring[:3, 3]
+        n = _unit_normal(T_ring)
+        side_now = self._side if self._side != 0.0 else self._want
+        if n is None or not np.isfinite(T_ring).all():
+            return
         window = wire_window(wire, p_c, vc.window)
         gaps = gap_points(T_ring, window, self._shape, wire.radius, vc.rim_points,
                           vc.weight_scale)  # fmt: skip
+        nearest = max(float(np.min(gaps.clearances)), 0.0)  # the rim's to the wire, m
+        if nearest > vc.engage_clearance:  # no touch near: the normal, the side held
+            self.idle_scorings += 1
+            self._since = None
+            if side_now != 0.0:
+                self._targets[side_now] = _ZERO
+            return
         n_arr = np.array(n)
-        side_now = self._side if self._side != 0.0 else self._want
         if side_now == 0.0:  # the tracker's first side: above the feature
             side_now = 1.0 if n[2] >= 0.0 else -1.0
         c = self._candidates(p_c, n_arr, side_now)
@@ -306,7 +388,6 @@ class VisiblePolicy(EndocamPolicy):
             occluders(window, wire.radius, T_ring, self._shape),
         )
         m = len(c.dirs)
-        nearest = max(float(np.min(gaps.clearances)), 0.0)  # the rim's to the wire, m
         urgency = math.exp(-nearest / vc.urgency_scale)  # a touch near: the view matters
         score = urgency * 0.5 * (shares[:m] + shares[m:])
         cost = vc.tilt_cost * (c.tilt + beyond)  # the orientation error it is expected to pay
@@ -390,14 +471,53 @@ class Candidates(NamedTuple):
     per_side: int
 
 
+def predicted_pose(
+    T_old: FloatArray, T_now: FloatArray, tau: float, h: float, max_turn: float
+) -> FloatArray:
+    r"""The pose (4, 4) ``h`` s after ``T_now`` at the constant velocity from ``T_old`` to it.
+
+    ``T_old``, ``T_now`` (4, 4) world poses ``tau`` s apart (``tau ≤ 0``: ``T_now`` itself).
+    First order, as the tracker's predictor (:mod:`endocam.control.predictor`): the centre
+    and the frame's z and x axes are extrapolated linearly, :math:`a + (a - a_0)\,k`, and
+    the axes made orthonormal again (z first); :math:`k = h/\tau`, cut so that the normal's
+    turn since ``T_old`` times ``k`` is at most ``max_turn`` rad.
+    """
+    T_now = np.asarray(T_now, dtype=float)
+    if not tau > TIME_TOL_S:
+        return T_now.copy()
+    k = h / tau
+    a, b = T_now.tolist(), np.asarray(T_old, dtype=float).tolist()  # rows; 3-vectors in floats
+    p = [a[i][3] + (a[i][3] - b[i][3]) * k for i in range(3)]
+    cos_turn = a[0][2] * b[0][2] + a[1][2] * b[1][2] + a[2][2] * b[2][2]
+    turn = math.acos(min(1.0, max(-1.0, cos_turn)))
+    if turn * k > max_turn:
+        k = max_turn / turn
+    z = [a[i][2] + (a[i][2] - b[i][2]) * k for i in range(3)]
+    x = [a[i][0] + (a[i][0] - b[i][0]) * k for i in range(3)]
+    z_len = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
+    z = [z[0] / z_len, z[1] / z_len, z[2] / z_len]
+    xz = x[0] * z[0] + x[1] * z[1] + x[2] * z[2]
+    x = [x[0] - xz * z[0], x[1] - xz * z[1], x[2] - xz * z[2]]
+    x_len = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
+    T = np.eye(4)
+    T[:3, 3] = p
+    if not x_len > _MIN_NORMAL:  # a half turn extrapolated: the newest frame's axes
+        T[:3, :3] = T_now[:3, :3]
+        return T
+    x = [x[0] / x_len, x[1] / x_len, x[2] / x_len]
+    y = [z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0]]
+    T[:3, :3] = np.array([x, y, z]).T
+    return T
+
+
 def _unit_normal(T_ring: FloatArray) -> tuple[float, float, float] | None:
     """The ring pose's unit normal (its z column), or ``None``.
 
-    ``None``: the pose is not finite or the normal degenerate (the tracker's checks answer it).
+    ``None``: the normal is not finite or degenerate (the tracker's checks answer it).
     """
     x, y, z = float(T_ring[0, 2]), float(T_ring[1, 2]), float(T_ring[2, 2])
     length = math.sqrt(x * x + y * y + z * z)
-    if not (math.isfinite(length) and length > _MIN_NORMAL and math.isfinite(T_ring.sum())):
+    if not (math.isfinite(length) and length > _MIN_NORMAL):
         return None
     return (x / length, y / length, z / length)
 
