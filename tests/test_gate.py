@@ -122,21 +122,27 @@ def test_the_promise_after_a_gap_is_twice_the_gap_caps() -> None:
 
 def test_the_check_marks_outlier_bursts_that_follow_a_gap() -> None:
     """A burst right after (or overlapping) a dropout or stale pose is judged by the weaker
-    promise; one that begins among fresh poses, or after fresh poses that followed a gap, not."""
+    promise, and so is the next one unless ``settle`` clean steps lie between (the gate may
+    have taken the first and judge against it); one that begins among fresh poses is not."""
     column = [
         "",
-        "ring_outlier",
-        "ring_outlier",
+        "ring_outlier",  # among fresh poses
         "",
         "ring_dropout",
-        "ring_outlier",
+        "ring_outlier",  # right after a gap
         "",
+        "ring_outlier",  # 1 clean step after a weak burst: still weak
+        "",
+        "",
+        "",
+        "ring_outlier",  # 3 clean steps: the true ring is back
         "latency_spike",
         "",
-        "ring_outlier",
-        "ring_dropout+ring_outlier",
+        "ring_outlier",  # a burst that a dropout interrupts
+        "ring_dropout+ring_outlier",  # the burst overlaps a gap
         "ring_outlier",
     ]
-    marked = outlier_after_gap([fault_names(f) for f in column])
-    expected = [False, False, False, False, False, True, False, False, False, True, True, True]
+    marked = outlier_after_gap([fault_names(f) for f in column], settle=3)
+    expected = [False, False, False, False, True, False, True, False, False, False, False]
+    expected += [False, False, True, True, True]
     assert marked.tolist() == expected

@@ -555,7 +555,8 @@ def _lost_hold(log: RunLog) -> list[Violation]:
     refused = refused - {"ring_outlier"}
     invalid = np.array([bool(f & refused) for f in names])
     outlier = np.array(["ring_outlier" in f for f in names], dtype=bool)
-    after_gap = outlier_after_gap(names)
+    settle = math.ceil(limits.reacquire / log.header.control_period - TIME_TOL_S) + 1
+    after_gap = outlier_after_gap(names, settle)
     for gap in (False, True):
         if outlier_detected(spec.distance, spec.angle, limits, after_gap=gap):
             invalid |= outlier & (after_gap == gap)
@@ -571,27 +572,35 @@ def _lost_hold(log: RunLog) -> list[Violation]:
     return _violations(log, bad, "lost_hold", moved, ARRIVED_TOL_M, "m", "command moved")
 
 
-def outlier_after_gap(names: list[frozenset[str]]) -> np.ndarray:
-    """(N,) bool: outlier steps whose burst may begin, for the gate, right after a gap.
+def outlier_after_gap(names: list[frozenset[str]], settle: int) -> np.ndarray:
+    """(N,) bool: outlier steps the gate may meet without a sound reference (after a gap).
 
-    ``names``: each step's faults (:func:`~endocam.faults.fault_names`). A burst (a run of
-    steps with ``ring_outlier``) is after a gap when the step before it or any of its own
-    steps carries a :data:`GAP_FAULTS` fault: its first pose the gate sees may follow a
-    stretch without a fresh one (``control.gate.outlier_detected``'s ``after_gap``). A burst
-    that begins while every pose is fresh jumps off the observed ring.
+    ``names``: each step's faults (:func:`~endocam.faults.fault_names`); ``settle``: clean
+    steps the gate needs to take the true ring back after it took a wrong one (the steps of
+    ``ring_reacquire``, plus one). A burst (a run of steps with ``ring_outlier``) is after a
+    gap when the step before it or any of its own steps carries a :data:`GAP_FAULTS` fault
+    (its first pose the gate sees may follow a stretch without a fresh one:
+    ``control.gate.outlier_detected``'s ``after_gap``), or when the burst before it was, and
+    no run of ``settle`` clean steps lies between them (the gate may have taken that burst,
+    which the weaker promise allows, and still judge against it). Any other burst jumps off
+    the observed ring.
     """
     out = np.zeros(len(names), dtype=bool)
-    k = 0
+    ring = GAP_FAULTS | {"ring_outlier"}
+    weak, clean, k = False, 0, 0
     while k < len(names):
         if "ring_outlier" not in names[k]:
+            clean = 0 if names[k] & ring else clean + 1
+            if clean >= settle:
+                weak = False  # the gate has the true ring again
             k += 1
             continue
         stop = k
         while stop < len(names) and "ring_outlier" in names[stop]:
             stop += 1
-        near = names[max(k - 1, 0) : stop]
-        out[k:stop] = any(f & GAP_FAULTS for f in near)
-        k = stop
+        weak = weak or any(f & GAP_FAULTS for f in names[max(k - 1, 0) : stop])
+        out[k:stop] = weak
+        clean, k = 0, stop
     return out
 
 
