@@ -444,7 +444,10 @@ class RingGate:
     as the ring did), however far the ring went meanwhile. A run that has agreed with itself
     for ``reacquire`` s is taken if its centre lies in the workspace (the cone, given at
     :meth:`reset`): the ring moved while it was lost, or a persistent offset is the ring as
-    the tracker now sees it.
+    the tracker now sees it. A refused run that began after a gap (no fresh pose for more
+    than ``horizon``) is taken sooner, once it has agreed for ``confirm`` s and bridges to
+    the accepted track within ``gap_position`` / ``gap_angle`` (:func:`gate_bridges`): the
+    ring moved while unseen.
 
     Refused poses are answered like missing ones: the camera holds. Times are capture
     stamps (a latency spike's older pose is predicted at its own time).
