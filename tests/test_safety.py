@@ -178,7 +178,7 @@ def test_cone_first_outside_is_the_scalar_decision() -> None:
 
 def test_the_gate_remembers_by_name_and_forgets_at_reset() -> None:
     """``RingGate.state``'s named fields: the accepted and the last seen pose, the rejections."""
-    gate = RingGate(RingLimits(0.1, 1.0, 1.0, 10.0, 0.005, 0.05, 0.5, 1.0))
+    gate = RingGate(RingLimits(0.1, 1.0, 1.0, 10.0, 0.005, 0.05, 0.5, 1.0, 0.009, 0.12, 0.03))
     up = (0.0, 0.0, 1.0)
     assert gate.accept(0.0, (0.0, 0.0, 0.05), up)
     assert not gate.accept(0.01, (0.5, 0.0, 0.05), up)  # 50 m/s: refused

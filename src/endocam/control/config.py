@@ -273,6 +273,31 @@ class ControllerConfig(BaseModel):
         "step to step for this long, s, is taken as the ring (inside the cone only): it moved "
         "while lost, or the tracker now sees it there. Longer than any outlier burst to refuse",
     )
+    ring_gap_position: float = Field(
+        0.009,
+        gt=0,
+        le=10.0,
+        description="observation gate, after a gap (no fresh ring pose for longer than "
+        "ring_gate_horizon): a run of poses that began after it is taken once its centre is "
+        "within this, m, of the bridge from the last accepted pose (a trapezoid between the "
+        "two tracks' velocities). Twice it is the smallest centre offset refused in an outlier "
+        "burst that begins as a gap ends (2 cm: yes; 1 cm: not promised)",
+    )
+    ring_gap_angle: float = Field(
+        math.radians(7.0),
+        gt=0,
+        le=math.pi,
+        description="observation gate, after a gap: the normal's bridge cap, rad (7°: a 15° "
+        "outlier burst that begins as a gap ends is refused; a 5° one is not promised)",
+    )
+    ring_confirm: float = Field(
+        0.03,
+        gt=0,
+        le=1.0,
+        description="observation gate, after a gap: how long, s, a run of poses must agree step "
+        "to step before it is bridged to the last accepted pose (its velocity is the run's "
+        "mean; a noisy tracker needs longer)",
+    )
     window_inner_frac: float = Field(0.5, gt=0, le=1, description="inner window, image fraction")
     window_outer_frac: float = Field(0.9, gt=0, le=1, description="outer window, image fraction")
     centre_left_eye: bool = Field(
@@ -320,14 +345,17 @@ class ControllerConfig(BaseModel):
     def ring_limits(self) -> RingLimits:
         """The observation gate's bounds (``control.gate.RingLimits``)."""
         return RingLimits(
-            self.ring_max_speed,
-            self.ring_max_rate,
-            self.ring_max_acceleration,
-            self.ring_max_angular_acceleration,
-            self.ring_gate_position,
-            self.ring_gate_angle,
-            self.ring_gate_horizon,
-            self.ring_reacquire,
+            max_speed=self.ring_max_speed,
+            max_rate=self.ring_max_rate,
+            max_acceleration=self.ring_max_acceleration,
+            max_angular_acceleration=self.ring_max_angular_acceleration,
+            position_gate=self.ring_gate_position,
+            angle_gate=self.ring_gate_angle,
+            horizon=self.ring_gate_horizon,
+            reacquire=self.ring_reacquire,
+            gap_position=self.ring_gap_position,
+            gap_angle=self.ring_gap_angle,
+            confirm=self.ring_confirm,
         )
 
     @property

@@ -5,9 +5,12 @@
   constant-velocity prediction from the *accepted* track; an innovation beyond a bound that
   grows with the ring's largest acceleration but never past a fixed cap
   (:attr:`RingLimits.position_gate`, :attr:`RingLimits.angle_gate`) is refused and the camera
-  holds. Its rule (:func:`gate_decide`, :func:`gate_commit`) is compiled, so the policies' own
-  kernels run it too. :func:`outlier_detected` is the one definition of the outliers it
-  promises to refuse, which the safety check (``runner.check``) requires a hold on.
+  holds. After a gap (no fresh pose for longer than :attr:`RingLimits.horizon`) the ring is
+  taken back once a short run of poses (:attr:`RingLimits.confirm`) bridges to the accepted
+  track within the wider gap caps (:func:`gate_bridges`). Its rule (:func:`gate_decide`,
+  :func:`gate_commit`) is compiled, so the policies' own kernels run it too.
+  :func:`outlier_detected` is the one definition of the outliers it promises to refuse, which
+  the safety check (``runner.check``) requires a hold on.
 """
 
 from __future__ import annotations
@@ -76,6 +79,15 @@ class RingLimits:
     reacquire : float
         A refused run of poses that agree step to step for this long, s, is the ring (it moved,
         or the tracker now sees it there): it is taken, inside the workspace only.
+    gap_position : float
+        After a gap, m: a refused run that began after the gap is taken once its centre, at the
+        run's mid-time, is within ``FLOOR_M + ¼ a Δt²`` (up to this cap) of the bridge from the
+        accepted track (:func:`gate_bridges`). Outliers beyond twice it are refused after a gap.
+    gap_angle : float
+        The same for the normal, rad (``FLOOR_RAD + ¼ α Δt²``, up to this cap).
+    confirm : float
+        How long, s, a run that began after a gap must agree step to step before the bridge
+        is tried (its velocity is the run's mean; at least two poses).
     """
 
     max_speed: float
@@ -86,6 +98,9 @@ class RingLimits:
     angle_gate: float
     horizon: float
     reacquire: float
+    gap_position: float
+    gap_angle: float
+    confirm: float
 
 
 GATE_BOUNDS = np.dtype([(f.name, np.float64) for f in fields(RingLimits)], align=True)
@@ -105,15 +120,26 @@ class GateLimits(Protocol):
     angle_gate: float
     horizon: float
     reacquire: float
+    gap_position: float
+    gap_angle: float
+    confirm: float
 
 
-def outlier_detected(distance: float, angle: float, limits: RingLimits) -> bool:
+def outlier_detected(
+    distance: float, angle: float, limits: RingLimits, *, after_gap: bool = False
+) -> bool:
     """Whether the gate promises to refuse a ring pose ``distance`` (m) and ``angle`` (rad) off.
 
-    One definition for the gate and the safety check: an offset beyond either innovation cap
-    (``position_gate``, ``angle_gate``) is never acted on; a smaller one may be (it is
-    within what the ring itself could do between two observations after a gap).
+    One definition for the gate and the safety check. An outlier burst that jumps off a
+    continuously observed ring: an offset beyond either innovation cap (``position_gate``,
+    ``angle_gate``) is never acted on. One that begins right after a gap (``after_gap``: no
+    fresh pose for a while before it) is judged against the bridge across the gap, which
+    allows the ring's own motion up to ``gap_position`` / ``gap_angle``: an offset beyond
+    twice those caps is never acted on (it lies beyond the cap however the ring moved within
+    it); a smaller one may be (the ring itself can end that far off during a gap).
     """
+    if after_gap:
+        return distance > 2.0 * limits.gap_position or angle > 2.0 * limits.gap_angle
     return distance > limits.position_gate or angle > limits.angle_gate
 
 
@@ -134,8 +160,10 @@ GATE_STATE = np.dtype(
     [
         ("accepted", GATE_MEMORY),  # the accepted track: the prediction's reference
         ("seen", GATE_MEMORY),  # the last finite observation's track, accepted or not
+        ("first", GATE_MEMORY),  # the refused run's first observation (its rates unused)
         ("refusing", np.bool_),  # whether the last seen observation was refused
         ("onset", np.bool_),  # the refused run began by jumping off the accepted track
+        ("gap_run", np.bool_),  # the refused run began after a gap (more than horizon)
         ("run_start", np.float64),  # when the refused run began, s
         ("shift", np.float64, (6,)),  # the run's jump off the accepted track (centre, normal)
         ("jump", np.bool_),  # the decided observation broke from the seen track
@@ -214,6 +242,42 @@ def gate_fits(
 
 
 @register_jitable  # also callable from compiled kernels (the same source)
+def gate_bridges(
+    accepted: GateMemory, first: GateMemory, limits: GateLimits, t: float, x: Sequence[float]
+) -> bool:
+    """Whether the run from ``first`` to ``x`` (6,) at ``t`` (s) continues ``accepted``'s track.
+
+    The run's mid-pose ``m = (first + x) / 2`` at ``t_m = (first.t + t) / 2`` and its mean
+    rate ``u = (x − first) / (t − first.t)`` (centre, m and m/s; normal and 1/s) are
+    second-order estimates of the ring at ``t_m``. A ring that left the accepted pose ``a``
+    (``accepted``: centre, normal, rates ``v``) with acceleration within ``a_max`` is, after
+    ``Δt = t_m − accepted.t``, within ``¼ a_max Δt²`` of the trapezoid bridge
+    ``a + ½ (v + u) Δt``: ``m`` must be within ``FLOOR_M + ¼ max_acceleration Δt²`` (up to
+    ``gap_position``) of it, and its normal within ``FLOOR_RAD + ¼ max_angular_acceleration
+    Δt²`` (up to ``gap_angle``). False for a run shorter than ``MIN_DT``.
+    """
+    span = t - first.t
+    if span < MIN_DT:
+        return False
+    dt = 0.5 * (first.t + t) - accepted.t
+    c, v, f = accepted.centre, accepted.velocity, first.centre
+    bridge = [0.0] * 6
+    mid = [0.0] * 6
+    n, w, g = accepted.normal, accepted.normal_rate, first.normal
+    for i in range(3):
+        mid[i] = 0.5 * (f[i] + x[i])
+        mid[3 + i] = 0.5 * (g[i] + x[3 + i])
+        bridge[i] = c[i] + 0.5 * (v[i] + (x[i] - f[i]) / span) * dt
+        bridge[3 + i] = n[i] + 0.5 * (w[i] + (x[3 + i] - g[i]) / span) * dt
+    dp = dist3(mid[0], mid[1], mid[2], bridge[0], bridge[1], bridge[2])
+    turn = normal_angle((bridge[3], bridge[4], bridge[5]), mid)
+    quarter = 0.25 * dt * dt
+    p_tol = min(limits.gap_position, FLOOR_M + quarter * limits.max_acceleration)
+    a_tol = min(limits.gap_angle, FLOOR_RAD + quarter * limits.max_angular_acceleration)
+    return dp <= p_tol and turn <= a_tol
+
+
+@register_jitable  # also callable from compiled kernels (the same source)
 def gate_step(memory: GateMemory, limits: GateLimits, t: float, x: Sequence[float]) -> bool:
     """Whether ``x`` at ``t`` (s) lies where the ring could have gone since ``memory``'s pose.
 
@@ -279,8 +343,10 @@ def gate_decide(state: GateState, bounds: GateBounds, t: float, x: Sequence[floa
     its unit normal captured at ``t`` (s). While tracking, ``x`` is accepted when it fits the
     accepted track (:func:`gate_fits`). While refusing, ``x`` that continues the refused run
     (fits its track and :func:`gate_step`, at most ``horizon`` later) is refused until the
-    run has lasted ``reacquire`` s (then ``GATE_REACQUIRE``: accepted if inside the
-    workspace); ``x`` that breaks from the run is accepted when it fits the accepted track,
+    run, if it began after a gap, has lasted ``confirm`` s and bridges to the accepted track
+    (:func:`gate_bridges`: accepted), or until it has lasted ``reacquire`` s (then
+    ``GATE_REACQUIRE``: accepted if inside the workspace); ``x`` that breaks from the run is
+    accepted when it fits the accepted track,
     or when the run began by jumping off that track and ``x`` fits the run's track less that
     jump (the ring back after an outlier burst: the run moved as the ring did).
     Records ``x`` as the last seen observation; the caller ends with :func:`gate_commit`.
@@ -300,7 +366,11 @@ def gate_decide(state: GateState, bounds: GateBounds, t: float, x: Sequence[floa
         if gate_fits(accepted, limits, t, x, still):
             decision = GATE_ACCEPT
     elif not jump:  # the refused run goes on
-        if t - st.run_start >= limits.reacquire:
+        lasted = t - st.run_start
+        confirmed = st.gap_run and lasted + CLOCK_TOL >= limits.confirm
+        if confirmed and gate_bridges(accepted, st.first, limits, t, x):
+            decision = GATE_ACCEPT  # after a gap: the run continues the accepted track
+        elif lasted >= limits.reacquire:
             decision = GATE_REACQUIRE
     elif gate_fits(accepted, limits, t, x, still):
         decision = GATE_ACCEPT
@@ -320,7 +390,9 @@ def gate_commit(state: GateState, t: float, x: Sequence[float], ok: bool) -> Non
 
     Accepted: ``x`` and its rates (the seen track's, or differenced from the accepted pose
     when it returns from a refused run) are the new reference. Refused: counted, and a new
-    refused run begins unless ``x`` continues one.
+    refused run begins unless ``x`` continues one (``x`` its first pose; a run that begins
+    after a gap may be taken by the bridge, one that jumps off the accepted track by the
+    return test).
     """
     st = state[0]
     if ok:
@@ -332,7 +404,9 @@ def gate_commit(state: GateState, t: float, x: Sequence[float], ok: bool) -> Non
     st.rejected += 1
     if not st.refusing or st.jump:
         st.onset = not st.refusing and not st.after_gap
+        st.gap_run = st.after_gap
         st.run_start = t
+        gate_remember(st.first, t, x, st.first, False)
         if st.onset:  # the jump off the accepted track
             offset = gate_offset(st.accepted, t, x)
             for i in range(6):
@@ -370,7 +444,10 @@ class RingGate:
     as the ring did), however far the ring went meanwhile. A run that has agreed with itself
     for ``reacquire`` s is taken if its centre lies in the workspace (the cone, given at
     :meth:`reset`): the ring moved while it was lost, or a persistent offset is the ring as
-    the tracker now sees it.
+    the tracker now sees it. A refused run that began after a gap (no fresh pose for more
+    than ``horizon``) is taken sooner, once it has agreed for ``confirm`` s and bridges to
+    the accepted track within ``gap_position`` / ``gap_angle`` (:func:`gate_bridges`): the
+    ring moved while unseen.
 
     Refused poses are answered like missing ones: the camera holds. Times are capture
     stamps (a latency spike's older pose is predicted at its own time).

@@ -36,7 +36,8 @@ by step:
     zone at every control step, not only its command;
 ``lost_hold``
     a lost or invalid observation (an invalid ring pose injected by a fault, :mod:`endocam.faults`;
-    an outlier only when the gate promises to refuse it, ``control.gate.outlier_detected``)
+    an outlier only when the gate promises to refuse it, ``control.gate.outlier_detected``,
+    with its weaker promise for a burst that begins after a gap, :func:`outlier_after_gap`)
     answered in the same control step by holding: state ``lost_tracking`` and the command of
     the step before. A frozen tracker (fault ``tracker_frozen``: the same pose, its capture
     stamp kept) counts as lost from the step at which the repeated pose is surely older than
@@ -121,6 +122,8 @@ INVARIANTS = (
     "lost_hold",
 )
 MAX_LISTED = 1000  # count: violations kept in check.json per run (all are counted)
+GAP_FAULTS = frozenset({"ring_dropout", "ring_nan", "ring_inf", "tracker_frozen", "latency_spike"})
+"""Faults that can leave the gate without a fresh ring pose (missing, invalid, stale, older)."""
 
 
 @dataclass(frozen=True)
@@ -549,9 +552,14 @@ def _lost_hold(log: RunLog) -> list[Violation]:
     names = [fault_names(f) for f in log.columns["fault"]]
     refused = OBSERVATION_INVALID_FAULTS  # an outlier the gate does not promise to see is not
     spec, limits = log.config.faults.ring_outlier, log.config.controller.ring_limits
-    if not outlier_detected(spec.distance, spec.angle, limits):
-        refused = refused - {"ring_outlier"}
+    refused = refused - {"ring_outlier"}
     invalid = np.array([bool(f & refused) for f in names])
+    outlier = np.array(["ring_outlier" in f for f in names], dtype=bool)
+    settle = math.ceil(limits.reacquire / log.header.control_period - TIME_TOL_S) + 1
+    after_gap = outlier_after_gap(names, settle)
+    for gap in (False, True):
+        if outlier_detected(spec.distance, spec.angle, limits, after_gap=gap):
+            invalid |= outlier & (after_gap == gap)
     frozen = np.array(["tracker_frozen" in f for f in names], dtype=bool)
     invalid |= _frozen_age(log.columns["t"], frozen, log.config.episode.sensing_latency) > (
         log.config.controller.ring_max_age + TIME_TOL_S
@@ -562,6 +570,38 @@ def _lost_hold(log: RunLog) -> list[Violation]:
     moved[1:] = np.linalg.norm(np.diff(cmd, axis=0), axis=1)
     bad = invalid & (~np.isin(state, HOLD_STATES) | ~(moved <= ARRIVED_TOL_M))
     return _violations(log, bad, "lost_hold", moved, ARRIVED_TOL_M, "m", "command moved")
+
+
+def outlier_after_gap(names: list[frozenset[str]], settle: int) -> np.ndarray:
+    """(N,) bool: outlier steps the gate may meet without a sound reference (after a gap).
+
+    ``names``: each step's faults (:func:`~endocam.faults.fault_names`); ``settle``: clean
+    steps the gate needs to take the true ring back after it took a wrong one (the steps of
+    ``ring_reacquire``, plus one). A burst (a run of steps with ``ring_outlier``) is after a
+    gap when the step before it or any of its own steps carries a :data:`GAP_FAULTS` fault
+    (its first pose the gate sees may follow a stretch without a fresh one:
+    ``control.gate.outlier_detected``'s ``after_gap``), or when the burst before it was, and
+    no run of ``settle`` clean steps lies between them (the gate may have taken that burst,
+    which the weaker promise allows, and still judge against it). Any other burst jumps off
+    the observed ring.
+    """
+    out = np.zeros(len(names), dtype=bool)
+    ring = GAP_FAULTS | {"ring_outlier"}
+    weak, clean, k = False, 0, 0
+    while k < len(names):
+        if "ring_outlier" not in names[k]:
+            clean = 0 if names[k] & ring else clean + 1
+            if clean >= settle:
+                weak = False  # the gate has the true ring again
+            k += 1
+            continue
+        stop = k
+        while stop < len(names) and "ring_outlier" in names[stop]:
+            stop += 1
+        weak = weak or any(f & GAP_FAULTS for f in names[max(k - 1, 0) : stop])
+        out[k:stop] = weak
+        clean, k = 0, stop
+    return out
 
 
 def _frozen_age(t: FloatArray, frozen: np.ndarray, latency: float) -> FloatArray:
