@@ -85,7 +85,7 @@ def test_auc_and_d_prime_separable_and_random() -> None:
     seeds = np.repeat(np.arange(8), 50)
     labels = np.tile(np.repeat([io_.CONTACT, io_.APART], 25), 8).astype(np.int8)
     separable = np.where(labels == io_.CONTACT, 0.9, 0.1) + rng.uniform(-0.05, 0.05, len(labels))
-    est = io_.bootstrap_auc(labels, separable, seeds, n_boot=200)
+    sep = est = io_.bootstrap_auc(labels, separable, seeds, n_boot=200)
     assert est.auc == pytest.approx(1.0, abs=ATOL)
     assert est.low == pytest.approx(1.0, abs=ATOL)
     assert io_.d_prime(est.auc) == pytest.approx(math.sqrt(2) * norm.ppf(1 - io_.AUC_CLIP))
@@ -93,7 +93,11 @@ def test_auc_and_d_prime_separable_and_random() -> None:
     est = io_.bootstrap_auc(labels, random, seeds, n_boot=200)
     assert est.low < 0.5 < est.high
     assert 0.0 < est.half_width < 0.15
-    assert est == io_.bootstrap_auc(labels, random, seeds, n_boot=200)  # seeded: repeatable
+    again = io_.bootstrap_auc(labels, random, seeds, n_boot=200)  # seeded: repeatable
+    assert (again.low, again.high) == (est.low, est.high)
+    assert io_.paired_difference(est, again) == (0.0, 0.0, 0.0)
+    diff, low, high = io_.paired_difference(sep, est)
+    assert diff == pytest.approx(sep.auc - est.auc, abs=ATOL) and 0.0 < low < diff < high
     assert io_.d_prime(0.5) == pytest.approx(0.0, abs=ATOL)
     assert io_.d_prime(norm.cdf(1 / math.sqrt(2))) == pytest.approx(1.0, abs=1e-9)
     from sklearn.metrics import roc_auc_score

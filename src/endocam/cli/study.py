@@ -180,7 +180,7 @@ def _ideal_observer(args: argparse.Namespace) -> int:
     eyes = 2 if "stereo" in inputs else 1
     per_video = ios.frames_per_video(study)
     total = per_video * eyes * len(study.conditions) * len(study.seed_dirs)
-    rows = []
+    rows, estimates = [], {}
     with tqdm(total=total, desc="decode + crop", unit="frame", leave=False) as bar:
         for c in study.conditions:
             try:
@@ -191,8 +191,9 @@ def _ideal_observer(args: argparse.Namespace) -> int:
             except ValueError as exc:
                 raise UsageError(str(exc)) from None
             for name, data in ios.datasets(frames, inputs).items():
-                rows.append(ios.evaluate(c, name, data))
-    doc = ios.document(study, rows)
+                row, estimates[(c, name)] = ios.evaluate(c, name, data)
+                rows.append(row)
+    doc = ios.document(study, rows, estimates)
     texts = {
         out: json.dumps(doc, indent=2) + "\n",
         out.with_suffix(".md"): ios.table_md(doc),

@@ -348,19 +348,37 @@ def auc_score(positive: NDArray[np.bool_], scores: FloatArray) -> float:
 class AucEstimate:
     """An AUC with its seed-level bootstrap interval (``CI_LEVEL``).
 
-    ``auc``, ``low``, ``high``: the point estimate and the percentile interval;
-    ``n_boot``: resamples that had both classes (the others are dropped).
+    ``auc``, ``low``, ``high``: the point estimate and the percentile interval; ``samples``:
+    (n_boot,) the resamples' AUCs, NaN where a resample had one class only. Two estimates made
+    with the same seeds and generator seed drew the same resamples, so their samples pair up
+    (:func:`paired_difference`).
     """
 
     auc: float
     low: float
     high: float
-    n_boot: int
+    samples: FloatArray
 
     @property
     def half_width(self) -> float:
         """Half the interval's width."""
         return 0.5 * (self.high - self.low)
+
+    @property
+    def n_boot(self) -> int:
+        """Resamples that had both classes."""
+        return int(np.isfinite(self.samples).sum())
+
+
+def percentile_ci(samples: FloatArray) -> tuple[float, float]:
+    """The ``CI_LEVEL`` percentile interval of the finite ``samples`` (NaN if there are none)."""
+    x = np.asarray(samples, dtype=float)
+    x = x[np.isfinite(x)]
+    if not len(x):
+        return math.nan, math.nan
+    tail = 50.0 * (1.0 - CI_LEVEL)
+    low, high = np.percentile(x, [tail, 100.0 - tail])
+    return float(low), float(high)
 
 
 def bootstrap_auc(
@@ -382,23 +400,25 @@ def bootstrap_auc(
     g = np.asarray(seeds)[keep]
     if y.all() or not y.any():
         raise ValueError("the AUC needs frames of both classes (in contact and apart)")
-    auc = auc_score(y, s)
     gen = np.random.default_rng(BOOT_SEED) if rng is None else rng
     groups = np.unique(g)
     members = {int(k): np.flatnonzero(g == k) for k in groups}
-    aucs = []
-    for _ in range(n_boot):
+    samples = np.full(n_boot, np.nan)
+    for b in range(n_boot):
         pick = gen.choice(groups, size=len(groups), replace=True)
         rows = np.concatenate([members[int(k)] for k in pick])
-        yb = y[rows]
-        if yb.all() or not yb.any():
-            continue
-        aucs.append(auc_score(yb, s[rows]))
-    tail = 50.0 * (1.0 - CI_LEVEL)
-    if not aucs:
-        return AucEstimate(auc, math.nan, math.nan, 0)
-    low, high = np.percentile(aucs, [tail, 100.0 - tail])
-    return AucEstimate(auc, float(low), float(high), len(aucs))
+        if y[rows].any() and not y[rows].all():
+            samples[b] = auc_score(y[rows], s[rows])
+    low, high = percentile_ci(samples)
+    return AucEstimate(auc_score(y, s), low, high, samples)
+
+
+def paired_difference(a: AucEstimate, b: AucEstimate) -> tuple[float, float, float]:
+    """AUC a − b and its paired seed-bootstrap interval (same seeds, same resamples)."""
+    if a.samples.shape != b.samples.shape:
+        raise ValueError("paired estimates need the same number of resamples")
+    low, high = percentile_ci(a.samples - b.samples)
+    return a.auc - b.auc, low, high
 
 
 def seeds_needed(half_width: float, n_seeds: int, target: float) -> int:

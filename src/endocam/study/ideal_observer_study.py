@@ -243,14 +243,16 @@ def datasets(frames: Sequence[SeedFrames], inputs: Sequence[str]) -> dict[str, i
     return out
 
 
-def evaluate(condition: str, name: str, data: io_.Dataset) -> dict[str, Any]:
-    """One row of the table: cross-validation, AUC and d′ with CIs, touch counts."""
+def evaluate(
+    condition: str, name: str, data: io_.Dataset
+) -> tuple[dict[str, Any], io_.AucEstimate]:
+    """One row of the table (cross-validation, AUC and d′ with CIs, touch counts), its AUC."""
     cv = io_.cross_validate(data)
     est = io_.bootstrap_auc(data.labels, cv.scores, data.seeds, n_boot=io_.N_BOOT)
     seeds = sorted(data.true_touches)
     counted = sum(cv.counted.values())
     true = sum(data.true_touches.values())
-    return {
+    row = {
         "condition": condition,
         "input": name,
         "auc": est.auc,
@@ -279,14 +281,36 @@ def evaluate(condition: str, name: str, data: io_.Dataset) -> dict[str, Any]:
             for s in seeds
         ],
     }
+    return row, est
 
 
-def document(study: StudyInputs, rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+def comparisons(estimates: dict[tuple[str, str], io_.AucEstimate]) -> dict[str, Any]:
+    """Per input, the condition with the highest AUC and its paired AUC differences to the rest.
+
+    ``estimates`` : per (condition, input). The conditions share their seeds and the bootstrap
+    its generator seed, so the resamples pair up
+    (:func:`~endocam.study.ideal_observer.paired_difference`).
+    """
+    out: dict[str, Any] = {}
+    for name in dict.fromkeys(i for _, i in estimates):
+        mine = {c: e for (c, i), e in estimates.items() if i == name}
+        best = max(mine, key=lambda c: mine[c].auc)
+        diffs = []
+        for c, e in mine.items():
+            if c != best:
+                d, lo, hi = io_.paired_difference(mine[best], e)
+                diffs.append({"other": c, "auc_difference": d, "ci": [lo, hi]})
+        out[name] = {"condition": best, "versus": diffs}
+    return out
+
+
+def document(
+    study: StudyInputs,
+    rows: Sequence[dict[str, Any]],
+    estimates: dict[tuple[str, str], io_.AucEstimate],
+) -> dict[str, Any]:
     """``ideal_observer.json``: the method's constants, the rows, the most informative condition."""
-    best = {
-        name: max((r for r in rows if r["input"] == name), key=lambda r: r["auc"])["condition"]
-        for name in dict.fromkeys(r["input"] for r in rows)
-    }
+    best = comparisons(estimates)
     return {
         "study": str(study.folder),
         "labels": {"contact": "clearance <= 0", "apart_mm": io_.APART_M * 1e3},
@@ -352,6 +376,13 @@ def table_md(doc: dict[str, Any]) -> str:
             f"{r['counted_touches']} / {r['true_touches']} |"
         )
     lines.append("")
-    for name, cond in doc["most_informative"].items():
-        lines.append(f"Most information about contact ({name}): {cond}.")
+    for name, best in doc["most_informative"].items():
+        versus = "; ".join(
+            f"{v['other']} {v['auc_difference']:+.3f} [{v['ci'][0]:+.3f}, {v['ci'][1]:+.3f}]"
+            for v in best["versus"]
+        )
+        lines.append(
+            f"Most information about contact ({name}): {best['condition']}; its AUC minus the "
+            f"others' (paired seed bootstrap, 95 % CI): {versus}."
+        )
     return "\n".join(lines) + "\n"
