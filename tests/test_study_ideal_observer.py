@@ -19,7 +19,7 @@ from study_helpers import CONDITIONS, make_study
 
 ATOL = 1e-12  # dimensionless (AUC, d′, probabilities): float round-off
 ATOL_PX = 1e-9  # px
-W_PX, H_PX, FPS, N_FRAMES = 64, 48, 10.0, 12  # the tiny kept seeds' videos
+W_PX, H_PX, FPS, N_FRAMES = 64, 48, 10.0, 60  # the tiny kept seeds' videos
 FOCAL_PX = 40.0  # px, the tiny camera's focal length
 RING_DEPTH_M = 0.05  # m, the tiny ring straight ahead of the camera
 OUTER_RADIUS_M = 6e-3  # m, R + r of the tiny ring
@@ -154,7 +154,7 @@ def kept_study(root: Path, n_seeds: int, videos: bool = True) -> Path:
     (study / "logs" / "v01").mkdir(parents=True)
     (study / "logs" / "v01" / "scene.json").write_text(json.dumps(scene), "utf-8")
     t = np.arange(0.0, (N_FRAMES - 1) / FPS + 1e-9, 0.05)
-    contact = (t % 0.6) < 0.3
+    contact = (t % 2.0) < 0.5  # touches apart by more than the count's RELEASE_FRAMES
     clearance = np.where(contact, -1e-4, 1e-3)
     header = "t,ring_x,ring_y,ring_z,cam_x,cam_y,cam_z,cam_qw,cam_qx,cam_qy,cam_qz,clearance"
     rows = [f"{a},0,0,{RING_DEPTH_M},0,0,0,1,0,0,0,{c}" for a, c in zip(t, clearance, strict=True)]
@@ -164,7 +164,8 @@ def kept_study(root: Path, n_seeds: int, videos: bool = True) -> Path:
     for k in range(n_seeds):
         folder = study / "seeds" / str(100 + k)
         folder.mkdir(parents=True)
-        truth = {"seed": 100 + k, "fps": FPS, "true_events": [[0.0, 0.3], [0.6, 0.9]]}
+        events = [[a, a + 0.5] for a in np.arange(0.0, t[-1], 2.0)]
+        truth = {"seed": 100 + k, "fps": FPS, "true_events": events}
         (folder / "truth.json").write_text(json.dumps(truth), "utf-8")
         for c in CONDITIONS:
             (folder / seed_log(c)).write_text("\n".join([header, *rows]) + "\n", "utf-8")
@@ -177,6 +178,7 @@ def kept_study(root: Path, n_seeds: int, videos: bool = True) -> Path:
 def test_cli_measures_a_tiny_study(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(io_, "N_BOOT", 20)  # cheap: the statistics have their own tests
     monkeypatch.setattr(io_, "CROP_PX", 4)
+    monkeypatch.setattr(io_, "HGB_ITER", 5)
     study = kept_study(tmp_path, 3)
     assert main(["study", "ideal-observer", "--study", str(study)]) == 0
     doc = json.loads((study / "ideal_observer.json").read_text("utf-8"))
@@ -185,7 +187,8 @@ def test_cli_measures_a_tiny_study(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     ]
     for r in doc["rows"]:
         assert r["auc"] == pytest.approx(1.0, abs=ATOL)  # bright frames are the contact frames
-        assert r["n_seeds"] == 3 and r["true_touches"] == 6
+        assert r["n_seeds"] == 3 and r["true_touches"] == 3 * 3
+        assert r["counted_touches"] == r["true_touches"]  # a clean signal counts right
     assert (study / "ideal_observer.md").read_text("utf-8").count("| fixed |") == 2
     assert (study / "ideal_observer.csv").read_text("utf-8").startswith("condition,input,auc,")
 

@@ -315,8 +315,10 @@ def document(
         "study": str(study.folder),
         "labels": {"contact": "clearance <= 0", "apart_mm": io_.APART_M * 1e3},
         "crop_px": io_.CROP_PX,
-        "model": f"standardised pixels, logistic regression (C={io_.LOGISTIC_C})",
-        "cv": "leave one seed out",
+        "features": "crop around the projected ring centre, HSV pixels in [0, 1] per eye",
+        "model": f"HistGradientBoostingClassifier(max_iter={io_.HGB_ITER}), training apart "
+        f"frames capped at {io_.APART_PER_CONTACT:g} per contact frame",
+        "cv": "leave one seed out; thresholds from inner grouped folds of the training seeds",
         "d_prime": "sqrt(2) * Phi^-1(AUC)",
         "ci": f"seed-level bootstrap, {io_.N_BOOT} resamples, percentile {io_.CI_LEVEL:.0%}",
         "target_half_width": TARGET_HALF_WIDTH,
