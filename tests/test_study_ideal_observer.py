@@ -5,12 +5,14 @@ from __future__ import annotations
 import json
 import math
 import shutil
+from collections.abc import Iterator
 from pathlib import Path
 
 import imageio_ffmpeg
 import numpy as np
 import pytest
 from scipy.stats import norm
+from threadpoolctl import threadpool_limits
 
 from endocam.cli import main
 from endocam.study import ideal_observer as io_
@@ -23,6 +25,14 @@ W_PX, H_PX, FPS, N_FRAMES = 64, 48, 10.0, 60  # the tiny kept seeds' videos
 FOCAL_PX = 40.0  # px, the tiny camera's focal length
 RING_DEPTH_M = 0.05  # m, the tiny ring straight ahead of the camera
 OUTER_RADIUS_M = 6e-3  # m, R + r of the tiny ring
+
+
+@pytest.fixture(autouse=True)
+def cheap_model(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """Few boosting iterations on one thread: tiny data, and no OpenMP spin beside xdist."""
+    monkeypatch.setattr(io_, "HGB_ITER", 10)
+    with threadpool_limits(limits=1):
+        yield
 
 
 def synthetic(n_seeds: int, n_frames: int, rng: np.random.Generator) -> io_.Dataset:
@@ -178,7 +188,6 @@ def kept_study(root: Path, n_seeds: int, videos: bool = True) -> Path:
 def test_cli_measures_a_tiny_study(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(io_, "N_BOOT", 20)  # cheap: the statistics have their own tests
     monkeypatch.setattr(io_, "CROP_PX", 4)
-    monkeypatch.setattr(io_, "HGB_ITER", 5)
     study = kept_study(tmp_path, 3)
     assert main(["study", "ideal-observer", "--study", str(study)]) == 0
     doc = json.loads((study / "ideal_observer.json").read_text("utf-8"))
