@@ -20,7 +20,9 @@ from endocam.study.make import (
     extra_seed_values,
     make_study,
     practice_seed,
+    right_video,
     run_extra_seeds,
+    seed_log,
     trajectory_config,
     trajectory_seeds,
     video_ids,
@@ -391,6 +393,9 @@ def test_kept_seed_videos_hold_the_three_conditions_and_the_true_touches(
     assert sorted(p.name for p in (study / SEEDS_DIR).iterdir()) == [str(s)]
     for c in CONDITIONS:
         assert _frames(folder / f"{c}.mp4") == N_FRAMES
+        assert _frames(folder / right_video(c)) == N_FRAMES  # the ideal observer's stereo input
+        header = (folder / seed_log(c)).read_text().splitlines()[0].split(",")
+        assert {"t", "clearance", "ring_x", "cam_qw"} <= set(header)
     truth = json.loads((folder / TRUTH_JSON).read_text())
     hardest = max(STUDY_TRAJECTORIES, key=lambda t: t.difficulty)
     cfg = trajectory_config(load_config(config_file), hardest)

@@ -9,6 +9,7 @@ imported only when ``serve`` runs; MuJoCo only when ``make`` runs.
 from __future__ import annotations
 
 import argparse
+import functools
 import ipaddress
 import math
 import os
@@ -150,6 +151,84 @@ def _add_observe(sub: argparse._SubParsersAction) -> None:
         help="worker processes that count videos (1: in this process; default: %(default)s)",
     )
     p.set_defaults(handler=_observe)
+
+
+# --- study ideal-observer (a learned observer, issue 27) -------------------------------------
+def _ideal_observer(args: argparse.Namespace) -> int:
+    import json
+
+    from tqdm import tqdm
+
+    from endocam.runner.outputs import write_atomic
+    from endocam.study import ideal_observer_study as ios
+
+    inputs = tuple(dict.fromkeys(i.strip() for i in args.inputs.split(",")))
+    unknown = [i for i in inputs if i not in ios.INPUTS]
+    if unknown or not inputs:
+        raise UsageError(f"--inputs: unknown {unknown[0]!r}; choose from: {', '.join(ios.INPUTS)}")
+    try:
+        import sklearn  # noqa: F401
+    except ImportError:
+        raise UsageError(f"study ideal-observer needs scikit-learn: {_EXTRA_HINT}") from None
+    try:
+        study = ios.check_study(Path(args.study), inputs)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    out = Path(args.out) if args.out else study.folder / ios.IDEAL_OBSERVER_JSON
+    if not out.parent.is_dir():
+        raise UsageError(f"--out: no such folder: {out.parent}")
+    eyes = 2 if "stereo" in inputs else 1
+    per_video = ios.frames_per_video(study)
+    total = per_video * eyes * len(study.conditions) * len(study.seed_dirs)
+    rows, estimates = [], {}
+    with tqdm(total=total, desc="decode + crop", unit="frame", leave=False) as bar:
+        for c in study.conditions:
+            try:
+                frames = [
+                    ios.seed_frames(study, d, c, "stereo" in inputs, bar.update)
+                    for d in study.seed_dirs
+                ]
+            except ValueError as exc:
+                raise UsageError(str(exc)) from None
+            for name, data in ios.datasets(frames, inputs).items():
+                row, estimates[(c, name)] = ios.evaluate(c, name, data)
+                rows.append(row)
+    doc = ios.document(study, rows, estimates)
+    texts = {
+        out: json.dumps(doc, indent=2) + "\n",
+        out.with_suffix(".md"): ios.table_md(doc),
+        out.with_suffix(".csv"): ios.table_csv(rows),
+    }
+    for path, text in texts.items():
+        write_atomic(path, functools.partial(Path.write_text, data=text, encoding="utf-8"))
+    print(ios.table_md(doc), end="")
+    print(f"wrote {out} (and .md, .csv)")
+    return 0
+
+
+def _add_ideal_observer(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "ideal-observer",
+        help="measure how much information about contact each condition's video carries",
+        description="Per condition and input (mono: the left eye; stereo: both eyes), train a "
+        "classifier of 'in contact' against '>= 0.5 mm apart' on crops around the ring of the "
+        "kept extra seeds' videos (study make --seeds N --keep-seed-videos, N >= 3), tested on "
+        "held-out seeds (leave one seed out); write AUC and d' with seed-level bootstrap 95 % "
+        "CIs and touch counts to ideal_observer.json/.md/.csv.",
+    )
+    p.add_argument("--study", required=True, metavar="DIR", help="study folder with manifest.json")
+    p.add_argument(
+        "--out",
+        metavar="FILE",
+        help="JSON to write; .md and .csv beside it (default: DIR/ideal_observer.json)",
+    )
+    p.add_argument(
+        "--inputs",
+        default="mono,stereo",
+        metavar="I1,I2",
+        help="inputs, comma-separated: mono (left eye), stereo (both eyes) (default: %(default)s)",
+    )
+    p.set_defaults(handler=_ideal_observer)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -425,6 +504,7 @@ _SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_serve,
     _add_analyze,
     _add_observe,
+    _add_ideal_observer,
 ]
 
 

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from endocam.camera import Eye
 from endocam.config import ExperimentConfig
 from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode
 from endocam.runner.outputs import (
@@ -131,8 +132,9 @@ def render_episodes(
     paths: Sequence[Path],
     grid_path: Path | None = None,
     progress: Callable[[int], object] | None = None,
+    eye: Eye = "left",
 ) -> None:
-    """Render the left eye of episodes that share one ring trajectory, in one pass.
+    """Render one eye (default the left) of episodes that share one ring trajectory, in one pass.
 
     One scene serves all of them: per frame the ring is placed once, then each episode's camera
     (and camera arm, if its log has joints).
@@ -147,6 +149,8 @@ def render_episodes(
         Also write the episodes side by side, under a caption strip naming each policy.
     progress : callable, optional
         Called with 1 per rendered frame and episode.
+    eye : {"left", "right"}
+        The eye filmed (the study's videos: left; its ideal observer's stereo input: right too).
     """
     from endocam.sim.render import WireChaserScene, log_arm
 
@@ -169,7 +173,7 @@ def render_episodes(
                 for result, writer in zip(results, writers, strict=True):
                     scene.set_camera_pose(result.log.T_world_cam[i])
                     scene.set_arm_from_log(result.log, i)
-                    frame = np.ascontiguousarray(scene.render("left"))
+                    frame = np.ascontiguousarray(scene.render(eye))
                     writer.send(frame)
                     frames.append(frame)
                     if progress is not None:

@@ -47,7 +47,9 @@ Written (atomically: a temporary folder renamed at the end)::
                            trajectory and over ``extra_seeds`` more seeds
     logs/<id>/             scene.json, episode.csv, metrics.json, tracking.png, report.html
     logs/practice/         the same for the practice video
-    seeds/<seed>/          with ``keep_seed_videos``: the extra seeds' k videos and truth.json
+    seeds/<seed>/          with ``keep_seed_videos``: the extra seeds' k videos, truth.json, and for
+                           the ideal observer each condition's right eye (<c>.right.mp4) and
+                           per-step log (<c>.episode.csv, episode.csv's columns)
 """
 
 from __future__ import annotations
@@ -116,6 +118,7 @@ from endocam.task.study_paths import study_trajectory_seeds as trajectory_seeds
 from endocam.task.trajectory import TrajectoryKind
 
 if TYPE_CHECKING:  # the simulator (MuJoCo) is imported only when a study is made
+    from endocam.camera import Eye
     from endocam.runner.episode import EpisodeResult
 
 DEFAULT_SEED = DEFAULT_STUDY_SEED
@@ -139,6 +142,16 @@ def trajectory_config(config: ExperimentConfig, trajectory: StudyTrajectory) -> 
     from endocam.runner.experiments import study_path_config
 
     return study_path_config(config, trajectory)
+
+
+def right_video(condition: str) -> str:
+    """File name of a kept seed's right-eye video of ``condition`` (``seeds/<seed>/``)."""
+    return f"{condition}.right.mp4"
+
+
+def seed_log(condition: str) -> str:
+    """File name of a kept seed's per-step log (``episode.csv`` columns) of ``condition``."""
+    return f"{condition}.episode.csv"
 
 
 def video_ids(seed: int, n: int) -> tuple[str, ...]:
@@ -204,8 +217,9 @@ def render_conditions(
     results: Sequence[EpisodeResult],
     paths: Sequence[Path],
     progress: Callable[[int], object] | None = None,
+    eye: Eye = "left",
 ) -> None:
-    """Render the left eye of episodes that share one ring trajectory, in one pass.
+    """Render one eye (default the left) of episodes that share one ring trajectory, in one pass.
 
     One scene serves all of them: per frame the ring is placed once, then each episode's camera.
 
@@ -217,10 +231,12 @@ def render_conditions(
         One MP4 per episode.
     progress : callable, optional
         Called with 1 per rendered frame (all episodes).
+    eye : {"left", "right"}
+        The eye filmed.
     """
     from endocam.runner.experiments import render_episodes
 
-    render_episodes(results, paths, None, progress)
+    render_episodes(results, paths, None, progress, eye)
 
 
 def make_study(
@@ -476,6 +492,7 @@ def _extra_seed_rows(
     """One extra seed's rows (see :func:`run_extra_seeds`); None: its path is illegible."""
     from endocam.runner.episode import EpisodeSpec, run_episode
     from endocam.runner.experiments import ground_truth
+    from endocam.runner.outputs import write_episode_csv
     from endocam.sim.render import WireChaserScene
     from endocam.task.trajectory import IllegiblePathError
 
@@ -501,7 +518,12 @@ def _extra_seed_rows(
     try:
         render_conditions(results, [folder / f"{c}.mp4" for c in extra.conditions])
         rows = seed_rows(folder, s, events, keys, extra.conditions, gaps=gaps)
-        if keep_videos:
+        if keep_videos:  # the ideal observer's material: the right eye and the per-step logs
+            render_conditions(
+                results, [folder / right_video(c) for c in extra.conditions], None, "right"
+            )
+            for c, r in zip(extra.conditions, results, strict=True):
+                write_episode_csv(r, folder / seed_log(c))
             write_truth(folder, s, cfg.episode.video_fps, events, hidden, gaps=gaps)
     except BaseException:
         shutil.rmtree(folder, ignore_errors=True)
