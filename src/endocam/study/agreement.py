@@ -1,4 +1,4 @@
-"""Agreement among assessors: ICC, Krippendorff's α, and the spread of the counting error.
+r"""Agreement among assessors: ICC, Krippendorff's α, and the spread of the counting error.
 
 The paper's second claim is about assessors: with the orientation camera the SD of the
 assessment error *across assessors* is 31 % (32 %) lower than with the centring (fixed) camera.
@@ -8,17 +8,18 @@ This module measures agreement two ways.
 reported; only assessors who passed the attention question and answered every video):
 
 - **ICC(2,1)** (Shrout & Fleiss 1979; McGraw & Wong's "ICC(A,1)"): two-way random effects,
-  absolute agreement, single rater — ``pingouin.intraclass_corr``'s ``ICC(A,1)`` (``ICC2`` before pingouin 0.7). Two-way random
-  because the videos *and* the assessors are samples (the study generalises to other assessors
-  recruited the same way); absolute agreement because an assessor who counts every video two
-  touches high disagrees with the truth and with the others, which consistency (ICC3) would
-  forgive; single rater because a study's assessment is one assessor's count, not a panel's mean.
+  absolute agreement, single rater — ``pingouin.intraclass_corr``'s ``ICC(A,1)`` (``ICC2``
+  before pingouin 0.7). Two-way random because the videos *and* the assessors are samples
+  (the study generalises to other assessors recruited the same way); absolute agreement
+  because an assessor who counts every video two touches high disagrees with the truth and with
+  the others, which consistency (ICC3) would forgive; single rater because a study's
+  assessment is one assessor's count, not a panel's mean.
 
-  .. math:: \\mathrm{ICC}(2,1) = \\frac{MS_R - MS_E}{MS_R + (k-1) MS_E + k (MS_C - MS_E)/n}
+  .. math:: \mathrm{ICC}(2,1) = \frac{MS_R - MS_E}{MS_R + (k-1) MS_E + k (MS_C - MS_E)/n}
 
   with n videos (rows), k assessors (columns) and the two-way ANOVA mean squares.
 - **Krippendorff's α, interval level** (the ``krippendorff`` package):
-  :math:`\\alpha = 1 - D_o / D_e`, the observed over the expected squared difference between
+  :math:`\alpha = 1 - D_o / D_e`, the observed over the expected squared difference between
   two counts of the same / any video. Interval, not ratio: counts do have a true zero, but the
   ratio metric weighs a difference relative to the counts' size (1 vs 2 touches as far apart as
   10 vs 20), while a miscount of one touch is one error whatever the video's total; interval
@@ -38,7 +39,7 @@ and for the last condition against each other the SD ratio ``SD_last / SD_ref`` 
 assessors), its bootstrap interval (assessors resampled as pairs), and the **Pitman–Morgan test**
 of equal variances of paired data (Pitman 1939, Morgan 1939): with ``S = X + Y`` and
 ``D = X − Y``, ``var X = var Y`` iff ``corr(S, D) = 0``, tested by
-:math:`t = r \\sqrt{n-2} / \\sqrt{1 - r^2}` on n − 2 degrees of freedom (two-sided). The paper's
+:math:`t = r \sqrt{n-2} / \sqrt{1 - r^2}` on n − 2 degrees of freedom (two-sided). The paper's
 "31 % lower" is a ratio of 0.69; ``paper_ratio_in_ci`` says whether the interval holds it.
 """
 
@@ -153,12 +154,12 @@ def icc2_1_batch(x: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def alpha_interval_batch(x: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Krippendorff's α, interval metric, of complete data ``x`` (..., n units, m coders).
+    r"""Krippendorff's α, interval metric, of complete data ``x`` (..., n units, m coders).
 
-    .. math:: D_o = \\frac{1}{N} \\sum_u \\frac{1}{m-1} \\sum_{i \\ne j} (x_{ui} - x_{uj})^2,
-              \\quad D_e = \\frac{1}{N (N-1)} \\sum_{a \\ne b} (x_a - x_b)^2, \\quad N = n m
+    .. math:: D_o = \frac{1}{N} \sum_u \frac{1}{m-1} \sum_{i \ne j} (x_{ui} - x_{uj})^2,
+              \quad D_e = \frac{1}{N (N-1)} \sum_{a \ne b} (x_a - x_b)^2, \quad N = n m
 
-    using :math:`\\sum_{i \\ne j} (x_i - x_j)^2 = 2 m \\sum_i (x_i - \\bar x)^2` over m values.
+    using :math:`\sum_{i \ne j} (x_i - x_j)^2 = 2 m \sum_i (x_i - \bar x)^2` over m values.
     Returns (...) floats; NaN where D_e = 0.
     """
     n, m = x.shape[-2], x.shape[-1]
@@ -248,9 +249,7 @@ def sd_comparisons(
     idx = resample_indices(n, resamples, seed)
     boot_sd = {c: np.std(complete[c][idx], axis=-1, ddof=1) for c in conds}
     sds = {
-        c: Estimate(
-            value=float(np.std(complete[c], ddof=1)), ci95=percentile_ci(boot_sd[c])
-        )
+        c: Estimate(value=float(np.std(complete[c], ddof=1)), ci95=percentile_ci(boot_sd[c]))
         for c in conds
     }
     *refs, last = conds

@@ -1,15 +1,15 @@
-"""Effect sizes of the within-subject tests, with seeded bootstrap 95 % intervals.
+r"""Effect sizes of the within-subject tests, with seeded bootstrap 95 % intervals.
 
 - **Matched-pairs rank-biserial correlation** of a Wilcoxon signed-rank test (Kerby 2014,
   "The simple difference formula", Compr. Psychol. 3): with ``d = a − b`` per participant, zero
   differences dropped (as ``scipy.stats.wilcoxon``'s default), ``T+`` / ``T−`` the sums of the
   ranks of ``|d|`` over positive / negative ``d``,
 
-  .. math:: r = \\frac{T_+ - T_-}{T_+ + T_-} \\in [-1, 1];
+  .. math:: r = \frac{T_+ - T_-}{T_+ + T_-} \in [-1, 1];
 
   ``r > 0``: condition ``a``'s errors are the larger ones.
 - **Kendall's W** of a Friedman test (the coefficient of concordance, tie-corrected through the
-  Friedman statistic): :math:`W = \\chi^2_F / (n (k - 1)) \\in [0, 1]`, n participants,
+  Friedman statistic): :math:`W = \chi^2_F / (n (k - 1)) \in [0, 1]`, n participants,
   k conditions; 0 = the conditions' ranks differ by chance alone, 1 = every participant ranks
   the conditions the same way.
 
@@ -77,7 +77,7 @@ def rank_biserial(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.
 
 
 def kendall_w(errors: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Kendall's W of ``errors`` (participants × conditions), tie-corrected as Friedman's χ².
+    r"""Kendall's W of ``errors`` (participants × conditions), tie-corrected as Friedman's χ².
 
     Parameters
     ----------
@@ -87,9 +87,9 @@ def kendall_w(errors: NDArray[np.float64]) -> NDArray[np.float64]:
     Returns
     -------
     (...) float array
-        :math:`W = \\chi^2_F / (n (k-1))`, with
-        :math:`\\chi^2_F = [12/(n k (k+1)) \\sum_j R_j^2 - 3 n (k+1)] / c`,
-        :math:`c = 1 - \\sum (t^3 - t) / (n k (k^2 - 1))` over the tie groups t of each row;
+        :math:`W = \chi^2_F / (n (k-1))`, with
+        :math:`\chi^2_F = [12/(n k (k+1)) \sum_j R_j^2 - 3 n (k+1)] / c`,
+        :math:`c = 1 - \sum (t^3 - t) / (n k (k^2 - 1))` over the tie groups t of each row;
         NaN where every row is one tie (c = 0).
     """
     x = np.asarray(errors, dtype=np.float64)

@@ -1,5 +1,6 @@
-"""Outputs of the study analysis: ``analysis.json``, a Fig. 7-style box plot, the assessors' SD
-plot and ``report.html``.
+"""Outputs of the study analysis: ``analysis.json``, two plots and ``report.html``.
+
+The plots: a Fig. 7-style box plot of the errors and the SD across assessors per condition.
 
 All files are first written to a temporary folder inside the output folder and then moved into
 place with ``os.replace``, so a reader never sees a half-written file.
@@ -143,7 +144,9 @@ def plot_assessor_sd(result: AnalysisResult, path: Path) -> None:
         ax.bar(i, est.value, width=0.5, color="0.75", edgecolor="0.3")
         if est.ci95 is not None:
             lo, hi = est.ci95
-            ax.errorbar(i, est.value, yerr=[[est.value - lo], [hi - est.value]], color="k", capsize=4)
+            ax.errorbar(
+                i, est.value, yerr=[[est.value - lo], [hi - est.value]], color="k", capsize=4
+            )
     _condition_axis(ax, names)
     ax.set_ylabel("SD of the error across assessors (touches)")
     n = result.assessors.n_complete if result.assessors else 0
