@@ -44,6 +44,9 @@ def test_icc_2_1_of_a_table_worked_by_hand() -> None:
     result = agreement(COUNTS, RESAMPLES, seed=0)  # pingouin's ICC(A,1)
     assert result.icc2_1.value == pytest.approx(by_hand, rel=REL)
     assert result.n_videos == 4 and result.icc_f_ci95 is not None
+    assert result.icc2_1.ci95 is None  # four videos: too few to bootstrap
+    lo, hi = agreement(np.vstack([COUNTS, COUNTS + 1]), RESAMPLES, seed=0).icc2_1.ci95 or (2, 2)
+    assert -1.0 <= lo <= hi <= 1.0
 
 
 def test_krippendorff_alpha_interval_of_a_table_worked_by_hand() -> None:

@@ -25,11 +25,13 @@ reported; only assessors who passed the attention question and answered every vi
   10 vs 20), while a miscount of one touch is one error whatever the video's total; interval
   treats every touch alike, as the assessment error does.
 
-Both are given over all the study's videos and per condition (k's videos only: with three
-videos per condition these are crude). Their 95 % intervals are percentile bootstraps that
-resample **videos** with replacement (assessors fixed): the agreement coefficients are ratios of
-between-video to within-video variance, and the videos are the sample whose between-video spread
-they depend on; resampling assessors too would mix in the other source (the brief's choice). The
+Both are given over all the study's videos and per condition (that condition's videos only:
+with three videos per condition these are crude). Their 95 % intervals are percentile
+bootstraps that resample **videos** with replacement (assessors fixed), given only from
+``MIN_BOOTSTRAP_VIDEOS`` videos on (three videos have 10 distinct resamples, one in nine of them
+a single video repeated: no distribution; pingouin's F-based interval is given always). Videos,
+because the agreement coefficients are ratios of between-video to within-video variance, and
+the videos are the sample whose between-video spread they depend on; resampling assessors too would mix in the other source (the brief's choice). The
 resamples are computed in numpy in one vectorised pass (:func:`icc2_1_batch`,
 :func:`alpha_interval_batch`: the same formulas, checked equal to the libraries in the tests).
 
@@ -41,6 +43,9 @@ of equal variances of paired data (Pitman 1939, Morgan 1939): with ``S = X + Y``
 ``D = X − Y``, ``var X = var Y`` iff ``corr(S, D) = 0``, tested by
 :math:`t = r \sqrt{n-2} / \sqrt{1 - r^2}` on n − 2 degrees of freedom (two-sided). The paper's
 "31 % lower" is a ratio of 0.69; ``paper_ratio_in_ci`` says whether the interval holds it.
+The Pitman–Morgan test assumes bivariate normal errors; absolute counting errors are discrete
+and skewed, so the two can disagree: the bootstrap interval, which assumes neither, is the
+statement about the ratio (is 1 in it? is 0.69?), the test its normal-theory companion.
 """
 
 from __future__ import annotations
@@ -60,6 +65,7 @@ from endocam.study.responses import ResponseRow
 PAPER_SD_RATIO = 0.69  # the paper's SD(orientation) / SD(centring): "31 % lower"
 MIN_ASSESSORS = 2  # agreement needs at least two assessors
 MIN_VIDEOS = 2  # ... and two videos
+MIN_BOOTSTRAP_VIDEOS = 5  # fewer videos give no bootstrap interval (3 videos: 10 distinct draws)
 
 
 class _Frozen(BaseModel):
@@ -180,7 +186,8 @@ def agreement(ratings: NDArray[np.float64], resamples: int, seed: int) -> Agreem
     ratings : (n_videos, n_assessors) float array
         Reported touches, complete.
     resamples, seed : int
-        Bootstrap resamples of the videos and the generator's seed.
+        Bootstrap resamples of the videos and the generator's seed (no bootstrap interval
+        below ``MIN_BOOTSTRAP_VIDEOS`` videos).
     """
     import krippendorff
     import pandas as pd
@@ -201,14 +208,16 @@ def agreement(ratings: NDArray[np.float64], resamples: int, seed: int) -> Agreem
     row = table.loc["ICC(A,1)" if "ICC(A,1)" in table.index else "ICC2"]  # pingouin ≥ 0.7 / older
     lo, hi = (float(v) for v in row["CI95"])
     alpha = krippendorff.alpha(reliability_data=ratings.T, level_of_measurement="interval")
-    boot = ratings[resample_indices(n, resamples, seed)]  # (B, n, k): videos resampled
+    icc_ci = alpha_ci = None
+    if n >= MIN_BOOTSTRAP_VIDEOS:
+        boot = ratings[resample_indices(n, resamples, seed)]  # (B, n, k): videos resampled
+        icc_ci = percentile_ci(icc2_1_batch(boot))
+        alpha_ci = percentile_ci(alpha_interval_batch(boot))
     return Agreement(
         n_videos=n,
-        icc2_1=Estimate(value=_finite(row["ICC"]), ci95=percentile_ci(icc2_1_batch(boot))),
+        icc2_1=Estimate(value=_finite(row["ICC"]), ci95=icc_ci),
         icc_f_ci95=(lo, hi) if np.isfinite(lo) and np.isfinite(hi) else None,
-        alpha_interval=Estimate(
-            value=_finite(alpha), ci95=percentile_ci(alpha_interval_batch(boot))
-        ),
+        alpha_interval=Estimate(value=_finite(alpha), ci95=alpha_ci),
     )
 
 
