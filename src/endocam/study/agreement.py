@@ -31,9 +31,11 @@ bootstraps that resample **videos** with replacement (assessors fixed), given on
 ``MIN_BOOTSTRAP_VIDEOS`` videos on (three videos have 10 distinct resamples, one in nine of them
 a single video repeated: no distribution; pingouin's F-based interval is given always). Videos,
 because the agreement coefficients are ratios of between-video to within-video variance, and
-the videos are the sample whose between-video spread they depend on; resampling assessors too would mix in the other source (the brief's choice). The
-resamples are computed in numpy in one vectorised pass (:func:`icc2_1_batch`,
-:func:`alpha_interval_batch`: the same formulas, checked equal to the libraries in the tests).
+the videos are the sample whose between-video spread they depend on (with 3k videos and tens of
+assessors, the videos are also the scarcer sample; resampling assessors as well would add the
+other source of variance, a two-way bootstrap left for later). The resamples are computed in
+numpy in one vectorised pass (:func:`icc2_1_batch`, :func:`alpha_interval_batch`: the same
+formulas, checked equal to the libraries in the tests).
 
 **Spread of the counting error across assessors** (per condition, on the analysis's complete
 cases, errors in touches): the sample SD with a bootstrap interval that resamples **assessors**,
