@@ -40,10 +40,18 @@ def write_tiny_mp4(path: Path, shade: int) -> None:
     writer.close()
 
 
-def manifest_dict() -> dict:
-    """Manifest of the tiny study: ids v01..v09, condition-major."""
+def k_conditions(k: int) -> tuple[str, ...]:
+    """``k`` condition names: the tiny study's three, then ``extra4``, ``extra5``, ..."""
+    return (*CONDITIONS, *(f"extra{i}" for i in range(4, k + 1)))[:k]
+
+
+def manifest_dict(conditions: tuple[str, ...] = CONDITIONS) -> dict:
+    """Manifest of the tiny study: ids v01..v09 (v01..v{3k} for k conditions), condition-major.
+
+    A condition beyond the third reuses the true touches of the third.
+    """
     videos = []
-    for c_index, condition in enumerate(CONDITIONS):
+    for c_index, condition in enumerate(conditions):
         for t_index, (name, difficulty, touches) in enumerate(TRAJECTORIES):
             number = 3 * c_index + t_index + 1
             videos.append(
@@ -52,16 +60,16 @@ def manifest_dict() -> dict:
                     "condition": condition,
                     "trajectory": name,
                     "difficulty": difficulty,
-                    "true_touches": touches[c_index],
+                    "true_touches": touches[min(c_index, len(touches) - 1)],
                     "file": f"videos/v{number:02d}.mp4",
                 }
             )
     return {
         "endocam_version": "0.1.0",
         "created": "2024-05-01T12:00:00+00:00",
-        "conditions": list(CONDITIONS),
+        "conditions": list(conditions),
         "videos": videos,
-        "orders": [list(order) for order in presentation_orders(CONDITIONS)],
+        "orders": [list(order) for order in presentation_orders(conditions)],
         "attention": {"question": "To show you are paying attention, enter four.", "answer": 4},
     }
 
@@ -75,21 +83,29 @@ def make_study(
     *,
     practice: bool = False,
     name: str = "study",
+    conditions: tuple[str, ...] = CONDITIONS,
+    stub_videos: bool = False,
     **fields: Any,
 ) -> Path:
     """Create a study folder ``root/name``; returns its path.
 
-    ``practice`` adds ``videos/practice.mp4`` as the practice video; ``fields`` are further
-    manifest fields (e.g. ``shuffle_within_set=False``, ``demographics=True``).
+    ``practice`` adds ``videos/practice.mp4`` as the practice video; ``conditions`` names the
+    study's conditions (orders: their Williams design); ``stub_videos`` writes a few bytes per
+    video file instead of an mp4 (the app only checks that the files exist; cheap for tests
+    that never play them); ``fields`` are further manifest fields (e.g.
+    ``shuffle_within_set=False``, ``demographics=True``).
     """
     study = root / name
     (study / "videos").mkdir(parents=True)
-    manifest = manifest_dict() | fields
+    manifest = manifest_dict(conditions) | fields
     if practice:
         manifest["practice"] = {"file": "videos/practice.mp4", "true_touches": PRACTICE_TOUCHES}
         write_tiny_mp4(study / "videos" / "practice.mp4", 200)
     (study / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
     if with_videos:
         for i, video in enumerate(manifest["videos"]):
-            write_tiny_mp4(study / video["file"], 20 * i)
+            if stub_videos:
+                (study / video["file"]).write_bytes(b"not a video")
+            else:
+                write_tiny_mp4(study / video["file"], 20 * i)
     return study

@@ -187,7 +187,7 @@ def test_outputs_are_written_with_the_exact_shape(tmp_path: Path) -> None:
     written = write_outputs(result, out)
     assert sorted(p.name for p in out.iterdir()) == sorted([*written, OUTPUT_MARKER])  # no temp
     doc = json.loads((out / "analysis.json").read_text())
-    assert set(doc) == {"conditions", "reductions", "tests", "excluded"}
+    assert set(doc) == {"conditions", "reductions", "tests", "excluded", "assessors"}
     assert set(doc["conditions"]) == {"fixed", "centering", "orientation"}
     assert set(doc["conditions"]["fixed"]) == {"n", "mean_error", "sd_error"}
     assert all(set(e) == {"participant_id", "reason"} for e in doc["excluded"])

@@ -38,11 +38,15 @@ def files(tmp_path: Path) -> tuple[Path, Path]:
     return manifest, responses
 
 
-def test_analyze_from_csv_and_db_agree(files: tuple[Path, Path], tmp_path: Path) -> None:
+def test_analyze_from_csv_and_db_agree(
+    files: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     manifest, responses = files
     out_csv, out_db = tmp_path / "a", tmp_path / "b"
     args = ["study", "analyze", "--manifest", str(manifest), "--outliers", "none"]
     assert main([*args, "--responses", str(responses), "--out", str(out_csv)]) == 0
+    printed = capsys.readouterr().out  # the assessor statistics, one line each
+    assert "Kendall's W" in printed and "ICC(2,1)" in printed and "Pitman–Morgan" in printed
     db = StudyDB(tmp_path / "s.db")
     for k in range(9):
         participant, _ = db.create_participant(f"p{k}", 6)

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 from endocam.cli.common import UsageError, check_workers, integer, out_dir
 from endocam.runner.pool import DEFAULT_WORKERS
-from endocam.study.analysis import AnalysisConfig, OutlierRule
+from endocam.study.analysis import AnalysisConfig, AnalysisResult, OutlierRule
 from endocam.study.db import ABANDON_AFTER_S
 
 if TYPE_CHECKING:
@@ -311,6 +311,39 @@ def _serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _ci(value: float | None, ci95: tuple[float, float] | None) -> str:
+    if value is None:
+        return "–"
+    return f"{value:.2f}" + ("" if ci95 is None else f" ({ci95[0]:.2f} to {ci95[1]:.2f})")
+
+
+def _assessor_lines(result: AnalysisResult) -> list[str]:
+    """The effect size of the Friedman test and the assessor statistics, one line each."""
+    lines = []
+    if result.tests.kendall_w is not None:
+        w = _ci(result.tests.kendall_w, result.tests.kendall_w_ci95)
+        lines.append(f"Friedman: Kendall's W {w}")
+    a = result.assessors
+    if a is None:
+        return lines
+    for name, g in a.agreement.items():
+        icc = _ci(g.icc2_1.value, g.icc2_1.ci95)
+        if g.icc2_1.ci95 is None and g.icc_f_ci95 is not None:  # too few videos to bootstrap
+            icc = _ci(g.icc2_1.value, g.icc_f_ci95) + " F-interval"
+        alpha = _ci(g.alpha_interval.value, g.alpha_interval.ci95)
+        lines.append(
+            f"agreement, {name} ({g.n_videos} videos, {a.n_assessors} assessors): "
+            f"ICC(2,1) {icc}, alpha {alpha}"
+        )
+    for name, c in a.sd_comparisons.items():
+        p = "–" if c.p_value is None else f"{c.p_value:.3g}"
+        lines.append(
+            f"SD ratio {name.replace('_vs_', ' / ')}: {_ci(c.sd_ratio.value, c.sd_ratio.ci95)} "
+            f"(Pitman–Morgan p {p}; paper {c.paper_ratio:g})"
+        )
+    return lines
+
+
 def _analyze(args: argparse.Namespace) -> int:
     from endocam.study.analysis import analyze
     from endocam.study.db import StudyDB
@@ -351,6 +384,8 @@ def _analyze(args: argparse.Namespace) -> int:
         mean = "–" if s.mean_error is None else f"{s.mean_error:.2f}"
         sd = "–" if s.sd_error is None else f"{s.sd_error:.2f}"
         print(f"{cond:12s} n={s.n:3d}  mean error {mean} touches  SD {sd}")
+    for line in _assessor_lines(result):
+        print(line)
     print(f"excluded: {len(result.excluded)}; wrote {', '.join(str(p) for p in written.values())}")
     return 0
 

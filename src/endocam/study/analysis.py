@@ -21,6 +21,10 @@ Pipeline (each step is a pure function; :func:`analyze` chains them):
    against each other one, nearest first: with the default conditions ref = centering and
    ref = fixed (the paper's 25 %/21 % and 31 %/32 %).
 
+5. **Assessors** (:mod:`endocam.study.agreement`): ICC(2,1) and Krippendorff's α of the counts,
+   the SD of the error across assessors per condition, and the SD ratio of the last condition
+   against each other one with a Pitman–Morgan test.
+
 Any number k ≥ 2 of conditions is analysed, in the manifest's order.
 """
 
@@ -37,6 +41,15 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 from scipy import stats
 
+from endocam.study.agreement import AssessorStatistics, assessor_statistics
+from endocam.study.effects import (
+    BOOTSTRAP_RESAMPLES,
+    BOOTSTRAP_SEED,
+    kendall_w,
+    percentile_ci,
+    rank_biserial,
+    resample_indices,
+)
 from endocam.study.manifest import Manifest
 from endocam.study.responses import ResponseRow
 
@@ -66,6 +79,9 @@ class AnalysisConfig(BaseModel):
         Fence multiplier of the IQR for the Tukey rule (> 0).
     z_threshold : float
         ``|z|`` threshold for the z-score rule (> 0).
+    bootstrap_resamples, bootstrap_seed : int
+        Resamples (≥ 100) and ``numpy.random.default_rng`` seed of every bootstrap interval
+        (effect sizes, agreement, SDs).
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
@@ -73,6 +89,8 @@ class AnalysisConfig(BaseModel):
     outliers: OutlierRule = OutlierRule.TUKEY
     tukey_k: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 1.5
     z_threshold: Annotated[float, Field(gt=0, allow_inf_nan=False)] = ZSCORE_THRESHOLD
+    bootstrap_resamples: Annotated[int, Field(ge=100)] = BOOTSTRAP_RESAMPLES
+    bootstrap_seed: Annotated[int, Field(ge=0)] = BOOTSTRAP_SEED
 
 
 class _Frozen(BaseModel):
@@ -102,9 +120,16 @@ class StatResult(_Frozen):
 
 
 class PairwiseResult(StatResult):
-    """A pairwise test with its Holm-adjusted p-value."""
+    """A pairwise test with its Holm-adjusted p-value and its effect size.
+
+    ``rank_biserial``: the matched-pairs rank-biserial correlation of ``a`` against ``b``
+    (> 0: ``a``'s errors are larger), with a participant-bootstrap 95 % interval
+    (:mod:`endocam.study.effects`).
+    """
 
     p_holm: float | None
+    rank_biserial: float | None = None
+    rank_biserial_ci95: tuple[float, float] | None = None
 
 
 class WithinSubjectTests(_Frozen):
@@ -113,6 +138,8 @@ class WithinSubjectTests(_Frozen):
     n_complete: int
     friedman: StatResult | None
     wilcoxon: dict[str, PairwiseResult]
+    kendall_w: float | None = None
+    kendall_w_ci95: tuple[float, float] | None = None
     correction: str = "holm"
     note: str | None = None
 
@@ -131,6 +158,7 @@ class AnalysisResult(_Frozen):
     reductions: dict[str, Reduction]
     tests: WithinSubjectTests
     excluded: list[Exclusion]
+    assessors: AssessorStatistics | None = None
     kept_errors: dict[str, list[float]] = Field(default_factory=dict, exclude=True)
     config: AnalysisConfig = Field(default_factory=AnalysisConfig, exclude=True)
     video_ids: dict[str, list[str]] = Field(default_factory=dict, exclude=True)
@@ -250,7 +278,7 @@ def outlier_mask(
 
 
 def holm(p_values: Sequence[float]) -> list[float]:
-    r"""Holm's step-down adjusted p-values (scipy has no Holm; statsmodels is not a dependency).
+    r"""Holm's step-down adjusted p-values (``statsmodels.stats.multitest.multipletests``).
 
     .. math:: \tilde p_{(i)} = \max_{j \le i} \min\bigl(1, (m - j + 1)\, p_{(j)}\bigr)
 
@@ -266,14 +294,18 @@ def holm(p_values: Sequence[float]) -> list[float]:
     p = np.asarray(p_values, dtype=np.float64)
     if p.ndim != 1 or np.any((p < 0) | (p > 1)) or np.any(np.isnan(p)):
         raise ValueError(f"p_values must be a 1-D sequence in [0, 1], got {list(p_values)}")
-    order = np.argsort(p, kind="stable")
-    scaled = np.minimum(1.0, (p.size - np.arange(p.size)) * p[order])
-    adjusted = np.empty_like(p)
-    adjusted[order] = np.maximum.accumulate(scaled)
-    return [float(x) for x in adjusted]
+    if p.size == 0:
+        return []
+    from statsmodels.stats.multitest import multipletests  # the study extra; imported on use
+
+    return [float(x) for x in multipletests(p, method="holm")[1]]
 
 
-def within_subject_tests(complete: Mapping[str, NDArray[np.float64]]) -> WithinSubjectTests:
+def within_subject_tests(
+    complete: Mapping[str, NDArray[np.float64]],
+    resamples: int = BOOTSTRAP_RESAMPLES,
+    seed: int = BOOTSTRAP_SEED,
+) -> WithinSubjectTests:
     """Friedman test (k ≥ 3 conditions), then pairwise Wilcoxon signed-rank tests with Holm.
 
     Parameters
@@ -281,18 +313,24 @@ def within_subject_tests(complete: Mapping[str, NDArray[np.float64]]) -> WithinS
     complete : mapping condition → (n,) float array
         Errors of the same n participants (complete cases) in each condition, same order; the
         conditions in the study's order.
+    resamples, seed : int
+        The participant bootstrap of the effect sizes' intervals (:mod:`endocam.study.effects`).
 
     Returns
     -------
     WithinSubjectTests
         ``friedman`` is None and ``wilcoxon`` empty when n < ``MIN_TEST_N``; ``friedman`` is
-        None with two conditions (the one Wilcoxon test is the test).
+        None with two conditions (the one Wilcoxon test is the test). Kendall's W goes with the
+        Friedman test, a rank-biserial correlation with each Wilcoxon test, each with its
+        bootstrap 95 % interval.
     """
     conds = list(complete)
     n = len(complete[conds[0]]) if conds else 0
     if n < MIN_TEST_N:
         note = f"tests need at least {MIN_TEST_N} complete cases, have {n}"
         return WithinSubjectTests(n_complete=n, friedman=None, wilcoxon={}, note=note)
+    table = np.column_stack([complete[c] for c in conds])  # (n, k)
+    boot = table[resample_indices(n, resamples, seed)]  # (B, n, k): participants resampled
     with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
         warnings.simplefilter("ignore", RuntimeWarning)  # scipy warns when all values tie
         fr = (
@@ -300,22 +338,27 @@ def within_subject_tests(complete: Mapping[str, NDArray[np.float64]]) -> WithinS
             if len(conds) >= FRIEDMAN_MIN_CONDITIONS
             else None
         )
-        pairs = list(combinations(conds, 2))
-        raw = [stats.wilcoxon(complete[a], complete[b]) for a, b in pairs]
+        pairs = list(combinations(range(len(conds)), 2))
+        raw = [stats.wilcoxon(table[:, i], table[:, j]) for i, j in pairs]
     p_raw = [float(r.pvalue) if np.isfinite(r.pvalue) else 1.0 for r in raw]
     p_adj = holm(p_raw)
-    wilcoxon = {
-        f"{a}_vs_{b}": PairwiseResult(
+    wilcoxon = {}
+    for m, ((i, j), r) in enumerate(zip(pairs, raw, strict=True)):
+        effect = float(rank_biserial(table[:, i], table[:, j]))
+        wilcoxon[f"{conds[i]}_vs_{conds[j]}"] = PairwiseResult(
             statistic=_finite_or_none(r.statistic),
             p_value=_finite_or_none(r.pvalue),
-            p_holm=p_adj[i] if np.isfinite(r.pvalue) else None,
+            p_holm=p_adj[m] if np.isfinite(r.pvalue) else None,
+            rank_biserial=_finite_or_none(effect),
+            rank_biserial_ci95=percentile_ci(rank_biserial(boot[..., i], boot[..., j])),
         )
-        for i, ((a, b), r) in enumerate(zip(pairs, raw, strict=True))
-    }
     if fr is None:
         why: str | None = f"two conditions: no Friedman test (it needs {FRIEDMAN_MIN_CONDITIONS})"
+        w, w_ci = None, None
     else:
         why = None if np.isfinite(fr.pvalue) else "all errors tie: the Friedman test is undefined"
+        w = _finite_or_none(float(fr.statistic) / (n * (len(conds) - 1)))
+        w_ci = percentile_ci(kendall_w(boot))
     return WithinSubjectTests(
         n_complete=n,
         friedman=None
@@ -324,6 +367,8 @@ def within_subject_tests(complete: Mapping[str, NDArray[np.float64]]) -> WithinS
             statistic=_finite_or_none(fr.statistic), p_value=_finite_or_none(fr.pvalue)
         ),
         wilcoxon=wilcoxon,
+        kendall_w=w,
+        kendall_w_ci95=w_ci,
         note=why,
     )
 
@@ -401,7 +446,10 @@ def analyze(
     return AnalysisResult(
         conditions=summaries,
         reductions=reductions,
-        tests=within_subject_tests(complete),
+        tests=within_subject_tests(complete, config.bootstrap_resamples, config.bootstrap_seed),
+        assessors=assessor_statistics(
+            rows, manifest, complete, config.bootstrap_resamples, config.bootstrap_seed
+        ),
         excluded=excluded,
         kept_errors={c: [float(x) for x in v] for c, v in kept_errors.items()},
         config=config,

@@ -65,7 +65,8 @@ class ResponseExport(_Row):
     )
     video_id: str = Field(description="Video id from manifest.json.")
     condition: str = Field(
-        description="Camera condition of the video: fixed, centering or orientation."
+        description="Camera condition of the video: one of the manifest's `conditions` "
+        "(k of them, e.g. fixed, centering, endocam)."
     )
     trajectory: str = Field(description="Name of the ring trajectory shown.")
     difficulty: int = Field(description="Trajectory difficulty, 1..3 (3 = most difficult).")
