@@ -11,7 +11,8 @@
   const mustWatch = video.dataset.mustWatch === "true";
   const PROGRESS_EVERY_S = 5; // s of playing between "progress" reports
   let watched = 0; // s of media time played (seeks excluded)
-  let last = null; // media time at the previous timeupdate
+  let last = video.currentTime; // media time at the previous timeupdate (the start until played:
+  // a first timeupdate that comes before the play event still counts from 0)
   let reported = 0;
 
   function round(x) { return Math.round(x * 1000) / 1000; }
