@@ -8,7 +8,7 @@ SYSSTAMP := $(VENV)/.system-deps
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 
-.PHONY: demo test lint typecheck unit kernels bench system-deps clean
+.PHONY: demo test lint typecheck unit kernels kernels-free kernels-arms bench system-deps clean
 
 $(SYSSTAMP):
 	@./.ci/system-deps
@@ -38,12 +38,19 @@ unit: $(STAMP)
 
 # numba compiles each kernel in the first process that calls it: without this step both test
 # workers, and every process a test starts (pool workers, Ray, the CLI), compile the same kernels.
-# `endocam compile` fills the cache once (one core) while lint runs on the other.
+# `endocam compile` fills the cache once: the free camera's and the arms' halves side by side,
+# with lint, on the two cores.
 kernels: $(STAMP)
 	$(VENV)/bin/endocam compile
 
+kernels-free: $(STAMP)
+	@$(VENV)/bin/endocam compile --arm free
+
+kernels-arms: $(STAMP)
+	@$(VENV)/bin/endocam compile --arm psm,ecm
+
 test: $(STAMP)
-	@$(MAKE) --no-print-directory -j2 lint kernels
+	@$(MAKE) --no-print-directory -j3 lint kernels-free kernels-arms
 	@$(MAKE) --no-print-directory unit
 
 bench: $(STAMP)

@@ -25,6 +25,10 @@ def test_every_policy_and_every_carrier_is_compiled() -> None:
     for arm in ArmKind:  # a policy free to run on any carrier is compiled on each
         assert PrecompileJob(arm, "endocam") in jobs
     assert [job.arm for job in jobs if job.policy == "orientation-ecm"] == [ArmKind.ECM]
+    free = precompile_jobs([ArmKind.FREE])  # `endocam compile --arm free`
+    assert {job.arm for job in free} == {ArmKind.FREE} and len(free) == len(POLICIES) - 1
+    arms = precompile_jobs([ArmKind.PSM, ArmKind.ECM])
+    assert sorted(free + arms, key=jobs.index) == jobs  # the two halves make the whole
 
 
 def test_each_job_runs_one_episode_of_the_asked_duration(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -44,12 +48,14 @@ def test_each_job_runs_one_episode_of_the_asked_duration(monkeypatch: pytest.Mon
     assert precompile_module.DEFAULT_DURATION_S > 0.0
 
 
-@pytest.mark.parametrize("duration", ["0", "-1", "nan", "inf", "61", "two"])
-def test_a_bad_duration_is_one_line_exit_2(
-    duration: str, capsys: pytest.CaptureFixture[str]
-) -> None:
+@pytest.mark.parametrize(
+    "args",
+    [["--duration", d] for d in ("0", "-1", "nan", "inf", "61", "two")]
+    + [["--arm", a] for a in ("foo", "psm,arm", ",")],
+)
+def test_bad_input_is_one_line_exit_2(args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exc:
-        main(["compile", "--duration", duration])
+        main(["compile", *args])
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--duration" in err[0], err
+    assert len(err) == 1 and args[0] in err[0], err

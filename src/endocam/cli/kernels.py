@@ -12,6 +12,7 @@ import os
 import time
 
 from endocam.cli.common import UsageError
+from endocam.robot.actuator import ArmKind
 
 MAX_DURATION_S = 60.0  # s: longer episodes reach no kernel a 2 s one misses
 
@@ -26,6 +27,17 @@ def _duration(text: str) -> float:
     return value
 
 
+def _arms(text: str) -> str:
+    names = [a.strip() for a in text.split(",") if a.strip()]
+    choices = [a.value for a in ArmKind]
+    bad = [a for a in names if a not in choices]
+    if not names or bad:
+        raise argparse.ArgumentTypeError(
+            f"unknown carrier {(bad or [text])[0]!r}; choose from: {', '.join(choices)}"
+        )
+    return ",".join(dict.fromkeys(names))
+
+
 def _compile(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -33,13 +45,16 @@ def _compile(args: argparse.Namespace) -> int:
 
     if os.environ.get("NUMBA_DISABLE_JIT") == "1":
         raise UsageError("NUMBA_DISABLE_JIT=1: numba compiles nothing, there is nothing to cache")
+    arms = [ArmKind(a) for a in args.arm.split(",")] if args.arm else list(ArmKind)
     start = time.process_time()
-    jobs = precompile_jobs()
+    jobs = precompile_jobs(arms)
+    duration_s = args.duration or DEFAULT_DURATION_S
     with tqdm(total=len(jobs), desc="compile", unit="episode", leave=False) as bar:
-        n = precompile(args.duration or DEFAULT_DURATION_S, done=lambda job: bar.update(1))
+        n = precompile(duration_s, arms=arms, done=lambda job: bar.update(1))
     cpu = time.process_time() - start
     where = os.environ.get("NUMBA_CACHE_DIR", "numba's default (__pycache__)")
-    print(f"endocam compile: {n} episodes (every policy on every carrier), {cpu:.1f} s CPU")
+    carriers = ", ".join(a.value for a in arms)
+    print(f"endocam compile: {n} episodes (every policy on {carriers}), {cpu:.1f} s CPU")
     print(f"cache: {where}")
     return 0
 
@@ -60,5 +75,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="S",
         help="simulated seconds per episode (default: 2; at most 60)",
+    )
+    p.add_argument(
+        "--arm",
+        type=_arms,
+        default=None,
+        metavar="A[,B]",
+        help="only these carriers: free, psm, ecm, comma-separated (default: all three)",
     )
     p.set_defaults(handler=_compile)

@@ -15,7 +15,7 @@ before. The episodes' results are discarded.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from endocam.config import ExperimentConfig, config_from_mapping
@@ -44,11 +44,12 @@ class PrecompileJob:
     policy: str
 
 
-def precompile_jobs() -> list[PrecompileJob]:
-    """Every registered policy on every carrier it runs on (a policy that forces an arm: that)."""
+def precompile_jobs(arms: Sequence[ArmKind] = tuple(ArmKind)) -> list[PrecompileJob]:
+    """Every registered policy on each of ``arms`` it runs on (one that forces an arm: that)."""
     return [
         PrecompileJob(arm, name)
         for arm in ArmKind
+        if arm in arms
         for name, entry in POLICIES.items()
         if entry.arm is None or entry.arm == arm
     ]
@@ -57,14 +58,17 @@ def precompile_jobs() -> list[PrecompileJob]:
 def precompile(
     duration_s: float = DEFAULT_DURATION_S,
     *,
+    arms: Sequence[ArmKind] = tuple(ArmKind),
     done: Callable[[PrecompileJob], object] | None = None,
 ) -> int:
-    """Run every job of :func:`precompile_jobs` for ``duration_s`` of simulated time.
+    """Run every job of :func:`precompile_jobs` ``(arms)`` for ``duration_s`` of simulated time.
 
     Parameters
     ----------
     duration_s : float
         Simulated seconds per episode (> 0).
+    arms : sequence of ArmKind
+        The carriers to compile for (default: all three).
     done : callable, optional
         Called with each job once its episode has run (a progress bar).
 
@@ -78,7 +82,7 @@ def precompile(
 
     if not duration_s > 0.0:
         raise ValueError(f"duration must be > 0 s, got {duration_s}")
-    jobs = precompile_jobs()
+    jobs = precompile_jobs(arms)
     for job in jobs:
         config: ExperimentConfig = config_from_mapping(
             {"task": {"trajectory": {"duration": duration_s}}, "episode": {"arm": job.arm.value}},
