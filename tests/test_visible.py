@@ -191,7 +191,7 @@ def test_the_policy_orbits_to_the_side_with_the_clear_hole() -> None:
     rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)  # the same port angle either side
     start = look_at_pose(P_RING + 0.05 * N_RING + [0.0, 0.0, 0.01], P_RING)
     context = PolicyContext(CAMERA, start, T_ring, rcm, DT, wire=wire, ring=RingConfig())
-    cfg = VisibleConfig()
+    cfg = VisibleConfig(either_eye=False)  # the scene is built so that both eyes lose the gap
     policy = VisiblePolicy(ControllerConfig(), cfg)
     policy.reset(context)
     T_cam = start
@@ -271,7 +271,8 @@ def test_without_a_touch_near_the_camera_holds_the_normal() -> None:
     wire = centred_wire()
     for engage, tilted in ((VisibleConfig().engage_clearance, False), (math.inf, True)):
         context = PolicyContext(CAMERA, start, T_ring, rcm, DT, wire=wire, ring=RingConfig())
-        policy = VisiblePolicy(ControllerConfig(), VisibleConfig(engage_clearance=engage))
+        cfg = VisibleConfig(engage_clearance=engage, either_eye=False)  # a tilt pays for both
+        policy = VisiblePolicy(ControllerConfig(), cfg)
         policy.reset(context)
         T_cam = start
         for k in range(30):
@@ -295,7 +296,7 @@ def test_the_scorer_judges_the_ring_where_it_will_be() -> None:
         return ring_pose(P_RING + speed * t * N_RING, N_RING)
 
     context = PolicyContext(CAMERA, start, ring_at(0.0), rcm, DT, wire=wire, ring=RingConfig())
-    cfg = VisibleConfig(score_period=0.1)
+    cfg = VisibleConfig(score_period=0.1, horizon_poses=3)
     policy = VisiblePolicy(ControllerConfig(), cfg)
     policy.reset(context)
     scored: list[tuple[float, list[np.ndarray]]] = []

@@ -393,17 +393,17 @@ class VisiblePolicy(EndocamPolicy):
         if not all(np.isfinite(T).all() for T in T_rings):
             return
         window = wire_window(wire, T_rings[len(T_rings) // 2][:3, 3], vc.window)
-        best: tuple[FloatArray, GapPoints, float] | None = None
+        closing: tuple[FloatArray, GapPoints, float] | None = None
         for T in T_rings:
             gaps = gap_points(T, window, self._shape, wire.radius, vc.rim_points,
                               vc.weight_scale)  # fmt: skip
-            c = float(np.min(gaps.clearances))  # the rim's to the wire, m
-            if best is None or c < best[2]:
-                best = (T, gaps, c)
-            if c <= GAP_M:  # the gap closes here
+            rim = float(np.min(gaps.clearances))  # the rim's to the wire, m
+            if closing is None or rim < closing[2]:
+                closing = (T, gaps, rim)
+            if rim <= GAP_M:  # the gap closes here
                 break
-        assert best is not None
-        T_ring, gaps, nearest = best[0], best[1], max(best[2], 0.0)
+        assert closing is not None
+        T_ring, gaps, nearest = closing[0], closing[1], max(closing[2], 0.0)
         p_c = T_ring[:3, 3]
         n = _unit_normal(T_ring)
         side_now = self._side if self._side != 0.0 else self._want
