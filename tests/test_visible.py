@@ -191,7 +191,7 @@ def test_the_policy_orbits_to_the_side_with_the_clear_hole() -> None:
     rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)  # the same port angle either side
     start = look_at_pose(P_RING + 0.05 * N_RING + [0.0, 0.0, 0.01], P_RING)
     context = PolicyContext(CAMERA, start, T_ring, rcm, DT, wire=wire, ring=RingConfig())
-    cfg = VisibleConfig()
+    cfg = VisibleConfig(either_eye=False)  # the scene is built so that both eyes lose the gap
     policy = VisiblePolicy(ControllerConfig(), cfg)
     policy.reset(context)
     T_cam = start
@@ -271,7 +271,8 @@ def test_without_a_touch_near_the_camera_holds_the_normal() -> None:
     wire = centred_wire()
     for engage, tilted in ((VisibleConfig().engage_clearance, False), (math.inf, True)):
         context = PolicyContext(CAMERA, start, T_ring, rcm, DT, wire=wire, ring=RingConfig())
-        policy = VisiblePolicy(ControllerConfig(), VisibleConfig(engage_clearance=engage))
+        cfg = VisibleConfig(engage_clearance=engage, either_eye=False)  # a tilt pays for both
+        policy = VisiblePolicy(ControllerConfig(), cfg)
         policy.reset(context)
         T_cam = start
         for k in range(30):
@@ -281,9 +282,10 @@ def test_without_a_touch_near_the_camera_holds_the_normal() -> None:
 
 
 def test_the_scorer_judges_the_ring_where_it_will_be() -> None:
-    """The scorer is handed the ring pose predicted ``lookahead`` s past the step (the
-    observation is 50 ms late), from the accepted poses: a ring sliding along the
-    wire at constant speed is scored where it will be, not where it was seen."""
+    """The scorer is handed the ring poses predicted over the horizon, from the step itself
+    to ``lookahead`` s past it (the observation is 50 ms late), from the accepted poses: a
+    ring sliding along the wire at constant speed is scored where it will be over the
+    horizon, not where it was seen."""
     latency_s, speed = 0.05, 0.02  # s, m/s
     wire = centred_wire()
     up_perp = np.array([0.0, 0.0, 1.0]) - N_RING[2] * N_RING
@@ -294,16 +296,68 @@ def test_the_scorer_judges_the_ring_where_it_will_be() -> None:
         return ring_pose(P_RING + speed * t * N_RING, N_RING)
 
     context = PolicyContext(CAMERA, start, ring_at(0.0), rcm, DT, wire=wire, ring=RingConfig())
-    cfg = VisibleConfig(score_period=0.1)
+    cfg = VisibleConfig(score_period=0.1, horizon_poses=3)
     policy = VisiblePolicy(ControllerConfig(), cfg)
     policy.reset(context)
-    scored: list[tuple[float, np.ndarray]] = []
-    policy._score = lambda T, t: scored.append((t, T))  # type: ignore[method-assign]
+    scored: list[tuple[float, list[np.ndarray]]] = []
+    policy._score = lambda Ts, t: scored.append((t, Ts))  # type: ignore[method-assign]
     T_cam = start
     for k in range(1, 31):
         t = k * DT
         obs = Observation(t, ring_at(t - latency_s), T_cam, t_ring=t - latency_s)
         T_cam = policy.step(obs).T_world_cam
     assert len(scored) >= 2
-    t, T = scored[-1]
-    np.testing.assert_allclose(T[:3, 3], ring_at(t + cfg.lookahead)[:3, 3], atol=ATOL_PRED_M)
+    t, poses = scored[-1]
+    assert len(poses) == cfg.horizon_poses > 1
+    ahead = cfg.lookahead * np.arange(cfg.horizon_poses) / (cfg.horizon_poses - 1)  # s
+    for T, h in zip(poses, ahead, strict=True):
+        np.testing.assert_allclose(T[:3, 3], ring_at(t + h)[:3, 3], atol=ATOL_PRED_M)
+
+
+def test_the_scorer_judges_the_pose_where_the_gap_closes() -> None:
+    """Of the poses over the horizon the scorer judges the one where the rim comes within
+    the closing gap of the wire, not the farthest: a ring predicted to touch midway and to
+    be threaded clear again at the horizon's end (constant velocity is no bounce, but the
+    touch is where the gap closes) is scored; judged at the end alone it would not be."""
+    wire = centred_wire()
+    up_perp = np.array([0.0, 0.0, 1.0]) - N_RING[2] * N_RING
+    rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)
+    start = look_at_pose(P_RING + 0.045 * N_RING, P_RING)
+    clear = ring_pose(P_RING, N_RING)  # the rim R − r − r_w = 3 mm from the wire
+    touching = ring_pose(P_RING + 2.8e-3 * E_CONTACT, N_RING)  # the rim 0.2 mm from it
+    context = PolicyContext(CAMERA, start, clear, rcm, DT, wire=wire, ring=RingConfig())
+    policy = VisiblePolicy(ControllerConfig(), VisibleConfig())
+    policy.reset(context)
+    policy._score([clear, clear, clear], 0.0)
+    assert (policy.idle_scorings, policy.last_scores) == (1, {})
+    policy._score([clear, touching, clear], 0.25)
+    assert policy.idle_scorings == 1 and policy.last_scores
+
+
+def test_a_view_counts_what_its_better_eye_sees(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The study counts a gap seen from either eye, so a candidate is worth its better eye's
+    share, not the two eyes' mean: a tilted view that shows every gap point to one eye and
+    none to the other beats the normal that shows 60 % to both (by the mean it would not)."""
+    import endocam.control.policies.visible as visible
+
+    wire = centred_wire()
+    up_perp = np.array([0.0, 0.0, 1.0]) - N_RING[2] * N_RING
+    rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)
+    start = look_at_pose(P_RING + 0.045 * N_RING, P_RING)
+    touching = ring_pose(P_RING + 2.8e-3 * E_CONTACT, N_RING)  # the rim 0.2 mm from the wire
+
+    def shares(eyes: np.ndarray, *_: object) -> np.ndarray:
+        m = len(eyes) // 2  # candidates: this side's, the other side's view, the target
+        left, right = np.ones(m), np.zeros(m)
+        left[0] = right[0] = left[-1] = right[-1] = 0.6  # the normal (and the target on it)
+        left[-2] = 0.0  # the other side's view: nothing
+        return np.concatenate([left, right])
+
+    monkeypatch.setattr(visible, "view_shares", shares)
+    for either, tilted in ((True, True), (False, False)):
+        context = PolicyContext(CAMERA, start, touching, rcm, DT, wire=wire, ring=RingConfig())
+        policy = VisiblePolicy(ControllerConfig(), VisibleConfig(either_eye=either))
+        policy.reset(context)
+        policy._score([touching], 0.0)
+        side = policy._want
+        assert (policy._targets[side] != (0.0, 0.0, 0.0)) is tilted

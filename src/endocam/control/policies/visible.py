@@ -7,9 +7,12 @@ the working distance, prediction, orbits, and every safety rule: the input check
 observation gate, the cone freeze, the wire clearance and its detours, the floor, the carriers'
 speed and joint limits) and changes one thing: the **viewing axis** it holds the camera on.
 
-Every ``score_period`` s it predicts the ring pose ``lookahead`` s ahead (beyond the sensing
-delay; constant velocity from the poses the tracker's checks and gate accepted,
-:func:`predicted_pose`), so the camera is on the good view when the gap closes rather than a
+Every ``score_period`` s it predicts the ring poses over the next ``lookahead`` s
+(``horizon_poses`` of them, beyond the sensing delay; constant velocity from the poses the
+tracker's checks and gate accepted, :func:`predicted_pose`) and scores the one where the gap
+closes: the first whose rim comes within ``GAP_M`` of the wire, else the closest (a constant
+velocity carries the ring through the wire, where the gap's geometry means nothing; the touch
+is where it meets it). The camera is then on the good view when the gap closes rather than a
 scoring period, a tilt and an arm's lag after. If that ring's rim is no closer to the wire than
 ``engage_clearance``, no touch is near: nothing is scored, the axis goes back to the normal (the
 orientation error is paid only ahead of a likely touch) and the side is held. Otherwise it
@@ -18,10 +21,11 @@ scores candidate axes from the predicted ring pose and the pre-operative wire mo
 never reads the true ring pose or the touches. On the side ``s = ±1`` the camera is on, the
 normal ``s n`` itself (as the tracker takes it, held above the floor) and the directions tilted
 ``θ ∈ tilts`` (at most ``max_tilt``) off it at ``azimuths`` angles around it; on the other
-side, the tracker's own view. A candidate's score is the weighted share of the rim's likely contact
-points whose 0.5 mm gap the eyes (mean of the two) would see clear of the wire, the handle and
-the rim, and resolved (``resolved_px``), times the **urgency** ``exp(−c / urgency_scale)`` of
-the rim's clearance ``c`` to the wire (far from a touch, no view is worth a tilt). Its utility
+side, the tracker's own view. A candidate's score is the weighted share of the rim's likely
+contact points whose 0.5 mm gap the better of the two eyes (``either_eye``: the study counts a
+gap seen from either) would see clear of the wire, the handle and the rim, and resolved
+(``resolved_px``), times the **urgency** ``exp(−c / urgency_scale)`` of the rim's clearance
+``c`` to the wire (far from a touch, no view is worth a tilt). Its utility
 is the score less ``tilt_cost`` × the orientation error it is expected to pay: its tilt (or the
 floor's turn) and its angle beyond ``port_angle`` (an arm concedes a view its wrist cannot
 reach). A tilted candidate whose camera would leave the cone (``cone_slack``), go under the
@@ -62,6 +66,8 @@ import numpy as np
 from endocam.control.checks import OBS_OK
 from endocam.control.config import ControllerConfig
 from endocam.control.occlusion import (
+    GAP_M,
+    GapPoints,
     RingShape,
     direction_table,
     eye_positions,
@@ -156,6 +162,13 @@ class VisibleConfig:
         smallest of the gap points' clearances; a threaded ring's is at most ``R − r − r_w``):
         farther, no touch is near, the axis goes back to the normal and the side is held
         (``math.inf``: always score).
+    horizon_poses : int
+        Ring poses predicted over the look-ahead, evenly from the step (the delay bridged) to
+        ``lookahead``; the one scored is the first whose rim comes within the closing gap
+        (``GAP_M``) of the wire, else the closest (1: the ``lookahead`` pose alone).
+    either_eye : bool
+        A candidate is worth its better eye's share (the study counts a gap seen from either
+        eye); ``False``: the two eyes' mean.
     """
 
     max_tilt: float = math.radians(20.0)
@@ -179,11 +192,13 @@ class VisibleConfig:
     velocity_window: float = 0.1
     max_predicted_turn: float = math.radians(30.0)
     engage_clearance: float = 1.0e-3
+    horizon_poses: int = 1
+    either_eye: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt <= math.radians(25.0):
             raise ValueError(f"max_tilt must be in (0, 25°] rad, got {self.max_tilt}")
-        for name in ("tilt_steps", "azimuths", "rim_points"):
+        for name in ("tilt_steps", "azimuths", "rim_points", "horizon_poses"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be ≥ 1, got {getattr(self, name)}")
         for name in (
@@ -304,8 +319,7 @@ class VisiblePolicy(EndocamPolicy):
         n = _unit_normal(T_ring)
         if n is not None and self._wire is not None and t >= self._next_score:
             self._next_score = t + self.visible.score_period
-            T_ahead = self._predicted(T_ring, t_ring, t + self.visible.lookahead)
-            self._score(T_ahead, t)
+            self._score(self._ahead_poses(T_ring, t_ring, t), t)
         self._advance()
         ox, oy, oz = self._offset
         if n is None or (ox == 0.0 and oy == 0.0 and oz == 0.0):
@@ -337,6 +351,18 @@ class VisiblePolicy(EndocamPolicy):
             T_old, T_ring, t_ring - t_old, t_ahead - t_ring, self.visible.max_predicted_turn
         )
 
+    def _ahead_poses(self, T_ring: FloatArray, t_ring: float, t: float) -> list[FloatArray]:
+        """The ring poses (4, 4) predicted over the horizon, the step's own first.
+
+        ``horizon_poses`` poses evenly spaced from ``t`` to ``t + lookahead`` (s): the
+        delay-bridged present ... the ``lookahead`` one (one pose: that one alone).
+        """
+        vc = self.visible
+        n = vc.horizon_poses
+        if n == 1:
+            return [self._predicted(T_ring, t_ring, t + vc.lookahead)]
+        return [self._predicted(T_ring, t_ring, t + vc.lookahead * k / (n - 1)) for k in range(n)]
+
     def _advance(self) -> None:
         """Move the applied offset towards the current side's target at ``tilt_rate``."""
         side = self._side if self._side != 0.0 else self._want
@@ -351,24 +377,38 @@ class VisiblePolicy(EndocamPolicy):
 
     # -- the scoring -------------------------------------------------------------------------
 
-    def _score(self, T_ring: FloatArray, t: float) -> None:
-        """Score the candidates at the predicted ring pose ``T_ring`` (4, 4) and decide.
+    def _score(self, T_rings: list[FloatArray], t: float) -> None:
+        """Score the candidates where the gap is predicted to close, and decide.
 
-        This side's target and the wanted side are updated. Farther than ``engage_clearance``
-        from the wire nothing is scored: the target goes back to the normal and the side is
-        held.
+        ``T_rings`` (4, 4) the ring poses predicted over the horizon (:meth:`_ahead_poses`).
+        The pose scored is the first whose rim comes within ``GAP_M`` (the closing gap) of
+        the wire, else the one whose rim comes closest: constant velocity carries a ring
+        through the wire, but the touch (and the gap the study judges) is where it meets it.
+        This side's target and the wanted side are updated. When no pose's rim comes within
+        ``engage_clearance`` of the wire nothing is scored: the target goes back to the normal
+        and the side is held.
         """
         wire, vc = self._wire, self.visible
         assert wire is not None
+        if not all(np.isfinite(T).all() for T in T_rings):
+            return
+        window = wire_window(wire, T_rings[len(T_rings) // 2][:3, 3], vc.window)
+        closing: tuple[FloatArray, GapPoints, float] | None = None
+        for T in T_rings:
+            gaps = gap_points(T, window, self._shape, wire.radius, vc.rim_points,
+                              vc.weight_scale)  # fmt: skip
+            rim = float(np.min(gaps.clearances))  # the rim's to the wire, m
+            if closing is None or rim < closing[2]:
+                closing = (T, gaps, rim)
+            if rim <= GAP_M:  # the gap closes here
+                break
+        assert closing is not None
+        T_ring, gaps, nearest = closing[0], closing[1], max(closing[2], 0.0)
         p_c = T_ring[:3, 3]
         n = _unit_normal(T_ring)
         side_now = self._side if self._side != 0.0 else self._want
-        if n is None or not np.isfinite(T_ring).all():
+        if n is None:
             return
-        window = wire_window(wire, p_c, vc.window)
-        gaps = gap_points(T_ring, window, self._shape, wire.radius, vc.rim_points,
-                          vc.weight_scale)  # fmt: skip
-        nearest = max(float(np.min(gaps.clearances)), 0.0)  # the rim's to the wire, m
         if nearest > vc.engage_clearance:  # no touch near: the normal, the side held
             self.idle_scorings += 1
             self._since = None
@@ -389,7 +429,10 @@ class VisiblePolicy(EndocamPolicy):
         )
         m = len(c.dirs)
         urgency = math.exp(-nearest / vc.urgency_scale)  # a touch near: the view matters
-        score = urgency * 0.5 * (shares[:m] + shares[m:])
+        if vc.either_eye:  # the better eye's share: the study counts either eye
+            score = urgency * np.maximum(shares[:m], shares[m:])
+        else:
+            score = urgency * 0.5 * (shares[:m] + shares[m:])
         cost = vc.tilt_cost * (c.tilt + beyond)  # the orientation error it is expected to pay
         utility = np.where(feasible, score - cost, -np.inf)
         k = c.per_side
