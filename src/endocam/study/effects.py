@@ -31,13 +31,16 @@ CI_LEVEL = 0.95  # coverage of every interval
 MIN_FINITE_SHARE = 0.5  # an interval needs at least this share of defined resamples
 
 
-def percentile_ci(samples: NDArray[np.float64]) -> tuple[float, float] | None:
+def percentile_ci(
+    samples: NDArray[np.float64], min_share: float = MIN_FINITE_SHARE
+) -> tuple[float, float] | None:
     """The 95 % percentile interval of bootstrap statistics; None if too few are defined.
 
     samples : (B,) float array; NaN marks a resample where the statistic is undefined.
+    min_share : the share of defined resamples an interval needs (0: any one will do).
     """
     finite = samples[np.isfinite(samples)]
-    if finite.size == 0 or finite.size < MIN_FINITE_SHARE * samples.size:
+    if finite.size == 0 or finite.size < min_share * samples.size:
         return None
     tail = 100.0 * (1.0 - CI_LEVEL) / 2.0
     lo, hi = np.percentile(finite, [tail, 100.0 - tail])

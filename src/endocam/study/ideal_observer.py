@@ -45,6 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import norm, rankdata
 
+from endocam.study import effects
 from endocam.study.observer import MIN_TOUCH_FRAMES, RELEASE_FRAMES
 
 FloatArray = NDArray[np.float64]
@@ -61,7 +62,7 @@ TRAIN_SEED = 0  # the generator seed of the training subsample
 INNER_FOLDS = 2  # grouped folds over a fold's training seeds that score them for its threshold
 N_BOOT = 2000  # seed-level bootstrap resamples
 BOOT_SEED = 0  # the bootstrap's generator seed
-CI_LEVEL = 0.95
+CI_LEVEL = effects.CI_LEVEL
 AUC_CLIP = 1e-4  # AUC is clipped to [AUC_CLIP, 1 − AUC_CLIP] for d′ (finite: |d′| ≤ 5.3)
 THRESHOLD_CANDIDATES = 101  # quantiles of the training scores tried as thresholds
 MIN_SEEDS = 3  # grouped CV needs a test seed and, inside the training seeds, an inner split
@@ -396,14 +397,12 @@ class AucEstimate:
 
 
 def percentile_ci(samples: FloatArray) -> tuple[float, float]:
-    """The ``CI_LEVEL`` percentile interval of the finite ``samples`` (NaN if there are none)."""
-    x = np.asarray(samples, dtype=float)
-    x = x[np.isfinite(x)]
-    if not len(x):
-        return math.nan, math.nan
-    tail = 50.0 * (1.0 - CI_LEVEL)
-    low, high = np.percentile(x, [tail, 100.0 - tail])
-    return float(low), float(high)
+    """The ``CI_LEVEL`` percentile interval of the finite ``samples`` (NaN if there are none).
+
+    :func:`endocam.study.effects.percentile_ci` with any number of defined resamples.
+    """
+    ci = effects.percentile_ci(np.asarray(samples, dtype=float), min_share=0.0)
+    return (math.nan, math.nan) if ci is None else ci
 
 
 def bootstrap_auc(
