@@ -19,6 +19,7 @@ from endocam.cli.common import (
     out_dir,
     with_faults,
 )
+from endocam.cli.export import export_runs, require_mcap
 from endocam.config import ExperimentConfig
 from endocam.registry import POLICIES
 from endocam.robot.actuator import ArmKind
@@ -79,6 +80,7 @@ def _run(args: argparse.Namespace) -> int:
         raise UsageError(f"--seed must be ≥ 0, got {args.seed}")
     cfg = _with_arm(_config(args), args.arm)
     out = out_dir(args.out)
+    _check_mcap(args)
     spec = EpisodeSpec(args.policy, TrajectoryKind(args.trajectory), args.control_points, args.seed)
     metrics = run_and_write(cfg, spec, out, video=not args.no_video)
     check = metrics["check"]
@@ -89,7 +91,7 @@ def _run(args: argparse.Namespace) -> int:
         f"orientation {metrics['orientation_error_deg']['mean']:.2f} deg, "
         f"{metrics['touches']} touches, {safety} -> {out / 'report.html'}"
     )
-    return safety_exit(out)
+    return _finish(args, out)
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -100,11 +102,12 @@ def _demo(args: argparse.Namespace) -> int:
         raise UsageError(f"--seed must be ≥ 0, got {args.seed}")
     cfg = _config(args)
     out = out_dir(args.out)
+    _check_mcap(args)
     report = run_demo(
         cfg, out, control_points=args.control_points, seed=args.seed, video=not args.no_video
     )
     print(f"demo report: {report}")
-    return safety_exit(out)
+    return _finish(args, out)
 
 
 def _experiment(args: argparse.Namespace) -> int:
@@ -112,9 +115,10 @@ def _experiment(args: argparse.Namespace) -> int:
 
     cfg = _config(args)
     out = out_dir(args.out)
+    _check_mcap(args)
     table = run_paper_experiment(_with_arm(cfg, args.arm), out, policy=args.policy)
     print(table)
-    return safety_exit(out)
+    return _finish(args, out)
 
 
 def _tracking(args: argparse.Namespace) -> int:
@@ -131,6 +135,7 @@ def _tracking(args: argparse.Namespace) -> int:
     check_workers(args.workers)
     cfg = _config(args)
     out = out_dir(args.out)
+    _check_mcap(args)
     table = run_tracking_experiment(
         cfg,
         out,
@@ -140,7 +145,7 @@ def _tracking(args: argparse.Namespace) -> int:
         workers=args.workers,
     )
     print(table)
-    return safety_exit(out)
+    return _finish(args, out)
 
 
 def _faults(args: argparse.Namespace) -> int:
@@ -149,9 +154,33 @@ def _faults(args: argparse.Namespace) -> int:
     check_workers(args.workers)
     cfg = _config(args)
     out = out_dir(args.out)
+    _check_mcap(args)
     table = run_fault_matrix(cfg, out, workers=args.workers)
     print(table)
+    return _finish(args, out)
+
+
+def _check_mcap(args: argparse.Namespace) -> None:
+    """With ``--mcap``, refuse before any work when the ``robot`` extra is missing."""
+    if args.mcap:
+        require_mcap()
+
+
+def _finish(args: argparse.Namespace, out: Path) -> int:
+    """After the results are written: ``--mcap``'s files, then the safety check's exit code."""
+    if args.mcap:
+        n = export_runs(out)
+        print(f"mcap: episode.mcap in {n} run folder{'s' if n != 1 else ''} under {out}")
     return safety_exit(out)
+
+
+def _mcap_arg(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--mcap",
+        action="store_true",
+        help="also write each run as episode.mcap (ROS 2 messages, H.264 video; as `endocam "
+        "export mcap` writes it; needs the robot extra)",
+    )
 
 
 def _faults_arg(parser: argparse.ArgumentParser) -> None:
@@ -204,6 +233,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--config", help="TOML or YAML config file (see `endocam config`)")
     _faults_arg(p)
+    _mcap_arg(p)
     p.set_defaults(handler=_run)
 
     d = sub.add_parser(
@@ -215,6 +245,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--seed", type=integer, default=DEFAULT_SEED, help=SEED_HELP)
     d.add_argument("--no-video", action="store_true", help="skip the videos")
     d.add_argument("--config", help="TOML or YAML config file")
+    _mcap_arg(d)
     d.set_defaults(handler=_demo)
 
     e = sub.add_parser("experiment", help="reproduce the paper's experiments")
@@ -242,6 +273,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     ep.add_argument("--config", help="TOML or YAML config file")
     _faults_arg(ep)
+    _mcap_arg(ep)
     ep.set_defaults(handler=_experiment)
     et = esub.add_parser(
         "tracking",
@@ -267,6 +299,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     et.add_argument("--workers", type=integer, default=2, help="worker processes (default 2)")
     et.add_argument("--config", help="TOML or YAML config file")
     _faults_arg(et)
+    _mcap_arg(et)
     et.set_defaults(handler=_tracking)
     ef = esub.add_parser(
         "faults",
@@ -277,6 +310,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     ef.add_argument("--out", required=True, help="output folder (replaced atomically)")
     ef.add_argument("--workers", type=integer, default=2, help="worker processes (default 2)")
     ef.add_argument("--config", help="TOML or YAML config file (its faults section is ignored)")
+    _mcap_arg(ef)
     ef.set_defaults(handler=_faults)
 
     c = sub.add_parser("config", help="print the full config (defaults, or --config merged)")

@@ -463,11 +463,21 @@ def _patch(colour: str, label: str) -> Any:
 # ---------------------------------------------------------------------------------- video
 def frame_indices(result: EpisodeResult) -> np.ndarray:
     """Control-step index shown in each video frame (nearest step to ``j / fps``)."""
-    fps = result.config.episode.video_fps
-    rate = result.config.episode.control_rate
-    n_frames = math.floor(result.trajectory.duration * fps + 1e-9) + 1
-    k = np.rint(np.arange(n_frames) * rate / fps).astype(int)
-    return np.minimum(k, len(result.log.t) - 1)
+    episode = result.config.episode
+    return video_frame_steps(
+        result.trajectory.duration, episode.control_rate, episode.video_fps, len(result.log.t)
+    )
+
+
+def video_frame_steps(duration: float, control_rate: float, fps: float, steps: int) -> np.ndarray:
+    """(F,) the control step each frame of a run's video shows: the nearest to ``j / fps``.
+
+    ``duration`` s, ``control_rate`` and ``fps`` Hz, ``steps`` the log's rows; F frames cover
+    ``[0, duration]``. The one mapping the renderer and the MCAP export share.
+    """
+    n_frames = math.floor(duration * fps + 1e-9) + 1
+    k = np.rint(np.arange(n_frames) * control_rate / fps).astype(int)
+    return np.minimum(k, steps - 1)
 
 
 def video_writer(path: Path, width: int, height: int, fps: float) -> Any:

@@ -1,0 +1,217 @@
+"""``endocam export mcap`` / ``--mcap``: a run as MCAP with ROS 2 messages, every value exact.
+
+The file is read back with mcap's reader and mcap-ros2-support's decoder only (no endocam
+code), and compared cell by cell with ``episode.csv`` parsed by the csv module.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import shutil
+import sys
+from pathlib import Path
+
+import cv2
+import imageio_ffmpeg
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from endocam.cli import main
+from endocam.robot.actuator import ArmKind
+from endocam.runner.log_schema import episode_column_names
+from endocam.runner.mcap_export import topic_map
+
+SHORT_TOML = """
+[task.trajectory]
+duration = 2.0
+
+[camera]
+width = 160
+height = 120
+
+[episode]
+video_fps = 10.0
+"""
+WIDTH_PX, HEIGHT_PX, FPS_HZ, DURATION_S, RATE_HZ = 160, 120, 10.0, 2.0, 100.0
+N_FRAMES = 21  # count: frames over [0, 2] s at 10 Hz
+NS_PER_S = 1_000_000_000
+TEXT = ("state", "fault", "reason")
+
+# The reader's side, written out here rather than taken from the exporter: topic -> columns.
+ARM = "PSM3"
+POSES = {"/ring/measured_cp": "ring", f"/{ARM}/measured_cp": "cam", f"/{ARM}/servo_cp": "cmd"}
+POINTS = {"/PSM1/tip": "psm1_tip", "/PSM2/tip": "psm2_tip"}
+SCALARS = {
+    "/endocam/sim_time": "t",
+    "/endocam/state": "state",
+    "/endocam/reason": "reason",
+    "/endocam/fault": "fault",
+    "/endocam/d_f": "d_f",
+    "/endocam/contact": "contact",
+    "/endocam/clearance": "clearance",
+    "/endocam/image_error_px": "image_error_px",
+    "/endocam/center_error_mm": "center_error_mm",
+    "/endocam/orientation_error_deg": "orientation_error_deg",
+    "/endocam/goal_conceded_mm": "goal_conceded_mm",
+    "/endocam/goal_conceded_deg": "goal_conceded_deg",
+}
+VIDEO_TOPIC = "/endoscope/left/compressed_video"
+JPEG_TOPIC = "/endoscope/left/image_raw/compressed"
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 2 s PSM run at 160×120 px with video, written with ``--mcap``."""
+    root = tmp_path_factory.mktemp("mcap")
+    config = root / "short.toml"
+    config.write_text(SHORT_TOML)
+    out = root / "run"
+    args = ["run", "--policy", "endocam", "--trajectory", "noisy", "--control-points", "36"]
+    code = main([*args, "--seed", "3", "--out", str(out), "--config", str(config), "--mcap"])
+    assert code == 0
+    return out
+
+
+def _csv(path: Path) -> dict[str, list[object]]:
+    with open(path, newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    return {
+        name: [r[name] if name in TEXT else (float(r[name]) if r[name] else math.nan) for r in rows]
+        for name in rows[0]
+    }
+
+
+def _decode(path: Path) -> dict[str, list[tuple[int, object]]]:
+    """Every message of the file by topic: (log time in ns, decoded ROS 2 message)."""
+    by_topic: dict[str, list[tuple[int, object]]] = {}
+    with open(path, "rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        for _schema, channel, message, ros in reader.iter_decoded_messages(log_time_order=True):
+            by_topic.setdefault(channel.topic, []).append((message.log_time, ros))
+    return by_topic
+
+
+def _err_line(capsys: pytest.CaptureFixture[str]) -> str:
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "Traceback" not in err, err
+    return err
+
+
+def test_every_value_of_episode_csv_comes_back_exactly(run_dir: Path) -> None:
+    expected = _csv(run_dir / "episode.csv")
+    topics = _decode(run_dir / "episode.mcap")
+    got: dict[str, list[object]] = {}
+    for topic, prefix in POSES.items():
+        msgs = [m for _, m in topics[topic]]
+        for axis in "xyz":
+            got[f"{prefix}_{axis}"] = [getattr(m.pose.position, axis) for m in msgs]
+        for axis in "wxyz":
+            got[f"{prefix}_q{axis}"] = [getattr(m.pose.orientation, axis) for m in msgs]
+    for topic, prefix in POINTS.items():
+        for axis in "xyz":
+            got[f"{prefix}_{axis}"] = [getattr(m.point, axis) for _, m in topics[topic]]
+    for topic, column in SCALARS.items():
+        got[column] = [m.data for _, m in topics[topic]]
+    got["contact"] = [float(c) for c in got["contact"]]
+    js = [m for _, m in topics[f"/{ARM}/measured_js"]]
+    names = list(js[0].name)
+    for j, name in enumerate(names):
+        got[f"q_{name}"] = [m.position[j] for m in js]
+    assert set(got) == set(expected)  # every column, no more
+    n = len(expected["t"])
+    assert n == int(DURATION_S * RATE_HZ) + 1
+    for name, values in expected.items():
+        assert len(got[name]) == n, name
+        if name in TEXT:
+            assert got[name] == values, name
+        else:  # float64 in CDR is the CSV's float64: equal bit for bit (NaN where NaN)
+            np.testing.assert_array_equal(np.array(got[name]), np.array(values), err_msg=name)
+    # time stamps: the simulation's, in the log time and every header, to the nanosecond
+    stamps = [round(t * NS_PER_S) for t in expected["t"]]
+    for topic in [*POSES, *POINTS, f"/{ARM}/measured_js"]:
+        assert [log for log, _ in topics[topic]] == stamps, topic
+        heads = [m.header for _, m in topics[topic]]
+        assert [h.stamp.sec * NS_PER_S + h.stamp.nanosec for h in heads] == stamps, topic
+        assert {h.frame_id for h in heads} == {"world"}
+    for topic in SCALARS:
+        assert [log for log, _ in topics[topic]] == stamps, topic
+
+
+def test_video_frames_decode_at_their_steps(run_dir: Path, tmp_path: Path) -> None:
+    topics = _decode(run_dir / "episode.mcap")
+    frames = topics[VIDEO_TOPIC]
+    assert len(frames) == N_FRAMES
+    steps = np.rint(np.arange(N_FRAMES) * RATE_HZ / FPS_HZ).astype(int)
+    t = np.arange(int(DURATION_S * RATE_HZ) + 1) / RATE_HZ
+    assert [log for log, _ in frames] == [round(float(x) * NS_PER_S) for x in t[steps]]
+    assert {m.format for _, m in frames} == {"h264"}
+    first = bytes(frames[0][1].data)
+    assert b"\x00\x00\x01\x67" in first  # the key frame carries its SPS (NAL type 7)
+    stream = tmp_path / "left.h264"
+    stream.write_bytes(b"".join(bytes(m.data) for _, m in frames))
+    reader = imageio_ffmpeg.read_frames(str(stream))
+    meta = next(reader)
+    assert tuple(meta["size"]) == (WIDTH_PX, HEIGHT_PX)
+    assert sum(1 for _ in reader) == N_FRAMES  # each message held exactly one frame
+
+
+def test_jpeg_frames_and_size(run_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "jpeg.mcap"
+    assert main(["export", "mcap", str(run_dir), "--out", str(out), "--video", "jpeg"]) == 0
+    frames = _decode(out)[JPEG_TOPIC]
+    assert len(frames) == N_FRAMES
+    image = cv2.imdecode(np.frombuffer(bytes(frames[0][1].data), np.uint8), cv2.IMREAD_COLOR)
+    assert image.shape == (HEIGHT_PX, WIDTH_PX, 3)
+    assert frames[0][1].format == "jpeg"
+    # the H.264 file stays within 1.5x the CSV and the video it holds
+    source = (run_dir / "episode.csv").stat().st_size + (run_dir / "video.mp4").stat().st_size
+    assert (run_dir / "episode.mcap").stat().st_size <= 1.5 * source
+
+
+@pytest.mark.parametrize("carrier", list(ArmKind))
+def test_topics_carry_each_column_once(carrier: ArmKind) -> None:
+    columns = [c for topic in topic_map(carrier) for c in topic.columns]
+    assert sorted(columns) == sorted(episode_column_names(carrier))
+    joints = [t for t in topic_map(carrier) if t.type == "sensor_msgs/msg/JointState"]
+    assert len(joints) == (0 if carrier is ArmKind.FREE else 1)
+
+
+def test_bad_input_exits_2_and_writes_nothing(
+    run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "x.mcap"
+    cases: list[tuple[list[str], str]] = []
+    cases.append(([str(tmp_path / "missing"), "--out", str(out)], "is not a folder"))
+    no_csv = tmp_path / "no_csv"
+    no_csv.mkdir()
+    shutil.copy(run_dir / "scene.json", no_csv)
+    cases.append(([str(no_csv), "--out", str(out)], "has no episode.csv"))
+    short = tmp_path / "short"
+    short.mkdir()
+    shutil.copy(run_dir / "scene.json", short)
+    lines = (run_dir / "episode.csv").read_text().splitlines(keepends=True)
+    (short / "episode.csv").write_text("".join(lines[:-1]))  # one row missing
+    cases.append(([str(short), "--out", str(out)], "rows"))
+    cases.append(([str(run_dir), "--out", str(tmp_path)], "is a folder"))
+    for args, needle in cases:
+        assert main(["export", "mcap", *args]) == 2, args
+        assert needle in _err_line(capsys)
+        assert not out.exists()
+    assert main(["export", "mcap", str(run_dir)]) == 2  # --mcap wrote it: not replaced
+    assert "--force" in _err_line(capsys)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["no_csv", "short"]  # no temp files
+    assert {p.name for p in run_dir.iterdir() if p.name.startswith(".")} == {".endocam-output"}
+
+
+def test_missing_extra_refused_before_the_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setitem(sys.modules, "mcap_ros2.writer", None)  # import fails: not installed
+    out = tmp_path / "run"
+    args = ["run", "--policy", "fixed", "--trajectory", "ideal", "--out", str(out), "--mcap"]
+    assert main(args) == 2
+    assert "pip install 'endocam[robot]'" in _err_line(capsys)
+    assert not out.exists()
