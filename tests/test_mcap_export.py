@@ -26,7 +26,7 @@ from endocam.runner.mcap_export import topic_map
 
 SHORT_TOML = """
 [task.trajectory]
-duration = 2.0
+duration = 1.0
 
 [camera]
 width = 160
@@ -35,8 +35,8 @@ height = 120
 [episode]
 video_fps = 10.0
 """
-WIDTH_PX, HEIGHT_PX, FPS_HZ, DURATION_S, RATE_HZ = 160, 120, 10.0, 2.0, 100.0
-N_FRAMES = 21  # count: frames over [0, 2] s at 10 Hz
+WIDTH_PX, HEIGHT_PX, FPS_HZ, DURATION_S, RATE_HZ = 160, 120, 10.0, 1.0, 100.0
+N_FRAMES = 11  # count: frames over [0, 1] s at 10 Hz
 NS_PER_S = 1_000_000_000
 TEXT = ("state", "fault", "reason")
 
@@ -64,7 +64,7 @@ JPEG_TOPIC = "/endoscope/left/image_raw/compressed"
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A 2 s PSM run at 160×120 px with video, written with ``--mcap``."""
+    """A 1 s PSM run at 160×120 px with video, written with ``--mcap``."""
     root = tmp_path_factory.mktemp("mcap")
     config = root / "short.toml"
     config.write_text(SHORT_TOML)

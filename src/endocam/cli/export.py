@@ -13,7 +13,7 @@ from endocam.cli.common import UsageError
 
 VIDEO_HELP = (
     "video frames as h264 (foxglove_msgs/CompressedVideo: Foxglove, about the size of "
-    "video.mp4), jpeg (sensor_msgs/CompressedImage: every ROS image tool, about 5x larger) "
+    "video.mp4), jpeg (sensor_msgs/CompressedImage: every ROS image tool, 4-6x larger) "
     "or none (default h264; ignored for a run without video.mp4)"
 )
 
@@ -60,7 +60,8 @@ def _export_mcap(args: argparse.Namespace) -> int:
     try:
         run = read_run(run_dir)  # refuse a bad folder before any work
         video = VideoFormat(args.video)
-        total = len(run.columns["t"]) + (len(run.frame_steps) if run.video is not None else 0)
+        frames = run.video is not None and video is not VideoFormat.NONE
+        total = len(run.columns["t"]) + (len(run.frame_steps) if frames else 0)
         with tqdm(total=total, desc="mcap", unit="step", leave=False) as bar:
             result = export_mcap(run_dir, out, video, progress=bar.update)
     except ValueError as exc:

@@ -17,8 +17,8 @@ world frame (``frame_id`` ``world``), m, quaternions as ROS orders them (x, y, z
 The video's frames go in as ``foxglove_msgs/msg/CompressedVideo`` (``h264``: the left eye
 re-encoded without B-frames, a key frame with its SPS/PPS every second, one access unit per
 message, as Foxglove reads it) or ``sensor_msgs/msg/CompressedImage`` (``jpeg``: every ROS
-image tool reads it, about 5× the size). Each frame is stamped with the control step it
-shows (the step :func:`endocam.runner.outputs.video_frame_steps` gives).
+image tool reads it, 4–6× the size on the demo's runs). Each frame is stamped with the
+control step it shows (the step :func:`endocam.runner.outputs.video_frame_steps` gives).
 
 ``mcap`` and ``mcap-ros2-support`` are the optional extra ``robot``
 (``pip install 'endocam[robot]'``); :func:`require_mcap` says so in one line.
