@@ -1,0 +1,114 @@
+"""endocam's PSM and ECM against the dVRK's own published kinematic tables (issue 25 §2).
+
+The tables below are copied, numbers only, from jhu-dvrk/sawIntuitiveResearchKit:
+``share/kinematic/ecm.json`` (commit 09fdffe8), ``share/kinematic/psm.json`` (commit
+bb73358d; its first three joints) with the tool ``share/tool/PROGRASP_FORCEPS_420093.json``
+(commit 23f23dbe; the last three joints and ``tooltip_offset``), and the straight scope's
+tool-tip offset from ``core/components/code/mtsIntuitiveResearchKitECM.cpp`` (commit 0210eb1a,
+``set_endoscope_type``). Forward kinematics is the modified-DH (Craig) product written out
+here, with the files' ±1.5708 read as ±π/2 as cisst's ``robManipulator`` parser does.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from endocam.robot import ECM, ECM_CHAIN, PSM, PSM_CHAIN, DHChain
+from endocam.robot.dvrk_frames import (
+    ECM_TOOLTIP_OFFSET_STRAIGHT,
+    T_ISI_OPENCV,
+    dvrk_ecm_tip,
+    ecm_camera_from_dvrk_tip,
+)
+
+ATOL_M = 1e-12  # m: FK of a 0.5 m chain agrees to round-off
+ATOL_RAD = 1e-12  # rad
+N_SAMPLES = 50  # count: random joint vectors per arm
+DVRK_HALF_PI = 1.5708  # the files' right angle, read as π/2
+
+# name, alpha, A (m), theta, D (m), offset (rad or m), type, qmin, qmax — as in the files
+DVRK_ECM = [
+    ("yaw", 1.5708, 0.0, 0.0, 0.0, 1.5708, "revolute", -1.5708, 1.5708),
+    ("pitch", -1.5708, 0.0, 0.0, 0.0, -1.5708, "revolute", -0.76794, 1.1344),
+    ("insertion", 1.5708, 0.0, 0.0, 0.0, -0.3822, "prismatic", 0.0, 0.255),
+    ("roll", 0.0, 0.0, 0.0, 0.3829, 0.0, "revolute", -1.552, 1.552),
+]
+DVRK_PSM = [
+    ("outer_yaw", 1.5708, 0.0, 0.0, 0.0, 1.5708, "revolute", -1.588, 1.588),
+    ("outer_pitch", -1.5708, 0.0, 0.0, 0.0, -1.5708, "revolute", -0.925025, 0.925025),
+    ("outer_insertion", 1.5708, 0.0, 0.0, 0.0, -0.4318, "prismatic", 0.0, 0.24),
+    ("roll", 0.0, 0.0, 0.0, 0.4670, 0.0, "revolute", -4.53786, 4.53786),
+    ("wrist_pitch", -1.5708, 0.0, 0.0, 0.0, -1.5708, "revolute", -1.39626, 1.39626),
+    ("wrist_yaw", -1.5708, 0.0107, 0.0, 0.0, -1.5708, "revolute", -1.39626, 1.39626),
+]
+DVRK_PSM_TOOLTIP = np.array([[0, -1, 0, 0], [0, 0, 1, 0], [-1, 0, 0, 0], [0, 0, 0, 1]], float)
+DVRK_ECM_TOOLTIP_STRAIGHT = np.array(
+    [[0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], float
+)
+
+
+def _angle(x: float) -> float:
+    """A table angle as cisst reads it: ±1.5708 is ±π/2."""
+    return math.copysign(math.pi / 2, x) if abs(x) == DVRK_HALF_PI else x
+
+
+def _table_fk(table: list[tuple], q: np.ndarray) -> np.ndarray:
+    """T_base_last (4, 4): the product of RotX(alpha)·TransX(A)·RotZ(theta)·TransZ(D)."""
+    T = np.eye(4)
+    for (_name, alpha, a, theta, d, offset, kind, _lo, _hi), qi in zip(table, q, strict=True):
+        alpha = _angle(alpha)
+        if kind == "revolute":
+            theta = theta + _angle(offset) + qi
+        else:
+            d = d + offset + qi
+        ca, sa, ct, st = math.cos(alpha), math.sin(alpha), math.cos(theta), math.sin(theta)
+        T = T @ np.array(
+            [
+                [ct, -st, 0.0, a],
+                [st * ca, ct * ca, -sa, -sa * d],
+                [st * sa, ct * sa, ca, ca * d],
+                [0.0, 0.0, 0.0, 1.0],
+            ]
+        )
+    return T
+
+
+def _samples(table: list[tuple], seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    lo = np.array([row[7] for row in table])
+    hi = np.array([row[8] for row in table])
+    return rng.uniform(lo, hi, size=(N_SAMPLES, len(table)))
+
+
+@pytest.mark.parametrize(("chain", "table"), [(ECM_CHAIN, DVRK_ECM), (PSM_CHAIN, DVRK_PSM)])
+def test_chain_names_and_limits_are_the_tables(chain: DHChain, table: list[tuple]) -> None:
+    assert chain.names == tuple(row[0] for row in table)
+    np.testing.assert_array_equal(chain.lower, [row[7] for row in table])
+    np.testing.assert_array_equal(chain.upper, [row[8] for row in table])
+
+
+def test_psm_tip_is_the_dvrk_tip() -> None:
+    psm = PSM()
+    for q in _samples(DVRK_PSM, seed=11):
+        expected = _table_fk(DVRK_PSM, q) @ DVRK_PSM_TOOLTIP
+        np.testing.assert_allclose(psm.forward(q), expected, atol=ATOL_M, rtol=0.0)
+
+
+def test_ecm_camera_is_the_dvrk_last_frame_and_its_tip_a_quarter_turn_away() -> None:
+    ecm = ECM()
+    for q in _samples(DVRK_ECM, seed=12):
+        last = _table_fk(DVRK_ECM, q)
+        T_rcm_cam = ecm.forward(q)
+        np.testing.assert_allclose(T_rcm_cam, last, atol=ATOL_M, rtol=0.0)
+        T_rcm_tip = last @ DVRK_ECM_TOOLTIP_STRAIGHT  # what the dVRK reports at q
+        np.testing.assert_allclose(dvrk_ecm_tip(T_rcm_cam), T_rcm_tip, atol=ATOL_M, rtol=0.0)
+        np.testing.assert_allclose(ecm_camera_from_dvrk_tip(T_rcm_tip), T_rcm_cam, atol=ATOL_M)
+        # the dVRK's camera in OpenCV terms is endocam's turned +90° about the optical axis
+        R = T_rcm_cam[:3, :3].T @ (T_rcm_tip @ T_ISI_OPENCV)[:3, :3]
+        angle = math.atan2(R[1, 0], R[0, 0])
+        np.testing.assert_allclose(R[2], [0.0, 0.0, 1.0], atol=ATOL_RAD)
+        assert abs(angle - math.pi / 2) <= ATOL_RAD
+    np.testing.assert_array_equal(ECM_TOOLTIP_OFFSET_STRAIGHT, DVRK_ECM_TOOLTIP_STRAIGHT)
