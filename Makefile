@@ -8,7 +8,7 @@ SYSSTAMP := $(VENV)/.system-deps
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 
-.PHONY: demo test lint typecheck unit kernels kernels-free kernels-arms bench system-deps clean
+.PHONY: demo test lint typecheck unit kernels lint-then-no-kernel-tests bench system-deps clean
 
 $(SYSSTAMP):
 	@./.ci/system-deps
@@ -36,22 +36,22 @@ lint: $(STAMP)
 unit: $(STAMP)
 	$(VENV)/bin/pytest -n 2 --dist worksteal
 
-# numba compiles each kernel in the first process that calls it: without this step both test
-# workers, and every process a test starts (pool workers, Ray, the CLI), compile the same kernels.
-# `endocam compile` fills the cache once: the free camera's and the arms' halves side by side,
-# with lint, on the two cores.
+# numba compiles each kernel in the first process that calls it: without a compile step both
+# test workers, and every process a test starts (pool workers, Ray, the CLI), compile the same
+# kernels. `make test` runs `endocam compile` (one process, so no kernel is compiled twice) on one
+# core while the other runs lint and then the test modules that call no kernel (marked
+# `no_kernels`; tests/conftest.py fails one that does); then the rest on both cores.
+NO_KERNEL_TESTS := $(shell grep -l '^pytestmark = pytest.mark.no_kernels' tests/test_*.py)
+
 kernels: $(STAMP)
-	$(VENV)/bin/endocam compile
+	@$(VENV)/bin/endocam compile
 
-kernels-free: $(STAMP)
-	@$(VENV)/bin/endocam compile --arm free
-
-kernels-arms: $(STAMP)
-	@$(VENV)/bin/endocam compile --arm psm,ecm
+lint-then-no-kernel-tests: lint
+	@ENDOCAM_TESTS_NO_KERNELS=1 $(VENV)/bin/pytest -p no:xdist $(NO_KERNEL_TESTS)
 
 test: $(STAMP)
-	@$(MAKE) --no-print-directory -j3 lint kernels-free kernels-arms
-	@$(MAKE) --no-print-directory unit
+	@$(MAKE) --no-print-directory -j2 kernels lint-then-no-kernel-tests
+	@$(VENV)/bin/pytest -n 2 --dist worksteal $(addprefix --ignore=,$(NO_KERNEL_TESTS))
 
 bench: $(STAMP)
 	$(VENV)/bin/pytest bench/bench_*.py --benchmark-enable --benchmark-only -p no:cacheprovider -o addopts=""

@@ -17,6 +17,8 @@ from endocam import (
 from endocam.geometry import make_pose
 from endocam.metrics import summarize
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 ATOL_M = 1e-12  # m
 ATOL_PX = 1e-9  # px
 ATOL_RAD = 1e-12  # rad

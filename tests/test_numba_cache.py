@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import endocam
 from endocam._numba_cache import (
     HASH_CHARS,
@@ -17,6 +19,8 @@ from endocam._numba_cache import (
     module_path,
     source_hash,
 )
+
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
 
 PACKAGE = Path(endocam.__file__).parent
 COMPILED = {"njit", "jit", "register_jitable", "intrinsic", "overload", "overload_method"}

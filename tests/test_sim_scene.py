@@ -24,6 +24,8 @@ from endocam.task.layout import overview_camera_pose, psm1_tip_in_ring
 from endocam.task.trajectory import TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 CFG = TaskConfig()
 CAMERA = StereoCamera()
 D_F = 0.06  # m, working distance of the test goal pose

@@ -24,6 +24,8 @@ from endocam.study.manifest import parse_manifest
 from endocam.study.responses import ResponseRow
 from study_helpers import manifest_dict
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 REL = 1e-12  # relative tolerance: float64 arithmetic on small integers
 ATOL = 1e-12  # absolute tolerance of a dimensionless coefficient near 0
 RESAMPLES = 400  # bootstrap resamples in these tests

@@ -19,6 +19,8 @@ from endocam.study.report import hidden_by_text, write_outputs
 from endocam.study.responses import ResponseRow, rows_from_csv, rows_to_csv
 from study_helpers import manifest_dict
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 REL = 1e-12  # relative tolerance of float statistics (pure float64 arithmetic)
 MANIFEST = parse_manifest(json.dumps(manifest_dict()))
 TRUE = {v.id: v.true_touches for v in MANIFEST.videos}

@@ -16,6 +16,8 @@ from endocam.study.manifest import load_manifest
 from endocam.study.records import Status
 from study_helpers import ATTENTION_ANSWER, make_study
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 ADMIN = "s3cret-admin"
 
 

@@ -32,6 +32,8 @@ from study_helpers import (
     make_study,
 )
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 ADMIN = "browser-admin-token"
 CHROMIUM_ARGS = [
     "--no-sandbox",

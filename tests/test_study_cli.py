@@ -13,6 +13,8 @@ from endocam.study.manifest import parse_manifest
 from endocam.study.responses import ResponseRow, rows_to_csv
 from study_helpers import make_study, manifest_dict
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 MANIFEST = parse_manifest(json.dumps(manifest_dict()))
 
 

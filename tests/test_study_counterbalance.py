@@ -13,6 +13,8 @@ from endocam.study.counterbalance import (
 )
 from endocam.study.manifest import DEFAULT_CONDITIONS
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 Orders = tuple[tuple[object, ...], ...]
 
 

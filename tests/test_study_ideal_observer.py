@@ -19,6 +19,8 @@ from endocam.study import ideal_observer as io_
 from endocam.study.make import right_video, seed_log
 from study_helpers import CONDITIONS, make_study
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 ATOL = 1e-12  # dimensionless (AUC, d′, probabilities): float round-off
 ATOL_PX = 1e-9  # px
 W_PX, H_PX, FPS, N_FRAMES = 64, 48, 10.0, 60  # the tiny kept seeds' videos

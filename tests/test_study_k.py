@@ -23,6 +23,8 @@ from endocam.study.report import BOXPLOT_PNG, SD_PNG, write_outputs
 from endocam.study.responses import ResponseRow
 from study_helpers import ATTENTION_ANSWER, k_conditions, make_study, manifest_dict
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 ADMIN = "k-admin"
 KS = (3, 4, 5)
 REL = 1e-12  # relative tolerance of float statistics (float64 arithmetic)

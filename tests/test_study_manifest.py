@@ -12,6 +12,8 @@ from endocam.study.manifest import (
 )
 from study_helpers import manifest_dict
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 
 def _text(doc: dict) -> str:
     return json.dumps(doc)

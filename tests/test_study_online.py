@@ -25,6 +25,8 @@ from endocam.study.responses import rows_from_csv
 from endocam.study.web import MAX_BODY_BYTES, RateLimit
 from study_helpers import ATTENTION_ANSWER, PRACTICE_TOUCHES, make_study
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 ADMIN = "online-admin"
 AUTH = {"Authorization": f"Bearer {ADMIN}"}
 CODE = "C0DE42"
