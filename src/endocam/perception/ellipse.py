@@ -32,6 +32,9 @@ HULL_TOL_PX = 1.0  # px, contour points this close to the convex hull are on the
 BORDER_PX = 1  # px, contour points this close to the image border are cut by the frame
 MIN_RIM_POINTS = 12  # fewest silhouette points a fit needs (cv2.fitEllipse needs 5)
 COVERAGE_BINS = 36  # angular bins of 10° for the fit's coverage
+OCCLUDER_PX = 2  # px, silhouette points this close to an occluder's pixel are left out
+TRIM_PX = 1.5  # px, after a first fit, points farther than this (and than TRIM_MAD MADs) go
+TRIM_MAD = 3.0  # unitless, the trimming's multiple of the residuals' median absolute deviation
 PIXEL_CENTRE_PX = 0.5  # px, contour points are boundary pixels' centres, half a pixel inside
 
 
@@ -70,6 +73,13 @@ class ImageEllipse:
             raise ValueError(f"by_px {by_px} is not smaller than the minor semi-axis {self.b}")
         return ImageEllipse(self.centre, a, b, self.angle, self.coverage, self.rms_px, self.points)
 
+    def shifted(self, offset_px: FloatArray) -> ImageEllipse:
+        """The ellipse (and its points) moved by ``offset_px`` (2,), px (a crop's origin)."""
+        pts = None if self.points is None else self.points + offset_px
+        return ImageEllipse(
+            self.centre + offset_px, self.a, self.b, self.angle, self.coverage, self.rms_px, pts
+        )
+
     def conic(self) -> FloatArray:
         """(3, 3) symmetric pixel conic ``C``: ``x̃ᵀ C x̃ = 0`` on the ellipse, ``x̃ = (u, v, 1)``."""
         c, s = math.cos(self.angle), math.sin(self.angle)
@@ -93,10 +103,15 @@ class ImageEllipse:
         return np.asarray(np.abs(f) / np.maximum(grad, 1e-12))
 
 
-def silhouette_points(mask: NDArray[np.bool_]) -> FloatArray:
+def silhouette_points(
+    mask: NDArray[np.bool_], occluder: NDArray[np.bool_] | None = None
+) -> FloatArray:
     """Points (u, v) of a mask's outer silhouette: (N, 2), px (see the module docstring).
 
-    ``mask`` : (H, W) bool. Points on the image border are left out; an empty mask gives (0, 2).
+    ``mask`` : (H, W) bool. ``occluder`` : (H, W) bool or None, pixels of what may hide the
+    ring (the wire): silhouette points within ``OCCLUDER_PX`` of one are left out (an edge
+    there may be the occluder's, not the ring's). Points on the image border are left out too;
+    an empty mask gives (0, 2).
     """
     h, w = mask.shape
     contours, _ = cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
@@ -112,7 +127,27 @@ def silhouette_points(mask: NDArray[np.bool_]) -> FloatArray:
         & (pts[:, 1] >= BORDER_PX)
         & (pts[:, 1] <= h - 1 - BORDER_PX)
     )
-    return np.asarray(pts[inside])
+    pts = pts[inside]
+    if occluder is not None and len(pts):
+        pts = pts[~_near(occluder, pts)]
+    return np.asarray(pts)
+
+
+def _near(occluder: NDArray[np.bool_], pts: FloatArray) -> NDArray[np.bool_]:
+    """(N,) whether each integer point (u, v) of (N, 2) is near a pixel of ``occluder``.
+
+    Near: within ``OCCLUDER_PX`` (a square neighbourhood). ``occluder`` : (H, W) bool, dilated
+    in the points' box only.
+    """
+    h, w = occluder.shape
+    r = OCCLUDER_PX
+    u0, v0 = (pts.min(axis=0) - r).astype(int).clip(0)
+    u1 = min(int(pts[:, 0].max()) + r + 1, w)
+    v1 = min(int(pts[:, 1].max()) + r + 1, h)
+    roi = occluder[v0:v1, u0:u1].view(np.uint8)
+    grown = cv2.dilate(roi, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+    ij = pts.astype(int)
+    return np.asarray(grown[ij[:, 1] - v0, ij[:, 0] - u0] > 0)
 
 
 def _distance_to_polygon(pts: FloatArray, hull: FloatArray) -> FloatArray:
@@ -132,22 +167,8 @@ def _distance_to_polygon(pts: FloatArray, hull: FloatArray) -> FloatArray:
     return np.asarray(-d.max(axis=1))
 
 
-def fit_rim(mask: NDArray[np.bool_]) -> ImageEllipse | None:
-    """The ellipse of a ring mask's outer silhouette, or None (too few silhouette points).
-
-    Parameters
-    ----------
-    mask : (H, W) bool
-        The ring's pixels (:func:`endocam.perception.segment.segment`).
-
-    Returns
-    -------
-    ImageEllipse or None
-        Its semi-axes grown by ``PIXEL_CENTRE_PX`` (from boundary pixels' centres to the edge).
-    """
-    pts = silhouette_points(mask)
-    if len(pts) < MIN_RIM_POINTS:
-        return None
+def _fit(pts: FloatArray) -> ImageEllipse | None:
+    """``cv2.fitEllipse`` of (N, 2) points as an :class:`ImageEllipse` (a ≥ b), or None."""
     (cu, cv), (d1, d2), angle_deg = cv2.fitEllipse(pts.astype(np.float32))
     if not (math.isfinite(d1) and math.isfinite(d2) and min(d1, d2) > 0.0):
         return None
@@ -155,14 +176,53 @@ def fit_rim(mask: NDArray[np.bool_]) -> ImageEllipse | None:
     a, b = 0.5 * d1, 0.5 * d2
     if b > a:
         a, b, angle = b, a, angle + 0.5 * math.pi
-    fit = ImageEllipse(np.array([cu, cv]), a + PIXEL_CENTRE_PX, b + PIXEL_CENTRE_PX, angle)
+    return ImageEllipse(np.array([cu, cv]), a, b, angle)
+
+
+def fit_rim(
+    mask: NDArray[np.bool_], occluder: NDArray[np.bool_] | None = None
+) -> ImageEllipse | None:
+    """The ellipse of a ring mask's outer silhouette, or None (too few silhouette points).
+
+    The silhouette points (:func:`silhouette_points`) are fitted, those farther from the fit
+    than ``TRIM_PX`` and ``TRIM_MAD`` median absolute deviations are dropped (an instrument's
+    edge, a straight cut), and the rest fitted again.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+        The ring's pixels (:func:`endocam.perception.segment.segment`).
+    occluder : (H, W) bool or None
+        Pixels of what may hide the ring (the wire's mask).
+
+    Returns
+    -------
+    ImageEllipse or None
+        Its semi-axes grown by ``PIXEL_CENTRE_PX`` (from boundary pixels' centres to the edge).
+    """
+    pts = silhouette_points(mask, occluder)
+    if len(pts) < MIN_RIM_POINTS:
+        return None
+    fit = _fit(pts)
+    if fit is None:
+        return None
+    r = fit.distances(pts)
+    mad = float(np.median(np.abs(r - np.median(r))))
+    keep = r <= max(TRIM_PX, float(np.median(r)) + TRIM_MAD * mad)
+    if not keep.all() and keep.sum() >= MIN_RIM_POINTS:
+        pts = pts[keep]
+        fit = _fit(pts)
+        if fit is None:
+            return None
+    a, b, angle = fit.a, fit.b, fit.angle
     c, s = math.cos(angle), math.sin(angle)
     d = pts - fit.centre
     phi = np.arctan2((-d[:, 0] * s + d[:, 1] * c) / b, (d[:, 0] * c + d[:, 1] * s) / a)
     bins = np.floor((phi + math.pi) / (2.0 * math.pi) * COVERAGE_BINS).astype(int)
     coverage = len(np.unique(np.clip(bins, 0, COVERAGE_BINS - 1))) / COVERAGE_BINS
-    rms = float(np.sqrt(np.mean((fit.distances(pts) - PIXEL_CENTRE_PX) ** 2)))
-    return ImageEllipse(fit.centre, fit.a, fit.b, angle, coverage, rms, pts)
+    rms = float(np.sqrt(np.mean(fit.distances(pts) ** 2)))
+    grown = (a + PIXEL_CENTRE_PX, b + PIXEL_CENTRE_PX)
+    return ImageEllipse(fit.centre, *grown, angle, coverage, rms, pts)
 
 
 def normalised_conic(ellipse: ImageEllipse, K: FloatArray) -> FloatArray:

@@ -29,6 +29,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -43,8 +44,11 @@ from endocam.perception.ellipse import (
     fit_rim,
     normalised_conic,
 )
-from endocam.perception.segment import ColourKeys, segment
+from endocam.perception.segment import ColourKeys, hue_mask, segment
 from endocam.task.config import TaskConfig
+
+COARSE_STRIDE = 3  # px, the ring is first looked for on every 3rd row and column
+BOX_MARGIN_PX = 8  # px, the ring's box is grown by this beyond its coarse pixels
 
 
 class EstimateStatus(enum.Enum):
@@ -58,6 +62,7 @@ class EstimateStatus(enum.Enum):
     BAD_DEPTH = "bad_depth"  # disparity ≤ 0 or the depth out of range
     SIZE_MISMATCH = "size_mismatch"  # the core ellipse is not a ring of radius R at that depth
     NORMALS_DISAGREE = "normals_disagree"  # the eyes' normals do not agree
+    AMBIGUOUS = "ambiguous"  # the second eye cannot tell the two candidate normals apart
 
 
 @dataclass(frozen=True)
@@ -104,6 +109,11 @@ class EstimatorConfig:
         Largest relative difference between the core ellipse's major semi-axis and ``f R / Z``.
     max_normal_disagreement : float
         Largest angle between the two eyes' chosen normals, rad.
+    min_normal_margin : float
+        Least margin of the chosen normal over the other (:class:`NormalChoice`), rad, ...
+    ambiguous_separation : float
+        ... required where the two candidates are farther apart than this, rad (closer
+        candidates are both near the truth).
     """
 
     min_coverage: float = 0.5
@@ -112,13 +122,22 @@ class EstimatorConfig:
     depth_range: tuple[float, float] = (0.01, 0.3)
     size_tol: float = 0.15
     max_normal_disagreement: float = math.radians(15.0)
+    min_normal_margin: float = math.radians(2.0)
+    ambiguous_separation: float = math.radians(20.0)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_coverage <= 1.0:
             raise ValueError(f"min_coverage must be in (0, 1], got {self.min_coverage}")
         if not 0.0 < self.depth_range[0] < self.depth_range[1]:
             raise ValueError(f"depth_range must be 0 < near < far m, got {self.depth_range}")
-        for name in ("max_row_px", "row_fraction", "size_tol", "max_normal_disagreement"):
+        for name in (
+            "max_row_px",
+            "row_fraction",
+            "size_tol",
+            "max_normal_disagreement",
+            "min_normal_margin",
+            "ambiguous_separation",
+        ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be finite and > 0, got {value}")
@@ -170,6 +189,59 @@ def _as_frame(
     return np.asarray(np.clip(np.round(a), 0, 255), dtype=np.uint8)
 
 
+def ring_box(frame: NDArray[np.uint8], keys: ColourKeys) -> tuple[int, int, int, int] | None:
+    """Where the ring can be: (u0, v0, u1, v1), px (end-exclusive), or None.
+
+    Ring-hued pixels of every ``COARSE_STRIDE``-th row and column (a ring tube at least that
+    thick in the image is never missed), their box grown by ``COARSE_STRIDE`` + ``BOX_MARGIN_PX``
+    and clipped to the image. ``frame`` : (H, W, 3) uint8 RGB.
+    """
+    coarse = np.ascontiguousarray(frame[::COARSE_STRIDE, ::COARSE_STRIDE])
+    hsv = cv2.cvtColor(coarse, cv2.COLOR_RGB2HSV)
+    mask = hue_mask(hsv, keys.ring_hue)
+    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+    if w == 0 or h == 0:
+        return None
+    grow = COARSE_STRIDE + BOX_MARGIN_PX
+    H, W = frame.shape[:2]
+    u0, v0 = max(x * COARSE_STRIDE - grow, 0), max(y * COARSE_STRIDE - grow, 0)
+    u1 = min((x + w - 1) * COARSE_STRIDE + grow + 1, W)
+    v1 = min((y + h - 1) * COARSE_STRIDE + grow + 1, H)
+    return u0, v0, u1, v1
+
+
+def _fit_eye(frame: NDArray[np.uint8], keys: ColourKeys) -> ImageEllipse | None:
+    """One eye's rim ellipse (full-image pixels): segmented and fitted inside :func:`ring_box`.
+
+    The crop's edges that are not the image's lie ``BOX_MARGIN_PX`` away from any ring pixel, so
+    the fit's border rule (:func:`endocam.perception.ellipse.silhouette_points`) only drops
+    points on the image's own border.
+    """
+    box = ring_box(frame, keys)
+    if box is None:
+        return None
+    u0, v0, u1, v1 = box
+    ring, wire = segment(frame[v0:v1, u0:u1], keys)
+    H, W = frame.shape[:2]
+    if (u0, v0, u1, v1) != (0, 0, W, H):
+        ring = _pad_inner_edges(ring, box, (H, W))
+        wire = _pad_inner_edges(wire, box, (H, W))
+    fit = fit_rim(ring, wire)
+    if fit is None:
+        return None
+    return fit.shifted(np.array([u0 - (u0 > 0), v0 - (v0 > 0)], dtype=float))
+
+
+def _pad_inner_edges(
+    mask: NDArray[np.bool_], box: tuple[int, int, int, int], shape: tuple[int, int]
+) -> NDArray[np.bool_]:
+    """``mask`` of a crop padded by one empty pixel on each edge that is not the image's."""
+    u0, v0, u1, v1 = box
+    H, W = shape
+    pads = ((int(v0 > 0), int(v1 < H)), (int(u0 > 0), int(u1 < W)))
+    return np.asarray(np.pad(mask, pads))
+
+
 def estimate_ring_pose(
     left: NDArray[np.generic],
     right: NDArray[np.generic],
@@ -214,7 +286,7 @@ def estimate_ring_detail(
     for frame in frames:
         if frame is None:
             return EstimateResult(None, EstimateStatus.BAD_FRAME)
-        fit = fit_rim(segment(frame, model.keys)[0])
+        fit = _fit_eye(frame, model.keys)
         if fit is None:
             return EstimateResult(None, EstimateStatus.NO_RING)
         fits.append(fit)
@@ -249,9 +321,12 @@ def estimate_ring_detail(
         conics.append(Q)
     if size_err > cfg.size_tol:
         return EstimateResult(None, EstimateStatus.SIZE_MISMATCH)
-    n, disagreement = choose_normal(normals[0], normals[1])
+    choice = choose_normal(normals[0], normals[1])
+    n, disagreement = choice.n, choice.disagreement
     if disagreement > cfg.max_normal_disagreement:
         return EstimateResult(None, EstimateStatus.NORMALS_DISAGREE)
+    if choice.separation > cfg.ambiguous_separation and choice.margin < cfg.min_normal_margin:
+        return EstimateResult(None, EstimateStatus.AMBIGUOUS)
     p = _triangulate(conics[0], conics[1], n, model.camera)
     if p is None or not cfg.depth_range[0] <= p[2] <= cfg.depth_range[1]:
         return EstimateResult(None, EstimateStatus.BAD_DEPTH)
@@ -264,9 +339,32 @@ def estimate_ring_detail(
     return EstimateResult(est, EstimateStatus.OK)
 
 
+class NormalChoice(NamedTuple):
+    """:func:`choose_normal`'s answer.
+
+    Attributes
+    ----------
+    n : (3,)
+        The unit mean of the best-agreeing pair of candidates, camera frame.
+    disagreement : float
+        The angle between that pair, rad.
+    margin : float
+        How much worse the other hypothesis agrees (its best pair's angle minus
+        ``disagreement``), rad: the evidence for the choice.
+    separation : float
+        The angle between the two candidates of the left eye, rad (about twice the viewing
+        angle): what a wrong choice would cost.
+    """
+
+    n: FloatArray
+    disagreement: float
+    margin: float
+    separation: float
+
+
 def choose_normal(
     left: tuple[FloatArray, FloatArray], right: tuple[FloatArray, FloatArray]
-) -> tuple[FloatArray, float]:
+) -> NormalChoice:
     """The normal both eyes see: of the 2 × 2 candidate pairs, the one that agrees best.
 
     Parameters
@@ -277,20 +375,17 @@ def choose_normal(
 
     Returns
     -------
-    n : (3,)
-        The unit mean of the best-agreeing pair.
-    angle : float
-        The angle between that pair, rad.
+    NormalChoice
     """
-    best: tuple[float, FloatArray] | None = None
+    per_left = []
     for a in left:
-        for b in right:
-            c = float(np.clip(a @ b, -1.0, 1.0))
-            if best is None or c > best[0]:
-                best = (c, a + b)
-    assert best is not None
-    c, s = best
-    return np.asarray(s / np.linalg.norm(s)), math.acos(c)
+        cos = [float(np.clip(a @ b, -1.0, 1.0)) for b in right]
+        j = int(np.argmax(cos))
+        per_left.append((math.acos(cos[j]), a + right[j]))
+    (d0, s0), (d1, s1) = per_left
+    best, other, s = (d0, d1, s0) if d0 <= d1 else (d1, d0, s1)
+    separation = math.acos(float(np.clip(left[0] @ left[1], -1.0, 1.0)))
+    return NormalChoice(np.asarray(s / np.linalg.norm(s)), best, other - best, separation)
 
 
 def _triangulate(
