@@ -128,6 +128,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=300, help="stereo pairs over all episodes")
     parser.add_argument("--json", default=None, help="write the report here too")
+    parser.add_argument(
+        "--dump-wild", default=None, help="save each wild estimate's pair here (.npz) to inspect"
+    )
     args = parser.parse_args(argv)
     if args.frames < 12:
         print("error: --frames must be at least 12 (one per episode)", file=sys.stderr)
@@ -175,6 +178,11 @@ def main(argv: list[str] | None = None) -> int:
                 row[key + "_cpu"] = time.thread_time() - c0
                 row[key + "_status"] = out.status.value
                 row[key] = None if out.estimate is None else errors(out.estimate, p_cam, n_cam)
+                wild = row[key] is not None and (row[key][0] > WILD_M or row[key][1] > WILD_RAD)
+                if wild and args.dump_wild:
+                    os.makedirs(args.dump_wild, exist_ok=True)
+                    name = os.path.join(args.dump_wild, f"{key}_{len(rows)}.npz")
+                    np.savez_compressed(name, left=a, right=b, p_cam=p_cam, n_cam=n_cam)
             rows.append(row)
             bar.update(1)
     bar.close()

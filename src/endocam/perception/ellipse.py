@@ -258,6 +258,26 @@ def circle_normals(Q: FloatArray) -> tuple[FloatArray, FloatArray] | None:
     return out[0], out[1]
 
 
+def radius_over_distance(Q: FloatArray) -> float:
+    r"""A circle's radius over its plane's distance from the eye, from its image conic alone.
+
+    With ``Q``'s eigenvalues ordered as in :func:`circle_normals`, both circular sections of the
+    cone ``xᵀ Q x = 0`` at distance ``d`` (``n · x = d``) have the radius
+
+    .. math:: ρ = d \, \sqrt{−λ_1 λ_3} / λ_2
+
+    (the points of the cone on that plane lie on a sphere through the eye, by the factoring of
+    ``Q − λ2 I``). NaN when ``Q`` is not an ellipse's cone.
+    """
+    lam = np.linalg.eigvalsh(Q)
+    if lam[1] < 0.0:
+        lam = -lam[::-1]
+    l3, l2, l1 = lam
+    if not (l1 >= l2 > 0.0 > l3):
+        return math.nan
+    return math.sqrt(-l1 * l3) / l2
+
+
 def centre_image(Q: FloatArray, n: FloatArray) -> FloatArray | None:
     """Normalised image (x, y) of the centre of the circle with image ``Q`` and normal ``n``.
 

@@ -17,8 +17,8 @@ Per pair (:func:`estimate_ring_pose`; the method and its failure modes: docs/per
    that agree best gives the normal (their mean); the others are discarded.
 5. **Centre**: each eye's image of the circle's centre for that normal, triangulated.
 6. **Reject what is inconsistent**: rows that differ between the eyes, a depth outside
-   ``depth_range``, a core ellipse whose size is not that of a ring of radius ``R`` at the
-   triangulated depth, eyes whose normals disagree by more than ``max_normal_disagreement``.
+   ``depth_range``, a core ellipse that is not a circle of radius ``R`` at the triangulated
+   distance, eyes whose normals disagree by more than ``max_normal_disagreement``.
 
 The confidence in [0, 1] is the smaller coverage times the margins left on the size and normal
 checks. Everything is SI inside; pixels only for image quantities (``_px``).
@@ -43,6 +43,7 @@ from endocam.perception.ellipse import (
     circle_normals,
     fit_rim,
     normalised_conic,
+    radius_over_distance,
 )
 from endocam.perception.segment import ColourKeys, hue_mask, segment
 from endocam.task.config import TaskConfig
@@ -106,7 +107,9 @@ class EstimatorConfig:
     depth_range : (2,) float
         Accepted depths of the ring centre, m.
     size_tol : float
-        Largest relative difference between the core ellipse's major semi-axis and ``f R / Z``.
+        Largest relative difference between ``R`` and the radius each eye's core ellipse implies
+        at the triangulated centre's distance
+        (:func:`~endocam.perception.ellipse.radius_over_distance`).
     max_normal_disagreement : float
         Largest angle between the two eyes' chosen normals, rad.
     min_normal_margin : float
@@ -120,7 +123,7 @@ class EstimatorConfig:
     max_row_px: float = 2.0
     row_fraction: float = 0.1
     depth_range: tuple[float, float] = (0.01, 0.3)
-    size_tol: float = 0.15
+    size_tol: float = 0.08
     max_normal_disagreement: float = math.radians(15.0)
     min_normal_margin: float = math.radians(2.0)
     ambiguous_separation: float = math.radians(20.0)
@@ -303,24 +306,18 @@ def estimate_ring_detail(
         return EstimateResult(None, EstimateStatus.BAD_DEPTH)
     z = fb / disparity
     tube_px = k.fx * model.minor_radius / z
-    expected_px = k.fx * model.major_radius / z
     K = k.K
     normals = []
     conics = []
-    size_err = 0.0
     for fit in (fl, fr):
         if fit.b <= tube_px:
             return EstimateResult(None, EstimateStatus.SIZE_MISMATCH)
-        core = fit.shrunk(tube_px)
-        size_err = max(size_err, abs(core.a / expected_px - 1.0))
-        Q = normalised_conic(core, K)
+        Q = normalised_conic(fit.shrunk(tube_px), K)
         cand = circle_normals(Q)
         if cand is None:
             return EstimateResult(None, EstimateStatus.SIZE_MISMATCH)
         normals.append(cand)
         conics.append(Q)
-    if size_err > cfg.size_tol:
-        return EstimateResult(None, EstimateStatus.SIZE_MISMATCH)
     choice = choose_normal(normals[0], normals[1])
     n, disagreement = choice.n, choice.disagreement
     if disagreement > cfg.max_normal_disagreement:
@@ -330,6 +327,13 @@ def estimate_ring_detail(
     p = _triangulate(conics[0], conics[1], n, model.camera)
     if p is None or not cfg.depth_range[0] <= p[2] <= cfg.depth_range[1]:
         return EstimateResult(None, EstimateStatus.BAD_DEPTH)
+    size_err = 0.0
+    for Q, eye in zip(conics, ("left", "right"), strict=True):
+        d = abs(float(n @ (p - model.camera.T_cam_eye(eye)[:3, 3])))
+        rho = d * radius_over_distance(Q)
+        size_err = max(size_err, abs(rho / model.major_radius - 1.0))
+    if not size_err <= cfg.size_tol:
+        return EstimateResult(None, EstimateStatus.SIZE_MISMATCH)
     confidence = (
         coverage
         * (1.0 - size_err / cfg.size_tol)
