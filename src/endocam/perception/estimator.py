@@ -328,8 +328,9 @@ def estimate_ring_detail(
     if p is None or not cfg.depth_range[0] <= p[2] <= cfg.depth_range[1]:
         return EstimateResult(None, EstimateStatus.BAD_DEPTH)
     size_err = 0.0
-    for Q, eye in zip(conics, ("left", "right"), strict=True):
-        d = abs(float(n @ (p - model.camera.T_cam_eye(eye)[:3, 3])))
+    half_baseline = np.array([0.5 * model.camera.baseline, 0.0, 0.0])
+    for Q, p_eye in zip(conics, (p + half_baseline, p - half_baseline), strict=True):
+        d = abs(float(n @ p_eye))  # the eyes sit at ∓baseline/2 along x
         rho = d * radius_over_distance(Q)
         size_err = max(size_err, abs(rho / model.major_radius - 1.0))
     if not size_err <= cfg.size_tol:

@@ -76,9 +76,8 @@ def hue_mask(hsv: NDArray[Any], hue: int) -> NDArray[np.bool_]:
         intervals.append((lo + HUE_RANGE, HUE_RANGE - 1))
     if hi > HUE_RANGE - 1:
         intervals.append((0, hi - HUE_RANGE))
-    mask = np.zeros(hsv.shape[:2], dtype=np.uint8)
-    for a, b in intervals:
-        mask |= cv2.inRange(hsv, (a, SAT_MIN, VAL_MIN), (b, 255, 255))
+    masks = [cv2.inRange(hsv, (a, SAT_MIN, VAL_MIN), (b, 255, 255)) for a, b in intervals]
+    mask = masks[0] if len(masks) == 1 else cv2.bitwise_or(masks[0], masks[1])
     return np.asarray(mask > 0)
 
 
