@@ -113,7 +113,11 @@ class EstimatorConfig:
     max_normal_disagreement : float
         Largest angle between the two eyes' chosen normals, rad.
     min_normal_margin : float
-        Least margin of the chosen normal over the other (:class:`NormalChoice`), rad, ...
+        Least margin of the chosen normal over the other (:class:`NormalChoice`), rad, up to the
+        depth ``margin_depth``; beyond it, the margin needed grows in proportion to the depth
+        (the eyes' parallax, baseline / depth, shrinks and the ring's image with it) ...
+    margin_depth : float
+        The depth up to which ``min_normal_margin`` holds unscaled, m.
     ambiguous_separation : float
         ... required where the two candidates are farther apart than this, rad (closer
         candidates are both near the truth).
@@ -126,6 +130,7 @@ class EstimatorConfig:
     size_tol: float = 0.08
     max_normal_disagreement: float = math.radians(15.0)
     min_normal_margin: float = math.radians(2.0)
+    margin_depth: float = 0.06
     ambiguous_separation: float = math.radians(20.0)
 
     def __post_init__(self) -> None:
@@ -139,6 +144,7 @@ class EstimatorConfig:
             "size_tol",
             "max_normal_disagreement",
             "min_normal_margin",
+            "margin_depth",
             "ambiguous_separation",
         ):
             value = getattr(self, name)
@@ -322,7 +328,8 @@ def estimate_ring_detail(
     n, disagreement = choice.n, choice.disagreement
     if disagreement > cfg.max_normal_disagreement:
         return EstimateResult(None, EstimateStatus.NORMALS_DISAGREE)
-    if choice.separation > cfg.ambiguous_separation and choice.margin < cfg.min_normal_margin:
+    needed = cfg.min_normal_margin * max(1.0, z / cfg.margin_depth)
+    if choice.separation > cfg.ambiguous_separation and choice.margin < needed:
         return EstimateResult(None, EstimateStatus.AMBIGUOUS)
     p = _triangulate(conics[0], conics[1], n, model.camera)
     if p is None or not cfg.depth_range[0] <= p[2] <= cfg.depth_range[1]:
