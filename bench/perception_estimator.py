@@ -52,6 +52,19 @@ WILD_M = 20e-3  # m, an estimate off by more than this is wild
 WILD_RAD = math.radians(45.0)  # rad, likewise for the normal
 SKIP_S = 1.0  # s, frames before this (the camera still settling from its start) are not sampled
 IMAGE_SEED = 0  # seeds the image model: frame i uses default_rng((IMAGE_SEED, i))
+# --stress: one effect strengthened at a time (a fixed blur replaces the ring's own), name ->
+# (config, blur velocity px/s along the image's x or None for the ring's own)
+_BASE = ImageModelConfig()
+STRESS = {
+    "noise x3": (ImageModelConfig(read_noise_dn=6.0, shot_noise_dn=12.0), None),
+    "gain 0.5-1.5": (ImageModelConfig(gain_range=(0.5, 1.5)), None),
+    "10 highlights on the rim": (
+        ImageModelConfig(highlight_rate=10.0, highlight_radius_px=(2.0, 6.0)),
+        None,
+    ),
+    "blur 6 px": (_BASE, 6.0 / _BASE.exposure),
+    "blur 12 px": (_BASE, 12.0 / _BASE.exposure),
+}
 
 
 def rim_points(T_world_ring: np.ndarray, radius: float) -> np.ndarray:
@@ -129,6 +142,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=300, help="stereo pairs over all episodes")
     parser.add_argument("--json", default=None, help="write the report here too")
     parser.add_argument(
+        "--stress", action="store_true", help="also each STRESS variant of the image model"
+    )
+    parser.add_argument(
         "--dump-wild", default=None, help="save each wild estimate's pair here (.npz) to inspect"
     )
     args = parser.parse_args(argv)
@@ -163,14 +179,26 @@ def main(argv: list[str] | None = None) -> int:
             rng = np.random.default_rng((IMAGE_SEED, len(rows)))
             pairs = {"clean": (left, right)}
             degraded = []
+            velocities = {}
             for eye, img in (("left", left), ("right", right)):
                 uv0 = camera.project(T_cam, T_ring[:3, 3], eye)
                 uv1 = camera.project(log.T_world_cam[k + 1], log.T_world_ring[k + 1, :3, 3], eye)
                 vel = (uv1 - uv0) / dt if np.all(np.isfinite(uv0 + uv1)) else np.zeros(2)
+                velocities[eye] = vel
+                row[eye + "_blur_px"] = float(np.hypot(*vel)) * image_cfg.exposure
                 sites = camera.project(T_cam, rim, eye)
                 sites = sites[np.all(np.isfinite(sites), axis=1)]
                 degraded.append(degrade(img, image_cfg, rng, vel, sites))
             pairs["degraded"] = (degraded[0], degraded[1])
+            for name, (cfg_s, speed) in STRESS.items() if args.stress else ():
+                srng = np.random.default_rng((IMAGE_SEED, len(rows), 1))
+                stressed = []
+                for eye, img in (("left", left), ("right", right)):
+                    sites = camera.project(T_cam, rim, eye)
+                    sites = sites[np.all(np.isfinite(sites), axis=1)]
+                    vel = velocities[eye] if speed is None else np.array([speed, 0.0])
+                    stressed.append(degrade(img, cfg_s, srng, vel, sites))
+                pairs[name] = (stressed[0], stressed[1])
             for key, (a, b) in pairs.items():
                 t0, c0 = time.perf_counter(), time.thread_time()
                 out = estimate_ring_detail(a, b, model)
@@ -188,7 +216,13 @@ def main(argv: list[str] | None = None) -> int:
     bar.close()
     for s in scenes.values():
         s.close()
-    report = {key: summarise(rows, key) for key in ("clean", "degraded")}
+    keys = ["clean", "degraded", *(STRESS if args.stress else ())]
+    report = {key: summarise(rows, key) for key in keys}
+    blur = np.array([r["left_blur_px"] for r in rows])
+    report["degraded"]["ring_blur_px_left"] = {
+        "median": float(np.median(blur)),
+        "p95": float(np.percentile(blur, 95)),
+    }
     print(json.dumps(report, indent=2))
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:

@@ -2,10 +2,10 @@
 
 Two 640x480 left-eye frames of the ring on the ideal 36-point path, the wire through it: a clear
 oblique view, and a view with the wire in front of part of the rim, degraded by the image model
-(blur, a brightness change, highlights on the rim, noise). Each figure is a crop around the ring:
-left, the segmentation (shown twice as large) (ring pixels white, wire pixels cyan); right, the fit and the estimate
-(silhouette points white, fitted outline green, estimated core circle magenta, normal cyan),
-with the errors against the truth in the title bar.
+(blur, a brightness change, highlights on the rim, noise). Each figure is a crop around the ring,
+shown twice as large: left, the segmentation (ring pixels white, wire pixels cyan); right, the
+fit and the estimate (silhouette points white, fitted outline green, estimated core circle
+magenta, normal cyan), with the errors against the truth in the title bar.
 
 Run:
   MUJOCO_GL=egl PYTHONPATH=src .venv/bin/python bench/perception_frames.py [--out docs/img]
