@@ -16,12 +16,14 @@ import pytest
 from endocam.camera import Intrinsics, StereoCamera
 from endocam.perception import (
     EstimateStatus,
+    EstimatorConfig,
     RingEstimate,
     RingModel,
     estimate_ring_detail,
     estimate_ring_pose,
 )
 from endocam.perception.ellipse import circle_normals, fit_rim, normalised_conic
+from endocam.perception.estimator import draw_estimate
 from endocam.perception.image_model import ImageModelConfig, degrade
 from endocam.perception.segment import segment
 from endocam.sim.render import WireChaserScene
@@ -103,10 +105,11 @@ def errors(est: RingEstimate, p_cam: np.ndarray, n_cam: np.ndarray) -> tuple[flo
 @pytest.mark.parametrize(
     ("azimuth_deg", "elevation_deg", "normal_tol"),
     [
-        (40.0, 0.0, NORMAL_TOL),  # the pair's mirror images: a wrong choice of the two
-        (-40.0, 0.0, NORMAL_TOL),  # candidate normals is 80° off in one of them
-        (0.0, 35.0, NORMAL_TOL),
-        (3.0, 2.0, FRONTAL_NORMAL_TOL),
+        # the pair's mirror images: a wrong choice of the two candidate normals is 80° off in one
+        pytest.param(40.0, 0.0, NORMAL_TOL, id="azimuth+40"),
+        pytest.param(-40.0, 0.0, NORMAL_TOL, id="azimuth-40"),
+        pytest.param(0.0, 35.0, NORMAL_TOL, id="elevation35"),
+        pytest.param(3.0, 2.0, FRONTAL_NORMAL_TOL, id="near-normal"),
     ],
 )
 def test_pose_of_a_clear_ring(
@@ -227,3 +230,17 @@ def test_frames_without_a_ring_give_none() -> None:
 def test_a_wrong_image_shape_is_an_error() -> None:
     with pytest.raises(ValueError, match="left"):
         estimate_ring_pose(np.zeros((10, 10, 3), np.uint8), np.zeros((10, 10, 3), np.uint8), MODEL)
+
+
+def test_an_unresolved_choice_of_normal_gives_none(scene: WireChaserScene) -> None:
+    """Asking the second eye for more evidence than a 40° view gives: ``ambiguous``, no pose."""
+    T_ring = ring_pose()
+    left, right, _, _ = view(scene, T_ring, camera_at(T_ring, math.radians(40.0)))
+    strict = EstimatorConfig(min_normal_margin=math.radians(60.0))
+    res = estimate_ring_detail(left, right, MODEL, strict)
+    assert res.estimate is None
+    assert res.status is EstimateStatus.AMBIGUOUS
+    est = estimate_ring_pose(left, right, MODEL)
+    assert est is not None
+    drawn = draw_estimate(left, est, MODEL)
+    assert drawn.shape == left.shape and not np.array_equal(drawn, left)
