@@ -21,7 +21,8 @@ from endocam.perception.ellipse import (
     radius_over_distance,
 )
 from endocam.perception.estimator import choose_normal
-from endocam.perception.segment import HUE_TOL, SAT_MIN, VAL_MIN, hue_mask
+from endocam.perception.segment import HUE_TOL, SAT_MIN, VAL_MIN, ColourKeys, hue_mask, segment
+from endocam.task.config import SceneConfig
 
 K = StereoCamera().intrinsics.K
 ATOL_UNIT = 1e-9  # unitless, unit vectors and normalised image coordinates from exact conics
@@ -115,6 +116,18 @@ def test_hue_mask_is_the_circular_hue_rule(hue: int) -> None:
     d = np.minimum(d, 180 - d)
     expected = (d <= HUE_TOL) & (hsv[..., 1] >= SAT_MIN) & (hsv[..., 2] >= VAL_MIN)
     np.testing.assert_array_equal(hue_mask(hsv, hue), expected)
+
+
+def test_segmenting_a_frame_without_the_ring_or_the_wire() -> None:
+    """No ring-hued pixel at all (an empty box for the labelling): empty masks, no crash."""
+    keys = ColourKeys.from_scene(SceneConfig())
+    grey = np.full((24, 32, 3), 128, dtype=np.uint8)
+    ring, wire = segment(grey, keys)
+    assert ring.shape == wire.shape == (24, 32)
+    assert not ring.any() and not wire.any()
+    speck = grey.copy()
+    speck[5, 5] = (255, 158, 13)  # one ring-coloured pixel: a component under MIN_RING_PX
+    assert not segment(speck, keys)[0].any()
 
 
 def drawn_ring(centre: tuple[int, int], axes: tuple[int, int], angle_deg: float) -> np.ndarray:

@@ -101,8 +101,12 @@ def segment(
     ring = hue_mask(hsv, keys.ring_hue)
     wire = hue_mask(hsv, keys.wire_hue)
     x, y, w, h = cv2.boundingRect(ring.view(np.uint8))  # label only where the ring can be
+    if w == 0 or h == 0:  # no ring-hued pixel (OpenCV must not label an empty array)
+        return ring, wire
     roi = ring[y : y + h, x : x + w]
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(roi.view(np.uint8), connectivity=8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(
+        np.ascontiguousarray(roi).view(np.uint8), connectivity=8
+    )
     keep = np.zeros(n, dtype=bool)
     keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= MIN_RING_PX
     roi[...] = keep[labels]
