@@ -7,7 +7,8 @@ else: no pose, no camera intrinsics, no clearance.
 
 Per frame (:func:`frame_gap_px`):
 
-1. **Segment** the ring and the wire by colour (OpenCV HSV: hue within ``HUE_TOL`` of the
+1. **Segment** the ring and the wire by colour (:func:`endocam.perception.segment.segment`,
+   shared with the stereo pose estimator; OpenCV HSV: hue within ``HUE_TOL`` of the
    configured colour's hue, saturation ≥ ``SAT_MIN``, value ≥ ``VAL_MIN``), ring components of
    fewer than ``MIN_RING_PX`` pixels dropped.
 2. **The ring's outline**: an ellipse fitted (``cv2.fitEllipse``) to the convex hull of the
@@ -37,18 +38,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from endocam.task.config import RGBA, RingConfig, SceneConfig, WireConfig
+from endocam.perception.segment import MIN_RING_PX
+from endocam.perception.segment import ColourKeys as ColourKeys  # re-exported for the observer
+from endocam.perception.segment import segment as segment
+from endocam.task.config import RingConfig, WireConfig
 
-HUE_TOL = 12  # OpenCV hue units (0..180 ↔ 0..360°): ±24° around the object's hue
-SAT_MIN = 110  # 8-bit saturation: the ring and the wire are saturated, board and walls are not
-VAL_MIN = 35  # 8-bit value: darker pixels carry no reliable hue
-MIN_RING_PX = 12  # px, smaller orange components are noise (or a ring too small to judge)
 MIN_BAND_PX = 3  # px, fewest wire pixels inside the hole that make a band
 _RING = RingConfig()
 _WIRE = WireConfig()
@@ -61,62 +60,6 @@ RESOLVE_PX = 3.0  # px, a gap this wide is resolvable (the counter's OPEN_GAP_PX
 WIDTH_TOL = 1.25  # unitless, the band may look this much wider than the wire at the ring's depth
 # (a wire point nearer the camera than the ring by a fifth of the ring's distance looks wider)
 WIDTH_SLACK_PX = 2.0 * PIXEL_PX  # px, encoding blur: one pixel on each edge of the band
-
-
-# --------------------------------------------------------------------------- segmentation
-@dataclass(frozen=True)
-class ColourKeys:
-    """What the observer knows: the hues of the ring and of the wire (OpenCV units, 0..180)."""
-
-    ring_hue: int
-    wire_hue: int
-
-    @classmethod
-    def from_rgba(cls, ring_rgba: RGBA, wire_rgba: RGBA) -> ColourKeys:
-        """Keys from the scene's RGBA colours (components 0..1)."""
-        return cls(ring_hue=_hue(ring_rgba), wire_hue=_hue(wire_rgba))
-
-    @classmethod
-    def from_scene(cls, scene: SceneConfig) -> ColourKeys:
-        """Keys of a scene config's ring and wire."""
-        return cls.from_rgba(scene.ring_rgba, scene.wire_rgba)
-
-
-def _hue(rgba: RGBA) -> int:
-    rgb = np.clip(np.round(np.asarray(rgba[:3]) * 255.0), 0, 255).astype(np.uint8)
-    return int(cv2.cvtColor(rgb.reshape(1, 1, 3), cv2.COLOR_RGB2HSV)[0, 0, 0])
-
-
-def _hue_mask(hsv: NDArray[Any], hue: int) -> NDArray[np.bool_]:
-    h = hsv[..., 0].astype(np.int16)
-    d = np.abs(h - hue)
-    d = np.minimum(d, 180 - d)  # hue is circular
-    return np.asarray((d <= HUE_TOL) & (hsv[..., 1] >= SAT_MIN) & (hsv[..., 2] >= VAL_MIN))
-
-
-def segment(
-    frame_rgb: NDArray[np.uint8], keys: ColourKeys
-) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
-    """Ring and wire masks of one frame.
-
-    Parameters
-    ----------
-    frame_rgb : (H, W, 3) uint8
-        RGB image.
-    keys : ColourKeys
-
-    Returns
-    -------
-    ring, wire : (H, W) bool
-        Ring pixels (components of at least ``MIN_RING_PX``) and wire pixels.
-    """
-    hsv = cv2.cvtColor(np.ascontiguousarray(frame_rgb), cv2.COLOR_RGB2HSV)
-    ring = _hue_mask(hsv, keys.ring_hue)
-    wire = _hue_mask(hsv, keys.wire_hue)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(ring.astype(np.uint8), connectivity=8)
-    keep = np.zeros(n, dtype=bool)
-    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= MIN_RING_PX
-    return keep[labels], wire
 
 
 # --------------------------------------------------------------------------- geometry
