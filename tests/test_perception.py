@@ -32,6 +32,8 @@ from endocam.task.config import TaskConfig
 from endocam.task.trajectory import TrajectoryKind, make_trajectory
 from endocam.view import look_at_pose
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 TASK = TaskConfig()
 CAMERA = StereoCamera(Intrinsics.from_fovy(320, 240, math.radians(60.0)))
 MODEL = RingModel.from_task(TASK, CAMERA)

@@ -24,6 +24,8 @@ from endocam.perception.estimator import choose_normal
 from endocam.perception.segment import HUE_TOL, SAT_MIN, VAL_MIN, ColourKeys, hue_mask, segment
 from endocam.task.config import SceneConfig
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 K = StereoCamera().intrinsics.K
 ATOL_UNIT = 1e-9  # unitless, unit vectors and normalised image coordinates from exact conics
 RTOL_RADIUS = 1e-9  # unitless, the radius from an exact conic

@@ -16,6 +16,8 @@ from endocam.perception.image_model import (
     scale_brightness,
 )
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 GREY_DN = 128  # DN, a mid-grey test image
 RTOL_STD = 0.05  # unitless, a noise std measured over 3 × 200² samples
 ROUND_DN = 1  # DN, one rounding step of the 8-bit output
