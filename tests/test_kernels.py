@@ -243,3 +243,27 @@ def test_wrap_angle_is_math_remainder(angle: float) -> None:
         # the same direction as the angle it wraps
         assert math.isclose(math.cos(got), math.cos(angle), abs_tol=WRAP_ATOL_RAD)
         assert math.isclose(math.sin(got), math.sin(angle), abs_tol=WRAP_ATOL_RAD)
+
+
+def test_the_kernel_boundary_gives_one_numba_type_for_read_only_and_writable_arrays() -> None:
+    """A read-only pose or tips array reaches the compiled steps as the writable type.
+
+    numba compiles a kernel once per argument type; a read-only array is another type, so
+    without the boundary a policy given a read-only observation compiles its step twice.
+    """
+    from numba import typeof
+
+    from endocam.control.checks import pose_array, tips_array
+
+    rng = np.random.default_rng(3)
+    T = rng.normal(size=(4, 4))
+    tips = rng.normal(size=(2, 3))
+    for convert, a in ((pose_array, T), (tips_array, tips), (kernels.kernel_array, T)):
+        frozen = a.copy()
+        frozen.setflags(write=False)
+        assert typeof(convert(frozen)) == typeof(convert(a.copy()))
+        np.testing.assert_array_equal(convert(frozen), a)
+        writable = a.copy()
+        assert convert(writable) is writable  # no copy on the hot path
+    assert typeof(tips_array(np.zeros((0, 3)).T.T)) == typeof(tips_array(tips))
+    assert typeof(pose_array(np.asfortranarray(T))) == typeof(pose_array(T))

@@ -27,6 +27,7 @@ __all__ = [
     "dot",
     "dot3",
     "finite_rows",
+    "kernel_array",
     "matmul",
     "matmul4_into",
     "matvec3",
@@ -47,6 +48,19 @@ __all__ = [
 Vec = tuple[float, float, float]
 Rows = list[list[float]]
 _SMALL_ANGLE = 1e-8  # rad, below this the first-order series of log/exp is exact in floats
+
+
+def kernel_array(a: np.ndarray) -> np.ndarray:
+    """``a`` as the compiled kernels take an array: C-contiguous, writable float64.
+
+    ``a`` itself when it is one, else a copy. numba compiles a kernel once per argument type,
+    and a read-only or a non-contiguous array is another type: without this boundary a kernel
+    reached once with a caller's read-only array compiles a second time (a whole step's worth
+    of compile time for the large ones).
+    """
+    if a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable:
+        return a
+    return np.array(a, dtype=np.float64, order="C")
 
 
 @register_jitable  # also callable from compiled kernels (the same source)

@@ -25,7 +25,7 @@ from endocam.control.gate import (
     gate_decide,
 )
 from endocam.geometry import FloatArray
-from endocam.kernels import dist3, unit_checked
+from endocam.kernels import dist3, kernel_array, unit_checked
 from endocam.workspace.cone import Cone, cone_margin
 
 __all__ = [
@@ -166,23 +166,23 @@ def pose_array(T: object) -> FloatArray | None:
     """``T`` as a (4, 4) float array (itself when it is one), or ``None`` (missing, wrong shape).
 
     The boundary from an observation into the compiled steps (C-contiguous: they are called
-    at a fixed signature, ``fixed_signature.FixedSignature``).
+    at a fixed signature, ``fixed_signature.FixedSignature``; writable, a read-only array
+    copied: numba compiles a kernel once per argument type, and a read-only array is another
+    type, a second compile of the whole step).
     """
     if type(T) is np.ndarray and T.dtype == np.float64 and T.shape == (4, 4):
-        return T if T.flags.c_contiguous else np.ascontiguousarray(T)
+        return kernel_array(T)
     if T is None:
         return None
-    arr = np.ascontiguousarray(T, dtype=float)
+    arr = kernel_array(np.asarray(T, dtype=float))
     return arr if arr.shape == (4, 4) else None
 
 
 def tips_array(tips: object) -> FloatArray:
-    """``tips`` as a C-contiguous (K, 3) float array (itself when it is one), world, m."""
-    if (
-        type(tips) is np.ndarray
-        and tips.dtype == np.float64
-        and tips.ndim == 2
-        and tips.flags.c_contiguous
-    ):
-        return tips
-    return np.ascontiguousarray(np.asarray(tips, dtype=float).reshape(-1, 3))
+    """``tips`` as a C-contiguous, writable (K, 3) float array (itself when it is one), world, m.
+
+    Writable as :func:`pose_array`'s poses: a read-only array is copied.
+    """
+    if type(tips) is np.ndarray and tips.dtype == np.float64 and tips.ndim == 2:
+        return kernel_array(tips)
+    return kernel_array(np.asarray(tips, dtype=float).reshape(-1, 3))

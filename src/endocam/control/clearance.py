@@ -61,7 +61,7 @@ from endocam.control.escape import (
     clear_pose_into,
 )
 from endocam.geometry import FloatArray
-from endocam.kernels import Vec
+from endocam.kernels import Vec, kernel_array
 from endocam.task.wire import Wire
 from endocam.workspace.keepout import (
     CACHE_SIZE,
@@ -185,7 +185,9 @@ class ClearanceGuard:
         T = np.empty((4, 4))  # the adjusted pose, if any (a new array: the caller keeps it)
         request = _request(p_world_pivot, p_world_now, back_off)
         guard = self._guard_state(workspace)
-        code = clear_pose_into(guard, np.asarray(T_world_cam, dtype=float), request, T)
+        code = clear_pose_into(
+            guard, kernel_array(np.asarray(T_world_cam, dtype=float)), request, T
+        )
         if code == APPLY_CLEAR:
             return T_world_cam
         if code == APPLY_ADJUSTED:
@@ -216,7 +218,8 @@ class ClearanceGuard:
         """
         p = p_world
         T = np.empty((4, 4))  # the pose, if any (a new array: the caller keeps it)
-        look = ((float(p[0]), float(p[1]), float(p[2])), fallback, previous, check)  # a LookAt
+        position = (float(p[0]), float(p[1]), float(p[2]))
+        look = (position, kernel_array(fallback), kernel_array(previous), check)  # a LookAt
         request = _request(p_world_pivot, p_world_now, back_off)
         guard = self._guard_state(workspace)
         code, fell_back = clear_look_at_into(guard, look, request, T)

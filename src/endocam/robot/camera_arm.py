@@ -41,6 +41,7 @@ import numpy as np
 
 from endocam.camera import StereoCamera
 from endocam.geometry import FloatArray, as_pose, invert_pose
+from endocam.kernels import kernel_array
 from endocam.robot.actuator import (
     ActuatorStatus,
     ActuatorStep,
@@ -542,10 +543,11 @@ class CameraArm:
         command more than ``MAX_COMMAND_RANGE_M`` from the port, or one no solver can digest,
         is treated like a non-finite one: the arm brakes where it is.
         """
+        T_world_cmd = kernel_array(np.asarray(T_world_cmd, dtype=float))  # one compiled type
         if is_camera_command(T_world_cmd, self._p_world_rcm, MAX_COMMAND_RANGE_M):
             T_goal = T_world_cmd
         else:  # not a camera command: brake where the arm is
-            T_goal = self._T_cam
+            T_goal = kernel_array(self._T_cam)  # a writable copy, as a command
         if not (math.isfinite(look_distance) and look_distance > 0.0):
             look_distance = self._port_distance(T_goal)
         key = T_goal.tobytes()

@@ -31,7 +31,7 @@ from ruckig import (
 )
 
 from endocam.geometry import FloatArray
-from endocam.kernels import matmul, so3_exp, so3_log, tmatmul
+from endocam.kernels import kernel_array, matmul, so3_exp, so3_log, tmatmul
 from endocam.robot.actuator import WorkspaceBound
 from endocam.robot.arm import MotionStatus
 from endocam.robot.braking import profile_rows
@@ -106,8 +106,7 @@ _FINISHED, _MOVING, _REJECTED = MotionStatus.FINISHED, MotionStatus.MOVING, Moti
 _RUCKIG_OK = (Result.Working, Result.Finished)
 _RUCKIG_FINISHED = Result.Finished
 _F64 = np.dtype(np.float64)
-_NO_TWIST = np.zeros(0)
-_NO_TWIST.setflags(write=False)
+_NO_TWIST = np.zeros(0)  # writable as a given twist (one compiled type); it has no entries
 _ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 _Six = tuple[float, float, float, float, float, float]
 
@@ -445,13 +444,15 @@ class CartesianLimiter:
                 T_new = np.asarray(T_world_target, dtype=float)
             except (TypeError, ValueError):  # not numbers at all: rejected like a NaN target
                 T_new = _NOT_A_POSE
-        flat = T_new.reshape(16) if T_new.size == 16 else _NOT_A_POSE
+        flat = kernel_array(T_new.reshape(16) if T_new.size == 16 else _NOT_A_POSE)
         tw = _NO_TWIST
         if twist is not None:
             tw = twist
-            if type(tw) is not np.ndarray or tw.dtype is not _F64 or tw.ndim != 1:
+            if type(tw) is np.ndarray and tw.dtype is _F64 and tw.ndim == 1:
+                tw = kernel_array(tw)
+            else:
                 try:
-                    tw = np.ravel(np.asarray(twist, dtype=float))
+                    tw = kernel_array(np.ravel(np.asarray(twist, dtype=float)))
                 except (TypeError, ValueError):  # not numbers: no twist, as a NaN one
                     tw = _NO_TWIST
         prepared = prepare_step(flat, self._target_flat, self._arrived_at, tw, self._T, self._vmax)

@@ -1,0 +1,59 @@
+// Interaction log of the study's video pages: play, pause, seek, rate change, end and the seconds
+// of video actually played are posted to /api/event. With the manifest's must_watch rule the
+// answer button stays disabled until the end of the video has been played once and logged (the
+// server checks the same rule).
+(function () {
+  "use strict";
+  const video = document.getElementById("study_video");
+  if (!video) return;
+  const videoId = video.dataset.videoId;
+  const button = document.getElementById("answer_button");
+  const mustWatch = video.dataset.mustWatch === "true";
+  const PROGRESS_EVERY_S = 5; // s of playing between "progress" reports
+  let watched = 0; // s of media time played (seeks excluded)
+  let last = video.currentTime; // media time at the previous timeupdate (the start until played:
+  // a first timeupdate that comes before the play event still counts from 0)
+  let reported = 0;
+
+  function round(x) { return Math.round(x * 1000) / 1000; }
+
+  function send(kind) {
+    return fetch("/api/event", {
+      method: "POST",
+      headers: { "Content-Type": "application/json" },
+      credentials: "same-origin",
+      keepalive: true,
+      body: JSON.stringify({
+        video_id: videoId,
+        kind: kind,
+        media_time_s: round(video.currentTime || 0),
+        playback_rate: video.playbackRate,
+        watched_s: round(watched),
+      }),
+    }).catch(function () { return null; });
+  }
+
+  if (mustWatch && button) button.disabled = true;
+  video.addEventListener("timeupdate", function () {
+    const now = video.currentTime;
+    if (!video.seeking && last !== null) {
+      const step = now - last;
+      if (step > 0 && step < 1.5 * Math.max(1, video.playbackRate)) watched += step;
+    }
+    last = now;
+    if (watched - reported >= PROGRESS_EVERY_S) { reported = watched; send("progress"); }
+  });
+  video.addEventListener("seeking", function () { last = null; });
+  video.addEventListener("seeked", function () { last = video.currentTime; send("seeked"); });
+  video.addEventListener("play", function () { if (last === null) last = video.currentTime; });
+  ["play", "pause", "ratechange"].forEach(function (kind) {
+    video.addEventListener(kind, function () { send(kind); });
+  });
+  video.addEventListener("ended", function () {
+    if (last !== null && video.duration > last) watched += video.duration - last;
+    last = video.duration;
+    send("ended").then(function () { if (button) button.disabled = false; });
+  });
+  const form = document.getElementById("answer_form");
+  if (form) form.addEventListener("submit", function () { send("progress"); });
+})();

@@ -1,0 +1,1 @@
+"""The wire-chaser task: configuration, wire geometry, layout, ring trajectories and touches."""
