@@ -18,6 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from endocam.cli import study_plan
 from endocam.cli.common import UsageError, check_workers, integer, out_dir
 from endocam.runner.pool import DEFAULT_WORKERS
 from endocam.study.analysis import AnalysisConfig, AnalysisResult, OutlierRule
@@ -540,6 +541,7 @@ _SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_analyze,
     _add_observe,
     _add_ideal_observer,
+    study_plan.add_power,
 ]
 
 

@@ -1,0 +1,208 @@
+"""``endocam study power``, ``study preregister`` and ``study simulate``: planning a study.
+
+``power`` sizes the study (:mod:`endocam.study.power`), ``preregister`` freezes its plan
+(:mod:`endocam.study.preregister`), ``simulate`` checks the whole pipeline with synthetic
+assessors (:mod:`endocam.study.simulate`). Registered by :mod:`endocam.cli.study`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from endocam.cli.common import UsageError, integer, out_dir
+from endocam.study.analysis import AnalysisConfig, OutlierRule
+
+_EXTRA_HINT = "install the study extra: pip install 'endocam[study]'"
+
+
+def write_files(out: Path, files: dict[str, Callable[[Path], object]]) -> list[Path]:
+    """Create ``out`` (marked as endocam's) and write each file atomically; the paths written."""
+    from endocam.runner.outputs import OUTPUT_MARKER, write_atomic, write_marker
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        if not (out / OUTPUT_MARKER).is_file():
+            write_marker(out)
+    except OSError as exc:
+        raise UsageError(f"--out: cannot write to {out}: {exc.strerror or exc}") from None
+    for name, write in files.items():
+        write_atomic(out / name, write)
+    return [out / name for name in files]
+
+
+def text_writer(text: str) -> Callable[[Path], object]:
+    """A ``write`` for :func:`write_files` that writes ``text`` (UTF-8)."""
+    return lambda path: path.write_text(text, encoding="utf-8")
+
+
+def load_pilot(args: argparse.Namespace) -> tuple[Any, list[Any]] | None:
+    """(manifest, answers) of ``--study`` with ``--db`` or ``--responses``; None without them."""
+    from endocam.study.db import StudyDB
+    from endocam.study.manifest import load_manifest
+    from endocam.study.responses import read_responses_csv
+
+    if args.db is None and args.responses is None:
+        return None
+    if args.study is None:
+        raise UsageError("--study: a pilot (--db or --responses) needs its study folder")
+    try:
+        manifest = load_manifest(args.study, check_files=False)
+        if args.db is not None:
+            try:
+                rows = StudyDB(args.db, read_only=True).export_rows()
+            except ValueError as exc:
+                raise UsageError(f"--db: {exc}") from None
+        else:
+            rows = read_responses_csv(args.responses)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if not rows:
+        raise UsageError("the pilot has no answers")
+    return manifest, rows
+
+
+def _check_fraction(name: str, value: float, low_open: bool = True) -> None:
+    ok = math.isfinite(value) and (0 < value < 1 if low_open else 0 <= value < 1)
+    if not ok:
+        interval = "(0, 1)" if low_open else "[0, 1)"
+        raise UsageError(f"--{name} must be in {interval}, got {value}")
+
+
+def _power(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from endocam.study import power as pw
+
+    for name in ("alpha", "power"):
+        _check_fraction(name, getattr(args, name))
+    _check_fraction("attrition", args.attrition, low_open=False)
+    if args.simulations < 100:
+        raise UsageError(f"--simulations must be ≥ 100, got {args.simulations}")
+    if args.max_n < pw.MIN_N:
+        raise UsageError(f"--max-n must be ≥ {pw.MIN_N}, got {args.max_n}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be ≥ 0, got {args.seed}")
+    if not (math.isfinite(args.tukey_k) and args.tukey_k > 0):
+        raise UsageError(f"--tukey-k must be a finite number > 0, got {args.tukey_k}")
+    out = out_dir(args.out)
+    pilot = load_pilot(args)
+    try:
+        if pilot is None:
+            model = pw.paper_model(args.cv, args.rho)
+        else:
+            model = pw.pilot_model(pilot[1], pilot[0], args.all_videos)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    config = pw.PowerConfig(
+        alpha=args.alpha,
+        power=args.power,
+        simulations=args.simulations,
+        seed=args.seed,
+        max_n=args.max_n,
+        attrition=args.attrition,
+        outliers=OutlierRule(args.outliers),
+        tukey_k=args.tukey_k,
+    )
+    with tqdm(desc="power", unit="study", leave=False) as bar:
+        result = pw.sample_size(model, config, progress=bar.update)
+    doc = json.dumps(pw.power_document(result), indent=2, allow_nan=False) + "\n"
+    written = write_files(
+        out,
+        {
+            pw.POWER_JSON: text_writer(doc),
+            pw.POWER_MD: text_writer(pw.power_markdown(result)),
+            pw.POWER_PNG: lambda path: pw.plot_power(result, path),
+        },
+    )
+    if result.n_required is None:
+        print(f"power {args.power:g} not reached with up to {args.max_n} assessors")
+    else:
+        print(
+            f"{result.n_required} assessors analysed reach power {args.power:g} "
+            f"({result.primary_test}); recruit {result.n_recruit}"
+        )
+    print(f"wrote {', '.join(str(p) for p in written)}")
+    return 0
+
+
+def _pilot_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--study", metavar="DIR", help="study folder with manifest.json")
+    source = p.add_mutually_exclusive_group()
+    source.add_argument("--db", metavar="FILE", help="a pilot's study database")
+    source.add_argument("--responses", metavar="CSV", help="a pilot's responses CSV")
+
+
+def _analysis_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--outliers",
+        choices=[r.value for r in OutlierRule],
+        default=OutlierRule.TUKEY.value,
+        help="per-condition outlier rule of the analysis (default: %(default)s)",
+    )
+    p.add_argument(
+        "--tukey-k",
+        type=float,
+        default=AnalysisConfig().tukey_k,
+        help="IQR multiplier of Tukey's fences (default: %(default)s)",
+    )
+
+
+def add_power(sub: argparse._SubParsersAction) -> None:
+    """The ``study power`` subcommand."""
+    from endocam.study import power as pw
+
+    p = sub.add_parser(
+        "power",
+        help="assessors needed for the primary test, by simulation",
+        description="Sample size of the primary test (Wilcoxon, last condition against the one "
+        "before it, Holm over all pairs) at the stated power, simulated with the analysis's own "
+        "steps, from a pilot's answers (--study with --db or --responses) or, without a pilot, "
+        "the paper's figures with an assumed spread and correlation. Writes power.json, power.md "
+        "and power.png into --out.",
+    )
+    _pilot_arguments(p)
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--alpha", type=float, default=pw.DEFAULT_ALPHA, help="level (default 0.05)")
+    p.add_argument("--power", type=float, default=pw.DEFAULT_POWER, help="target (default 0.8)")
+    p.add_argument(
+        "--simulations",
+        type=integer,
+        default=pw.DEFAULT_SIMULATIONS,
+        help="simulated studies per n (default: %(default)s)",
+    )
+    p.add_argument("--seed", type=integer, default=0, help="simulation seed (default: 0)")
+    p.add_argument(
+        "--max-n", type=integer, default=pw.DEFAULT_MAX_N, help="largest n tried (default: 300)"
+    )
+    p.add_argument(
+        "--attrition",
+        type=float,
+        default=pw.PAPER_ATTRITION,
+        help="share of recruited assessors expected to be excluded (default: the paper's 3/30)",
+    )
+    p.add_argument(
+        "--cv",
+        type=float,
+        default=pw.PAPER_CV,
+        help="without a pilot: assumed SD/mean of the reference condition's error "
+        "(default: %(default)s)",
+    )
+    p.add_argument(
+        "--rho",
+        type=float,
+        default=pw.PAPER_RHO,
+        help="without a pilot: assumed correlation of an assessor's errors between conditions "
+        "(default: %(default)s)",
+    )
+    p.add_argument(
+        "--all-videos",
+        action="store_true",
+        help="pilot errors averaged over all videos of a condition (as analyze --all-videos)",
+    )
+    _analysis_arguments(p)
+    p.set_defaults(handler=_power)
