@@ -542,6 +542,7 @@ _SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_observe,
     _add_ideal_observer,
     study_plan.add_power,
+    study_plan.add_simulate,
 ]
 
 

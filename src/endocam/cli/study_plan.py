@@ -206,3 +206,108 @@ def add_power(sub: argparse._SubParsersAction) -> None:
     )
     _analysis_arguments(p)
     p.set_defaults(handler=_power)
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from endocam.study import simulate as sim
+    from endocam.study.manifest import load_manifest
+
+    if args.assessors < 3:
+        raise UsageError(f"--assessors must be ≥ 3, got {args.assessors}")
+    if args.replications < 1:
+        raise UsageError(f"--replications must be ≥ 1, got {args.replications}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be ≥ 0, got {args.seed}")
+    if args.resamples < 100:
+        raise UsageError(f"--resamples must be ≥ 100, got {args.resamples}")
+    _check_fraction("alpha", args.alpha)
+    if not (math.isfinite(args.tukey_k) and args.tukey_k > 0):
+        raise UsageError(f"--tukey-k must be a finite number > 0, got {args.tukey_k}")
+    out = out_dir(args.out)
+    try:
+        manifest = load_manifest(args.study, check_files=True)
+    except ValueError as exc:
+        raise UsageError(f"--study: {exc}") from None
+    try:
+        import fastapi  # noqa: F401
+        import httpx  # noqa: F401
+    except ModuleNotFoundError as exc:
+        raise UsageError(f"'study simulate' needs {exc.name}: {_EXTRA_HINT}") from None
+    model = sim.preset(manifest, args.effect == "last", args.assessors)
+    config = AnalysisConfig(
+        outliers=OutlierRule(args.outliers),
+        tukey_k=args.tukey_k,
+        bootstrap_resamples=args.resamples,
+    )
+    with tqdm(total=args.replications, desc="replications", unit="study", leave=False) as bar:
+        result = sim.simulate(
+            Path(args.study), model, args.replications, args.seed, config, args.alpha, bar.update
+        )
+    doc = json.dumps(result.model_dump(mode="json"), indent=2, allow_nan=False) + "\n"
+    written = write_files(
+        out,
+        {
+            sim.SIMULATE_JSON: text_writer(doc),
+            sim.SIMULATE_MD: text_writer(sim.simulate_markdown(result)),
+        },
+    )
+    for key, cov in result.coverage.items():
+        rate = "–" if cov.rate is None else f"{cov.rate:.3f}"
+        print(f"coverage {key}: {rate} of {cov.replications} (true {cov.true_value:.3f})")
+    print(
+        f"primary test rejected {result.rejection_rate:.3f} "
+        f"(predicted {result.predicted_rate:.3f}): {'agree' if result.agrees else 'DISAGREE'}"
+    )
+    print(f"wrote {', '.join(str(p) for p in written)}")
+    return 0 if result.agrees else 1
+
+
+def add_simulate(sub: argparse._SubParsersAction) -> None:
+    """The ``study simulate`` subcommand."""
+    from endocam.study import simulate as sim
+
+    p = sub.add_parser(
+        "simulate",
+        help="check the pipeline with synthetic assessors of known error",
+        description="Synthetic assessors with a known counting bias and noise per condition "
+        "answer through the app's HTTP API into a fresh database per replication; `study "
+        "analyze` must recover the known SDs and SD ratios within its 95 % intervals (coverage) "
+        "and reject the primary test as often as the model predicts (with --effect none: the "
+        "false-positive rate). Writes simulate.json and simulate.md; exit code 1 if the "
+        "rejection rate disagrees with the prediction.",
+    )
+    p.add_argument("--study", required=True, metavar="DIR", help="study folder with manifest.json")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument(
+        "--effect",
+        choices=["last", "none"],
+        default="last",
+        help="last: the last condition's assessors have less bias "
+        f"({sim.EFFECT_BIAS:g} against {sim.REFERENCE_BIAS:g} touches) and noise "
+        f"({sim.EFFECT_NOISE_SD:g} against {sim.REFERENCE_NOISE_SD:g}); none: every condition "
+        "alike (default: %(default)s)",
+    )
+    p.add_argument(
+        "--assessors",
+        type=integer,
+        default=sim.DEFAULT_ASSESSORS,
+        help="assessors per replication (default: %(default)s)",
+    )
+    p.add_argument(
+        "--replications",
+        type=integer,
+        default=sim.DEFAULT_REPLICATIONS,
+        help="replications (default: %(default)s)",
+    )
+    p.add_argument("--seed", type=integer, default=0, help="seed (default: 0)")
+    p.add_argument("--alpha", type=float, default=0.05, help="level (default: 0.05)")
+    p.add_argument(
+        "--resamples",
+        type=integer,
+        default=AnalysisConfig().bootstrap_resamples,
+        help="bootstrap resamples of the analysis (default: %(default)s)",
+    )
+    _analysis_arguments(p)
+    p.set_defaults(handler=_simulate, outliers=OutlierRule.NONE.value)
