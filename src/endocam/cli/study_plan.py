@@ -311,3 +311,129 @@ def add_simulate(sub: argparse._SubParsersAction) -> None:
     )
     _analysis_arguments(p)
     p.set_defaults(handler=_simulate, outliers=OutlierRule.NONE.value)
+
+
+def _preregister(args: argparse.Namespace) -> int:
+    from endocam.runner.outputs import write_atomic
+    from endocam.study import preregister as pr
+
+    folder = Path(args.study)
+    out = folder if args.out is None else out_dir(args.out)
+    target = out / pr.PREREGISTRATION_JSON
+    if target.exists() and not args.force:
+        raise UsageError(f"{target} exists: a registration is frozen (--force replaces it)")
+    power = None
+    if args.power is not None:
+        try:
+            power = json.loads(Path(args.power).read_text("utf-8"))
+        except (OSError, ValueError) as exc:
+            raise UsageError(f"--power: cannot read {args.power}: {exc}") from None
+        if not isinstance(power, dict) or "n_required" not in power:
+            raise UsageError(f"--power: {args.power} is not a power.json of study power")
+    if not (math.isfinite(args.tukey_k) and args.tukey_k > 0):
+        raise UsageError(f"--tukey-k must be a finite number > 0, got {args.tukey_k}")
+    config = AnalysisConfig(
+        all_videos=args.all_videos, outliers=OutlierRule(args.outliers), tukey_k=args.tukey_k
+    )
+    try:
+        doc = pr.preregistration(folder, config, power)
+    except ValueError as exc:
+        raise UsageError(f"--study: {exc}") from None
+    if args.out is not None:
+        write_files(out, {})
+    text = json.dumps(doc, indent=2, ensure_ascii=False) + "\n"
+    write_atomic(out / pr.PREREGISTRATION_MD, text_writer(pr.preregistration_markdown(doc)))
+    write_atomic(target, text_writer(text))
+    print(f"plan SHA-256 {doc['plan_sha256']}")
+    print(f"wrote {target}, {out / pr.PREREGISTRATION_MD}")
+    return 0
+
+
+def add_preregister(sub: argparse._SubParsersAction) -> None:
+    """The ``study preregister`` subcommand."""
+    p = sub.add_parser(
+        "preregister",
+        help="write the pre-registration (plan + hashes) of a study",
+        description="Write preregistration.json and preregistration.md: hypotheses, design, "
+        "exclusion rules, analysis plan (built from the manifest and the analysis settings "
+        "`study analyze` will use), the SHA-256 of manifest.json and every video, the plan's "
+        "hash, and the power calculation (--power). `study analyze` compares its own plan with "
+        "it and lists every deviation.",
+    )
+    p.add_argument("--study", required=True, metavar="DIR", help="study folder with manifest.json")
+    p.add_argument(
+        "--out",
+        metavar="DIR",
+        help="folder to write to (default: the study folder, where `study analyze` finds it)",
+    )
+    p.add_argument("--power", metavar="FILE", help="power.json of `study power`")
+    p.add_argument("--force", action="store_true", help="replace an existing registration")
+    p.add_argument(
+        "--all-videos",
+        action="store_true",
+        help="the analysis will average over all videos of a condition (analyze --all-videos)",
+    )
+    _analysis_arguments(p)
+    p.set_defaults(handler=_preregister)
+
+
+def add_preregistration_argument(p: argparse.ArgumentParser) -> None:
+    """``study analyze --preregistration FILE``."""
+    p.add_argument(
+        "--preregistration",
+        metavar="FILE",
+        help="pre-registration to compare with (default: preregistration.json beside the "
+        "manifest, if there is one)",
+    )
+
+
+def load_preregistration(
+    args: argparse.Namespace, study: Path
+) -> tuple[Path, dict[str, Any]] | None:
+    """``study analyze``, before any work: the pre-registration to compare with (path, document).
+
+    ``--preregistration FILE``, else ``preregistration.json`` beside the manifest; None if
+    neither exists. An unreadable or foreign file is refused (one line, exit 2).
+    """
+    from endocam.study import preregister as pr
+
+    path = Path(args.preregistration) if args.preregistration else study / pr.PREREGISTRATION_JSON
+    if not path.is_file():
+        if args.preregistration:
+            raise UsageError(f"--preregistration: no such file: {path}")
+        return None
+    try:
+        doc = json.loads(path.read_text("utf-8"))
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"--preregistration: cannot read {path}: {exc}") from None
+    if not (isinstance(doc, dict) and isinstance(doc.get("plan"), dict)):
+        raise UsageError(f"--preregistration: {path} is not a pre-registration (no plan)")
+    return path, doc
+
+
+def report_preregistration(
+    registered: tuple[Path, dict[str, Any]] | None,
+    study: Path,
+    config: AnalysisConfig,
+    n_analysed: int,
+    out: Path,
+) -> None:
+    """``study analyze``, after the analysis: compare, print the verdict, write the check."""
+    from endocam.runner.outputs import write_atomic
+    from endocam.study import preregister as pr
+
+    if registered is None:
+        print("pre-registration: none found (endocam study preregister writes one)")
+        return
+    path, doc = registered
+    result = pr.check(doc, study, config, n_analysed)
+    text = json.dumps({"preregistration": str(path), **result}, indent=2) + "\n"
+    write_atomic(out / pr.CHECK_JSON, text_writer(text))
+    if result["follows"]:
+        print(
+            f"pre-registration: the analysis follows {path} (plan {result['actual_sha256'][:12]})"
+        )
+        return
+    print(f"pre-registration: {len(result['deviations'])} deviation(s) from {path}:")
+    for line in result["deviations"]:
+        print(f"  deviation: {line}")

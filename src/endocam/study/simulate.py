@@ -50,7 +50,6 @@ from scipy import stats
 from endocam.study.analysis import AnalysisConfig, AnalysisResult, OutlierRule, analyze
 from endocam.study.manifest import MAX_TOUCHES, Manifest, load_manifest
 from endocam.study.power import primary_pair, study_p_values
-from endocam.study.web import RateLimit
 
 SIMULATE_JSON, SIMULATE_MD = "simulate.json", "simulate.md"
 DEFAULT_ASSESSORS = 30  # the paper's N
@@ -61,7 +60,7 @@ REFERENCE_BIAS = -1.0  # touches, every reference condition's bias (an undercoun
 REFERENCE_NOISE_SD = 1.5  # touches, every reference condition's counting noise in the presets
 EFFECT_BIAS = -0.75  # touches, the last condition's bias with an effect
 EFFECT_NOISE_SD = 1.05  # touches, the last condition's noise with an effect (about -30 % SD)
-UNLIMITED = RateLimit(per_client=10**9, total=10**9, window_s=1.0)  # synthetic session starts
+UNLIMITED_STARTS = 10**9  # session starts allowed per second: the synthetic ones come fast
 SHM_DIR = "/dev/shm"  # memory-backed folder for the replications' databases (Linux)
 ADMIN_TOKEN = "simulated-assessors"  # the in-process app's admin token (never served)
 
@@ -183,8 +182,10 @@ def answer_through_app(study: Path, db_path: Path, reports: dict[str, NDArray[np
     import httpx
 
     from endocam.study.app import create_app
+    from endocam.study.web import RateLimit  # the study extra (starlette), imported on use
 
-    app = create_app(study, db_path, ADMIN_TOKEN, session_rate=UNLIMITED)
+    unlimited = RateLimit(per_client=UNLIMITED_STARTS, total=UNLIMITED_STARTS, window_s=1.0)
+    app = create_app(study, db_path, ADMIN_TOKEN, session_rate=unlimited)
     manifest: Manifest = app.state.manifest
     n = len(next(iter(reports.values())))
 
