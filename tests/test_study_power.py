@@ -12,18 +12,24 @@ from scipy import stats
 
 from endocam.cli import main
 from endocam.study.analysis import AnalysisConfig, OutlierRule, holm, within_subject_tests
+from endocam.study.manifest import load_manifest
 from endocam.study.power import (
+    PAPER_CV,
+    PAPER_RHO,
     ErrorModel,
     PowerConfig,
     closed_forms,
     draw_errors,
     holm_batch,
     paper_model,
+    pilot_model,
     primary_pair,
     simulate_power,
     study_p_values,
     wilcoxon_batch,
 )
+from endocam.study.responses import ResponseRow, rows_to_csv
+from study_helpers import make_study
 
 P_ATOL = 1e-12  # p-values computed two ways by the same formulas
 SIMULATIONS = 400  # simulated studies per check here (the CLI's default is 2000)
@@ -95,14 +101,52 @@ def test_simulated_power_is_the_known_power_and_the_level_without_effect() -> No
     assert abs(null.power - level) < 4 * math.sqrt(level * (1 - level) / SIMULATIONS)
 
 
+def _pilot(study: Path) -> tuple[list[ResponseRow], list[list[int]]]:
+    """Answers of 5 pilot assessors (one fails the attention question) and, by hand, the
+    errors on each condition's most difficult video (v03, v06, v09) of the 4 who pass."""
+    manifest = load_manifest(study)
+    rows = []
+    for k in range(5):
+        for v in manifest.videos:
+            rows.append(
+                ResponseRow(
+                    participant_id=f"p{k}",
+                    video_id=v.id,
+                    reported_touches=v.true_touches + (k * int(v.id[1:]) + int(v.id[1:]) // 3) % 4,
+                    attention_passed=k != 4,
+                )
+            )
+    errors = [[1, 2, 3], [0, 0, 0], [3, 2, 1], [2, 0, 2]]  # (k n + n // 3) mod 4, n = 3, 6, 9
+    return rows, errors
+
+
+def test_pilot_model_is_the_pilots_errors(tmp_path: Path) -> None:
+    study = make_study(tmp_path, stub_videos=True)
+    rows, errors = _pilot(study)
+    model = pilot_model(rows, load_manifest(study))
+    table = np.array(errors, dtype=float)
+    assert model.n_pilot == 4 and model.discrete
+    assert np.allclose(model.mean_error, table.mean(axis=0))
+    assert np.allclose(model.sd_error, table.std(axis=0, ddof=1))
+    # the paper's model: d_z from its figures and the stated assumptions, by hand
+    s_ii = PAPER_CV
+    s_iii = 0.69 * s_ii
+    sd_d = math.sqrt(s_ii**2 + s_iii**2 - 2 * PAPER_RHO * s_ii * s_iii)
+    assert closed_forms(paper_model(), 0.05, 0.8)["d_z"] == pytest.approx(0.25 / sd_d)
+
+
 def test_cli_power_writes_its_files_and_refuses_bad_input(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
+    study = make_study(tmp_path, stub_videos=True)
+    responses = tmp_path / "pilot.csv"
+    responses.write_text(rows_to_csv(_pilot(study)[0]), encoding="utf-8")
     out = tmp_path / "power"
     args = ["study", "power", "--out", str(out), "--simulations", "100", "--max-n", "8"]
-    assert main(args) == 0
+    assert main([*args, "--study", str(study), "--responses", str(responses)]) == 0
     doc = json.loads((out / "power.json").read_text("utf-8"))
     assert doc["config"]["simulations"] == 100 and doc["n_required"] is None  # 8 is too few
+    assert doc["model"]["source"] == "pilot of 4 assessors"
     assert "not reached" in (out / "power.md").read_text("utf-8")
     assert (out / "power.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert main(["study", "power", "--out", str(tmp_path / "x"), "--power", "1.5"]) == 2
