@@ -30,7 +30,9 @@ by :func:`holm_batch` (the formula of ``statsmodels``' ``multipletests(method="h
 :func:`endocam.study.analysis.holm` calls and against which it is tested: ``multipletests`` runs
 a full garbage collection on every call, ~80 ms, too slow for thousands of studies).
 The sample size is the smallest n whose simulated power reaches the target: a coarse grid, then
-bisection.
+bisection, from ``MIN_N`` assessors up (a target already reached there is reported as such).
+With ≤ 13 pairs and ties (whole touches) scipy's Wilcoxon test is an exact permutation test,
+~25 ms a call; :func:`signflip_p` computes the same p-values for all studies at once.
 
 **Closed forms, for comparison** (:func:`closed_forms`): the paired t-test's n from
 ``statsmodels.stats.power.TTestPower`` for :math:`d_z = (\mu_{ref} - \mu_{last}) / \sigma_{d}`,
@@ -77,10 +79,10 @@ DEFAULT_ALPHA = 0.05
 DEFAULT_POWER = 0.8
 DEFAULT_SIMULATIONS = 2000
 DEFAULT_MAX_N = 300  # assessors: the search's upper end
+SMALL_TIED_N = 13  # at most this many pairs with ties: scipy's exact permutation test
 MIN_N = 5  # assessors: the search's lower end
 GRID_POINTS = 10  # coarse grid of n (geometric) before the bisection
 MIN_PILOT = 3  # pilot assessors with complete errors needed for a model
-SMALL_TIED_N = 13  # at most this many pairs with ties: scipy's exact permutation test
 EIG_FLOOR = 1e-6  # smallest eigenvalue kept when a pilot's correlation matrix is repaired
 
 
@@ -139,6 +141,7 @@ class PowerResult(_Frozen):
     curve: list[PowerPoint]
     n_required: int | None
     n_recruit: int | None
+    note: str | None = None
 
 
 def paper_model(cv: float = PAPER_CV, rho: float = PAPER_RHO) -> ErrorModel:
@@ -261,11 +264,34 @@ def wilcoxon_batch(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np
     for group in (np.flatnonzero(~tied), np.flatnonzero(tied)):
         if group.size == 0:
             continue
-        if d.shape[1] <= SMALL_TIED_N and tied[group[0]]:  # a permutation test per row
-            p[group] = [stats.wilcoxon(d[r]).pvalue for r in group]
+        if d.shape[1] <= SMALL_TIED_N and tied[group[0]]:  # scipy: exact permutation test
+            p[group] = signflip_p(d[group])
         else:
             p[group] = stats.wilcoxon(d[group], axis=-1).pvalue
     return p
+
+
+def signflip_p(d: NDArray[np.float64]) -> NDArray[np.float64]:
+    r"""Two-sided exact sign-flip p-value of the signed-rank statistic, per row.
+
+    What ``scipy.stats.wilcoxon`` computes for ≤ 13 pairs with ties or zeros (an exact
+    ``permutation_test`` over all :math:`2^n` sign patterns): :math:`T = \sum r_i [d_i > 0]`
+    with ``r`` the average ranks of the non-zero :math:`|d_i|`,
+    :math:`p = \min(1, 2 \min(P(T^* \le T + \gamma), P(T^* \ge T - \gamma)))`,
+    :math:`\gamma = 100\,\epsilon\,|T|` (scipy's tolerance for equal values).
+
+    d : (S, n) paired differences, n ≤ ``SMALL_TIED_N``. Returns (S,) p-values.
+    """
+    n = d.shape[1]
+    ranks = stats.rankdata(np.where(d == 0.0, np.inf, np.abs(d)), axis=-1)
+    ranks = np.where(d == 0.0, 0.0, ranks)
+    observed = np.sum(np.where(d > 0.0, ranks, 0.0), axis=-1)  # (S,)
+    signs = (np.arange(2**n)[:, None] >> np.arange(n)) & 1  # (2^n, n): every pattern once
+    null = ranks @ signs.T.astype(np.float64)  # (S, 2^n)
+    gamma = np.abs(100.0 * np.finfo(np.float64).eps * observed)[:, None]
+    less = np.mean(null <= observed[:, None] + gamma, axis=-1)
+    greater = np.mean(null >= observed[:, None] - gamma, axis=-1)
+    return np.clip(2.0 * np.minimum(less, greater), 0.0, 1.0)
 
 
 def study_p_values(
@@ -402,6 +428,9 @@ def sample_size(
         curve=[curve[n] for n in sorted(curve)],
         n_required=hi,
         n_recruit=None if hi is None else math.ceil(hi / (1.0 - config.attrition) - 1e-9),
+        note=f"power {config.power:g} is reached at {MIN_N}, the smallest n searched: fewer may do"
+        if hi == grid[0]
+        else None,
     )
 
 
@@ -437,6 +466,8 @@ def power_markdown(result: PowerResult) -> str:
             f"**{result.n_required} assessors analysed reach power {c.power:g}; recruit "
             f"{result.n_recruit}** (expecting {100 * c.attrition:.0f} % excluded)."
         )
+    if result.note:
+        lines.append(f"Note: {result.note}.")
     cf = result.closed_forms
     lines += ["", f"Closed forms for comparison (paired t, d_z = {cf['d_z']:.3f}):"]
     for key, label in (
