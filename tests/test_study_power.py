@@ -148,6 +148,7 @@ def test_cli_power_writes_its_files_and_refuses_bad_input(
     doc = json.loads((out / "power.json").read_text("utf-8"))
     assert doc["config"]["simulations"] == 100 and doc["curve"][0]["n"] == 5
     assert doc["model"]["source"] == "pilot of 4 assessors"
+    assert doc["expected_direction"].startswith("orientation's errors larger")  # as the pilot's
     assert (doc["n_required"] is None) == ("not reached" in (out / "power.md").read_text("utf-8"))
     assert (out / "power.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert main(["study", "power", "--out", str(tmp_path / "x"), "--power", "1.5"]) == 2

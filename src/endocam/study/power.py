@@ -423,7 +423,9 @@ def sample_size(
         model=model,
         config=config,
         primary_test=f"Wilcoxon signed-rank {name}, two-sided, Holm over all pairs",
-        expected_direction=f"{ref}'s errors larger than {new}'s",
+        expected_direction=f"{ref}'s errors larger than {new}'s"
+        if model.mean_error[-2] >= model.mean_error[-1]
+        else f"{new}'s errors larger than {ref}'s (the model's direction, against the hypothesis)",
         closed_forms=closed_forms(model, config.alpha, config.power),
         curve=[curve[n] for n in sorted(curve)],
         n_required=hi,
