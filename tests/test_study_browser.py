@@ -14,7 +14,9 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import pytest
 import uvicorn
@@ -30,6 +32,7 @@ from study_helpers import (
     VIDEO_H_PX,
     VIDEO_W_PX,
     make_study,
+    write_tiny_mp4,
 )
 
 pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
@@ -85,9 +88,15 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Path
             shutil.copyfile(rendered[i % len(rendered)], path)
     db_path = root / "study.db"
     port = _free_port()
-    config = uvicorn.Config(
-        create_app(study, db_path, ADMIN), host="127.0.0.1", port=port, log_level="warning"
-    )
+    # the last page goes back to the platform after 5 s: the checks on it take far less
+    with _running(create_app(study, db_path, ADMIN), port):
+        yield f"http://127.0.0.1:{port}", db_path
+
+
+@contextmanager
+def _running(app: Any, port: int) -> Iterator[None]:
+    """Serve ``app`` with uvicorn on 127.0.0.1:``port`` in a thread while the block runs."""
+    config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning")
     srv = uvicorn.Server(config)
     thread = threading.Thread(target=srv.run, daemon=True)
     thread.start()
@@ -95,9 +104,11 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Path
     while not srv.started:
         assert time.monotonic() < deadline, "uvicorn did not start"
         time.sleep(0.05)
-    yield f"http://127.0.0.1:{port}", db_path
-    srv.should_exit = True
-    thread.join(timeout=SERVER_START_TIMEOUT_S)
+    try:
+        yield
+    finally:
+        srv.should_exit = True
+        thread.join(timeout=SERVER_START_TIMEOUT_S)
 
 
 @pytest.fixture(scope="module")
@@ -257,3 +268,50 @@ def test_phone_width_participant_with_a_typed_id(
     assert sessions[-1].participant_id == "phone-1"
     assert StudyDB(db_path).answers(sessions[-1]) == {first: 4}
     assert sessions[-1].order_index == len(sessions) - 1  # round-robin over the orders
+
+
+REDIRECT_AFTER_S = 0.2  # s, the must-watch study's last page before it goes back
+
+
+def test_must_watch_in_chromium_then_the_automatic_redirect(
+    tmp_path: Path, browser: Browser
+) -> None:
+    port = _free_port()
+    base = f"http://127.0.0.1:{port}"
+    back = f"{base}/static/style.css?cc={CODE}"  # stands for the platform's completion page
+    study = make_study(  # only the video played here is a real one (v01, shown first)
+        tmp_path,
+        stub_videos=True,
+        shuffle_within_set=False,
+        must_watch=True,
+        recruitment={
+            "completion_code": CODE,
+            "completion_url": f"{base}/static/style.css?cc={{code}}",
+        },
+    )
+    write_tiny_mp4(study / "videos" / "v01.mp4", 0)
+    app = create_app(study, tmp_path / "w.db", None, redirect_after_s=REDIRECT_AFTER_S)
+    with _running(app, port):
+        page = browser.new_context().new_page()
+        page.set_default_timeout(UI_TIMEOUT_MS)
+        page.goto(base + "/")
+        _consent(page)
+        expect(page.locator("#answer_button")).to_be_disabled()  # study.js: not watched yet
+        page.evaluate("answer_button.disabled = false")  # past the page's rule: the server's
+        _type_and_submit(page, "reported_touches", "1")
+        expect(page.get_by_role("alert")).to_contain_text("watch the video once to its end")
+        expect(page.locator("#answer_button")).to_be_disabled()
+        page.evaluate("study_video.playbackRate = 8; study_video.play()")  # 1 s video, faster
+        expect(page.locator("#answer_button")).to_be_enabled()  # after the logged "ended"
+        _type_and_submit(page, "reported_touches", "1")
+        expect(page.get_by_role("heading", level=1)).to_have_text("Set 1 of 3: video 2 of 3")
+        api = page.request  # the rest through the API with the page's session cookie
+        while (step := api.get(f"{base}/api/next").json())["kind"] != "done":
+            if step["kind"] == "attention":
+                api.post(f"{base}/api/attention", data={"answer": ATTENTION_ANSWER})
+                continue
+            vid = step["video_id"]
+            api.post(f"{base}/api/event", data={"video_id": vid, "kind": "ended"})
+            assert api.post(f"{base}/api/answer", data={"video_id": vid, "reported_touches": 2}).ok
+        with page.expect_navigation(url=back):  # the done page sends the browser back
+            page.goto(base + "/study")

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from endocam.cli import study_plan
 from endocam.cli.common import UsageError, check_workers, integer, out_dir
 from endocam.runner.pool import DEFAULT_WORKERS
 from endocam.study.analysis import AnalysisConfig, AnalysisResult, OutlierRule
@@ -354,7 +355,7 @@ def _analyze(args: argparse.Namespace) -> int:
 
     if not (math.isfinite(args.tukey_k) and args.tukey_k > 0):
         raise UsageError(f"--tukey-k must be a finite number > 0, got {args.tukey_k}")
-    out_dir(args.out)
+    out = out_dir(args.out)
     try:
         manifest = load_manifest(args.manifest, check_files=False)
         if args.db is not None:
@@ -369,10 +370,11 @@ def _analyze(args: argparse.Namespace) -> int:
         config = AnalysisConfig(
             all_videos=args.all_videos, outliers=OutlierRule(args.outliers), tukey_k=args.tukey_k
         )
-        result = analyze(rows, manifest, config)
         manifest_path = Path(args.manifest)
         if manifest_path.is_dir():
             manifest_path = manifest_path / MANIFEST_NAME
+        registered = study_plan.load_preregistration(args, manifest_path.parent)
+        result = analyze(rows, manifest, config)
         obs_path = manifest_path.parent / OBSERVABILITY_JSON
         observability = load_summary(obs_path) if obs_path.is_file() else None
         written = write_outputs(result, args.out, observability)
@@ -387,6 +389,8 @@ def _analyze(args: argparse.Namespace) -> int:
     for line in _assessor_lines(result):
         print(line)
     print(f"excluded: {len(result.excluded)}; wrote {', '.join(str(p) for p in written.values())}")
+    n_analysed = result.tests.n_complete
+    study_plan.report_preregistration(registered, manifest_path.parent, config, n_analysed, out)
     return 0
 
 
@@ -531,6 +535,7 @@ def _add_analyze(sub: argparse._SubParsersAction) -> None:
         default=AnalysisConfig().tukey_k,
         help="IQR multiplier of Tukey's fences (default: %(default)s)",
     )
+    study_plan.add_preregistration_argument(p)
     p.set_defaults(handler=_analyze)
 
 
@@ -540,6 +545,9 @@ _SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_analyze,
     _add_observe,
     _add_ideal_observer,
+    study_plan.add_power,
+    study_plan.add_simulate,
+    study_plan.add_preregister,
 ]
 
 

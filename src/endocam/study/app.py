@@ -7,7 +7,8 @@ give consent and receive a random session token in an ``HttpOnly``, ``SameSite=S
 tells whether an id is already known (see :mod:`endocam.study.db`), except that a withdrawn id is
 refused (403). ``/study`` always shows the first unanswered step (see
 :mod:`endocam.study.flow`): demographics, practice video with feedback, the sets, the attention
-question, and the last page with the completion code. A reload resumes where the participant
+question, and the last page with the completion code (which, with a ``completion_url``, sends
+the browser back to the platform after ``redirect_after_s``). A reload resumes where the participant
 stopped. Answers are never overwritten: a second answer for the same step is refused with 409.
 Every participant-facing text comes from the message catalogue (:mod:`endocam.study.catalogue`).
 
@@ -87,6 +88,7 @@ from endocam.study.export import (
 from endocam.study.export import to_parquet as table_to_parquet
 from endocam.study.flow import Step, StepKind, next_step, video_sequence
 from endocam.study.manifest import MAX_TOUCHES, Manifest, load_manifest
+from endocam.study.migration import v1_sequence
 from endocam.study.records import ConflictError, Participant, Status, WithdrawnError
 from endocam.study.responses import parse_count
 from endocam.study.web import (
@@ -101,6 +103,7 @@ SESSION_COOKIE = "endocam_session"
 SESSION_MAX_AGE_S = 7 * 24 * 3600  # s, cookie lifetime
 PRACTICE_ID = "_practice"  # video id of the practice video (never a manifest id: see ID_PATTERN)
 PRIOR_ASSESSMENT = ("yes", "no", "unsure")
+REDIRECT_AFTER_S = 5.0  # s the last page shows the completion code before going back
 ADMIN_DISABLED = "the admin pages are disabled: start with an admin token"
 _HERE = Path(__file__).parent
 TEMPLATES_DIR = _HERE / "templates"
@@ -115,6 +118,7 @@ def create_app(
     session_rate: RateLimit = SESSION_RATE,
     abandon_after_s: float = ABANDON_AFTER_S,
     secure_cookies: bool = False,
+    redirect_after_s: float = REDIRECT_AFTER_S,
 ) -> FastAPI:
     """Build the study web app.
 
@@ -134,6 +138,9 @@ def create_app(
     secure_cookies : bool
         Mark the session and admin cookies ``Secure`` (sent over HTTPS only): set it when the app
         is served over HTTPS (behind a reverse proxy).
+    redirect_after_s : float
+        With the manifest's ``completion_url``, the last page sends the browser there after
+        this many seconds (an HTML refresh, no script needed), the code shown meanwhile.
 
     Returns
     -------
@@ -145,6 +152,8 @@ def create_app(
     ValueError
         Unusable study folder, message catalogue or database (one-line message).
     """
+    if not (math.isfinite(redirect_after_s) and redirect_after_s >= 0):
+        raise ValueError(f"redirect_after_s must be >= 0, got {redirect_after_s}")
     if not (math.isfinite(abandon_after_s) and abandon_after_s > 0):
         raise ValueError(f"abandon_after_s must be > 0, got {abandon_after_s}")
     study_root = Path(study_dir).resolve()
@@ -157,7 +166,7 @@ def create_app(
         if manifest.consent_file
         else t.paragraphs("consent_default")
     )
-    db = StudyDB(db_path)
+    db = StudyDB(db_path, v1_sequence=lambda order: v1_sequence(manifest, order))
     admin = AdminSessions(admin_token)
     video_files = {v.id: study_root / v.file for v in manifest.videos}
     if manifest.practice:
@@ -464,6 +473,7 @@ def create_app(
             status,
             code=code,
             return_url=url.replace("{code}", code or "") if url else None,
+            redirect_after_s=redirect_after_s,
             **context,
         )
 

@@ -42,6 +42,7 @@ from typing import Any
 
 from endocam.study.counterbalance import assign_order
 from endocam.study.flow import VideoSequence
+from endocam.study.migration import V1_SCHEMA_VERSION, migrate_v1
 from endocam.study.records import (
     ABANDON_AFTER_S,
     ConflictError,
@@ -135,9 +136,19 @@ class StudyDB:
     read_only : bool
         Open an existing study database without changing it (the analysis): a file that is
         missing, empty or not a study database of this schema is refused.
+    v1_sequence : callable order_index → VideoSequence, optional
+        The video order schema 1 showed (:func:`endocam.study.migration.v1_sequence` bound to
+        the study's manifest): with it a schema-1 file is migrated in place (a backup beside it,
+        see :mod:`endocam.study.migration`); without it such a file is refused.
     """
 
-    def __init__(self, path: str | Path, *, read_only: bool = False) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        read_only: bool = False,
+        v1_sequence: Callable[[int], VideoSequence] | None = None,
+    ) -> None:
         self.path = Path(path)
         self.read_only = read_only
         if read_only:
@@ -149,10 +160,17 @@ class StudyDB:
             with self._connect() as conn:
                 conn.execute("PRAGMA journal_mode=WAL")
                 version = conn.execute("PRAGMA user_version").fetchone()[0]
-                if version not in (0, SCHEMA_VERSION):
+                if version == V1_SCHEMA_VERSION and v1_sequence is not None:
+                    migrate_v1(conn, self.path, _SCHEMA, v1_sequence, SCHEMA_VERSION)
+                elif version == V1_SCHEMA_VERSION:
+                    raise ValueError(
+                        f"path: {self.path} has schema 1; `endocam study serve` with its study"
+                        " folder migrates it"
+                    )
+                elif version not in (0, SCHEMA_VERSION):
                     raise ValueError(
                         f"path: {self.path} has schema {version}, not {SCHEMA_VERSION}"
-                        " (made by an older endocam: export it there, start a new file)"
+                        " (made by another endocam: export it there, start a new file)"
                     )
                 conn.executescript(_SCHEMA)
                 conn.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
@@ -170,6 +188,10 @@ class StudyDB:
                 }
         except (sqlite3.DatabaseError, ValueError) as exc:
             raise ValueError(f"{self.path}: not a study database ({exc})") from None
+        if version == V1_SCHEMA_VERSION:
+            raise ValueError(
+                f"{self.path}: schema 1; `endocam study serve` with its study folder migrates it"
+            )
         if version != SCHEMA_VERSION or not set(_TABLES) <= tables:
             raise ValueError(
                 f"{self.path}: not a study database of schema {SCHEMA_VERSION}"
