@@ -13,6 +13,8 @@ from endocam.study.manifest import load_manifest
 from endocam.study.migration import BACKUP_SUFFIX, V1_SCHEMA, v1_sequence
 from study_helpers import ATTENTION_ANSWER, make_study
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 T0 = "2026-01-05T10:00:00.000+00:00"
 
 

@@ -31,6 +31,8 @@ from endocam.study.power import (
 from endocam.study.responses import ResponseRow, rows_to_csv
 from study_helpers import make_study
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 P_ATOL = 1e-12  # p-values computed two ways by the same formulas
 SIMULATIONS = 400  # simulated studies per check here (the CLI's default is 2000)
 

@@ -12,6 +12,8 @@ from endocam.study.analysis import AnalysisConfig
 from endocam.study.preregister import check, plan, plan_sha256
 from study_helpers import make_study
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 PLANNED_N = 40  # assessors of the (hand-written) power calculation
 ANALYSED_N = 4  # assessors the (stand-in) analysis kept
 

@@ -17,6 +17,8 @@ from endocam.study.simulate import (
 )
 from study_helpers import k_conditions, make_study
 
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
+
 MC_DRAWS = 400_000  # reports drawn to check the exact moments
 MC_ATOL = 0.01  # touches: well above the Monte Carlo SE (≈ 1.5 / sqrt(MC_DRAWS) · 2)
 P_ATOL = 1e-12
