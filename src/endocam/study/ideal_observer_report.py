@@ -21,7 +21,7 @@ INPUT_MARKERS = {"mono": ("o", "#1f77b4"), "stereo": ("s", "#d62728")}
 STYLE = (
     "body{font-family:sans-serif;margin:1.5em;max-width:62em;line-height:1.4}"
     "table{border-collapse:collapse;margin:.6em 0}"
-    "th,td{border:1px solid #ccc;padding:3px 8px;text-align:right}"
+    "th,td{border:1px solid #ccc;padding:3px 8px;text-align:right}td{white-space:nowrap}"
     "th:first-child,td:first-child,th:nth-child(2),td:nth-child(2){text-align:left}"
     "th{background:#f0f0f0}.best{font-weight:bold}.note{color:#555;font-size:small}"
     "details{margin:.5em 0}"
@@ -58,9 +58,16 @@ def auc_plot_png(rows: Sequence[dict[str, Any]], target: float) -> bytes:
         ax.plot([lo, hi], [y, y], color=colour, lw=2)
         ax.plot(r["auc"], y, marker=marker, color=colour, ls="none", label=r["input"])
     ax.axvline(0.5, color="grey", ls="--", lw=1)
-    ax.text(0.5, len(conditions) - 0.45, " chance", color="grey", fontsize=8, va="center")
+    ax.text(0.5, -0.7, " chance", color="grey", fontsize=8, va="center")
     ax.plot([0.97 - 2 * target, 0.97], [-0.7, -0.7], color="k", lw=3)
-    ax.text(0.97, -0.7, f"  ±{target:g} target ", fontsize=8, va="center", ha="right")
+    ax.text(
+        0.97 - 2 * target,
+        -0.7,
+        f"CI width of the ±{target:g} target ",
+        fontsize=8,
+        va="center",
+        ha="right",
+    )
     ax.set_yticks(range(len(conditions)), conditions)
     ax.set_ylim(len(conditions) - 0.4, -1.0)
     ax.set_xlim(0.3, 1.0)
@@ -97,7 +104,11 @@ def main_table(doc: dict[str, Any]) -> list[str]:
             f"<td>{r['counted_touches']} / {r['true_touches']}</td>"
             f"<td>{r['seeds_for_target']}</td></tr>"
         )
-    parts.append("</table>")
+    parts.append(
+        "</table><p class='note'>Bold: the highest AUC of its input. ± half-width: half the "
+        "95 % CI's width. Seeds for ±target: how many seeds would bring this row's CI to the "
+        "target, by the 1/√seeds scaling of a seed bootstrap.</p>"
+    )
     return parts
 
 
@@ -175,8 +186,9 @@ def report_html(doc: dict[str, Any]) -> str:
         "touching frame scores above a random apart frame: 0.5 is chance (the video shows "
         "nothing about touches), 1 is perfect. <b>d′</b> is the same on a detection-theory "
         "scale (0 is chance). A higher AUC means the video carries more information about "
-        "touches; it is an upper bound of sorts for what a human assessor could see, not a "
-        "prediction of their score.</p>",
+        "touches. It is a lower bound on what the pixels hold (a better model could only find "
+        "more), and it knows where the ring is; it does not predict what a person will count."
+        "</p>",
         f"<p class='note'>Study: {html.escape(doc['study'])}; seeds: "
         f"{', '.join(str(s) for s in seeds)} ({len(seeds)}). <b>mono</b>: the left eye (the "
         "video assessors watch); <b>stereo</b>: both eyes' crops side by side.</p>",
