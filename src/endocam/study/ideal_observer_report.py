@@ -89,7 +89,8 @@ def main_table(doc: dict[str, Any]) -> list[str]:
     parts = [
         "<table><tr><th>condition</th><th>input</th><th>AUC</th><th>95 % CI</th>"
         "<th>± half-width</th><th>d′</th><th>95 % CI</th><th>contact / labelled frames</th>"
-        "<th>seeds</th><th>touches counted / true</th><th>seeds for ±"
+        "<th>seeds</th><th>touches counted / true</th><th>mean |counted − true| per seed</th>"
+        "<th>seeds for ±"
         f"{doc['target_half_width']:g}</th></tr>"
     ]
     for r in doc["rows"]:
@@ -102,6 +103,7 @@ def main_table(doc: dict[str, Any]) -> list[str]:
             f"<td>{fmt(dlo, 2)} – {fmt(dhi, 2)}</td>"
             f"<td>{r['n_contact_frames']} / {r['n_frames']}</td><td>{r['n_seeds']}</td>"
             f"<td>{r['counted_touches']} / {r['true_touches']}</td>"
+            f"<td>{fmt(r['mean_abs_count_error'], 1)}</td>"
             f"<td>{r['seeds_for_target']}</td></tr>"
         )
     parts.append(
@@ -116,18 +118,21 @@ def verdict(doc: dict[str, Any]) -> list[str]:
     """Per input, the most informative condition and its paired differences, in words."""
     parts = []
     for name, b in doc["most_informative"].items():
-        items = []
+        items, above, level = [], [], []
         for v in b["versus"]:
             lo, hi = v["ci"]
-            sure = "CI excludes 0" if lo > 0.0 or hi < 0.0 else "CI includes 0"
+            (above if lo > 0.0 else level).append(html.escape(v["other"]))
             items.append(
-                f"{html.escape(v['other'])}: {v['auc_difference']:+.3f} "
-                f"[{lo:+.3f}, {hi:+.3f}] ({sure})"
+                f"{html.escape(v['other'])} {v['auc_difference']:+.3f} [{lo:+.3f}, {hi:+.3f}]"
             )
+        best = html.escape(b["condition"])
+        plain = f"above {', '.join(above)} (95 % CI of the difference above 0)" if above else ""
+        plain += ("; " if above and level else "") + (
+            f"not distinguishable from {', '.join(level)} (CI includes 0)" if level else ""
+        )
         parts.append(
-            f"<li><b>{html.escape(name)}</b>: the highest AUC is "
-            f"<b>{html.escape(b['condition'])}</b>'s. Its AUC minus the others' (paired seed "
-            f"bootstrap, 95 % CI): {'; '.join(items)}.</li>"
+            f"<li><b>{html.escape(name)}</b>: the highest AUC is <b>{best}</b>'s: {plain}. "
+            f"Its AUC minus the others' (paired seed bootstrap, 95 % CI): {'; '.join(items)}.</li>"
         )
     return ["<ul>", *parts, "</ul>"]
 

@@ -486,7 +486,8 @@ def document(
         "labels": {"contact": "clearance <= 0", "apart_mm": io_.APART_M * 1e3},
         "crop_px": io_.CROP_PX,
         "features": "crop around the projected ring centre, HSV pixels in [0, 1] per eye",
-        "model": f"HistGradientBoostingClassifier(max_iter={io_.HGB_ITER}), training apart "
+        "model": f"HistGradientBoostingClassifier(max_iter={io_.HGB_ITER}, "
+        f"max_bins={io_.HGB_BINS}), training apart "
         f"frames capped at {io_.APART_PER_CONTACT:g} per contact frame",
         "cv": "leave one seed out; thresholds from inner grouped folds of the training seeds",
         "d_prime": "sqrt(2) * Phi^-1(AUC)",
@@ -536,16 +537,18 @@ def table_csv(rows: Sequence[dict[str, Any]]) -> str:
 def table_md(doc: dict[str, Any]) -> str:
     """``ideal_observer.md``: the table and which condition carries the most information."""
     lines = [
-        "| condition | input | AUC [95 % CI] | d′ [95 % CI] | frames | seeds | counted / true |",
-        "|---|---|---|---|---:|---:|---:|",
+        "| condition | input | AUC [95 % CI] | ± | d′ [95 % CI] | frames | seeds "
+        "| counted / true | mean abs. count error per seed |",
+        "|---|---|---|---:|---|---:|---:|---:|---:|",
     ]
     for r in doc["rows"]:
         lo, hi = r["auc_ci"]
         dlo, dhi = r["d_prime_ci"]
         lines.append(
             f"| {r['condition']} | {r['input']} | {r['auc']:.3f} [{lo:.3f}, {hi:.3f}] | "
-            f"{r['d_prime']:.2f} [{dlo:.2f}, {dhi:.2f}] | {r['n_frames']} | {r['n_seeds']} | "
-            f"{r['counted_touches']} / {r['true_touches']} |"
+            f"{r['auc_ci_half_width']:.3f} | {r['d_prime']:.2f} [{dlo:.2f}, {dhi:.2f}] | "
+            f"{r['n_frames']} | {r['n_seeds']} | {r['counted_touches']} / {r['true_touches']} | "
+            f"{r['mean_abs_count_error']:.1f} |"
         )
     lines.append("")
     for name, best in doc["most_informative"].items():
