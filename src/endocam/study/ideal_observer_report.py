@@ -118,7 +118,9 @@ def verdict(doc: dict[str, Any]) -> list[str]:
     """Per input, the most informative condition and its paired differences, in words."""
     parts = []
     for name, b in doc["most_informative"].items():
-        items, above, level = [], [], []
+        items: list[str] = []
+        above: list[str] = []
+        level: list[str] = []
         for v in b["versus"]:
             lo, hi = v["ci"]
             (above if lo > 0.0 else level).append(html.escape(v["other"]))
