@@ -20,8 +20,8 @@ INPUT_MARKERS = {"mono": ("o", "#1f77b4"), "stereo": ("s", "#d62728")}
 
 STYLE = (
     "body{font-family:sans-serif;margin:1.5em;max-width:62em;line-height:1.4}"
-    "table{border-collapse:collapse;margin:.6em 0}"
-    "th,td{border:1px solid #ccc;padding:3px 8px;text-align:right}td{white-space:nowrap}"
+    "table{border-collapse:collapse;margin:.6em 0;font-size:90%}"
+    "th,td{border:1px solid #ccc;padding:2px 6px;text-align:right}td{white-space:nowrap}"
     "th:first-child,td:first-child,th:nth-child(2),td:nth-child(2){text-align:left}"
     "th{background:#f0f0f0}.best{font-weight:bold}.note{color:#555;font-size:small}"
     "details{margin:.5em 0}"
@@ -87,9 +87,9 @@ def main_table(doc: dict[str, Any]) -> list[str]:
     """The table's HTML rows, the best condition per input in bold."""
     best = {name: b["condition"] for name, b in doc["most_informative"].items()}
     parts = [
-        "<table><tr><th>condition</th><th>input</th><th>AUC</th><th>95 % CI</th>"
-        "<th>± half-width</th><th>d′</th><th>95 % CI</th><th>contact / labelled frames</th>"
-        "<th>seeds</th><th>touches counted / true</th><th>mean |counted − true| per seed</th>"
+        "<table><tr><th>condition</th><th>input</th><th>AUC</th><th>AUC 95 % CI</th>"
+        "<th>± half-width</th><th>d′</th><th>d′ 95 % CI</th><th>frames: contact / labelled</th>"
+        "<th>seeds</th><th>touches counted / true</th><th>mean |counted − true| (per seed)</th>"
         "<th>seeds for ±"
         f"{doc['target_half_width']:g}</th></tr>"
     ]
