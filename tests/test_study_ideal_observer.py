@@ -230,6 +230,10 @@ def test_crop_cache_is_used_only_while_its_key_matches(tmp_path: Path) -> None:
     assert not hit and ios.cached_crops(video, uv + 3.0, half, cache, frames.append)[1]
     none, hit = ios.cached_crops(video, uv, half, None, frames.append)  # no cache
     assert not hit and none.dtype == np.uint8
+    checked = ios.check_study(study, ("mono",), cache=False)  # --no-cache writes nothing
+    got = ios.seed_frames(checked, checked.seed_dirs[0], CONDITIONS[0], False, frames.append)
+    assert got.cached == 0 and got.left.shape == (N_FRAMES, io_.CROP_PX**2 * 3)
+    assert not (study / ios.CACHE_DIR).exists()
     hsv = np.array([[180, 255, 0, 90, 0, 255]], dtype=np.uint8)
     assert io_.hsv_features(hsv).tolist() == [[1.0, 1.0, 0.0, 0.5, 0.0, 1.0]]
 
