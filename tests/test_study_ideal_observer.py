@@ -228,6 +228,10 @@ def test_crop_cache_is_used_only_while_its_key_matches(tmp_path: Path) -> None:
     cache.write_bytes(b"not an npz")
     _, hit = ios.cached_crops(video, uv + 3.0, half, cache, frames.append)
     assert not hit and ios.cached_crops(video, uv + 3.0, half, cache, frames.append)[1]
+    blocked = tmp_path / "file"
+    blocked.write_text("", "utf-8")  # a file where the cache's folder would be: cannot write
+    crops, hit = ios.cached_crops(video, uv + 3.0, half, blocked / "v.npz", frames.append)
+    assert not hit and np.array_equal(crops, grey)
     none, hit = ios.cached_crops(video, uv, half, None, frames.append)  # no cache
     assert not hit and none.dtype == np.uint8
     checked = ios.check_study(study, ("mono",), cache=False)  # --no-cache writes nothing

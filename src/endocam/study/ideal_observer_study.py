@@ -250,7 +250,8 @@ def cached_crops(
     """:func:`video_crops`, read from ``cache_file`` when its key matches (:func:`cache_key`).
 
     The rule: a cache file is used only if it holds the same key; otherwise the video is decoded
-    and the file (re)written. ``cache_file`` None: no cache. Returns the crops and whether they
+    and the file (re)written (if it cannot be written, the crops are still returned).
+    ``cache_file`` None: no cache. Returns the crops and whether they
     came from the cache.
     """
     if cache_file is None:
@@ -261,7 +262,10 @@ def cached_crops(
         progress(len(uv))
         return crops, True
     crops = video_crops(video, uv, half, progress)
-    write_cache(cache_file, key, crops)
+    try:
+        write_cache(cache_file, key, crops)
+    except OSError:  # a read-only study folder (with --out elsewhere): work without the cache
+        pass
     return crops, False
 
 
