@@ -16,6 +16,7 @@ from threadpoolctl import threadpool_limits
 
 from endocam.cli import main
 from endocam.study import ideal_observer as io_
+from endocam.study import ideal_observer_study as ios
 from endocam.study.make import right_video, seed_log
 from study_helpers import CONDITIONS, make_study
 
@@ -202,6 +203,43 @@ def test_cli_measures_a_tiny_study(tmp_path: Path, monkeypatch: pytest.MonkeyPat
         assert r["counted_touches"] == r["true_touches"]  # a clean signal counts right
     assert (study / "ideal_observer.md").read_text("utf-8").count("| fixed |") == 2
     assert (study / "ideal_observer.csv").read_text("utf-8").startswith("condition,input,auc,")
+    page = (study / "ideal_observer.html").read_text("utf-8")
+    assert page.count("<tr class='best'>") == 2 and "data:image/png;base64," in page
+    cached = sorted(p.name for p in (study / ios.CACHE_DIR / "100").iterdir())
+    assert cached == sorted(f"{c}.{eye}.npz" for c in CONDITIONS for eye in ("left", "right"))
+
+
+def test_crop_cache_is_used_only_while_its_key_matches(tmp_path: Path) -> None:
+    study = kept_study(tmp_path, 3)
+    video = study / "seeds" / "100" / f"{CONDITIONS[0]}.mp4"
+    uv = np.tile([W_PX / 2, H_PX / 2], (N_FRAMES, 1))
+    half = np.full(N_FRAMES, 5.0)  # px
+    cache = tmp_path / "cache" / "v.npz"
+    frames: list[int] = []
+    first, hit = ios.cached_crops(video, uv, half, cache, frames.append)
+    assert not hit and cache.is_file() and sum(frames) == N_FRAMES
+    again, hit = ios.cached_crops(video, uv, half, cache, frames.append)
+    assert hit and np.array_equal(again, first) and sum(frames) == 2 * N_FRAMES
+    moved, hit = ios.cached_crops(video, uv + 3.0, half, cache, frames.append)  # other centres
+    assert not hit
+    write_video(video, np.full(N_FRAMES, 90))  # other pixels, same name and length
+    grey, hit = ios.cached_crops(video, uv + 3.0, half, cache, frames.append)
+    assert not hit and not np.array_equal(grey, moved)
+    cache.write_bytes(b"not an npz")
+    _, hit = ios.cached_crops(video, uv + 3.0, half, cache, frames.append)
+    assert not hit and ios.cached_crops(video, uv + 3.0, half, cache, frames.append)[1]
+    blocked = tmp_path / "file"
+    blocked.write_text("", "utf-8")  # a file where the cache's folder would be: cannot write
+    crops, hit = ios.cached_crops(video, uv + 3.0, half, blocked / "v.npz", frames.append)
+    assert not hit and np.array_equal(crops, grey)
+    none, hit = ios.cached_crops(video, uv, half, None, frames.append)  # no cache
+    assert not hit and none.dtype == np.uint8
+    checked = ios.check_study(study, ("mono",), cache=False)  # --no-cache writes nothing
+    got = ios.seed_frames(checked, checked.seed_dirs[0], CONDITIONS[0], False, frames.append)
+    assert got.cached == 0 and got.left.shape == (N_FRAMES, io_.CROP_PX**2 * 3)
+    assert not (study / ios.CACHE_DIR).exists()
+    hsv = np.array([[180, 255, 0, 90, 0, 255]], dtype=np.uint8)
+    assert io_.hsv_features(hsv).tolist() == [[1.0, 1.0, 0.0, 0.5, 0.0, 1.0]]
 
 
 @pytest.mark.parametrize(
@@ -210,6 +248,7 @@ def test_cli_measures_a_tiny_study(tmp_path: Path, monkeypatch: pytest.MonkeyPat
         ("none", "no such study folder"),
         ("two", "needs at least 3"),
         ("no-videos", "missing fixed.mp4"),
+        ("threads", "--threads must be at least 1"),
     ],
 )
 def test_cli_bad_study_exits_2(
@@ -219,7 +258,8 @@ def test_cli_bad_study_exits_2(
         study = tmp_path / "nope"
     else:
         study = kept_study(tmp_path, 2 if setup == "two" else 3, videos=False)
-    assert main(["study", "ideal-observer", "--study", str(study)]) == 2
+    extra = ["--threads", "0"] if setup == "threads" else []
+    assert main(["study", "ideal-observer", "--study", str(study), *extra]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
     assert not (study / "ideal_observer.json").exists()

@@ -162,48 +162,57 @@ def _ideal_observer(args: argparse.Namespace) -> int:
 
     from endocam.runner.outputs import write_atomic
     from endocam.study import ideal_observer_study as ios
+    from endocam.study.ideal_observer_report import report_html
 
     inputs = tuple(dict.fromkeys(i.strip() for i in args.inputs.split(",")))
     unknown = [i for i in inputs if i not in ios.INPUTS]
     if unknown or not inputs:
         raise UsageError(f"--inputs: unknown {unknown[0]!r}; choose from: {', '.join(ios.INPUTS)}")
+    if args.threads < 1:
+        raise UsageError(f"--threads must be at least 1, got {args.threads}")
     try:
         import sklearn  # noqa: F401
     except ImportError:
         raise UsageError(f"study ideal-observer needs scikit-learn: {_EXTRA_HINT}") from None
     try:
-        study = ios.check_study(Path(args.study), inputs)
+        study = ios.check_study(Path(args.study), inputs, cache=not args.no_cache)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     out = Path(args.out) if args.out else study.folder / ios.IDEAL_OBSERVER_JSON
     if not out.parent.is_dir():
         raise UsageError(f"--out: no such folder: {out.parent}")
+    from threadpoolctl import threadpool_limits
+
     eyes = 2 if "stereo" in inputs else 1
-    per_video = ios.frames_per_video(study)
-    total = per_video * eyes * len(study.conditions) * len(study.seed_dirs)
-    rows, estimates = [], {}
-    with tqdm(total=total, desc="decode + crop", unit="frame", leave=False) as bar:
-        for c in study.conditions:
-            try:
-                frames = [
-                    ios.seed_frames(study, d, c, "stereo" in inputs, bar.update)
-                    for d in study.seed_dirs
-                ]
-            except ValueError as exc:
-                raise UsageError(str(exc)) from None
-            for name, data in ios.datasets(frames, inputs).items():
-                row, estimates[(c, name)] = ios.evaluate(c, name, data)
-                rows.append(row)
+    n_videos = eyes * len(study.conditions) * len(study.seed_dirs)
+    folds = len(inputs) * len(study.conditions) * len(study.seed_dirs)
+    with (
+        tqdm(total=ios.frames_per_video(study) * n_videos, desc="crops", unit="frame") as crops,
+        tqdm(total=folds, desc="folds", unit="fold") as fits,
+        threadpool_limits(limits=args.threads),
+    ):
+        try:
+            m = ios.measure(study, inputs, crops.update, fits.update)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    rows, estimates = m.rows, m.estimates
     doc = ios.document(study, rows, estimates)
     texts = {
         out: json.dumps(doc, indent=2) + "\n",
         out.with_suffix(".md"): ios.table_md(doc),
         out.with_suffix(".csv"): ios.table_csv(rows),
+        out.with_suffix(".html"): report_html(doc),
     }
     for path, text in texts.items():
         write_atomic(path, functools.partial(Path.write_text, data=text, encoding="utf-8"))
     print(ios.table_md(doc), end="")
-    print(f"wrote {out} (and .md, .csv)")
+    print(f"wrote {out} (and .md, .csv, .html)")
+    t = m.seconds
+    print(
+        f"time: crops {t['decode']:.0f} s ({m.cached} of {m.videos} videos from "
+        f"{study.folder / ios.CACHE_DIR}), fits {t['fit']:.0f} s "
+        f"({args.threads} thread(s)), bootstrap {t['bootstrap']:.0f} s"
+    )
     return 0
 
 
@@ -215,19 +224,33 @@ def _add_ideal_observer(sub: argparse._SubParsersAction) -> None:
         "classifier of 'in contact' against '>= 0.5 mm apart' on crops around the ring of the "
         "kept extra seeds' videos (study make --seeds N --keep-seed-videos, N >= 3), tested on "
         "held-out seeds (leave one seed out); write AUC and d' with seed-level bootstrap 95 % "
-        "CIs and touch counts to ideal_observer.json/.md/.csv.",
+        "CIs and touch counts to ideal_observer.json/.md/.csv/.html.",
     )
     p.add_argument("--study", required=True, metavar="DIR", help="study folder with manifest.json")
     p.add_argument(
         "--out",
         metavar="FILE",
-        help="JSON to write; .md and .csv beside it (default: DIR/ideal_observer.json)",
+        help="JSON to write; .md, .csv and .html beside it (default: DIR/ideal_observer.json)",
     )
     p.add_argument(
         "--inputs",
         default="mono,stereo",
         metavar="I1,I2",
         help="inputs, comma-separated: mono (left eye), stereo (both eyes) (default: %(default)s)",
+    )
+    p.add_argument(
+        "--threads",
+        type=integer,
+        default=1,
+        help="OpenMP/BLAS threads of the model fits (default: %(default)s; more threads slow "
+        "down badly on a loaded machine)",
+    )
+    p.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="neither read nor write the crop cache (DIR/ideal_observer_cache/: one .npz per "
+        "video, used only while the video's bytes, the log's crop positions and the crop size "
+        "match)",
     )
     p.set_defaults(handler=_ideal_observer)
 

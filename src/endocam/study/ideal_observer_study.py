@@ -8,15 +8,28 @@ the camera frame) and the ring's radii come from the study's ``logs/*/scene.json
 three presentation trajectories are not used: they differ in difficulty and have no right eye.
 
 Written: ``ideal_observer.json`` (per condition × input: AUC and d′ with their CIs, frames,
-seeds, counted and true touches, per seed the threshold and counts), and beside it the same
-table as ``ideal_observer.md`` and ``ideal_observer.csv``.
+seeds, counted and true touches, per seed the AUC, threshold and counts), and beside it the same
+table as ``ideal_observer.md``, ``ideal_observer.csv`` and a page, ``ideal_observer.html``
+(:mod:`endocam.study.ideal_observer_report`).
+
+Crop cache: decoding every frame of every kept video is most of a first run's time, so each
+video's crops (uint8 HSV, ``(F, CROP_PX² · 3)``) are kept in
+``<study>/ideal_observer_cache/<seed folder>/<condition>.<eye>.npz`` with a key
+(:func:`cache_key`): the SHA-256 of the video's bytes, the crop centres and half-sides (which
+follow from the log, the camera and the ring) and ``CROP_PX``/``CACHE_VERSION``. A file whose
+key differs, or that cannot be read, is recomputed and overwritten; deleting the folder is
+always safe.
 """
 
 from __future__ import annotations
 
 import csv
+import functools
+import hashlib
 import io
 import json
+import time
+import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +41,7 @@ from numpy.typing import NDArray
 from endocam import __version__
 from endocam.geometry import R_from_quat_wxyz
 from endocam.runner.log_schema import quat_names, xyz_names
+from endocam.runner.outputs import write_atomic
 from endocam.study import ideal_observer as io_
 from endocam.study.hypothesis import SEEDS_DIR, TRUTH_JSON
 from endocam.study.make import LOGS_DIR, right_video, seed_log
@@ -37,6 +51,9 @@ IDEAL_OBSERVER_JSON = "ideal_observer.json"
 INPUTS = ("mono", "stereo")  # mono: the left eye (the participants' video); stereo: both eyes
 TARGET_HALF_WIDTH = 0.05  # the AUC CI half-width the study aims at (issue 27)
 LOG_COLUMNS = ("t", *xyz_names("ring"), *xyz_names("cam"), *quat_names("cam"), "clearance")
+CACHE_DIR = "ideal_observer_cache"  # the crop cache, inside the study folder (safe to delete)
+CACHE_VERSION = 1  # raise it when crop_hsv's output changes for the same inputs
+PROGRESS_EVERY = 30  # frames between progress-bar updates
 
 
 @dataclass(frozen=True)
@@ -55,15 +72,19 @@ class StudyCamera:
 
 @dataclass(frozen=True)
 class StudyInputs:
-    """A checked study folder: its conditions, kept seed folders, camera."""
+    """A checked study folder: its conditions, kept seed folders, camera.
+
+    ``cache``: whether the crops are cached in ``<folder>/CACHE_DIR``.
+    """
 
     folder: Path
     conditions: tuple[str, ...]
     seed_dirs: tuple[Path, ...]
     camera: StudyCamera
+    cache: bool = True
 
 
-def check_study(folder: Path, inputs: Sequence[str] = INPUTS) -> StudyInputs:
+def check_study(folder: Path, inputs: Sequence[str] = INPUTS, cache: bool = True) -> StudyInputs:
     """Check that ``folder`` holds what the ideal observer needs (before anything is computed).
 
     Raises
@@ -95,7 +116,7 @@ def check_study(folder: Path, inputs: Sequence[str] = INPUTS) -> StudyInputs:
         missing = [n for n in need if not (d / n).is_file()]
         if missing:
             raise ValueError(f"{d}: missing {', '.join(missing)} (made before the ideal observer?)")
-    return StudyInputs(folder, manifest.conditions, dirs, camera)
+    return StudyInputs(folder, manifest.conditions, dirs, camera, cache)
 
 
 def read_camera(scene_json: Path) -> StudyCamera:
@@ -152,10 +173,11 @@ def video_crops(
     uv: NDArray[np.float64],
     half: NDArray[np.float64],
     progress: Callable[[int], object],
-) -> NDArray[np.float32]:
-    """Decode ``path`` and crop frame j around ``uv[j]`` (``half[j]``): (F, CROP_PX² · 3).
+) -> NDArray[np.uint8]:
+    """Decode ``path`` and crop frame j around ``uv[j]`` (``half[j]``): (F, CROP_PX² · 3) HSV.
 
-    The frames beyond ``len(uv)`` are dropped; a video shorter than ``uv`` is an error.
+    Every frame is decoded (the touch count reads every frame's score; H.264 decodes in order
+    anyway). The frames beyond ``len(uv)`` are dropped; a video shorter than ``uv`` is an error.
     """
     import imageio_ffmpeg
 
@@ -163,15 +185,17 @@ def video_crops(
     try:
         meta = next(reader)
         width, height = meta["size"]
-        out = np.zeros((len(uv), io_.CROP_PX * io_.CROP_PX * 3), dtype=np.float32)
+        out = np.zeros((len(uv), io_.CROP_PX * io_.CROP_PX * 3), dtype=np.uint8)
         n = 0
         for buf in reader:
             if n == len(uv):
                 break
             frame = np.frombuffer(buf, dtype=np.uint8).reshape(height, width, 3)
-            out[n] = io_.crop_features(frame, uv[n], float(half[n]), io_.CROP_PX)
+            out[n] = io_.crop_hsv(frame, uv[n], float(half[n]), io_.CROP_PX)
             n += 1
-            progress(1)
+            if n % PROGRESS_EVERY == 0:
+                progress(PROGRESS_EVERY)
+        progress(n % PROGRESS_EVERY)
     finally:
         reader.close()
     if n < len(uv):
@@ -179,15 +203,86 @@ def video_crops(
     return out
 
 
+def cache_key(video: Path, uv: NDArray[np.float64], half: NDArray[np.float64]) -> str:
+    """What a cached crop file must match (SHA-256, hex).
+
+    It hashes the video's bytes, the crop centres and half-sides (from the log, the camera and
+    the ring), ``CROP_PX`` and ``CACHE_VERSION``.
+    """
+    h = hashlib.sha256(f"v{CACHE_VERSION}|{io_.CROP_PX}|".encode())
+    with open(video, "rb") as fh:
+        for block in iter(functools.partial(fh.read, 1 << 20), b""):
+            h.update(block)
+    h.update(np.ascontiguousarray(uv, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(half, dtype=np.float64).tobytes())
+    return h.hexdigest()
+
+
+def read_cache(path: Path, key: str, shape: tuple[int, int]) -> NDArray[np.uint8] | None:
+    """The crops in ``path`` if it is readable and holds ``key`` and ``shape``; else None."""
+    try:
+        with np.load(path) as z:
+            crops = np.asarray(z["crops"])
+            ok = str(z["key"]) == key and crops.shape == shape and crops.dtype == np.uint8
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile):
+        return None
+    return crops if ok else None
+
+
+def write_cache(path: Path, key: str, crops: NDArray[np.uint8]) -> None:
+    """Save ``crops`` with ``key`` to ``path`` (.npz, compressed), atomically."""
+
+    def save(tmp: Path) -> None:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, key=np.str_(key), crops=crops)
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic(path, save)
+
+
+def cached_crops(
+    video: Path,
+    uv: NDArray[np.float64],
+    half: NDArray[np.float64],
+    cache_file: Path | None,
+    progress: Callable[[int], object],
+) -> tuple[NDArray[np.uint8], bool]:
+    """:func:`video_crops`, read from ``cache_file`` when its key matches (:func:`cache_key`).
+
+    The rule: a cache file is used only if it holds the same key; otherwise the video is decoded
+    and the file (re)written (if it cannot be written, the crops are still returned).
+    ``cache_file`` None: no cache. Returns the crops and whether they
+    came from the cache.
+    """
+    if cache_file is None:
+        return video_crops(video, uv, half, progress), False
+    key = cache_key(video, uv, half)
+    crops = read_cache(cache_file, key, (len(uv), io_.CROP_PX * io_.CROP_PX * 3))
+    if crops is not None:
+        progress(len(uv))
+        return crops, True
+    crops = video_crops(video, uv, half, progress)
+    try:
+        write_cache(cache_file, key, crops)
+    except OSError:  # a read-only study folder (with --out elsewhere): work without the cache
+        pass
+    return crops, False
+
+
 @dataclass(frozen=True)
 class SeedFrames:
-    """One seed and condition: per frame the label and each eye's crop features."""
+    """One seed and condition: per frame the label and each eye's HSV crops (uint8).
+
+    ``labels`` : (F,) int8; ``left``/``right`` : (F, CROP_PX² · 3) uint8 (:func:`crop_hsv`),
+    ``right`` None for mono; ``cached`` : how many of its videos came from the crop cache.
+    """
 
     seed: int
     labels: NDArray[np.int8]
-    left: NDArray[np.float32]
-    right: NDArray[np.float32] | None
+    left: NDArray[np.uint8]
+    right: NDArray[np.uint8] | None
     true_touches: int
+    cached: int = 0
 
 
 def seed_frames(
@@ -197,7 +292,11 @@ def seed_frames(
     stereo: bool,
     progress: Callable[[int], object],
 ) -> SeedFrames:
-    """Labels and crops of one kept seed's videos of ``condition`` (the right eye if ``stereo``)."""
+    """Labels and crops of one kept seed's videos of ``condition`` (the right eye if ``stereo``).
+
+    Crops are cached in ``<study>/CACHE_DIR/<seed folder>/<condition>.<eye>.npz`` unless
+    ``study.cache`` is False (:func:`cached_crops` says when a cache file is used).
+    """
     seed, touches, fps = read_truth(folder)
     log = read_log(folder / seed_log(condition))
     n_frames = int(np.floor(log["t"][-1] * fps + 1e-9)) + 1
@@ -206,7 +305,7 @@ def seed_frames(
     labels = io_.frame_labels(t_frames, log["t"], log["clearance"])
     p_ring = np.stack([log[c] for c in xyz_names("ring")], axis=1)[steps]
     cam = study.camera
-    crops = []
+    crops, cached = [], 0
     for eye, T_cam_eye, name in (
         ("left", cam.T_cam_left, f"{condition}.mp4"),
         ("right", cam.T_cam_right, right_video(condition)),
@@ -215,8 +314,13 @@ def seed_frames(
             break
         T_world_eye = eye_poses(log, T_cam_eye)[steps]
         uv, half = io_.project_ring(cam.K, T_world_eye, p_ring, cam.outer_radius)
-        crops.append(video_crops(folder / name, uv, half, progress))
-    return SeedFrames(seed, labels, crops[0], crops[1] if stereo else None, touches)
+        cache = study.folder / CACHE_DIR / folder.name / f"{condition}.{eye}.npz"
+        eye_crops, hit = cached_crops(
+            folder / name, uv, half, cache if study.cache else None, progress
+        )
+        crops.append(eye_crops)
+        cached += hit
+    return SeedFrames(seed, labels, crops[0], crops[1] if stereo else None, touches, cached)
 
 
 def frames_per_video(study: StudyInputs) -> int:
@@ -239,20 +343,23 @@ def datasets(frames: Sequence[SeedFrames], inputs: Sequence[str]) -> dict[str, i
             X = np.concatenate(
                 [np.hstack([f.left, f.right]) for f in frames if f.right is not None]
             )
-        out[name] = io_.Dataset(X, labels, seeds, truth)
+        out[name] = io_.Dataset(io_.hsv_features(X), labels, seeds, truth)
     return out
 
 
-def evaluate(
-    condition: str, name: str, data: io_.Dataset
-) -> tuple[dict[str, Any], io_.AucEstimate]:
-    """One row of the table (cross-validation, AUC and d′ with CIs, touch counts), its AUC."""
-    cv = io_.cross_validate(data)
-    est = io_.bootstrap_auc(data.labels, cv.scores, data.seeds, n_boot=io_.N_BOOT)
+def seed_auc(data: io_.Dataset, scores: NDArray[np.float64], seed: int) -> float | None:
+    """The AUC of one seed's labelled frames (None if they hold one class only)."""
+    keep = (data.seeds == seed) & (data.labels != io_.BETWEEN)
+    y = data.labels[keep] == io_.CONTACT
+    return io_.auc_score(y, scores[keep]) if y.any() and not y.all() else None
+
+
+def table_row(
+    condition: str, name: str, data: io_.Dataset, cv: io_.CrossValidation, est: io_.AucEstimate
+) -> dict[str, Any]:
+    """One row of the table: AUC and d′ with CIs, frames, seeds, touch counts, per seed."""
     seeds = sorted(data.true_touches)
-    counted = sum(cv.counted.values())
-    true = sum(data.true_touches.values())
-    row = {
+    return {
         "condition": condition,
         "input": name,
         "auc": est.auc,
@@ -265,8 +372,8 @@ def evaluate(
         "n_excluded_frames": int((data.labels == io_.BETWEEN).sum()),
         "n_seeds": len(seeds),
         "n_boot": est.n_boot,
-        "counted_touches": counted,
-        "true_touches": true,
+        "counted_touches": sum(cv.counted.values()),
+        "true_touches": sum(data.true_touches.values()),
         "mean_abs_count_error": float(
             np.mean([abs(cv.counted[s] - data.true_touches[s]) for s in seeds])
         ),
@@ -274,6 +381,7 @@ def evaluate(
         "per_seed": [
             {
                 "seed": s,
+                "auc": seed_auc(data, cv.scores, s),
                 "threshold": cv.thresholds[s],
                 "counted_touches": cv.counted[s],
                 "true_touches": data.true_touches[s],
@@ -281,7 +389,73 @@ def evaluate(
             for s in seeds
         ],
     }
-    return row, est
+
+
+def evaluate(
+    condition: str,
+    name: str,
+    data: io_.Dataset,
+    progress: Callable[[int], object] | None = None,
+    seconds: dict[str, float] | None = None,
+) -> tuple[dict[str, Any], io_.AucEstimate]:
+    """One row of the table (cross-validation, AUC and d′ with CIs, touch counts), its AUC.
+
+    ``progress`` is called with 1 per fold; ``seconds["fit"]``/``["bootstrap"]`` (if given) are
+    increased by the wall time of the two stages.
+    """
+    clock = {} if seconds is None else seconds
+    t0 = time.perf_counter()
+    cv = io_.cross_validate(data, progress=progress)
+    t1 = time.perf_counter()
+    est = io_.bootstrap_auc(data.labels, cv.scores, data.seeds, n_boot=io_.N_BOOT)
+    t2 = time.perf_counter()
+    clock["fit"] = clock.get("fit", 0.0) + t1 - t0
+    clock["bootstrap"] = clock.get("bootstrap", 0.0) + t2 - t1
+    return table_row(condition, name, data, cv, est), est
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """What :func:`measure` found.
+
+    The table's rows; their AUC estimates per (condition, input); the wall time per stage (s:
+    ``decode`` (decode + crop, or read the cache), ``fit``, ``bootstrap``); how many of the
+    ``videos`` read came from the crop cache (``cached``).
+    """
+
+    rows: list[dict[str, Any]]
+    estimates: dict[tuple[str, str], io_.AucEstimate]
+    seconds: dict[str, float]
+    videos: int
+    cached: int
+
+
+def measure(
+    study: StudyInputs,
+    inputs: Sequence[str],
+    decoded: Callable[[int], object],
+    folded: Callable[[int], object],
+) -> Measurement:
+    """Every condition × input of a checked study, one condition's crops in memory at a time.
+
+    ``decoded`` is called with the frames cropped (or read from the cache), ``folded`` with 1 per
+    cross-validation fold (``len(conditions) · len(inputs) · len(seed_dirs)`` in all).
+    """
+    stereo = "stereo" in inputs
+    rows: list[dict[str, Any]] = []
+    estimates: dict[tuple[str, str], io_.AucEstimate] = {}
+    seconds = {"decode": 0.0, "fit": 0.0, "bootstrap": 0.0}
+    cached = 0
+    for c in study.conditions:
+        t0 = time.perf_counter()
+        frames = [seed_frames(study, d, c, stereo, decoded) for d in study.seed_dirs]
+        seconds["decode"] += time.perf_counter() - t0
+        cached += sum(f.cached for f in frames)
+        for name, data in datasets(frames, inputs).items():
+            row, estimates[(c, name)] = evaluate(c, name, data, folded, seconds)
+            rows.append(row)
+    videos = len(study.conditions) * len(study.seed_dirs) * (2 if stereo else 1)
+    return Measurement(rows, estimates, seconds, videos, cached)
 
 
 def comparisons(estimates: dict[tuple[str, str], io_.AucEstimate]) -> dict[str, Any]:
@@ -316,7 +490,8 @@ def document(
         "labels": {"contact": "clearance <= 0", "apart_mm": io_.APART_M * 1e3},
         "crop_px": io_.CROP_PX,
         "features": "crop around the projected ring centre, HSV pixels in [0, 1] per eye",
-        "model": f"HistGradientBoostingClassifier(max_iter={io_.HGB_ITER}), training apart "
+        "model": f"HistGradientBoostingClassifier(max_iter={io_.HGB_ITER}, "
+        f"max_bins={io_.HGB_BINS}), training apart "
         f"frames capped at {io_.APART_PER_CONTACT:g} per contact frame",
         "cv": "leave one seed out; thresholds from inner grouped folds of the training seeds",
         "d_prime": "sqrt(2) * Phi^-1(AUC)",
@@ -366,16 +541,18 @@ def table_csv(rows: Sequence[dict[str, Any]]) -> str:
 def table_md(doc: dict[str, Any]) -> str:
     """``ideal_observer.md``: the table and which condition carries the most information."""
     lines = [
-        "| condition | input | AUC [95 % CI] | d′ [95 % CI] | frames | seeds | counted / true |",
-        "|---|---|---|---|---:|---:|---:|",
+        "| condition | input | AUC [95 % CI] | ± | d′ [95 % CI] | frames | seeds "
+        "| counted / true | mean abs. count error per seed |",
+        "|---|---|---|---:|---|---:|---:|---:|---:|",
     ]
     for r in doc["rows"]:
         lo, hi = r["auc_ci"]
         dlo, dhi = r["d_prime_ci"]
         lines.append(
             f"| {r['condition']} | {r['input']} | {r['auc']:.3f} [{lo:.3f}, {hi:.3f}] | "
-            f"{r['d_prime']:.2f} [{dlo:.2f}, {dhi:.2f}] | {r['n_frames']} | {r['n_seeds']} | "
-            f"{r['counted_touches']} / {r['true_touches']} |"
+            f"{r['auc_ci_half_width']:.3f} | {r['d_prime']:.2f} [{dlo:.2f}, {dhi:.2f}] | "
+            f"{r['n_frames']} | {r['n_seeds']} | {r['counted_touches']} / {r['true_touches']} | "
+            f"{r['mean_abs_count_error']:.1f} |"
         )
     lines.append("")
     for name, best in doc["most_informative"].items():
