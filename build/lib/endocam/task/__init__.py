@@ -1,1 +1,0 @@
-"""The wire-chaser task: configuration, wire geometry, layout, ring trajectories and touches."""
