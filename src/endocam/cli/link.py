@@ -16,7 +16,7 @@ from pathlib import Path
 from endocam.cli.common import ARM_CHOICES, UsageError, integer, load_config_arg, out_dir
 from endocam.registry import POLICIES
 from endocam.robot.actuator import ArmKind
-from endocam.runner.episode import DEFAULT_SEED
+from endocam.runner.episode import DEFAULT_SEED, EpisodeSpec
 from endocam.task.config import MAX_CONTROL_POINTS
 from endocam.task.trajectory import TrajectoryKind
 
@@ -60,9 +60,7 @@ def _world_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="TOML or YAML config file (see `endocam config`)")
 
 
-def _spec(args: argparse.Namespace, policy: str) -> object:
-    from endocam.runner.episode import EpisodeSpec
-
+def _spec(args: argparse.Namespace, policy: str) -> EpisodeSpec:
     if not 2 <= args.control_points <= MAX_CONTROL_POINTS:
         raise UsageError(
             f"--control-points must be in 2..{MAX_CONTROL_POINTS}, got {args.control_points}"
@@ -101,7 +99,7 @@ def _serve(args: argparse.Namespace) -> int:
             endpoint,
             watchdog=args.watchdog,
             wait=args.wait,
-            ready=ready,  # type: ignore[arg-type]
+            ready=ready,
         )
     except TimeoutError as exc:
         print(f"robot: {exc}", file=sys.stderr)
@@ -116,7 +114,7 @@ def _serve(args: argparse.Namespace) -> int:
 
 
 def _control(args: argparse.Namespace) -> int:
-    from endocam.link.client import LinkLost, ZenohArm, run_remote
+    from endocam.link.client import LinkLostError, ZenohArm, run_remote
     from endocam.runner.episode import episode_arm
     from endocam.runner.outputs import write_run
 
@@ -135,8 +133,8 @@ def _control(args: argparse.Namespace) -> int:
     kind = episode_arm(cfg, args.policy)
     arm = ZenohArm(kind, endpoint, 1.0 / cfg.episode.control_rate, args.timeout)
     try:
-        run = run_remote(cfg, spec, arm, args.wait)  # type: ignore[arg-type]
-    except LinkLost as exc:
+        run = run_remote(cfg, spec, arm, args.wait)
+    except LinkLostError as exc:
         raise UsageError(f"no episode over {endpoint}: {exc}") from None
     except ValueError as exc:
         raise UsageError(str(exc)) from None
@@ -150,7 +148,7 @@ def _control(args: argparse.Namespace) -> int:
         "lost": run.lost,
     }
     (Path(out) / LINK_JSON).write_text(json.dumps(link, indent=2) + "\n", encoding="utf-8")
-    print(f"{spec.policy} over {endpoint}: {run.steps} steps -> {out}", flush=True)  # type: ignore[attr-defined]
+    print(f"{spec.policy} over {endpoint}: {run.steps} steps -> {out}", flush=True)
     if run.lost is not None:
         print(f"link: {run.lost}", flush=True)
         return EXIT_LINK

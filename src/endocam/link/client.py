@@ -12,7 +12,7 @@ against (the true ring pose, the touches) is the same world built from the same 
 **The controller holds when the link fails.** When no new state arrives within ``timeout`` s
 (wall clock) of a command, when the robot's state stops advancing or jumps (its watchdog held
 the arm), or when the robot ends early, the controller sends nothing more — the robot's
-watchdog stops the arm — and the episode ends there with the reason (:class:`LinkLost`); the
+watchdog stops the arm — and the episode ends there with the reason (:class:`LinkLostError`); the
 run folder holds the steps done and says why in ``link.json``.
 """
 
@@ -54,7 +54,7 @@ DEFAULT_TIMEOUT_S = 0.5  # s (wall): the robot answers a command within this, or
 RING_ATOL_M = 1e-9  # m: the robot's sensed ring vs this world's (same options: equal to round-off)
 
 
-class LinkLost(Exception):
+class LinkLostError(Exception):
     """The robot went silent, stopped advancing, held, or ended early: the controller holds."""
 
 
@@ -121,8 +121,14 @@ class ZenohArm:
     # -- connection ---------------------------------------------------------------------------
 
     def connect(self, wait: float) -> RobotState:
-        """Open the link and wait up to ``wait`` s for the robot's first state."""
+        """Open the link and wait up to ``wait`` s for the robot's first state.
+
+        Already connected: the state it has (the first until a command is sent).
+        """
         import zenoh
+
+        if self.session is not None and self.state is not None:
+            return self.state
 
         self.session = zenoh.open(zenoh_config(self.endpoint, listen=False))
         k = self.keys
@@ -159,7 +165,7 @@ class ZenohArm:
                 key, data = self.inbox.get(timeout=max(left, 0.0))
             except queue.Empty:
                 what = "no state from the robot" if first else "the robot went silent"
-                raise LinkLost(
+                raise LinkLostError(
                     f"{what} for {timeout:g} s (waiting for step {k}, t = {k * self.dt:.3f} s)"
                 ) from None
             self.received += 1
@@ -173,17 +179,20 @@ class ZenohArm:
             if first and ns == want:
                 try:
                     return self._state(k)
-                except LinkLost:
+                except LinkLostError:
                     continue  # joined mid-way through a state: the robot repeats it
             if ns < want or first:
                 continue  # an older state repeated (the robot waiting for its first command)
             if ns > want:
-                raise LinkLost(
+                raise LinkLostError(
                     f"the robot's state jumped past step {k} (t = {k * self.dt:.3f} s, "
                     f"state {state}): its watchdog held the arm"
                 )
             if state == PAUSED:
-                raise LinkLost(f"the robot paused at t = {k * self.dt:.3f} s")
+                raise LinkLostError(
+                    f"the robot's watchdog held the arm at t = {k * self.dt:.3f} s "
+                    "(operating_state PAUSED): the command came too late"
+                )
             return self._state(k) if state != DISABLED else self._final(k)
 
     def _state(self, k: int) -> RobotState:
@@ -194,11 +203,11 @@ class ZenohArm:
             q = c.decode_joints(L[keys.measured_js])
             tips = np.stack([c.decode_point(L[keys.tip1]), c.decode_point(L[keys.tip2])])
         except (KeyError, ValueError) as exc:
-            raise LinkLost(
+            raise LinkLostError(
                 f"the robot's state at step {k} is incomplete or malformed: {exc}"
             ) from exc
         if ns != stamp_ns(k * self.dt):
-            raise LinkLost(
+            raise LinkLostError(
                 f"the robot's measured_cp is not of step {k}: its state stopped advancing"
             )
         return RobotState(k, T_cam, q, T_ring, ns_ring / 1e9, tips)
@@ -242,7 +251,7 @@ class ZenohArm:
     ) -> ActuatorStep:
         """Command the current step; the robot's answer once it published the next state.
 
-        Raises :class:`LinkLost` (nothing more is sent) when the robot does not answer.
+        Raises :class:`LinkLostError` (nothing more is sent) when the robot does not answer.
         """
         assert self.state is not None
         k = self.state.k
@@ -269,7 +278,7 @@ class ZenohArm:
 class PartialTrajectory(RingTrajectory):
     """A trajectory whose episode ended early (the link failed): ``duration`` the steps done."""
 
-    def __init__(self, full: RingTrajectory, duration: float) -> None:  # noqa: D107
+    def __init__(self, full: RingTrajectory, duration: float) -> None:
         self.__dict__.update(full.__dict__)
         self._ended = duration
 
@@ -295,7 +304,7 @@ def run_remote(
     """Run ``spec.policy`` against the robot behind ``arm``; see the module docstring.
 
     Raises ``ValueError`` when the robot's world is not the one of ``config`` and ``spec``
-    (its first sensed ring differs), ``LinkLost`` when no robot answers within ``wait`` s.
+    (its first sensed ring differs), ``LinkLostError`` when no robot answers within ``wait`` s.
     """
     policy = make_policy(spec.policy, config.controller)
     kind = episode_arm(config, spec.policy)
@@ -345,7 +354,7 @@ def run_remote(
         look = look_distance(cmd.T_world_cam, s.T_world_ring, cmd.d_f) if jointed else cmd.d_f
         try:
             out = arm.step(cmd.T_world_cam, look, cmd.twist)
-        except LinkLost as exc:
+        except LinkLostError as exc:
             lost = f"controller holding: {exc}"
             break
         if jointed:
@@ -353,7 +362,7 @@ def run_remote(
         log.record(cmd, StepRecord(k, s.T_world_cam, s.q, look, out))
         m = k + 1
     if m < 2:
-        raise LinkLost(lost or "the robot ended before the episode began")
+        raise LinkLostError(lost or "the robot ended before the episode began")
     return RemoteRun(_result(config, spec, lw, log, m, kind, arm.joint_names), lost, m)
 
 

@@ -30,7 +30,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, TextIO
+from typing import Any, NamedTuple, TextIO
 
 import numpy as np
 
@@ -90,6 +90,102 @@ class _Inbox:
         self.q.put((str(sample.key_expr), sample.payload.to_bytes()))
 
 
+class _Robot:
+    """One served episode: the carrier, the world row it is at, and what it publishes."""
+
+    def __init__(
+        self, config: ExperimentConfig, spec: EpisodeSpec, kind: ArmKind, session: Any
+    ) -> None:
+        import zenoh
+
+        lw = link_world(config, spec)
+        self.world = lw.world
+        warm = start_carrier(config, kind, lw.camera, lw.wire, self.world)  # compile the
+        warm.actuator.step(warm.T_world_cam, config.controller.d_f)  # kernels now, not later
+        carrier = start_carrier(config, kind, lw.camera, lw.wire, self.world)
+        self.arm = carrier.actuator
+        self.T_cam, self.q = carrier.T_world_cam, self.arm.q
+        self.look = float(config.controller.d_f)
+        self.dt = 1.0 / config.episode.control_rate
+        self.keys = keys = Keys.of(kind)
+        self.codec = Codec()
+        self.k = 0
+        self.pub = {
+            key: session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+            for key in (*keys[:4], keys.ring, keys.tip1, keys.tip2, keys.servo_result)
+        }
+
+    @property
+    def done(self) -> bool:
+        return self.k >= self.world.n
+
+    def publish(self, state: str, out: ActuatorStep | None) -> None:
+        """The state of step ``k`` (its operating state last: the controller's cue)."""
+        k, w, c, keys = self.k, self.world, self.codec, self.keys
+        ns = stamp_ns(k * self.dt)  # = world.t[k] for k < n; the end is stamped n · dt
+        if out is not None:
+            self.pub[keys.servo_result].put(c.array(servo_result(out)))
+            self.pub[keys.setpoint_cp].put(c.pose(out.T_world_target, ns))
+        if k < w.n:
+            self.pub[keys.measured_js].put(c.joints(self.arm.joint_names, self.q, ns))
+            self.pub[keys.ring].put(c.pose(w.T_world_ring_sensed[k], stamp_ns(w.t_ring[k])))
+            self.pub[keys.tip1].put(c.point(w.p_world_tips[k, 0], ns))
+            self.pub[keys.tip2].put(c.point(w.p_world_tips[k, 1], ns))
+            self.pub[keys.measured_cp].put(c.pose(self.T_cam, ns))
+        if k >= w.n:
+            state = DISABLED
+        self.pub[keys.operating_state].put(c.operating_state(state, k < w.n, ns))
+
+    def step(self, T_goal: FloatArray, look: float, twist: FloatArray | None, state: str) -> None:
+        """One control period towards ``T_goal``; publishes the next state as ``state``."""
+        out = self.arm.step(T_goal, look, twist)
+        self.T_cam, self.q, self.look = out.T_world_cam, out.q, look
+        self.k += 1
+        self.publish(state, out)
+
+    def hold(self) -> None:
+        """One control period of the watchdog's hold: the camera's own pose, at rest."""
+        self.step(self.T_cam, self.look, None, PAUSED)
+
+
+class _Command(NamedTuple):
+    T_world_cmd: FloatArray
+    ns: int
+    look: float
+    twist: FloatArray | None
+
+
+class _Decoder:
+    """Pairs a command's parts (look distance, velocity, pose) in arrival order."""
+
+    def __init__(self, keys: Keys, codec: Codec) -> None:
+        self.keys, self.codec = keys, codec
+        self.look: float | None = None
+        self.twist: tuple[FloatArray, int] | None = None
+
+    def feed(self, key: str, data: bytes) -> _Command | None:
+        """The command completed by this message, if any; ``ValueError`` if it is refused."""
+        try:
+            if key == LOOK_KEY:
+                look = self.codec.decode_float64(data)
+                if not (math.isfinite(look) and 0.0 < look <= MAX_LOOK_M):
+                    raise ValueError(f"look distance {look!r} m outside (0, {MAX_LOOK_M}] m")
+                self.look = look
+                return None
+            if key == self.keys.servo_cv:
+                self.twist = self.codec.decode_twist(data)
+                return None
+            T_goal, ns = self.codec.decode_pose(data)
+        except ValueError:
+            self.look, self.twist = None, None
+            raise
+        paired, twist = self.look, self.twist
+        self.look, self.twist = None, None
+        if paired is None:
+            raise ValueError("servo_cp without its look distance")
+        return _Command(T_goal, ns, paired, twist[0] if twist and twist[1] == ns else None)
+
+
 def serve(
     config: ExperimentConfig,
     spec: EpisodeSpec,
@@ -108,124 +204,81 @@ def serve(
     """
     import zenoh
 
-    lw = link_world(config, spec)
-    world = lw.world
-    warm = start_carrier(config, kind, lw.camera, lw.wire, world)  # compiles the kernels now,
-    warm.actuator.step(warm.T_world_cam, config.controller.d_f)  # not on the first command
-    carrier = start_carrier(config, kind, lw.camera, lw.wire, world)
-    arm = carrier.actuator
-    names = arm.joint_names
-    dt = 1.0 / config.episode.control_rate
-    keys = Keys.of(kind)
-    codec = Codec()
-    stats = ServeStats()
-    inbox = _Inbox()
     session = zenoh.open(zenoh_config(endpoint, listen=True))
     try:
-        pub = {
-            k: session.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK)
-            for k in (*keys[:4], keys.ring, keys.tip1, keys.tip2, keys.servo_result)
-        }
+        robot = _Robot(config, spec, kind, session)
+        inbox = _Inbox()
         # one subscriber, remote messages only: the commands in the order they were sent
         sub = session.declare_subscriber("**", inbox.callback, allowed_origin=zenoh.Locality.REMOTE)
-        T_cam, q = carrier.T_world_cam, arm.q
-        look_last = float(config.controller.d_f)
-
-        def publish(k: int, state: str, out: ActuatorStep | None) -> None:
-            ns = stamp_ns(k * dt)  # = world.t[k] for k < n; the end is stamped n · dt
-            if out is not None:
-                pub[keys.servo_result].put(codec.array(servo_result(out)))
-                pub[keys.setpoint_cp].put(codec.pose(out.T_world_target, ns))
-            if k < world.n:
-                pub[keys.measured_js].put(codec.joints(names, q, ns))
-                pub[keys.ring].put(
-                    codec.pose(world.T_world_ring_sensed[k], stamp_ns(world.t_ring[k]))
-                )
-                pub[keys.tip1].put(codec.point(world.p_world_tips[k, 0], ns))
-                pub[keys.tip2].put(codec.point(world.p_world_tips[k, 1], ns))
-                pub[keys.measured_cp].put(codec.pose(T_cam, ns))
-            pub[keys.operating_state].put(codec.operating_state(state, k < world.n, ns))  # last
-
-        if ready is not None:
-            ready()
-        k, mode, out = 0, "waiting", None
-        pending: dict[str, Any] = {}
-        t_wait_end = time.monotonic() + wait
-        last_cmd = time.monotonic()
-        publish(0, ENABLED, None)
-        while k < world.n:
-            now = time.monotonic()
-            if mode == "waiting":
-                timeout = dt
-            elif mode == ENABLED:
-                timeout = max(0.0, last_cmd + watchdog - now)
-            else:
-                timeout = dt
-            try:
-                key, data = inbox.q.get(timeout=timeout)
-            except queue.Empty:
-                if mode == "waiting":
-                    if time.monotonic() > t_wait_end:
-                        raise TimeoutError(f"no controller commanded the robot within {wait:g} s")
-                    publish(0, ENABLED, None)
-                    continue
-                if mode == ENABLED:
-                    mode = PAUSED
-                    stats.watchdog_trips += 1
-                    print(
-                        f"robot: watchdog: no command for {watchdog:g} s at t = {world.t[k]:.3f} s:"
-                        " servoing stopped, holding",
-                        file=log,
-                    )
-                out = arm.step(T_cam, look_last, None)  # hold: the carrier brakes to rest
-                T_cam, q = out.T_world_cam, out.q
-                k += 1
-                stats.steps += 1
-                stats.held += 1
-                publish(k, PAUSED if k < world.n else DISABLED, out)
-                continue
-            ns_now = stamp_ns(float(world.t[k]))
-            if key not in (LOOK_KEY, keys.servo_cv, keys.servo_cp):
-                continue  # not a command of this robot
-            try:
-                if key == LOOK_KEY:
-                    look = codec.decode_float64(data)
-                    if not (math.isfinite(look) and 0.0 < look <= MAX_LOOK_M):
-                        raise ValueError(f"look distance {look!r} m outside (0, {MAX_LOOK_M}]")
-                    pending["look"] = look
-                    continue
-                if key == keys.servo_cv:
-                    v, ns = codec.decode_twist(data)
-                    pending["twist"] = (v, ns)
-                    continue
-                T_goal, ns = codec.decode_pose(data)
-            except ValueError as exc:
-                stats.refused.append(f"{key}: {exc}")
-                print(f"robot: refused a message on {key}: {exc}", file=log)
-                pending.clear()
-                continue
-            if ns != ns_now or "look" not in pending:
-                stats.dropped += 1
-                pending.clear()
-                continue
-            twist_ns = pending.get("twist")
-            twist = twist_ns[0] if twist_ns is not None and twist_ns[1] == ns else None
-            look_last = float(pending["look"])
-            pending.clear()
-            if mode == PAUSED:
-                print(f"robot: command at t = {world.t[k]:.3f} s: servoing resumed", file=log)
-            mode = ENABLED
-            out = arm.step(T_goal, look_last, twist)
-            T_cam, q = out.T_world_cam, out.q
-            last_cmd = time.monotonic()
-            k += 1
-            stats.steps += 1
-            stats.commanded += 1
-            publish(k, ENABLED if k < world.n else DISABLED, out)
+        stats = _serve_loop(robot, inbox, watchdog, wait, log, ready)
         for _ in range(3):  # the end, said more than once: a late subscriber still hears it
-            publish(world.n, DISABLED, None)
-            time.sleep(dt)
+            robot.publish(DISABLED, None)
+            time.sleep(robot.dt)
         sub.undeclare()
     finally:
         session.close()
+    return stats
+
+
+def _serve_loop(
+    robot: _Robot,
+    inbox: _Inbox,
+    watchdog: float,
+    wait: float,
+    log: TextIO,
+    ready: Callable[[], object] | None,
+) -> ServeStats:
+    stats = ServeStats()
+    decoder = _Decoder(robot.keys, robot.codec)
+    commands = (LOOK_KEY, robot.keys.servo_cv, robot.keys.servo_cp)
+    mode = "waiting"
+    if ready is not None:
+        ready()
+    robot.publish(ENABLED, None)
+    t_wait_end = time.monotonic() + wait
+    last_cmd = time.monotonic()
+    while not robot.done:
+        timeout = max(0.0, last_cmd + watchdog - time.monotonic()) if mode == ENABLED else robot.dt
+        try:
+            key, data = inbox.q.get(timeout=timeout)
+        except queue.Empty:
+            if mode == "waiting":  # no controller yet: say the first state again
+                if time.monotonic() > t_wait_end:
+                    raise TimeoutError(
+                        f"no controller commanded the robot within {wait:g} s"
+                    ) from None
+                robot.publish(ENABLED, None)
+                continue
+            if mode == ENABLED:
+                mode = PAUSED
+                stats.watchdog_trips += 1
+                t = robot.k * robot.dt
+                print(
+                    f"robot: watchdog: no command for {watchdog:g} s at t = {t:.3f} s: "
+                    "servoing stopped, holding",
+                    file=log,
+                )
+            robot.hold()
+            stats.held += 1
+            continue
+        if key not in commands:
+            continue  # not a command of this robot
+        try:
+            cmd = decoder.feed(key, data)
+        except ValueError as exc:
+            stats.refused.append(f"{key}: {exc}")
+            print(f"robot: refused a message on {key}: {exc}", file=log)
+            continue
+        if cmd is None:
+            continue
+        if cmd.ns != stamp_ns(robot.k * robot.dt):
+            stats.dropped += 1  # late, duplicated or reordered: never acted on
+            continue
+        if mode == PAUSED:
+            print(f"robot: command at t = {robot.k * robot.dt:.3f} s: servoing resumed", file=log)
+        mode = ENABLED
+        robot.step(cmd.T_world_cmd, cmd.look, cmd.twist, ENABLED)
+        stats.commanded += 1
+        last_cmd = time.monotonic()
+    stats.steps = robot.k
     return stats

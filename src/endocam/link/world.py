@@ -9,7 +9,7 @@ touches) — and checks that the robot's ring matches it before it commands anyt
 from __future__ import annotations
 
 import json
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
@@ -17,6 +17,9 @@ from endocam.runner.episode import EpisodeSpec
 from endocam.runner.step import EpisodeWorld, episode_world
 from endocam.task.trajectory import RingTrajectory, make_trajectory
 from endocam.task.wire import Wire
+
+if TYPE_CHECKING:
+    import zenoh
 
 
 class LinkWorld(NamedTuple):
@@ -38,7 +41,7 @@ def link_world(config: ExperimentConfig, spec: EpisodeSpec) -> LinkWorld:
     return LinkWorld(camera, wire, trajectory, episode_world(config, trajectory))
 
 
-def zenoh_config(endpoint: str, *, listen: bool) -> object:
+def zenoh_config(endpoint: str, *, listen: bool) -> zenoh.Config:
     """A peer-to-peer Zenoh config on ``endpoint`` (e.g. ``tcp/127.0.0.1:7447``), no scouting.
 
     The robot listens, the controller connects: with an explicit endpoint no multicast
