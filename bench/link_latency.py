@@ -37,7 +37,7 @@ from endocam.control.types import Observation, PolicyContext
 from endocam.link.client import LinkLostError, ZenohArm
 from endocam.registry import make_policy
 from endocam.robot.actuator import ArmKind
-from endocam.runner.episode import EpisodeSpec
+from endocam.runner.episode import EpisodeSpec, run_episode
 from endocam.task.trajectory import TrajectoryKind
 from endocam.view import look_distance
 
@@ -63,7 +63,9 @@ def _port() -> int:
         return int(s.getsockname()[1])
 
 
-def run(rate: float, duration: float, arm_name: str, policy_name: str) -> dict[str, Any]:
+def run(
+    rate: float, duration: float, arm_name: str, policy_name: str, watchdog: float
+) -> dict[str, Any]:
     """One paced episode at ``rate`` Hz for ``duration`` s; the figures of the module doc."""
     folder = Path(tempfile.mkdtemp())
     config = folder / "link.toml"
@@ -74,13 +76,17 @@ def run(rate: float, duration: float, arm_name: str, policy_name: str) -> dict[s
     )
     cfg = load_config(config)
     spec = EpisodeSpec(policy_name, TrajectoryKind.NOISY, 71, 1)
+    warm = cfg.task.model_copy(
+        update={"trajectory": cfg.task.trajectory.model_copy(update={"duration": 5.0})}
+    )
+    run_episode(cfg.model_copy(update={"task": warm}), spec)  # numba: load every kernel path
     endpoint = f"tcp/127.0.0.1:{_port()}"
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).parents[1] / "src")}
     robot = subprocess.Popen(
         [
             *(sys.executable, "-m", "endocam.cli", "robot", "serve", "--arm", arm_name),
             *("--config", str(config), "--control-points", "71", "--seed", "1"),
-            *("--endpoint", endpoint, "--wait", str(WAIT_S)),
+            *("--endpoint", endpoint, "--wait", str(WAIT_S), "--watchdog", str(watchdog)),
         ],
         env=env,
         stdout=subprocess.PIPE,
@@ -93,6 +99,7 @@ def run(rate: float, duration: float, arm_name: str, policy_name: str) -> dict[s
     policy = make_policy(policy_name, cfg.controller)
     rt, own = [], []
     lost = 0
+    failure = ""
     try:
         s = arm.connect(WAIT_S)
         from endocam.link.world import link_world
@@ -129,8 +136,9 @@ def run(rate: float, duration: float, arm_name: str, policy_name: str) -> dict[s
             t1 = time.perf_counter()
             try:
                 out = arm.step(cmd.T_world_cam, look, cmd.twist)
-            except LinkLostError:
+            except LinkLostError as exc:
                 lost += 1
+                failure = str(exc)
                 break
             t2 = time.perf_counter()
             if jointed:
@@ -143,9 +151,12 @@ def run(rate: float, duration: float, arm_name: str, policy_name: str) -> dict[s
                 time.sleep(pause)
             else:
                 tick = time.perf_counter()  # overran: the next cycle starts now
-        arm.step(cmd.T_world_cam, look, cmd.twist)  # the last step: the robot ends
+        else:
+            arm.step(cmd.T_world_cam, look, cmd.twist)  # the last step: the robot ends
     finally:
         arm.close()
+        if failure:
+            robot.kill()
         out_text, _ = robot.communicate(timeout=60)
     last = out_text.strip().splitlines()[-1] if out_text.strip() else ""
     dropped = _count(last, "commands dropped") + _count(last, "refused")
@@ -156,6 +167,7 @@ def run(rate: float, duration: float, arm_name: str, policy_name: str) -> dict[s
         "own": np.array(own),
         "lost": lost + dropped,
         "robot": last,
+        "failure": failure,
     }
 
 
@@ -171,10 +183,11 @@ def main() -> None:
     p.add_argument("--rates", type=float, nargs="+", default=[100.0, 200.0], help="Hz")
     p.add_argument("--arm", default="psm", choices=[k.value for k in ArmKind])
     p.add_argument("--policy", default="endocam")
+    p.add_argument("--watchdog", type=float, default=0.1, help="the robot's, s (default 0.1)")
     args = p.parse_args()
     print("rate_hz cycles rt_p50_ms rt_p99_ms rt_max_ms own_p50_ms own_p99_ms own_max_ms lost")
     for rate in args.rates:
-        r = run(rate, args.duration, args.arm, args.policy)
+        r = run(rate, args.duration, args.arm, args.policy, args.watchdog)
         rt, own = r["rt"] * 1e3, r["own"] * 1e3
         print(
             f"{rate:g} {r['cycles']} {np.median(rt):.2f} {np.percentile(rt, 99):.2f} "
@@ -182,7 +195,9 @@ def main() -> None:
             f"{own.max():.2f} {r['lost']}",
             flush=True,
         )
-        print(f"  robot: {r['robot']}", flush=True)
+        print(f"  robot: {r['robot'] or 'killed after the failure'}", flush=True)
+        if r["failure"]:
+            print(f"  controller: {r['failure']}", flush=True)
 
 
 if __name__ == "__main__":

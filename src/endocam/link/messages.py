@@ -19,10 +19,12 @@ robot → controller, once per control step ``k`` (header stamp: the simulation 
     stamped with its capture time), ``PSM1/tip`` / ``PSM2/tip`` (``geometry_msgs/PointStamped``),
     ``endocam/servo_result`` (``std_msgs/Float64MultiArray``: what the carrier did with the
     last command, :data:`SERVO_RESULT_FIELDS`).
-controller → robot, once per step, answering the state stamped ``t_k`` with the same stamp
-    ``endocam/d_f`` (``std_msgs/Float64``... stamped by pairing: sent just before), ``ARM/servo_cv``
-    (``geometry_msgs/TwistStamped``, the feed-forward velocity, when the policy gives one), then
-    ``ARM/servo_cp`` (``geometry_msgs/PoseStamped``) — the command the robot acts on.
+controller → robot, once per step, answering the state stamped ``t_k``
+    ``endocam/look_distance`` (``std_msgs/Float64``, m: the distance to the point the command
+    looks at), ``ARM/servo_cv`` (``geometry_msgs/TwistStamped``, the feed-forward velocity,
+    when the policy gives one), then ``ARM/servo_cp`` (``geometry_msgs/PoseStamped``, stamped
+    ``t_k``): the command the robot acts on. The look distance and velocity belong to the
+    ``servo_cp`` that follows them (one subscriber per side keeps the sending order).
 """
 
 from __future__ import annotations
@@ -80,7 +82,6 @@ class Keys(NamedTuple):
     ring: str
     tip1: str
     tip2: str
-    d_f: str
     servo_result: str
 
     @classmethod
@@ -97,7 +98,6 @@ class Keys(NamedTuple):
             "ring/measured_cp",
             "PSM1/tip",
             "PSM2/tip",
-            "endocam/d_f",
             "endocam/servo_result",
         )
 
