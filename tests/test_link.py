@@ -162,3 +162,27 @@ def _scenario(
         assert time.monotonic() - t0 < TIMEOUT_S + 0.5
     finally:
         arm.close()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["robot", "serve", "--arm", "free", "--endpoint", "127.0.0.1:7447"], "Zenoh endpoint"),
+        (["control", "--robot", "ros2", "--policy", "fixed", "--out", "x"], "--robot"),
+        (["control", "--robot", "zenoh:tcp/nohost", "--policy", "fixed", "--out", "x"], "endpoint"),
+    ],
+)
+def test_bad_link_options_are_one_line_and_exit_2(
+    args: list[str],
+    message: str,
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from endocam.cli import main
+
+    monkeypatch.chdir(tmp_path)  # nothing may be written: checked below
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+    assert not any(tmp_path.iterdir())
