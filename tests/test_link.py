@@ -4,8 +4,9 @@ One robot process (``endocam robot serve``, free camera, a 2 s trajectory, its o
 port: peer to peer, no scouting) and this process as its controller, in one scenario (a robot
 process costs seconds to start: one is shared):
 
-1. while the robot waits for a controller: a malformed payload, a non-finite pose and a
-   non-finite look distance are refused, the robot stays up;
+1. while the robot waits for a controller: a malformed payload, a non-finite pose, a
+   non-finite look distance and joints for the jointless free camera are refused, the robot
+   stays up;
 2. ``run_remote`` drives the episode: every step is the in-process episode's, to round-off;
 3. at step :data:`STALL_AT` the controller stops commanding: the robot's watchdog holds the
    camera at rest, the controller's late command is dropped, and the controller holds too,
@@ -120,7 +121,8 @@ def test_link_episode_refusals_watchdog_and_robot_killed(tmp_path: Path) -> None
             proc.kill()
         _, err = proc.communicate(timeout=30)
     assert proc.returncode == -signal.SIGKILL, err
-    assert err.count("robot: refused") == 3, err
+    assert err.count("robot: refused") == 4, err
+    assert "servo_jp: the free camera has no joints" in err
     assert "watchdog: no command" in err
 
 
@@ -135,6 +137,8 @@ def _scenario(
         arm.session.put(keys.servo_cp, b"\x00\x01\x00\x00garbage")
         arm.session.put(keys.servo_cp, _nan_pose(codec))
         arm.session.put(LOOK_KEY, codec.float64(float("inf")))
+        arm.session.put(LOOK_KEY, codec.float64(0.05))  # a good look distance, then joints
+        arm.session.put(keys.servo_jp, codec.joints(("j",), np.zeros(1), 0))  # for no joints
         # 2-3. the episode, stalled at STALL_AT by the controller
         remote = run_remote(cfg, SPEC, arm, WAIT_S)
         assert remote.steps == STALL_AT

@@ -78,6 +78,7 @@ class Keys(NamedTuple):
     measured_js: str
     operating_state: str
     servo_cp: str
+    servo_jp: str
     servo_cv: str
     ring: str
     tip1: str
@@ -94,6 +95,7 @@ class Keys(NamedTuple):
             f"{arm}/measured_js",
             f"{arm}/operating_state",
             f"{arm}/servo_cp",
+            f"{arm}/servo_jp",
             f"{arm}/servo_cv",
             "ring/measured_cp",
             "PSM1/tip",
@@ -192,6 +194,14 @@ class Codec:
     def decode_joints(self, data: bytes) -> FloatArray:
         """The positions (n,) of a ``JointState``."""
         return np.array(self._decode(data, "sensor_msgs/msg/JointState").position, dtype=float)
+
+    def decode_joint_command(self, data: bytes) -> tuple[FloatArray, int]:
+        """The positions (n,) and stamp (ns) of a ``JointState``; ``ValueError`` if not finite."""
+        msg = self._decode(data, "sensor_msgs/msg/JointState")
+        q = np.array(msg.position, dtype=float)
+        if not np.all(np.isfinite(q)):
+            raise ValueError("joint positions with a non-finite value")
+        return q, _ns(msg.header)
 
     def twist(self, v: FloatArray, ns: int) -> bytes:
         """``geometry_msgs/TwistStamped`` of ``v`` (6,): linear m/s, then angular rad/s, world."""

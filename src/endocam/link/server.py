@@ -1,8 +1,9 @@
 """``endocam robot serve``: the simulated arm and the wire-chaser world as a robot process.
 
 It speaks CRTK over Zenoh (:mod:`endocam.link.messages`): it publishes the state of every
-control step and follows ``servo_cp`` through the same carrier (and so the same joint limits,
-workspace guard and speed limits) as an in-process episode.
+control step and follows ``servo_cp`` — or, for an arm, ``servo_jp``: the camera pose of
+those joints, refused beyond the arm's joint limits — through the same carrier (and so the same
+joint limits, workspace guard and speed limits) as an in-process episode.
 
 **Time is lock-stepped to the commands.** The simulation advances one control period for each
 accepted command — the one stamped with the state it answers — so the same controller gives
@@ -39,6 +40,7 @@ from endocam.geometry import FloatArray
 from endocam.link.messages import DISABLED, ENABLED, PAUSED, Codec, Keys, stamp_ns
 from endocam.link.world import link_world, zenoh_config
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, GuardAction
+from endocam.robot.camera_arm import CameraArm, arm_model
 from endocam.runner.episode import EpisodeSpec
 from endocam.runner.step import start_carrier
 
@@ -107,6 +109,7 @@ class _Robot:
         self.T_cam, self.q = carrier.T_world_cam, self.arm.q
         self.look = float(config.controller.d_f)
         self.dt = 1.0 / config.episode.control_rate
+        self.kind = kind
         self.keys = keys = Keys.of(kind)
         self.codec = Codec()
         self.k = 0
@@ -155,11 +158,35 @@ class _Command(NamedTuple):
     twist: FloatArray | None
 
 
+JOINT_LIMIT_TOL = 1e-9  # rad / m: a servo_jp this far beyond a joint limit is still inside
+
+
+class _JointCommand:
+    """``servo_jp`` → the camera pose of those joints, refused outside the arm's joint limits."""
+
+    def __init__(self, kind: ArmKind, arm: object) -> None:
+        self.kind, self.arm = kind, arm
+        if isinstance(arm, CameraArm):
+            model = arm_model(kind)
+            self.lower, self.upper = model.lower, model.upper
+
+    def pose(self, q: FloatArray) -> FloatArray:
+        """The camera pose (4, 4), world, m, of joints ``q``; ``ValueError`` if refused."""
+        if not isinstance(self.arm, CameraArm):
+            raise ValueError(f"servo_jp: the {self.kind.value} camera has no joints")
+        if q.shape != self.lower.shape:
+            raise ValueError(f"servo_jp: {q.size} joint positions, the arm has {self.lower.size}")
+        outside = (q < self.lower - JOINT_LIMIT_TOL) | (q > self.upper + JOINT_LIMIT_TOL)
+        if np.any(outside):
+            raise ValueError(f"servo_jp: joints {np.flatnonzero(outside).tolist()} beyond limits")
+        return self.arm.camera_pose(q)
+
+
 class _Decoder:
     """Pairs a command's parts (look distance, velocity, pose) in arrival order."""
 
-    def __init__(self, keys: Keys, codec: Codec) -> None:
-        self.keys, self.codec = keys, codec
+    def __init__(self, keys: Keys, codec: Codec, joints: _JointCommand) -> None:
+        self.keys, self.codec, self.joints = keys, codec, joints
         self.look: float | None = None
         self.twist: tuple[FloatArray, int] | None = None
 
@@ -175,7 +202,11 @@ class _Decoder:
             if key == self.keys.servo_cv:
                 self.twist = self.codec.decode_twist(data)
                 return None
-            T_goal, ns = self.codec.decode_pose(data)
+            if key == self.keys.servo_jp:
+                q, ns = self.codec.decode_joint_command(data)
+                T_goal = self.joints.pose(q)
+            else:
+                T_goal, ns = self.codec.decode_pose(data)
         except ValueError:
             self.look, self.twist = None, None
             raise
@@ -229,8 +260,9 @@ def _serve_loop(
     ready: Callable[[], object] | None,
 ) -> ServeStats:
     stats = ServeStats()
-    decoder = _Decoder(robot.keys, robot.codec)
-    commands = (LOOK_KEY, robot.keys.servo_cv, robot.keys.servo_cp)
+    decoder = _Decoder(robot.keys, robot.codec, _JointCommand(robot.kind, robot.arm))
+    keys = robot.keys
+    commands = (LOOK_KEY, keys.servo_cv, keys.servo_cp, keys.servo_jp)
     mode = "waiting"
     if ready is not None:
         ready()
