@@ -80,13 +80,12 @@ def _endpoint(text: str) -> str:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from endocam.link.server import serve
-
+    endpoint = _endpoint(args.endpoint)  # the cheap checks first
+    spec = _spec(args, "fixed")
     _require()
     cfg = load_config_arg(args.config)
-    spec = _spec(args, "fixed")
     kind = ArmKind(args.arm)
-    endpoint = _endpoint(args.endpoint)
+    from endocam.link.server import serve
 
     def ready() -> None:
         print(f"robot: {kind.value} serving on {endpoint}, waiting for a controller", flush=True)
