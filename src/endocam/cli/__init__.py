@@ -33,7 +33,7 @@ from types import FrameType
 from typing import Any, TextIO
 
 from endocam import __version__
-from endocam.cli import check, export, kernels, policies, run, study, sweep
+from endocam.cli import check, export, kernels, link, policies, run, study, sweep
 from endocam.cli.common import EXIT_INTERNAL, EXIT_UNSAFE, EXIT_USAGE, Parser, UsageError
 from endocam.task.layout import FramingError
 
@@ -54,7 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for group in (policies, run, study, sweep, check, kernels, export):
+    for group in (policies, run, study, sweep, check, kernels, export, link):
         group.register(sub)
     return parser
 

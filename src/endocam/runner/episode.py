@@ -288,7 +288,7 @@ def run_episode(
     )
 
     loop = EpisodeLoop(world, carrier, step_faults)
-    log = _Recorder(n, kind, len(actuator.joint_names))
+    log = StepRecorder(n, kind, len(actuator.joint_names))
     chunk = max(1, n // 100)
     observe, policy_step, loop_step, record = loop.observation, policy.step, loop.step, log.record
     for k in range(n):
@@ -338,7 +338,7 @@ def run_episode(
 _SAFETY_STATES = (TrackingState.FROZEN_OUTSIDE_CONE, TrackingState.LOST_TRACKING)
 
 
-class _Recorder:
+class StepRecorder:
     """The runner's log, filled a row per :class:`StepRecord` (n steps, J joints)."""
 
     def __init__(self, n: int, kind: ArmKind, joints: int) -> None:

@@ -1,0 +1,266 @@
+"""What travels between the controller and the robot: key expressions and ROS 2 messages.
+
+Key expressions are the ROS 2 topic names without their leading ``/``, as
+``zenoh-bridge-ros2dds`` routes a topic (``ros2_name_to_key_expr`` in its
+``src/ros2_utils.rs``: "a Zenoh key_expr shall not start with a '/'"; with no ``namespace``
+configured the key is the name with its first character removed), so ``/PSM3/servo_cp`` is the
+key ``PSM3/servo_cp``. Payloads are the messages' ROS 2 CDR serialisation (with its 4-byte
+encapsulation header, as DDS carries it and the bridge forwards it), written and read by
+``rosbags.typesys`` — no hand-written CDR.
+
+Topics (``ARM``: ``PSM3``, ``ECM``, or ``camera`` for the free camera, as the MCAP export
+names them):
+
+robot → controller, once per control step ``k`` (header stamp: the simulation time ``t_k``)
+    ``ARM/measured_cp`` (``geometry_msgs/PoseStamped``, the camera's optical frame in the
+    world), ``ARM/setpoint_cp`` (the pose the carrier heads for), ``ARM/measured_js``
+    (``sensor_msgs/JointState``; empty for the free camera), ``ARM/operating_state``
+    (``crtk_msgs/OperatingState``), ``ring/measured_cp`` (the ring as the camera senses it;
+    stamped with its capture time), ``PSM1/tip`` / ``PSM2/tip`` (``geometry_msgs/PointStamped``),
+    ``endocam/servo_result`` (``std_msgs/Float64MultiArray``: what the carrier did with the
+    last command, :data:`SERVO_RESULT_FIELDS`).
+controller → robot, once per step, answering the state stamped ``t_k``
+    ``endocam/look_distance`` (``std_msgs/Float64``, m: the distance to the point the command
+    looks at), ``ARM/servo_cv`` (``geometry_msgs/TwistStamped``, the feed-forward velocity,
+    when the policy gives one), then ``ARM/servo_cp`` (``geometry_msgs/PoseStamped``, stamped
+    ``t_k``): the command the robot acts on. The look distance and velocity belong to the
+    ``servo_cp`` that follows them (one subscriber per side keeps the sending order).
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from endocam.geometry import FloatArray
+from endocam.robot.actuator import ArmKind
+
+ARM_NAMESPACES = {ArmKind.PSM: "PSM3", ArmKind.ECM: "ECM", ArmKind.FREE: "camera"}
+"""The carrier's CRTK namespace (the MCAP export's names: PSM1 and PSM2 hold the instruments)."""
+
+OPERATING_STATE_MSG = """std_msgs/Header header
+string state
+bool is_homed
+bool is_busy
+"""
+"""``crtk_msgs/msg/OperatingState`` (CRTK's definition; not among ROS 2's standard messages)."""
+OPERATING_STATE = "crtk_msgs/msg/OperatingState"
+
+ENABLED = "ENABLED"
+"""CRTK state: servoing, following commands."""
+PAUSED = "PAUSED"
+"""CRTK state: the watchdog stopped servoing; the arm holds its pose."""
+DISABLED = "DISABLED"
+"""CRTK state: the episode has ended; no command is acted on."""
+
+SERVO_RESULT_FIELDS = ("status", "reachable", "guard", "position_error_m", "orientation_error_rad")
+"""The ``endocam/servo_result`` array: ``ActuatorStatus``, reachable, ``GuardAction`` (as their
+indices in the enums' order), and the conceded goal, m and rad."""
+
+NS_PER_S = 1_000_000_000
+
+
+def _typestore() -> Any:
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    store.register(get_types_from_msg(OPERATING_STATE_MSG, OPERATING_STATE))
+    return store
+
+
+class Keys(NamedTuple):
+    """The key expressions of one carrier (see the module's topic list)."""
+
+    measured_cp: str
+    setpoint_cp: str
+    measured_js: str
+    operating_state: str
+    servo_cp: str
+    servo_jp: str
+    servo_cv: str
+    ring: str
+    tip1: str
+    tip2: str
+    servo_result: str
+
+    @classmethod
+    def of(cls, kind: ArmKind) -> Keys:
+        """The keys of carrier ``kind``: ROS 2 topic names without the leading ``/``."""
+        arm = ARM_NAMESPACES[kind]
+        return cls(
+            f"{arm}/measured_cp",
+            f"{arm}/setpoint_cp",
+            f"{arm}/measured_js",
+            f"{arm}/operating_state",
+            f"{arm}/servo_cp",
+            f"{arm}/servo_jp",
+            f"{arm}/servo_cv",
+            "ring/measured_cp",
+            "PSM1/tip",
+            "PSM2/tip",
+            "endocam/servo_result",
+        )
+
+
+def stamp_ns(t: float) -> int:
+    """A time ``t`` (s) as integer nanoseconds (``builtin_interfaces/Time``'s resolution)."""
+    return round(t * NS_PER_S)
+
+
+class Codec:
+    """ROS 2 CDR coding of the link's messages (``rosbags.typesys``, ROS 2 Humble's types).
+
+    Every ``decode_*`` raises ``ValueError`` on a payload that is not the message it names.
+    """
+
+    def __init__(self) -> None:
+        self.store = _typestore()
+        self.t = self.store.types
+        self._pose = self.t["geometry_msgs/msg/Pose"]
+        self._point = self.t["geometry_msgs/msg/Point"]
+        self._quat = self.t["geometry_msgs/msg/Quaternion"]
+
+    def _header(self, ns: int) -> Any:
+        Time = self.t["builtin_interfaces/msg/Time"]
+        return self.t["std_msgs/msg/Header"](
+            stamp=Time(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S), frame_id="world"
+        )
+
+    def _encode(self, msg: Any, typename: str) -> bytes:
+        return bytes(self.store.serialize_cdr(msg, typename))
+
+    def _decode(self, data: bytes, typename: str) -> Any:
+        try:
+            return self.store.deserialize_cdr(data, typename)
+        except Exception as exc:  # rosbags raises several kinds on a malformed payload
+            raise ValueError(f"not a {typename}: {exc}") from exc
+
+    def pose(self, T: FloatArray, ns: int) -> bytes:
+        """``geometry_msgs/PoseStamped`` of the pose ``T`` (4, 4), m, stamped ``ns``."""
+        x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+        p = T[:3, 3]
+        msg = self.t["geometry_msgs/msg/PoseStamped"](
+            header=self._header(ns),
+            pose=self._pose(
+                position=self._point(x=float(p[0]), y=float(p[1]), z=float(p[2])),
+                orientation=self._quat(x=float(x), y=float(y), z=float(z), w=float(w)),
+            ),
+        )
+        return self._encode(msg, "geometry_msgs/msg/PoseStamped")
+
+    def decode_pose(self, data: bytes) -> tuple[FloatArray, int]:
+        """The pose (4, 4), m, and stamp (ns) of a ``PoseStamped``; ``ValueError`` if malformed.
+
+        Raises ``ValueError`` also for a non-finite value or a quaternion far from unit length.
+        """
+        msg = self._decode(data, "geometry_msgs/msg/PoseStamped")
+        p, q = msg.pose.position, msg.pose.orientation
+        v = np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w], dtype=float)
+        if not np.all(np.isfinite(v)):
+            raise ValueError("pose with a non-finite value")
+        if abs(float(np.linalg.norm(v[3:])) - 1.0) > QUAT_NORM_TOL:
+            raise ValueError("pose whose quaternion is not of unit length")
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(v[3:]).as_matrix()
+        T[:3, 3] = v[:3]
+        return T, _ns(msg.header)
+
+    def point(self, p: FloatArray, ns: int) -> bytes:
+        """``geometry_msgs/PointStamped`` of ``p`` (3,), m."""
+        msg = self.t["geometry_msgs/msg/PointStamped"](
+            header=self._header(ns), point=self._point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+        )
+        return self._encode(msg, "geometry_msgs/msg/PointStamped")
+
+    def decode_point(self, data: bytes) -> FloatArray:
+        """The point (3,), m, of a ``PointStamped``."""
+        p = self._decode(data, "geometry_msgs/msg/PointStamped").point
+        return np.array([p.x, p.y, p.z], dtype=float)
+
+    def joints(self, names: tuple[str, ...], q: FloatArray, ns: int) -> bytes:
+        """``sensor_msgs/JointState`` with ``name`` and ``position`` (rad / m)."""
+        empty = np.zeros(0)
+        msg = self.t["sensor_msgs/msg/JointState"](
+            header=self._header(ns),
+            name=list(names),
+            position=np.asarray(q, dtype=np.float64),
+            velocity=empty,
+            effort=empty,
+        )
+        return self._encode(msg, "sensor_msgs/msg/JointState")
+
+    def decode_joints(self, data: bytes) -> FloatArray:
+        """The positions (n,) of a ``JointState``."""
+        return np.array(self._decode(data, "sensor_msgs/msg/JointState").position, dtype=float)
+
+    def decode_joint_command(self, data: bytes) -> tuple[FloatArray, int]:
+        """The positions (n,) and stamp (ns) of a ``JointState``; ``ValueError`` if not finite."""
+        msg = self._decode(data, "sensor_msgs/msg/JointState")
+        q = np.array(msg.position, dtype=float)
+        if not np.all(np.isfinite(q)):
+            raise ValueError("joint positions with a non-finite value")
+        return q, _ns(msg.header)
+
+    def twist(self, v: FloatArray, ns: int) -> bytes:
+        """``geometry_msgs/TwistStamped`` of ``v`` (6,): linear m/s, then angular rad/s, world."""
+        V = self.t["geometry_msgs/msg/Vector3"]
+        msg = self.t["geometry_msgs/msg/TwistStamped"](
+            header=self._header(ns),
+            twist=self.t["geometry_msgs/msg/Twist"](
+                linear=V(x=float(v[0]), y=float(v[1]), z=float(v[2])),
+                angular=V(x=float(v[3]), y=float(v[4]), z=float(v[5])),
+            ),
+        )
+        return self._encode(msg, "geometry_msgs/msg/TwistStamped")
+
+    def decode_twist(self, data: bytes) -> tuple[FloatArray, int]:
+        """The velocity (6,) and stamp (ns) of a ``TwistStamped``; ``ValueError`` if not finite."""
+        msg = self._decode(data, "geometry_msgs/msg/TwistStamped")
+        a, b = msg.twist.linear, msg.twist.angular
+        v = np.array([a.x, a.y, a.z, b.x, b.y, b.z], dtype=float)
+        if not np.all(np.isfinite(v)):
+            raise ValueError("twist with a non-finite value")
+        return v, _ns(msg.header)
+
+    def float64(self, x: float) -> bytes:
+        """``std_msgs/Float64``."""
+        return self._encode(self.t["std_msgs/msg/Float64"](data=float(x)), "std_msgs/msg/Float64")
+
+    def decode_float64(self, data: bytes) -> float:
+        """The value of a ``std_msgs/Float64``."""
+        return float(self._decode(data, "std_msgs/msg/Float64").data)
+
+    def array(self, values: FloatArray) -> bytes:
+        """``std_msgs/Float64MultiArray`` (no layout: a plain vector)."""
+        layout = self.t["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0)
+        msg = self.t["std_msgs/msg/Float64MultiArray"](
+            layout=layout, data=np.asarray(values, dtype=np.float64)
+        )
+        return self._encode(msg, "std_msgs/msg/Float64MultiArray")
+
+    def decode_array(self, data: bytes) -> FloatArray:
+        """The values of a ``std_msgs/Float64MultiArray``."""
+        return np.array(self._decode(data, "std_msgs/msg/Float64MultiArray").data, dtype=float)
+
+    def operating_state(self, state: str, busy: bool, ns: int) -> bytes:
+        """``crtk_msgs/OperatingState`` (always homed: the simulated arm needs no homing)."""
+        msg = self.t[OPERATING_STATE](
+            header=self._header(ns), state=state, is_homed=True, is_busy=busy
+        )
+        return self._encode(msg, OPERATING_STATE)
+
+    def decode_operating_state(self, data: bytes) -> tuple[str, int]:
+        """The state and stamp (ns) of a ``crtk_msgs/OperatingState``."""
+        msg = self._decode(data, OPERATING_STATE)
+        return str(msg.state), _ns(msg.header)
+
+
+QUAT_NORM_TOL = 1e-6
+"""How far a received quaternion's norm may be from 1 (dimensionless): float64 round-off of a
+normalised quaternion is ~1e-16; anything beyond this is not a rotation."""
+
+
+def _ns(header: Any) -> int:
+    return int(header.stamp.sec) * NS_PER_S + int(header.stamp.nanosec)
