@@ -34,6 +34,8 @@ from endocam.control.policies.visible import (
     VisibleConfig,
     VisiblePolicy,
     choose_side,
+    closing_fraction,
+    pose_between,
     predicted_pose,
 )
 from endocam.control.sightline import view_shares
@@ -361,3 +363,66 @@ def test_a_view_counts_what_its_better_eye_sees(monkeypatch: pytest.MonkeyPatch)
         policy._score([touching], 0.0)
         side = policy._want
         assert (policy._targets[side] != (0.0, 0.0, 0.0)) is tilted
+
+
+def test_the_closing_fraction_is_where_the_clearance_crosses_the_gap() -> None:
+    """The secant through the first pose within the gap and the one before it: a clearance
+    falling linearly crosses the gap exactly there; closed at once, never closed, one pose."""
+    gap = 0.5e-3  # m
+    c = np.array([3.0e-3, 2.0e-3, 1.0e-3, 0.0, -1.0e-3])  # m: 1 mm closer per pose
+    k, f = closing_fraction(c, gap)
+    assert k == 3 and math.isclose(f, 0.5, abs_tol=ATOL_PRED)  # 1 mm → 0 mm: 0.5 mm midway
+    assert closing_fraction(np.array([2.0e-3, 0.6e-3, 0.5e-3]), gap) == (2, 1.0)  # on it
+    assert closing_fraction(np.array([0.4e-3, 2.0e-3]), gap) == (0, 1.0)  # closed already
+    assert closing_fraction(np.array([3.0e-3, 2.0e-3, 2.5e-3]), gap) == (2, 1.0)  # never
+    assert closing_fraction(np.array([3.0e-3]), gap) == (0, 1.0)
+
+
+def test_the_pose_between_is_the_prediction_at_that_time() -> None:
+    """Between two poses of one predicted path, the pose a fraction ``f`` along is the
+    prediction ``f`` of the way: the centre exactly, the frame orthonormal, its ends the two."""
+    tau = 0.1  # s
+    T_a = ring_pose(P_RING, N_RING)
+    T_b = ring_pose(P_RING + np.array([1e-3, -2e-3, 0.5e-3]), N_RING + 0.2 * E_CONTACT)
+    f = 0.3
+    T = pose_between(T_a, T_b, f)
+    np.testing.assert_allclose(T[:3, 3], T_a[:3, 3] + f * (T_b[:3, 3] - T_a[:3, 3]),
+                               atol=ATOL_PRED_M)  # fmt: skip
+    np.testing.assert_allclose(T, predicted_pose(T_a, T_b, tau, (f - 1.0) * tau, 0.0),
+                               atol=ATOL_PRED)  # fmt: skip
+    np.testing.assert_allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=ATOL_PRED)
+    np.testing.assert_allclose(pose_between(T_a, T_b, 0.0), T_a, atol=ATOL_PRED)
+    np.testing.assert_allclose(pose_between(T_a, T_b, 1.0), T_b, atol=ATOL_PRED)
+
+
+def test_the_prediction_stops_where_the_gap_closes(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A ring predicted to run into the wire is scored where its rim comes within the closing
+    gap (the wire stops it), not at the first pose past it, inside the wire; without the
+    clamp, that pose is scored."""
+    import endocam.control.policies.visible as visible
+
+    wire = centred_wire()
+    up_perp = np.array([0.0, 0.0, 1.0]) - N_RING[2] * N_RING
+    rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)
+    start = look_at_pose(P_RING + 0.045 * N_RING, P_RING)
+    clear = ring_pose(P_RING, N_RING)  # the rim 3 mm from the wire
+    inside = ring_pose(P_RING + 4.0e-3 * E_CONTACT, N_RING)  # the rim 1 mm into it
+    # the rim's clearance falls 1:1 with the offset, 3 mm → −1 mm: GAP_M at 2.5 mm
+    real = visible.occluders
+    scored: list[np.ndarray] = []
+
+    def occluders(window: object, radius: float, T: np.ndarray, *rest: object) -> object:
+        scored.append(T.copy())  # the ring pose the candidates are scored on
+        return real(window, radius, T, *rest)
+
+    for clamp, offset_m in ((True, 2.5e-3), (False, 4.0e-3)):
+        scored.clear()
+        monkeypatch.setattr(visible, "occluders", occluders)
+        context = PolicyContext(CAMERA, start, clear, rcm, DT, wire=wire, ring=RingConfig())
+        policy = VisiblePolicy(ControllerConfig(), VisibleConfig(contact_clamp=clamp))
+        policy.reset(context)
+        policy._score([clear, inside], 0.0)
+        monkeypatch.setattr(visible, "occluders", real)
+        assert len(scored) == 1
+        np.testing.assert_allclose(scored[0][:3, 3], P_RING + offset_m * E_CONTACT,
+                                   atol=ATOL_PRED_M)  # fmt: skip

@@ -10,12 +10,15 @@ speed and joint limits) and changes one thing: the **viewing axis** it holds the
 Every ``score_period`` s it predicts the ring poses over the next ``lookahead`` s
 (``horizon_poses`` of them, beyond the sensing delay; constant velocity from the poses the
 tracker's checks and gate accepted, :func:`predicted_pose`) and scores the one where the gap
-closes: the first whose rim comes within ``GAP_M`` of the wire, else the closest (a constant
-velocity carries the ring through the wire, where the gap's geometry means nothing; the touch
-is where it meets it). The camera is then on the good view when the gap closes rather than a
-scoring period, a tilt and an arm's lag after. If that ring's rim is no closer to the wire than
-``engage_clearance``, no touch is near: nothing is scored, the axis goes back to the normal (the
-orientation error is paid only ahead of a likely touch) and the side is held. Otherwise it
+closes: the prediction **stops at contact** (``contact_clamp``): between the last pose whose
+rim is clear of the closing gap ``GAP_M`` and the first that is not, the pose where the rim's
+clearance comes down to ``GAP_M`` (:func:`closing_fraction`, :func:`pose_between`); with no
+such pose, the closest (a constant velocity carries the ring into the wire, where the gap's
+geometry means nothing; the wire stops it, and the touch is where it meets it). The camera
+is then on the good view when the gap closes rather than a scoring period, a tilt and an
+arm's lag after. If that ring's rim is no closer to the wire than ``engage_clearance``, no
+touch is near: nothing is scored, the axis goes back to the normal (the orientation error is
+paid only ahead of a likely touch) and the side is held. Otherwise it
 scores candidate axes from the predicted ring pose and the pre-operative wire model
 (:mod:`endocam.control.occlusion`, compiled in :mod:`endocam.control.sightline`); the scorer
 never reads the true ring pose or the touches. On the side ``s = ±1`` the camera is on, the
@@ -91,6 +94,8 @@ __all__ = [
     "VisibleConfig",
     "VisiblePolicy",
     "choose_side",
+    "closing_fraction",
+    "pose_between",
     "predicted_pose",
 ]
 
@@ -164,11 +169,18 @@ class VisibleConfig:
         (``math.inf``: always score).
     horizon_poses : int
         Ring poses predicted over the look-ahead, evenly from the step (the delay bridged) to
-        ``lookahead``; the one scored is the first whose rim comes within the closing gap
-        (``GAP_M``) of the wire, else the closest (1: the ``lookahead`` pose alone).
+        ``lookahead``; the one scored is where the rim comes within the closing gap
+        (``GAP_M``) of the wire (``contact_clamp``), else the closest (1: the ``lookahead``
+        pose alone).
     either_eye : bool
         A candidate is worth its better eye's share (the study counts a gap seen from either
         eye); ``False``: the two eyes' mean.
+    contact_clamp : bool
+        The prediction stops where the gap closes: between the last pose of the horizon whose
+        rim is clear of the closing gap and the first that is not, the pose where the rim's
+        clearance comes down to ``GAP_M`` (:func:`closing_fraction`, :func:`pose_between`) is
+        scored, not the pose beyond it (constant velocity carries the ring into the wire, the
+        wire stops it). ``False``: the first pose within ``GAP_M`` itself.
     """
 
     max_tilt: float = math.radians(20.0)
@@ -194,6 +206,7 @@ class VisibleConfig:
     engage_clearance: float = 1.0e-3
     horizon_poses: int = 1
     either_eye: bool = True
+    contact_clamp: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt <= math.radians(25.0):
@@ -381,9 +394,11 @@ class VisiblePolicy(EndocamPolicy):
         """Score the candidates where the gap is predicted to close, and decide.
 
         ``T_rings`` (4, 4) the ring poses predicted over the horizon (:meth:`_ahead_poses`).
-        The pose scored is the first whose rim comes within ``GAP_M`` (the closing gap) of
-        the wire, else the one whose rim comes closest: constant velocity carries a ring
-        through the wire, but the touch (and the gap the study judges) is where it meets it.
+        The pose scored is where the rim comes within ``GAP_M`` (the closing gap) of the wire
+        (``contact_clamp``: interpolated between the poses either side of it; else the first
+        pose within it), else the one whose rim comes closest: constant velocity carries a
+        ring through the wire, but the touch (and the gap the study judges) is where it meets
+        it.
         This side's target and the wanted side are updated. When no pose's rim comes within
         ``engage_clearance`` of the wire nothing is scored: the target goes back to the normal
         and the side is held.
@@ -394,15 +409,20 @@ class VisiblePolicy(EndocamPolicy):
             return
         window = wire_window(wire, T_rings[len(T_rings) // 2][:3, 3], vc.window)
         closing: tuple[FloatArray, GapPoints, float] | None = None
+        rims: list[float] = []
         for T in T_rings:
-            gaps = gap_points(T, window, self._shape, wire.radius, vc.rim_points,
-                              vc.weight_scale)  # fmt: skip
-            rim = float(np.min(gaps.clearances))  # the rim's to the wire, m
-            if closing is None or rim < closing[2]:
-                closing = (T, gaps, rim)
-            if rim <= GAP_M:  # the gap closes here
+            gaps = self._gaps(T, window)
+            rims.append(float(np.min(gaps.clearances)))  # the rim's to the wire, m
+            if closing is None or rims[-1] < closing[2]:
+                closing = (T, gaps, rims[-1])
+            if rims[-1] <= GAP_M:  # the gap closes here
                 break
         assert closing is not None
+        k, f = closing_fraction(np.array(rims), GAP_M)
+        if vc.contact_clamp and k > 0 and f < 1.0:  # stop the prediction where the gap closes
+            T = pose_between(T_rings[k - 1], T_rings[k], f)
+            gaps = self._gaps(T, window)
+            closing = (T, gaps, float(np.min(gaps.clearances)))
         T_ring, gaps, nearest = closing[0], closing[1], max(closing[2], 0.0)
         p_c = T_ring[:3, 3]
         n = _unit_normal(T_ring)
@@ -452,6 +472,13 @@ class VisiblePolicy(EndocamPolicy):
         if best.utility > best.current + vc.tilt_margin:
             self._targets[side_now] = best.offset
         self._targets[-side_now] = _ZERO  # a new side starts on its own view
+
+    def _gaps(self, T_ring: FloatArray, window: FloatArray) -> GapPoints:
+        """The gap points of the ring at ``T_ring`` (4, 4) by the wire's ``window`` (K, 3)."""
+        vc, wire = self.visible, self._wire
+        assert wire is not None
+        return gap_points(T_ring, window, self._shape, wire.radius, vc.rim_points,
+                          vc.weight_scale)  # fmt: skip
 
     def _candidates(self, p_c: FloatArray, n: FloatArray, side: float) -> Candidates:
         """The candidate axes: this ``side``'s, the other side's own view, this side's target.
@@ -551,6 +578,36 @@ def predicted_pose(
     y = [z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0]]
     T[:3, :3] = np.array([x, y, z]).T
     return T
+
+
+def closing_fraction(clearances: FloatArray, gap: float) -> tuple[int, float]:
+    """Where along a predicted path the rim's clearance first comes down to ``gap``.
+
+    ``clearances`` (H,): the rim's clearance to the wire (m) at H poses evenly along the path;
+    ``gap`` m. Returns ``(k, f)``: the closing lies a fraction ``f`` in ``[0, 1]`` of the way
+    from pose ``k − 1`` to pose ``k`` (the secant through their clearances: a ring moving
+    straight at the wire closes its gap linearly). ``(0, 1.0)``: closed at the first pose
+    already; ``(H − 1, 1.0)``: not within the path (or a path of one pose).
+    """
+    c = np.asarray(clearances, dtype=float)
+    below = np.flatnonzero(c <= gap)
+    if len(below) == 0:
+        return len(c) - 1, 1.0
+    k = int(below[0])
+    if k == 0:
+        return 0, 1.0
+    drop = float(c[k - 1] - c[k])  # > 0: c[k-1] > gap ≥ c[k]
+    return k, min(1.0, max(0.0, float(c[k - 1] - gap) / drop))
+
+
+def pose_between(T_a: FloatArray, T_b: FloatArray, f: float) -> FloatArray:
+    """The pose (4, 4) a fraction ``f`` of the way from ``T_a`` to ``T_b`` (4, 4), world.
+
+    The first-order interpolation of :func:`predicted_pose` (centre, z and x axes linear,
+    the axes made orthonormal again): the two poses lie on one predicted path, so this is
+    the prediction at the time between them.
+    """
+    return predicted_pose(T_a, T_b, 1.0, f - 1.0, math.inf)
 
 
 def _unit_normal(T_ring: FloatArray) -> tuple[float, float, float] | None:
