@@ -8,7 +8,7 @@ SYSSTAMP := $(VENV)/.system-deps
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 
-.PHONY: demo test lint typecheck unit kernels lint-then-no-kernel-tests bench system-deps clean
+.PHONY: demo test lint typecheck unit kernels kernel-tests no-kernel-tests bench system-deps clean
 
 $(SYSSTAMP):
 	@./.ci/system-deps
@@ -38,20 +38,25 @@ unit: $(STAMP)
 
 # numba compiles each kernel in the first process that calls it: without a compile step both
 # test workers, and every process a test starts (pool workers, Ray, the CLI), compile the same
-# kernels. `make test` runs `endocam compile` (one process, so no kernel is compiled twice) on one
-# core while the other runs lint and then the test modules that call no kernel (marked
-# `no_kernels`; tests/conftest.py fails one that does); then the rest on both cores.
+# kernels. `make test` runs two chains side by side on the two cores: `endocam compile` (one
+# process, so no kernel is compiled twice) and then the suite's kernel tests on two xdist
+# workers; lint and then the test modules that call no kernel (marked `no_kernels`;
+# tests/conftest.py fails one that does). The second chain's log is printed when it ends.
 NO_KERNEL_TESTS := $(shell grep -l '^pytestmark = pytest.mark.no_kernels' tests/test_*.py)
+NO_KERNEL_LOG := .venv/no-kernel-tests.log
 
 kernels: $(STAMP)
 	@$(VENV)/bin/endocam compile
 
-lint-then-no-kernel-tests: lint
-	@ENDOCAM_TESTS_NO_KERNELS=1 $(VENV)/bin/pytest -p no:xdist $(NO_KERNEL_TESTS)
+kernel-tests: kernels
+	@$(VENV)/bin/pytest -n 2 --dist worksteal $(addprefix --ignore=,$(NO_KERNEL_TESTS))
+
+no-kernel-tests: lint
+	@ENDOCAM_TESTS_NO_KERNELS=1 $(VENV)/bin/pytest -p no:xdist $(NO_KERNEL_TESTS) \
+		> $(NO_KERNEL_LOG) 2>&1; status=$$?; cat $(NO_KERNEL_LOG); exit $$status
 
 test: $(STAMP)
-	@$(MAKE) --no-print-directory -j2 kernels lint-then-no-kernel-tests
-	@$(VENV)/bin/pytest -n 2 --dist worksteal $(addprefix --ignore=,$(NO_KERNEL_TESTS))
+	@$(MAKE) --no-print-directory -j2 kernel-tests no-kernel-tests
 
 bench: $(STAMP)
 	$(VENV)/bin/pytest bench/bench_*.py --benchmark-enable --benchmark-only -p no:cacheprovider -o addopts=""
