@@ -419,7 +419,8 @@ def _analyze(args: argparse.Namespace) -> int:
 
 def _add_make(sub: argparse._SubParsersAction) -> None:
     from endocam.registry import POLICIES
-    from endocam.study.make import DEFAULT_CONDITIONS, DEFAULT_SEED
+    from endocam.study.manifest import DEFAULT_CONDITIONS  # (not study.make: MuJoCo, OpenCV)
+    from endocam.task.study_paths import DEFAULT_STUDY_SEED as DEFAULT_SEED
 
     p = sub.add_parser(
         "make",

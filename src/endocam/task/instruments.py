@@ -28,7 +28,6 @@ import math
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.signal import lfilter
 
 from endocam.geometry import FloatArray
 from endocam.task.config import Psm2Idle, TaskConfig
@@ -70,7 +69,11 @@ def lagged_path(t: ArrayLike, p_world: ArrayLike, time_constant: float) -> Float
     if len(ts) < 2:
         return p.copy()
     a = 1.0 - math.exp(-float(dts[0]) / time_constant)
-    # q_k = (1 − a) q_{k−1} + a p_k with q_0 = p_0: a one-pole IIR filter (scipy, in C)
+    # q_k = (1 − a) q_{k−1} + a p_k with q_0 = p_0: a one-pole IIR filter (scipy, in C);
+    # imported here: scipy.signal costs ~0.4 s to import, which `endocam check`, the study app
+    # and every process that runs no episode would pay
+    from scipy.signal import lfilter
+
     zi = (1.0 - a) * p[0]  # the filter's state so that the first output equals p_0
     out, _ = lfilter([a], [1.0, a - 1.0], p, axis=0, zi=zi[None, :])
     return np.asarray(out, dtype=float)
