@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 from endocam.cli import study_plan
 from endocam.cli.common import UsageError, check_workers, integer, out_dir
 from endocam.runner.pool import DEFAULT_WORKERS
-from endocam.study.analysis import AnalysisConfig, AnalysisResult, OutlierRule
+from endocam.study.analysis import AnalysisConfig, AnalysisResult
 from endocam.study.db import ABANDON_AFTER_S
 
 if TYPE_CHECKING:
@@ -376,8 +376,7 @@ def _analyze(args: argparse.Namespace) -> int:
     from endocam.study.report import write_outputs
     from endocam.study.responses import read_responses_csv
 
-    if not (math.isfinite(args.tukey_k) and args.tukey_k > 0):
-        raise UsageError(f"--tukey-k must be a finite number > 0, got {args.tukey_k}")
+    outliers, tukey_k = study_plan.outlier_options(args)
     out = out_dir(args.out)
     try:
         manifest = load_manifest(args.manifest, check_files=False)
@@ -390,9 +389,7 @@ def _analyze(args: argparse.Namespace) -> int:
                 raise UsageError(f"--db: {args.db} has no answers to analyse")
         else:
             rows = read_responses_csv(args.responses)
-        config = AnalysisConfig(
-            all_videos=args.all_videos, outliers=OutlierRule(args.outliers), tukey_k=args.tukey_k
-        )
+        config = AnalysisConfig(all_videos=args.all_videos, outliers=outliers, tukey_k=tukey_k)
         manifest_path = Path(args.manifest)
         if manifest_path.is_dir():
             manifest_path = manifest_path / MANIFEST_NAME
@@ -547,18 +544,7 @@ def _add_analyze(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="mean error over all videos of a condition (default: most difficult video only)",
     )
-    p.add_argument(
-        "--outliers",
-        choices=[r.value for r in OutlierRule],
-        default=OutlierRule.TUKEY.value,
-        help="per-condition outlier rule (default: %(default)s)",
-    )
-    p.add_argument(
-        "--tukey-k",
-        type=float,
-        default=AnalysisConfig().tukey_k,
-        help="IQR multiplier of Tukey's fences (default: %(default)s)",
-    )
+    study_plan.add_analysis_arguments(p)
     study_plan.add_preregistration_argument(p)
     p.set_defaults(handler=_analyze)
 

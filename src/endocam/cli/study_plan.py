@@ -87,8 +87,7 @@ def _power(args: argparse.Namespace) -> int:
         raise UsageError(f"--max-n must be ≥ {pw.MIN_N}, got {args.max_n}")
     if args.seed < 0:
         raise UsageError(f"--seed must be ≥ 0, got {args.seed}")
-    if not (math.isfinite(args.tukey_k) and args.tukey_k > 0):
-        raise UsageError(f"--tukey-k must be a finite number > 0, got {args.tukey_k}")
+    outliers, tukey_k = outlier_options(args)
     out = out_dir(args.out)
     pilot = load_pilot(args)
     try:
@@ -105,8 +104,8 @@ def _power(args: argparse.Namespace) -> int:
         seed=args.seed,
         max_n=args.max_n,
         attrition=args.attrition,
-        outliers=OutlierRule(args.outliers),
-        tukey_k=args.tukey_k,
+        outliers=outliers,
+        tukey_k=tukey_k,
     )
     with tqdm(desc="power", unit="study", leave=False) as bar:
         result = pw.sample_size(model, config, progress=bar.update)
@@ -137,7 +136,8 @@ def _pilot_arguments(p: argparse.ArgumentParser) -> None:
     source.add_argument("--responses", metavar="CSV", help="a pilot's responses CSV")
 
 
-def _analysis_arguments(p: argparse.ArgumentParser) -> None:
+def add_analysis_arguments(p: argparse.ArgumentParser) -> None:
+    """``--outliers`` and ``--tukey-k``: the outlier rule, read by :func:`outlier_options`."""
     p.add_argument(
         "--outliers",
         choices=[r.value for r in OutlierRule],
@@ -150,6 +150,13 @@ def _analysis_arguments(p: argparse.ArgumentParser) -> None:
         default=AnalysisConfig().tukey_k,
         help="IQR multiplier of Tukey's fences (default: %(default)s)",
     )
+
+
+def outlier_options(args: argparse.Namespace) -> tuple[OutlierRule, float]:
+    """The outlier rule and Tukey's k of :func:`add_analysis_arguments` (k finite and > 0)."""
+    if not (math.isfinite(args.tukey_k) and args.tukey_k > 0):
+        raise UsageError(f"--tukey-k must be a finite number > 0, got {args.tukey_k}")
+    return OutlierRule(args.outliers), args.tukey_k
 
 
 def add_power(sub: argparse._SubParsersAction) -> None:
@@ -204,7 +211,7 @@ def add_power(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="pilot errors averaged over all videos of a condition (as analyze --all-videos)",
     )
-    _analysis_arguments(p)
+    add_analysis_arguments(p)
     p.set_defaults(handler=_power)
 
 
@@ -223,8 +230,7 @@ def _simulate(args: argparse.Namespace) -> int:
     if args.resamples < 100:
         raise UsageError(f"--resamples must be ≥ 100, got {args.resamples}")
     _check_fraction("alpha", args.alpha)
-    if not (math.isfinite(args.tukey_k) and args.tukey_k > 0):
-        raise UsageError(f"--tukey-k must be a finite number > 0, got {args.tukey_k}")
+    outliers, tukey_k = outlier_options(args)
     out = out_dir(args.out)
     try:
         manifest = load_manifest(args.study, check_files=True)
@@ -237,8 +243,8 @@ def _simulate(args: argparse.Namespace) -> int:
         raise UsageError(f"'study simulate' needs {exc.name}: {_EXTRA_HINT}") from None
     model = sim.preset(manifest, args.effect == "last", args.assessors)
     config = AnalysisConfig(
-        outliers=OutlierRule(args.outliers),
-        tukey_k=args.tukey_k,
+        outliers=outliers,
+        tukey_k=tukey_k,
         bootstrap_resamples=args.resamples,
     )
     with tqdm(total=args.replications, desc="replications", unit="study", leave=False) as bar:
@@ -309,7 +315,7 @@ def add_simulate(sub: argparse._SubParsersAction) -> None:
         default=AnalysisConfig().bootstrap_resamples,
         help="bootstrap resamples of the analysis (default: %(default)s)",
     )
-    _analysis_arguments(p)
+    add_analysis_arguments(p)
     p.set_defaults(handler=_simulate, outliers=OutlierRule.NONE.value)
 
 
@@ -330,11 +336,8 @@ def _preregister(args: argparse.Namespace) -> int:
             raise UsageError(f"--power: cannot read {args.power}: {exc}") from None
         if not isinstance(power, dict) or "n_required" not in power:
             raise UsageError(f"--power: {args.power} is not a power.json of study power")
-    if not (math.isfinite(args.tukey_k) and args.tukey_k > 0):
-        raise UsageError(f"--tukey-k must be a finite number > 0, got {args.tukey_k}")
-    config = AnalysisConfig(
-        all_videos=args.all_videos, outliers=OutlierRule(args.outliers), tukey_k=args.tukey_k
-    )
+    outliers, tukey_k = outlier_options(args)
+    config = AnalysisConfig(all_videos=args.all_videos, outliers=outliers, tukey_k=tukey_k)
     try:
         doc = pr.preregistration(folder, config, power)
     except ValueError as exc:
@@ -373,7 +376,7 @@ def add_preregister(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="the analysis will average over all videos of a condition (analyze --all-videos)",
     )
-    _analysis_arguments(p)
+    add_analysis_arguments(p)
     p.set_defaults(handler=_preregister)
 
 
