@@ -7,6 +7,11 @@ STAMP := $(VENV)/.installed
 SYSSTAMP := $(VENV)/.system-deps
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
+# uv installs no bytecode (.pyc); with PYTHONDONTWRITEBYTECODE set (as on this machine) every
+# process would compile numpy, scipy, numba, MuJoCo, ... from source on each import (~4 s of CPU
+# per process, and `make test` starts dozens). Unset, the first process to import a module writes
+# its .pyc and every later one loads it.
+unexport PYTHONDONTWRITEBYTECODE
 
 .PHONY: demo test lint typecheck unit kernels kernel-tests no-kernel-tests bench system-deps clean
 
