@@ -331,7 +331,7 @@ def _serve_loop(
         ready()
     robot.publish(ENABLED, None)
     t_wait_end = time.monotonic() + wait
-    last_cmd = time.monotonic()
+    last_cmd = last_msg = time.monotonic()
     while not robot.done:
         timeout = max(0.0, last_cmd + watchdog - time.monotonic()) if mode == ENABLED else robot.dt
         try:
@@ -350,12 +350,14 @@ def _serve_loop(
                 t = robot.k * robot.dt
                 print(
                     f"robot: watchdog: no command for {watchdog:g} s at t = {t:.3f} s: "
-                    "servoing stopped, holding",
+                    f"servoing stopped, holding (last message "
+                    f"{time.monotonic() - last_msg:.3f} s ago)",
                     file=log,
                 )
             robot.hold()
             stats.held += 1
             continue
+        last_msg = time.monotonic()
         verdict, cmd, why = gate.admit(key, data, robot.k)
         if verdict is Verdict.REFUSED:
             stats.refused.append(why)
