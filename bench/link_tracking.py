@@ -77,6 +77,10 @@ def over_link(config_file: Path, cfg: ExperimentConfig, spec: EpisodeSpec) -> tu
     return remote, (out.strip().splitlines() or [""])[-1]
 
 
+def _cells(a: dict[str, float], b: dict[str, float]) -> str:
+    return " | ".join(f"{a[k]:.3f} {b[k]:.3f} {100 * (b[k] - a[k]) / a[k]:+.2f}" for k in a)
+
+
 def main() -> None:
     """Parse the options, run each pair, print the table."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -84,6 +88,7 @@ def main() -> None:
     p.add_argument("--rate", type=float, default=100.0, help="control rate, Hz (default 100)")
     p.add_argument("--arms", nargs="+", default=["free", "psm"], choices=[k.value for k in ArmKind])
     p.add_argument("--policies", nargs="+", default=["endocam", "orientation"])
+    p.add_argument("--seeds", type=int, nargs="+", default=[SEED], help="noise seeds (default 1)")
     args = p.parse_args()
     folder = Path(tempfile.mkdtemp())
     print(
@@ -99,22 +104,27 @@ def main() -> None:
         )
         cfg = load_config(config_file)
         for policy in args.policies:
-            spec = EpisodeSpec(policy, TrajectoryKind.NOISY, CONTROL_POINTS, SEED)
-            local = run_episode(cfg, spec)
-            remote, robot_line = over_link(config_file, cfg, spec)
-            a, b = errors(local), errors(remote.result)
-            m = remote.steps
-            dpos = np.linalg.norm(
-                remote.result.log.T_world_cam[:m, :3, 3] - local.log.T_world_cam[:m, :3, 3],
-                axis=1,
-            )
-            cells = " | ".join(
-                f"{a[k]:.3f} {b[k]:.3f} {100 * (b[k] - a[k]) / a[k]:+.2f}" for k in a
-            )
-            print(f"{arm_name} {policy} {m} | {cells} | {dpos.max() * 1e3:.3g}", flush=True)
-            if remote.lost:
-                print(f"  link lost: {remote.lost}", flush=True)
-            print(f"  {robot_line}", flush=True)
+            both: list[tuple[dict[str, float], dict[str, float]]] = []
+            for seed in args.seeds:
+                spec = EpisodeSpec(policy, TrajectoryKind.NOISY, CONTROL_POINTS, seed)
+                local = run_episode(cfg, spec)
+                remote, robot_line = over_link(config_file, cfg, spec)
+                a, b = errors(local), errors(remote.result)
+                both.append((a, b))
+                m = remote.steps
+                dpos = np.linalg.norm(
+                    remote.result.log.T_world_cam[:m, :3, 3] - local.log.T_world_cam[:m, :3, 3],
+                    axis=1,
+                )
+                name = f"{arm_name} {policy} seed {seed} {m}"
+                print(f"{name} | {_cells(a, b)} | {dpos.max() * 1e3:.3g}", flush=True)
+                if remote.lost:
+                    print(f"  link lost: {remote.lost}", flush=True)
+                print(f"  {robot_line}", flush=True)
+            if len(both) > 1:
+                a = {k: float(np.mean([x[0][k] for x in both])) for k in both[0][0]}
+                b = {k: float(np.mean([x[1][k] for x in both])) for k in both[0][0]}
+                print(f"{arm_name} {policy} mean of {len(both)} | {_cells(a, b)} |", flush=True)
 
 
 if __name__ == "__main__":
