@@ -106,6 +106,7 @@ def test_reordered_commands_are_never_acted_on_out_of_order() -> None:
         (KEYS.servo_cv, CODEC.twist(np.full(6, np.inf), stamp_ns(2 * DT)), "non-finite"),
         (KEYS.servo_jp, CODEC.joints(("j",), np.zeros(1), stamp_ns(2 * DT)), "no joints"),
     ],
+    ids=["garbage", "truncated", "wrong-type", "nan-look", "far-look", "inf-twist", "jp-free"],
 )
 def test_a_malformed_message_is_refused_and_clears_the_pending_command(
     key: str, payload: bytes, why: str
@@ -159,6 +160,7 @@ def test_the_controller_skips_repeated_states_and_malformed_operating_states() -
         ([*_state(1)[:4], (KEYS.measured_cp, b"\x00\x01\x00\x00x"), *_state(1)[5:]], "malformed"),
         (_state(1)[:4] + _state(0)[4:5] + _state(1)[5:], "stopped advancing"),
     ],
+    ids=["jumped", "paused", "malformed-pose", "stale-pose"],
 )
 def test_the_controller_holds_at_once_when_the_robot_held_or_its_state_is_bad(
     messages: list[tuple[str, bytes]], match: str
