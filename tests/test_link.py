@@ -8,9 +8,9 @@ process costs seconds to start: one is shared):
    non-finite look distance and joints for the jointless free camera are refused, the robot
    stays up;
 2. ``run_remote`` drives the episode: every step is the in-process episode's, to round-off;
-3. at step :data:`STALL_AT` the controller stops commanding: the robot's watchdog holds the
-   camera at rest, the controller's late command is dropped, and the controller holds too,
-   saying the robot held;
+3. at step :data:`STALL_AT` the link pauses for :data:`LINK_PAUSE_S` (0.5 s: nothing is sent
+   and what the robot says is lost): the robot's watchdog holds the camera at rest, the
+   controller's late command is dropped, and the controller holds too, saying the robot held;
 4. the robot process is killed: the controller's next command finds it silent and holds.
 """
 
@@ -38,7 +38,8 @@ from endocam.task.trajectory import TrajectoryKind
 
 SHORT_TOML = "[task.trajectory]\nduration = 2.0\n"
 SPEC = EpisodeSpec("orientation", TrajectoryKind.NOISY, 10, 3)
-STALL_AT = 100  # the step the controller stops at (of 201)
+STALL_AT = 100  # the step the link pauses at (of 201)
+LINK_PAUSE_S = 0.5  # s (wall): the link is down this long
 HELD_STEPS = 45  # held states read: the free camera brakes to rest within ~30 (0.3 s)
 DT = 0.01  # s: the default control period (100 Hz)
 WAIT_S = 60.0  # s (wall) the robot may take to start (imports, numba's cache) on a loaded machine
@@ -79,24 +80,34 @@ def _nan_pose(codec: Codec) -> bytes:
     return bytes(codec.store.serialize_cdr(msg, "geometry_msgs/msg/PoseStamped"))
 
 
-class StallingArm(ZenohArm):
-    """A controller that stops commanding for a while at step :data:`STALL_AT`."""
+class PausedLinkArm(ZenohArm):
+    """A controller whose link pauses for :data:`LINK_PAUSE_S` at step :data:`STALL_AT`.
+
+    Nothing is sent during the pause and what the robot says in it never reaches the
+    controller (kept aside in ``lost_in_pause`` for the test to read).
+    """
+
+    lost_in_pause: list[tuple[str, bytes]]
 
     def step(
         self, T_world_cmd: np.ndarray, look_distance: float, twist: np.ndarray | None = None
     ) -> ActuatorStep:
         assert self.state is not None
-        if self.state.k == STALL_AT:
-            time.sleep(3 * WATCHDOG_S)
+        if self.state.k == STALL_AT and not hasattr(self, "lost_in_pause"):  # once
+            time.sleep(LINK_PAUSE_S)
+            self.lost_in_pause = []
+            while not self.inbox.empty():
+                self.lost_in_pause.append(self.inbox.get())
         return super().step(T_world_cmd, look_distance, twist)
 
 
-def _held_poses(arm: ZenohArm, keys: Keys, codec: Codec, count: int) -> list[np.ndarray]:
-    """The next ``count`` camera poses the robot publishes while ``PAUSED`` (world, m)."""
+def _held_poses(arm: PausedLinkArm, keys: Keys, codec: Codec, count: int) -> list[np.ndarray]:
+    """The first ``count`` camera poses the robot published while ``PAUSED`` (world, m)."""
     held: list[np.ndarray] = []
     paused = False
+    said = iter(arm.lost_in_pause)
     while len(held) < count:
-        key, data = arm.inbox.get(timeout=1.0)
+        key, data = next(said, None) or arm.inbox.get(timeout=1.0)
         if key == keys.operating_state:
             paused = codec.decode_operating_state(data)[0] == PAUSED
         elif key == keys.measured_cp and paused:
@@ -130,7 +141,7 @@ def _scenario(
     cfg: ExperimentConfig, endpoint: str, proc: subprocess.Popen[str], local: EpisodeLog
 ) -> None:
     keys, codec = Keys.of(ArmKind.FREE), Codec()
-    arm = StallingArm(ArmKind.FREE, endpoint, DT, TIMEOUT_S)
+    arm = PausedLinkArm(ArmKind.FREE, endpoint, DT, TIMEOUT_S)
     try:
         # 1. bad messages while the robot waits: refused (counted on its stderr at the end)
         arm.connect(WAIT_S)
@@ -139,7 +150,7 @@ def _scenario(
         arm.session.put(LOOK_KEY, codec.float64(float("inf")))
         arm.session.put(LOOK_KEY, codec.float64(0.05))  # a good look distance, then joints
         arm.session.put(keys.servo_jp, codec.joints(("j",), np.zeros(1), 0))  # for no joints
-        # 2-3. the episode, stalled at STALL_AT by the controller
+        # 2-3. the episode, the link paused at STALL_AT
         remote = run_remote(cfg, SPEC, arm, WAIT_S)
         assert remote.steps == STALL_AT
         assert remote.lost is not None and "watchdog held the arm" in remote.lost
@@ -190,3 +201,45 @@ def test_bad_link_options_are_one_line_and_exit_2(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
     assert not any(tmp_path.iterdir())
+
+
+JOINT_ATOL = 1e-6  # rad / m: the arm's IK converges to the joints of the commanded pose
+SERVO_JP_STEPS = 60  # control periods to reach joints a few hundredths away (speed limits)
+
+
+def test_an_arm_follows_servo_jp_and_refuses_joints_beyond_its_limits() -> None:
+    """The robot's path for ``servo_jp`` (its gate and its carrier), on real CDR payloads."""
+    from endocam.link.messages import stamp_ns
+    from endocam.link.server import CommandGate, JointCommand, Verdict
+    from endocam.robot.camera_arm import arm_model
+    from endocam.robot.carriers import make_actuator
+    from endocam.workspace.cone import ConeWorkspace
+    from endocam.workspace.region import Workspace
+
+    cfg = ExperimentConfig()
+    scene = cfg.task.scene
+    cone = ConeWorkspace.from_rcm(np.array(scene.rcm_position), [0.0, 0.0, 0.04], 0.3, 0.25)
+    workspace = Workspace(cone, cfg.controller.min_camera_height)
+    ep = cfg.episode
+    arm = make_actuator(ArmKind.PSM, ep.limits, ep.T_tip_cam, scene.T_world_rcm, DT, workspace)
+    arm.reset(*arm.start_view(cfg.task, cfg.camera.stereo()))
+    keys, codec = Keys.of(ArmKind.PSM), Codec()
+    gate = CommandGate(keys, JointCommand(ArmKind.PSM, arm), DT)
+    model = arm_model(ArmKind.PSM)
+    q_cmd = np.clip(
+        arm.q + np.array([0.03, -0.03, 0.004, 0.05, -0.05, 0.05]), model.lower, model.upper
+    )
+    measured = np.array(arm.q)
+    for k in range(SERVO_JP_STEPS):
+        gate.admit(LOOK_KEY, codec.float64(cfg.controller.d_f), k)
+        a = gate.admit(keys.servo_jp, codec.joints(arm.joint_names, q_cmd, stamp_ns(k * DT)), k)
+        assert a.verdict is Verdict.ACCEPTED and a.command is not None
+        out = arm.step(a.command.T_world_cmd, a.command.look, a.command.twist)
+        measured = codec.decode_joints(codec.joints(arm.joint_names, out.q, 0))  # measured_js
+    np.testing.assert_allclose(measured, q_cmd, rtol=0, atol=JOINT_ATOL)
+    beyond = q_cmd.copy()
+    beyond[1] = model.upper[1] + 0.01
+    k = SERVO_JP_STEPS
+    gate.admit(LOOK_KEY, codec.float64(cfg.controller.d_f), k)
+    refused = gate.admit(keys.servo_jp, codec.joints(arm.joint_names, beyond, stamp_ns(k * DT)), k)
+    assert refused.verdict is Verdict.REFUSED and "joints [1] beyond limits" in refused.why

@@ -143,7 +143,7 @@ class ZenohArm:
             )
             for key in (k.servo_cp, k.servo_cv, LOOK_KEY)
         }
-        self.state = self._await(0, wait, first=True)
+        self.state = self.receive(0, wait, first=True)
         return self.state
 
     def close(self) -> None:
@@ -155,8 +155,13 @@ class ZenohArm:
     def _on_sample(self, sample: Any) -> None:
         self.inbox.put((str(sample.key_expr), sample.payload.to_bytes()))
 
-    def _await(self, k: int, timeout: float, *, first: bool = False) -> RobotState:
-        """Collect messages until the operating state of step ``k`` (all its messages before)."""
+    def receive(self, k: int, timeout: float, *, first: bool = False) -> RobotState:
+        """Collect messages until the operating state of step ``k`` (all its messages before).
+
+        Older states (repeated, duplicated) and malformed operating states are skipped; a
+        state past ``k`` or ``PAUSED`` raises :class:`LinkLostError` at once (the robot held),
+        as does silence for ``timeout`` s (wall) or a malformed state of step ``k``.
+        """
         deadline = time.monotonic() + timeout
         want = stamp_ns(k * self.dt)
         while True:
@@ -260,19 +265,24 @@ class ZenohArm:
         if twist is not None:
             self.pub[self.keys.servo_cv].put(self.codec.twist(twist, ns))
         self.pub[self.keys.servo_cp].put(self.codec.pose(T_world_cmd, ns))
-        self.state = self._await(k + 1, self.timeout)
-        res = self.codec.decode_array(self._latest[self.keys.servo_result])
-        T_target, _ = self.codec.decode_pose(self._latest[self.keys.setpoint_cp])
-        return ActuatorStep(
-            self.state.T_world_cam,
-            self.state.q,
-            T_target,
-            list(ActuatorStatus)[int(res[0])],
-            float(res[3]),
-            float(res[4]),
-            bool(res[1]),
-            list(GuardAction)[int(res[2])],
-        )
+        self.state = self.receive(k + 1, self.timeout)
+        try:
+            res = self.codec.decode_array(self._latest[self.keys.servo_result])
+            T_target, _ = self.codec.decode_pose(self._latest[self.keys.setpoint_cp])
+            return ActuatorStep(
+                self.state.T_world_cam,
+                self.state.q,
+                T_target,
+                list(ActuatorStatus)[int(res[0])],
+                float(res[3]),
+                float(res[4]),
+                bool(res[1]),
+                list(GuardAction)[int(res[2])],
+            )
+        except (KeyError, ValueError, IndexError) as exc:
+            raise LinkLostError(
+                f"the robot's answer to step {k} is missing or malformed: {exc!r}"
+            ) from exc
 
 
 class PartialTrajectory(RingTrajectory):

@@ -31,6 +31,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import Enum
 from typing import Any, NamedTuple, TextIO
 
 import numpy as np
@@ -151,17 +152,23 @@ class _Robot:
         self.step(self.T_cam, self.look, None, PAUSED)
 
 
-class _Command(NamedTuple):
+class Command(NamedTuple):
+    """A whole command, decoded: the pose to head for and what came with it."""
+
     T_world_cmd: FloatArray
+    """(4, 4) the camera pose to head for, world, m (``servo_cp``, or ``servo_jp``'s pose)."""
     ns: int
+    """Its stamp, ns: the state (``k · dt``) it answers."""
     look: float
+    """The look distance sent with it, m."""
     twist: FloatArray | None
+    """(6,) the feed-forward velocity stamped with it (m/s, rad/s, world), or ``None``."""
 
 
 JOINT_LIMIT_TOL = 1e-9  # rad / m: a servo_jp this far beyond a joint limit is still inside
 
 
-class _JointCommand:
+class JointCommand:
     """``servo_jp`` → the camera pose of those joints, refused outside the arm's joint limits."""
 
     def __init__(self, kind: ArmKind, arm: object) -> None:
@@ -182,39 +189,97 @@ class _JointCommand:
         return self.arm.camera_pose(q)
 
 
-class _Decoder:
-    """Pairs a command's parts (look distance, velocity, pose) in arrival order."""
+class Verdict(Enum):
+    """What the robot does with one message (:meth:`CommandGate.admit`)."""
 
-    def __init__(self, keys: Keys, codec: Codec, joints: _JointCommand) -> None:
-        self.keys, self.codec, self.joints = keys, codec, joints
+    ACCEPTED = "accepted"
+    """A whole command answering the current state: act on it now."""
+    PART = "part"
+    """A look distance or a velocity: kept for the ``servo_cp`` / ``servo_jp`` that follows."""
+    DROPPED = "dropped"
+    """A command stamped for another step (late, duplicated, reordered): never acted on."""
+    REFUSED = "refused"
+    """Does not decode as its topic's message, or outside the limits: never acted on."""
+    IGNORED = "ignored"
+    """Not a command of this robot."""
+
+
+class Admission(NamedTuple):
+    """:meth:`CommandGate.admit`'s answer: the verdict, the command (``ACCEPTED``), or why."""
+
+    verdict: Verdict
+    command: Command | None = None
+    why: str = ""
+
+
+class CommandGate:
+    """The robot's acceptance rules: which message completes a command it may act on, in order.
+
+    A command is the look distance, the velocity (optional, its stamp equal to the pose's) and
+    then the ``servo_cp`` (or ``servo_jp``) that completes it; it is acted on only when it is
+    stamped with the state the robot is at (``k · dt``). The look distance (``std_msgs/Float64``)
+    has no stamp: it belongs to the next ``servo_cp``, and any refused or completed command
+    clears it, so a look distance is used at most once.
+
+    Parameters
+    ----------
+    keys : Keys
+        The robot's key expressions.
+    joints : JointCommand
+        ``servo_jp``'s conversion (and the arm's joint limits).
+    dt : float
+        Control period, s (stamps are ``k · dt``).
+    """
+
+    def __init__(self, keys: Keys, joints: JointCommand, dt: float) -> None:
+        self.keys, self.joints, self.dt = keys, joints, dt
+        self.codec = Codec()
+        self.commands = (LOOK_KEY, keys.servo_cv, keys.servo_cp, keys.servo_jp)
         self.look: float | None = None
         self.twist: tuple[FloatArray, int] | None = None
 
-    def feed(self, key: str, data: bytes) -> _Command | None:
+    def admit(self, key: str, data: bytes, k: int) -> Admission:
+        """The verdict on the message ``data`` on ``key`` while the robot is at step ``k``."""
+        if key not in self.commands:
+            return Admission(Verdict.IGNORED)
+        try:
+            cmd = self._feed(key, data)
+        except ValueError as exc:
+            return Admission(Verdict.REFUSED, why=f"{key}: {exc}")
+        if cmd is None:
+            return Admission(Verdict.PART)
+        if cmd.ns != stamp_ns(k * self.dt):
+            return Admission(
+                Verdict.DROPPED, why=f"stamped {cmd.ns / 1e9:.6f} s at step {k} ({k * self.dt:g} s)"
+            )
+        return Admission(Verdict.ACCEPTED, cmd)
+
+    def _feed(self, key: str, data: bytes) -> Command | None:
         """The command completed by this message, if any; ``ValueError`` if it is refused."""
+        c = self.codec
         try:
             if key == LOOK_KEY:
-                look = self.codec.decode_float64(data)
+                look = c.decode_float64(data)
                 if not (math.isfinite(look) and 0.0 < look <= MAX_LOOK_M):
                     raise ValueError(f"look distance {look!r} m outside (0, {MAX_LOOK_M}] m")
                 self.look = look
                 return None
             if key == self.keys.servo_cv:
-                self.twist = self.codec.decode_twist(data)
+                self.twist = c.decode_twist(data)
                 return None
             if key == self.keys.servo_jp:
-                q, ns = self.codec.decode_joint_command(data)
+                q, ns = c.decode_joint_command(data)
                 T_goal = self.joints.pose(q)
             else:
-                T_goal, ns = self.codec.decode_pose(data)
+                T_goal, ns = c.decode_pose(data)
         except ValueError:
             self.look, self.twist = None, None
             raise
         paired, twist = self.look, self.twist
         self.look, self.twist = None, None
         if paired is None:
-            raise ValueError("servo_cp without its look distance")
-        return _Command(T_goal, ns, paired, twist[0] if twist and twist[1] == ns else None)
+            raise ValueError(f"{key.rsplit('/', 1)[-1]} without its look distance")
+        return Command(T_goal, ns, paired, twist[0] if twist and twist[1] == ns else None)
 
 
 def serve(
@@ -260,15 +325,13 @@ def _serve_loop(
     ready: Callable[[], object] | None,
 ) -> ServeStats:
     stats = ServeStats()
-    decoder = _Decoder(robot.keys, robot.codec, _JointCommand(robot.kind, robot.arm))
-    keys = robot.keys
-    commands = (LOOK_KEY, keys.servo_cv, keys.servo_cp, keys.servo_jp)
+    gate = CommandGate(robot.keys, JointCommand(robot.kind, robot.arm), robot.dt)
     mode = "waiting"
     if ready is not None:
         ready()
     robot.publish(ENABLED, None)
     t_wait_end = time.monotonic() + wait
-    last_cmd = time.monotonic()
+    last_cmd = last_msg = time.monotonic()
     while not robot.done:
         timeout = max(0.0, last_cmd + watchdog - time.monotonic()) if mode == ENABLED else robot.dt
         try:
@@ -287,25 +350,24 @@ def _serve_loop(
                 t = robot.k * robot.dt
                 print(
                     f"robot: watchdog: no command for {watchdog:g} s at t = {t:.3f} s: "
-                    "servoing stopped, holding",
+                    f"servoing stopped, holding (last message "
+                    f"{time.monotonic() - last_msg:.3f} s ago)",
                     file=log,
                 )
             robot.hold()
             stats.held += 1
             continue
-        if key not in commands:
-            continue  # not a command of this robot
-        try:
-            cmd = decoder.feed(key, data)
-        except ValueError as exc:
-            stats.refused.append(f"{key}: {exc}")
-            print(f"robot: refused a message on {key}: {exc}", file=log)
+        last_msg = time.monotonic()
+        verdict, cmd, why = gate.admit(key, data, robot.k)
+        if verdict is Verdict.REFUSED:
+            stats.refused.append(why)
+            print(f"robot: refused a message on {why}", file=log)
             continue
-        if cmd is None:
-            continue
-        if cmd.ns != stamp_ns(robot.k * robot.dt):
+        if verdict is Verdict.DROPPED:
             stats.dropped += 1  # late, duplicated or reordered: never acted on
             continue
+        if cmd is None:
+            continue  # a part of a command, or not a command of this robot
         if mode == PAUSED:
             print(f"robot: command at t = {robot.k * robot.dt:.3f} s: servoing resumed", file=log)
         mode = ENABLED
