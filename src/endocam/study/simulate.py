@@ -20,7 +20,7 @@ read-only (:meth:`~endocam.study.db.StudyDB.export_rows`) and analysed by
 
 **What is checked** (:func:`simulate`), over R seeded replications (``default_rng([seed, r])``):
 
-- *coverage*: the share of replications whose 95 % bootstrap interval holds the true value, for
+- *coverage*: the share of replications whose 95 % interval holds the true value, for
   the SD across assessors per condition and each SD ratio, with its Monte Carlo SE
   :math:`\sqrt{c(1-c)/R}`;
 - *rejections*: the share of replications whose primary test (:mod:`endocam.study.power`: the
