@@ -4,10 +4,11 @@
 the last condition against a reference, the ratio of the two SDs, each with a 95 % bootstrap
 interval that resamples the assessors (:func:`endocam.study.agreement.sd_comparisons`). This
 script measures how often those intervals hold the true value, for the analysis's own function
-(round 12: Bonett's interval for each SD, ``agreement.bonett_sd_interval``; a paired BCa
-bootstrap, ``scipy.stats.bootstrap``, for the ratio) and, beside it, for a BCa bootstrap of each
-SD (``agreement.bca_interval``) and for the percentile bootstrap the analysis used before round
-12 (same resamples, ``effects.resample_indices`` and ``effects.percentile_ci``).
+(round 12: Bonett's interval for each SD, ``agreement.bonett_sd_interval``; the percentile
+bootstrap of the ratio, resampling assessors as pairs) and, beside it, for BCa bootstraps
+(``scipy.stats.bootstrap``, the same resample count) of each SD and of the ratio, and for the
+percentile bootstrap of each SD the analysis used before round 12 (``effects.resample_indices``,
+``effects.percentile_ci``).
 
 Two models of a reference and a last condition's errors (touches) of the same assessors:
 
@@ -33,12 +34,14 @@ import json
 import math
 import sys
 import time
+import warnings
 from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import stats
 
-from endocam.study.agreement import bca_interval, sample_sd, sd_comparisons
+from endocam.study.agreement import sd_comparisons
 from endocam.study.effects import BOOTSTRAP_RESAMPLES, percentile_ci, resample_indices
 from endocam.study.manifest import MAX_TOUCHES
 from endocam.study.power import draw_errors, paper_model
@@ -86,7 +89,7 @@ def gamma_model() -> tuple[Draw, dict[str, float]]:
 
 
 def percentile_intervals(x: NDArray[np.float64], seed: int) -> dict[str, tuple | None]:
-    """The pre-round-12 intervals: percentile bootstrap of the same statistics."""
+    """Percentile bootstraps: each SD's before round 12; the ratio's, the analysis's still."""
     idx = resample_indices(x.shape[0], BOOTSTRAP_RESAMPLES, seed)
     boot = np.std(x[idx], axis=1, ddof=1)  # (B, 2)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -99,7 +102,7 @@ def percentile_intervals(x: NDArray[np.float64], seed: int) -> dict[str, tuple |
 
 
 def analysis_intervals(x: NDArray[np.float64], seed: int) -> dict[str, tuple | None]:
-    """The analysis's intervals (``agreement.sd_comparisons``: Bonett's SD, BCa ratio)."""
+    """The analysis's intervals (``agreement.sd_comparisons``: Bonett's SD, percentile ratio)."""
     sds, comp = sd_comparisons({"ref": x[:, 0], "last": x[:, 1]}, BOOTSTRAP_RESAMPLES, seed)
     return {
         "sd ref": sds["ref"].ci95,
@@ -108,11 +111,37 @@ def analysis_intervals(x: NDArray[np.float64], seed: int) -> dict[str, tuple | N
     }
 
 
+def _sd(x: NDArray[np.float64], axis: int = -1) -> NDArray[np.float64]:
+    return np.std(x, axis=axis, ddof=1)
+
+
+def _ratio(
+    last: NDArray[np.float64], ref: NDArray[np.float64], axis: int = -1
+) -> NDArray[np.float64]:
+    return _sd(last, axis) / _sd(ref, axis)
+
+
+def _bca(samples: tuple, statistic: Callable, seed: int) -> tuple[float, float] | None:
+    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
+        warnings.simplefilter("ignore")  # scipy's DegenerateDataWarning: NaN, handled below
+        ci = stats.bootstrap(
+            samples,
+            statistic,
+            n_resamples=BOOTSTRAP_RESAMPLES,
+            method="BCa",
+            paired=len(samples) > 1,
+            rng=np.random.default_rng(seed),
+        ).confidence_interval
+    lo, hi = float(ci.low), float(ci.high)
+    return (lo, hi) if np.isfinite(lo) and np.isfinite(hi) else None
+
+
 def bca_intervals(x: NDArray[np.float64], seed: int) -> dict[str, tuple | None]:
-    """BCa bootstrap intervals of each SD (the ratio's is the analysis's)."""
+    """BCa bootstrap intervals (``scipy.stats.bootstrap``) of each SD and of the paired ratio."""
     return {
-        "sd ref": bca_interval((x[:, 0],), sample_sd, BOOTSTRAP_RESAMPLES, seed),
-        "sd last": bca_interval((x[:, 1],), sample_sd, BOOTSTRAP_RESAMPLES, seed),
+        "sd ref": _bca((x[:, 0],), _sd, seed),
+        "sd last": _bca((x[:, 1],), _sd, seed),
+        "sd ratio": _bca((x[:, 1], x[:, 0]), _ratio, seed),
     }
 
 

@@ -42,16 +42,16 @@ cases, errors in touches): the sample SD with **Bonett's (2006) interval**
 (:func:`bonett_sd_interval`: a log-variance interval whose standard error uses the sample's
 kurtosis, not the normal's; it assumes independent assessors and a finite fourth moment), and
 for the last condition against each other the SD ratio ``SD_last / SD_ref`` (paired: the same
-assessors), its **BCa bootstrap** interval (``scipy.stats.bootstrap``, assessors resampled as
-pairs; None when a resample's reference SD is 0, as with a handful of whole-touch errors), and
-the **Pitman–Morgan test**
+assessors), its percentile bootstrap interval (assessors resampled as pairs; a BCa interval,
+tried in round 12, covered no better: bench/agreement_coverage.py), and the **Pitman–Morgan
+test**
 of equal variances of paired data (Pitman 1939, Morgan 1939): with ``S = X + Y`` and
 ``D = X − Y``, ``var X = var Y`` iff ``corr(S, D) = 0``, tested by
 :math:`t = r \sqrt{n-2} / \sqrt{1 - r^2}` on n − 2 degrees of freedom (two-sided). The paper's
 "31 % lower" is a ratio of 0.69; ``paper_ratio_in_ci`` says whether the interval holds it.
-Round 12 replaced the percentile bootstraps of these two intervals, which covered 0.80–0.90 at
-N = 30 against 0.95; their coverage now is measured by ``bench/agreement_coverage.py``
-(docs/study.md).
+Round 12 replaced the per-condition SD's percentile bootstrap, which covered 0.80–0.90 at N = 30
+against 0.95, by Bonett's interval; the coverage of both intervals is measured by
+``bench/agreement_coverage.py`` (docs/study.md).
 The Pitman–Morgan test assumes bivariate normal errors; absolute counting errors are discrete
 and skewed, so the two can disagree: the bootstrap interval, which assumes neither, is the
 statement about the ratio (is 1 in it? is 0.69?), the test its normal-theory companion.
@@ -60,7 +60,7 @@ statement about the ratio (is 1 in it? is 0.69?), the test its normal-theory com
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -75,7 +75,6 @@ PAPER_SD_RATIO = 0.69  # the paper's SD(orientation) / SD(centring): "31 % lower
 MIN_ASSESSORS = 2  # agreement needs at least two assessors
 MIN_VIDEOS = 2  # ... and two videos
 MIN_BOOTSTRAP_VIDEOS = 5  # fewer videos give no bootstrap interval (3 videos: 10 distinct draws)
-MIN_BCA_N = 3  # assessors a BCa interval of an SD needs (its jackknife leaves one out)
 MIN_BONETT_N = 5  # assessors Bonett's SD interval needs (its trim is 1 / (2 sqrt(n - 4)))
 
 
@@ -249,50 +248,6 @@ def pitman_morgan(x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[float
     return float(t), float(2.0 * stats.t.sf(abs(t), n - 2))
 
 
-def sample_sd(x: NDArray[np.float64], axis: int = -1) -> NDArray[np.float64]:
-    """Sample SD (ddof = 1) along ``axis``; the statistic of the SD intervals."""
-    return np.std(x, axis=axis, ddof=1)
-
-
-def sd_ratio(
-    last: NDArray[np.float64], ref: NDArray[np.float64], axis: int = -1
-) -> NDArray[np.float64]:
-    """``SD(last) / SD(ref)`` along ``axis`` (NaN or inf where the reference's SD is 0)."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return sample_sd(last, axis) / sample_sd(ref, axis)
-
-
-def bca_interval(
-    samples: tuple[NDArray[np.float64], ...],
-    statistic: Callable[..., NDArray[np.float64]],
-    resamples: int,
-    seed: int,
-) -> tuple[float, float] | None:
-    """95 % BCa bootstrap interval of ``statistic`` (``scipy.stats.bootstrap``, module docstring).
-
-    samples : one or more (n,) arrays of the same assessors (resampled together: paired).
-    statistic : vectorised, ``statistic(*samples, axis=-1)``.
-    Returns None with fewer than ``MIN_BCA_N`` assessors or an undefined interval (every
-    resample alike, or a statistic undefined in a resample or a jackknife sample).
-    """
-    if samples[0].size < MIN_BCA_N:
-        return None
-    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
-        warnings.simplefilter("ignore")  # scipy's DegenerateDataWarning: NaN, handled below
-        result = stats.bootstrap(
-            samples,
-            statistic,
-            n_resamples=resamples,
-            method="BCa",
-            paired=len(samples) > 1,
-            vectorized=True,
-            confidence_level=CI_LEVEL,
-            rng=np.random.default_rng(seed),
-        )
-    lo, hi = (float(v) for v in result.confidence_interval)
-    return (lo, hi) if np.isfinite(lo) and np.isfinite(hi) else None
-
-
 def bonett_sd_interval(x: NDArray[np.float64]) -> tuple[float, float] | None:
     r"""Bonett's (2006) 95 % interval of a standard deviation, for non-normal data.
 
@@ -304,7 +259,7 @@ def bonett_sd_interval(x: NDArray[np.float64]) -> tuple[float, float] | None:
     with s² the sample variance, z the normal quantile of the level, and m the mean trimmed by
     :math:`1 / (2\sqrt{n - 4})` at each end (``scipy.stats.trim_mean``). Bonett, D. G.,
     "Approximate confidence interval for standard deviation of nonnormal distributions",
-    Comput. Stat. Data Anal. 50 (2006) 775–782. Assumes independent values with a finite fourth
+    Comput. Stat. Data Anal. (2006). Assumes independent values with a finite fourth
     moment (the kurtosis is estimated, not assumed normal's 3); near nominal for moderate
     skew and kurtosis, somewhat below it for heavy tails (bench/agreement_coverage.py).
 
@@ -336,7 +291,7 @@ def sd_comparisons(
     complete : mapping condition → (n,) float array
         Errors (touches) of the same n assessors in every condition, the study's order.
     resamples, seed : int
-        Bootstrap resamples of the assessors and the generator's seed (the ratio's BCa
+        Bootstrap resamples of the assessors and the generator's seed (the ratio's percentile
         interval; each SD's interval is Bonett's, :func:`bonett_sd_interval`).
     """
     conds = list(complete)
@@ -344,18 +299,19 @@ def sd_comparisons(
     if n < 2:
         none = Estimate(value=None, ci95=None)
         return {c: none for c in conds}, {}
+    idx = resample_indices(n, resamples, seed)
+    boot_sd = {c: np.std(complete[c][idx], axis=-1, ddof=1) for c in conds}
     sds = {
-        c: Estimate(
-            value=float(sample_sd(complete[c])),
-            ci95=bonett_sd_interval(complete[c]),
-        )
+        c: Estimate(value=float(np.std(complete[c], ddof=1)), ci95=bonett_sd_interval(complete[c]))
         for c in conds
     }
     *refs, last = conds
     out = {}
     for ref in reversed(refs):
         sd_ref, sd_last = sds[ref].value, sds[last].value
-        ci = bca_interval((complete[last], complete[ref]), sd_ratio, resamples, seed)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            boot_ratio = np.where(boot_sd[ref] > 0.0, boot_sd[last] / boot_sd[ref], np.nan)
+        ci = percentile_ci(boot_ratio)
         ratio = None if not sd_ref or sd_last is None else sd_last / sd_ref
         t, p = pitman_morgan(complete[last], complete[ref])
         out[f"{last}_vs_{ref}"] = SDComparison(
