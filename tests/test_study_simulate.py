@@ -3,7 +3,6 @@ the app's HTTP API, the database and ``analyze`` giving the tests of the in-proc
 the analysis's rejection rates on many in-process studies, with and without an effect, against
 the rates ``study power``'s simulation predicts (and a check that a broken analysis fails)."""
 
-import gc
 import math
 from itertools import combinations
 from pathlib import Path
@@ -77,12 +76,6 @@ def test_one_replication_through_the_app_is_the_fast_path(tmp_path: Path) -> Non
     assert result.tests.wilcoxon[name].p_holm == pytest.approx(p_holm[0, index], abs=P_ATOL)
 
 
-@pytest.fixture
-def quick_holm(monkeypatch: pytest.MonkeyPatch) -> None:
-    """statsmodels' Holm without its full garbage collection per call (~80 ms in pytest)."""
-    monkeypatch.setattr(gc, "collect", lambda generation=2: 0)  # (imported inside multipletests)
-
-
 def _catch_probability(check: RateCheck, broken_rate: float) -> float:
     """P(the check fails) for an analysis whose true rejection rate is ``broken_rate``."""
     r, low = check.replications, check.predicted_rate - check.tolerance
@@ -112,7 +105,7 @@ def _broken_rates(check: RateCheck, model: AssessorModel, manifest: Manifest) ->
     ("effect", "replications"), [(True, EFFECT_REPLICATIONS), (False, NULL_REPLICATIONS)]
 )
 def test_analysis_rejects_at_the_rates_study_power_predicts(
-    tmp_path: Path, quick_holm: None, effect: bool, replications: int
+    tmp_path: Path, effect: bool, replications: int
 ) -> None:
     manifest = load_manifest(make_study(tmp_path, stub_videos=True, conditions=k_conditions(3)))
     model = preset(manifest, effect=effect, n_assessors=RATE_ASSESSORS)
