@@ -33,14 +33,15 @@ read-only (:meth:`~endocam.study.db.StudyDB.export_rows`) and analysed by
 but cost ~50 ms each; the rejection rates need hundreds of studies. :func:`analysis_rejections`
 draws R studies' errors from the same reports (:func:`model_errors`) and runs on each the
 function ``study analyze`` runs on its complete cases,
-:func:`endocam.study.analysis.within_subject_tests` (scipy's Wilcoxon per pair, statsmodels'
-Holm), counting rejections by a :class:`Criterion`: the primary test in the true direction (with
-an effect: the power) or any pair (without one: the family-wise false-positive rate, ≤ α by
-Holm). The prediction is ``study power``'s simulation (:func:`predicted_rate`: its own batched
-tests, :func:`endocam.study.power.study_p_values`, on S studies drawn independently); a correct
-analysis rejects binomial(R, p) times, so the two agree within ``AGREEMENT_SE`` combined SEs
-:math:`\sqrt{p(1-p)(1/R + 1/S)}`. An analysis that lost Holm's adjustment or tested one-sided
-rejects more often and fails the check (``tests/test_study_simulate.py`` states how likely).
+:func:`endocam.study.analysis.within_subject_tests` (scipy's Wilcoxon per pair, Holm's
+correction), counting rejections by a :class:`Criterion`: the primary test in the true
+direction (with an effect: the power) or any pair (without one: the family-wise false-positive
+rate, ≤ α by Holm). The prediction is ``study power``'s simulation (:func:`predicted_rate`: its
+own batched tests, :func:`endocam.study.power.study_p_values`, on S studies drawn
+independently); a correct analysis rejects binomial(R, p) times, so the two agree within
+``AGREEMENT_SE`` combined SEs :math:`\sqrt{p(1-p)(1/R + 1/S)}`. An analysis that lost Holm's
+adjustment or tested one-sided rejects more often and fails the check
+(``tests/test_study_simulate.py`` states how likely).
 
 The analysis runs without an outlier rule by default: the known values are those of all
 assessors, and an outlier rule trims the spread it is asked to recover (``outliers`` changes it).
@@ -368,7 +369,7 @@ def analysis_rejections(
 
     Each study's complete-case errors (:func:`model_errors`, ``default_rng([seed, 2**32 + 1])``)
     go to :func:`endocam.study.analysis.within_subject_tests`, the function ``study analyze``
-    runs on its complete cases (scipy's Wilcoxon per pair, statsmodels' Holm), one study per
+    runs on its complete cases (scipy's Wilcoxon per pair, Holm's correction), one study per
     call; the outlier rule is none (the errors are the complete cases as they are).
     """
     errors = model_errors(model, manifest, np.random.default_rng([seed, 2**32 + 1]), replications)
