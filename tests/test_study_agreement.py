@@ -14,6 +14,7 @@ from endocam.study.agreement import (
     agreement,
     alpha_interval_batch,
     assessor_statistics,
+    bonett_sd_interval,
     icc2_1_batch,
     pitman_morgan,
     ratings_table,
@@ -101,9 +102,25 @@ def test_sd_across_assessors_and_the_ratio() -> None:
     assert ratio.sd_ratio.value == pytest.approx(math.sqrt(0.1), rel=REL)
     assert ratio.sd_reduction_pct == pytest.approx(100 * (1 - math.sqrt(0.1)), rel=REL)
     assert ratio.pitman_morgan_t == pytest.approx(-math.sqrt(40.5), rel=REL)
-    lo, hi = sds["fixed"].ci95 or (np.nan, np.nan)
-    assert 0.0 <= lo <= sds["fixed"].value <= hi
+    assert sds["fixed"].ci95 is None  # four assessors: too few for Bonett's interval
     assert ratio.paper_ratio == PAPER_SD_RATIO
+    lo, hi = ratio.sd_ratio.ci95 or (np.nan, np.nan)
+    assert 0.0 <= lo <= hi
+
+
+def test_bonett_sd_interval_of_a_sample_worked_by_hand() -> None:
+    x = np.arange(1.0, 11.0)  # n = 10, mean 5.5, Σ(x − 5.5)² = 82.5, s² = 82.5 / 9
+    # trim 1 / (2 √6) = 0.20 → 2 values cut at each end: trimmed mean of 3..8 = 5.5
+    # Σ(x − 5.5)⁴ = 2 (0.5⁴ + 1.5⁴ + 2.5⁴ + 3.5⁴ + 4.5⁴) = 1208.625
+    kurtosis = 10 * 1208.625 / 82.5**2  # 1.7758 (a uniform's is 1.8)
+    z = stats.norm.ppf(0.975)
+    c = 10 / (10 - z)  # 1.2438
+    se = c * math.sqrt((kurtosis - 7 / 10) / 9)  # 0.4300
+    var_lo, var_hi = (c * 82.5 / 9 * math.exp(s * z * se) for s in (-1, 1))  # 4.908, 26.484
+    lo, hi = bonett_sd_interval(x) or (np.nan, np.nan)
+    assert (lo, hi) == pytest.approx((math.sqrt(var_lo), math.sqrt(var_hi)), rel=REL)
+    assert (lo, hi) == pytest.approx((2.2155, 5.1462), abs=1e-4)
+    assert bonett_sd_interval(np.full(10, 3.0)) is None  # no spread: no interval
 
 
 def test_a_known_sd_reduction_is_found_and_none_is_not() -> None:

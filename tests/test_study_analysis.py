@@ -1,3 +1,4 @@
+import gc
 import json
 import statistics
 from pathlib import Path
@@ -22,6 +23,7 @@ from study_helpers import manifest_dict
 pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
 
 REL = 1e-12  # relative tolerance of float statistics (pure float64 arithmetic)
+P_ATOL = 1e-15  # p-values: the same float64 operations as statsmodels
 MANIFEST = parse_manifest(json.dumps(manifest_dict()))
 TRUE = {v.id: v.true_touches for v in MANIFEST.videos}
 HARDEST = {"fixed": "v03", "centering": "v06", "orientation": "v09"}  # difficulty 3
@@ -165,6 +167,17 @@ def test_holm_step_down() -> None:
     assert holm([0.5, 0.6]) == pytest.approx([1.0, 1.0])
     with pytest.raises(ValueError, match="p_values"):
         holm([0.1, 1.5])
+    assert holm([]) == []
+
+
+def test_holm_is_statsmodels_multipletests(monkeypatch: pytest.MonkeyPatch) -> None:
+    from statsmodels.stats.multitest import multipletests
+
+    monkeypatch.setattr(gc, "collect", lambda generation=2: 0)  # multipletests' gc, ~0.1-0.5 s
+    rng = np.random.default_rng(4)
+    ties = [0.01, 0.02, 0.02, 0.5, 0.02, 1.0]  # equal p-values keep statsmodels' stable order
+    for p in [*(rng.uniform(size=m) ** 3 for m in (1, 3, 6, 10)), ties]:
+        assert holm(p) == pytest.approx(multipletests(p, method="holm")[1], abs=P_ATOL)
 
 
 def test_bad_rows_are_rejected() -> None:

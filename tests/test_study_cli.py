@@ -1,5 +1,6 @@
 import asyncio
 import json
+import runpy
 import socket
 import sqlite3
 from pathlib import Path
@@ -217,3 +218,13 @@ def test_serve_trusts_no_proxy_unless_told(
     err = capsys.readouterr().err
     assert "--trusted-proxy" in err and err.count("\n") == 1
     assert not (tmp_path / "s.db").exists()
+
+
+def test_python_m_endocam_is_the_endocam_command(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr("sys.argv", ["endocam", "study", "analyze", "--outliers", "nonsense"])
+    with pytest.raises(SystemExit) as exit_info:  # as `python -m endocam ...` runs it
+        runpy.run_module("endocam", run_name="__main__", alter_sys=True)
+    assert exit_info.value.code == 2  # argparse's usage error, through endocam's parser
+    assert "endocam study analyze: error: argument --outliers" in capsys.readouterr().err

@@ -38,13 +38,20 @@ numpy in one vectorised pass (:func:`icc2_1_batch`, :func:`alpha_interval_batch`
 formulas, checked equal to the libraries in the tests).
 
 **Spread of the counting error across assessors** (per condition, on the analysis's complete
-cases, errors in touches): the sample SD with a bootstrap interval that resamples **assessors**,
-and for the last condition against each other the SD ratio ``SD_last / SD_ref`` (paired: the same
-assessors), its bootstrap interval (assessors resampled as pairs), and the **Pitman–Morgan test**
+cases, errors in touches): the sample SD with **Bonett's (2006) interval**
+(:func:`bonett_sd_interval`: a log-variance interval whose standard error uses the sample's
+kurtosis, not the normal's; it assumes independent assessors and a finite fourth moment), and
+for the last condition against each other the SD ratio ``SD_last / SD_ref`` (paired: the same
+assessors), its percentile bootstrap interval (assessors resampled as pairs; a BCa interval,
+tried in round 12, covered no better: bench/agreement_coverage.py), and the **Pitman–Morgan
+test**
 of equal variances of paired data (Pitman 1939, Morgan 1939): with ``S = X + Y`` and
 ``D = X − Y``, ``var X = var Y`` iff ``corr(S, D) = 0``, tested by
 :math:`t = r \sqrt{n-2} / \sqrt{1 - r^2}` on n − 2 degrees of freedom (two-sided). The paper's
 "31 % lower" is a ratio of 0.69; ``paper_ratio_in_ci`` says whether the interval holds it.
+Round 12 replaced the per-condition SD's percentile bootstrap, which covered 0.80–0.90 at N = 30
+against 0.95, by Bonett's interval; the coverage of both intervals is measured by
+``bench/agreement_coverage.py`` (docs/study.md).
 The Pitman–Morgan test assumes bivariate normal errors; absolute counting errors are discrete
 and skewed, so the two can disagree: the bootstrap interval, which assumes neither, is the
 statement about the ratio (is 1 in it? is 0.69?), the test its normal-theory companion.
@@ -60,7 +67,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict
 from scipy import stats
 
-from endocam.study.effects import BOOTSTRAP_RESAMPLES, percentile_ci, resample_indices
+from endocam.study.effects import BOOTSTRAP_RESAMPLES, CI_LEVEL, percentile_ci, resample_indices
 from endocam.study.manifest import Manifest
 from endocam.study.responses import ResponseRow
 
@@ -68,6 +75,7 @@ PAPER_SD_RATIO = 0.69  # the paper's SD(orientation) / SD(centring): "31 % lower
 MIN_ASSESSORS = 2  # agreement needs at least two assessors
 MIN_VIDEOS = 2  # ... and two videos
 MIN_BOOTSTRAP_VIDEOS = 5  # fewer videos give no bootstrap interval (3 videos: 10 distinct draws)
+MIN_BONETT_N = 5  # assessors Bonett's SD interval needs (its trim is 1 / (2 sqrt(n - 4)))
 
 
 class _Frozen(BaseModel):
@@ -240,6 +248,39 @@ def pitman_morgan(x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[float
     return float(t), float(2.0 * stats.t.sf(abs(t), n - 2))
 
 
+def bonett_sd_interval(x: NDArray[np.float64]) -> tuple[float, float] | None:
+    r"""Bonett's (2006) 95 % interval of a standard deviation, for non-normal data.
+
+    .. math:: \sigma \in \sqrt{\exp\bigl(\ln(c s^2) \pm z\, c\,
+              \sqrt{(\hat\gamma_4 - (n-3)/n)/(n-1)}\bigr)},
+              \quad \hat\gamma_4 = \frac{n \sum (x_i - m)^4}{(\sum (x_i - \bar x)^2)^2},
+              \quad c = \frac{n}{n - z}
+
+    with s² the sample variance, z the normal quantile of the level, and m the mean trimmed by
+    :math:`1 / (2\sqrt{n - 4})` at each end (``scipy.stats.trim_mean``). Bonett, D. G.,
+    "Approximate confidence interval for standard deviation of nonnormal distributions",
+    Comput. Stat. Data Anal. (2006). Assumes independent values with a finite fourth
+    moment (the kurtosis is estimated, not assumed normal's 3); near nominal for moderate
+    skew and kurtosis, somewhat below it for heavy tails (bench/agreement_coverage.py).
+
+    x : (n,) values (errors, touches). Returns (low, high), touches; None if n < ``MIN_BONETT_N``
+    or every value is equal.
+    """
+    n = x.size
+    if n < MIN_BONETT_N:
+        return None
+    ss = float(np.sum((x - x.mean()) ** 2))
+    if ss == 0.0:
+        return None
+    z = float(stats.norm.ppf(0.5 + CI_LEVEL / 2.0))
+    m = float(stats.trim_mean(x, 1.0 / (2.0 * np.sqrt(n - 4.0))))
+    kurtosis = n * float(np.sum((x - m) ** 4)) / ss**2
+    c = n / (n - z)
+    se = c * np.sqrt(max(kurtosis - (n - 3.0) / n, 0.0) / (n - 1.0))
+    centre = np.log(c * ss / (n - 1.0))
+    return float(np.exp((centre - z * se) / 2.0)), float(np.exp((centre + z * se) / 2.0))
+
+
 def sd_comparisons(
     complete: Mapping[str, NDArray[np.float64]], resamples: int, seed: int
 ) -> tuple[dict[str, Estimate], dict[str, SDComparison]]:
@@ -250,7 +291,8 @@ def sd_comparisons(
     complete : mapping condition → (n,) float array
         Errors (touches) of the same n assessors in every condition, the study's order.
     resamples, seed : int
-        Bootstrap resamples of the assessors and the generator's seed.
+        Bootstrap resamples of the assessors and the generator's seed (the ratio's percentile
+        interval; each SD's interval is Bonett's, :func:`bonett_sd_interval`).
     """
     conds = list(complete)
     n = len(complete[conds[0]]) if conds else 0
@@ -260,7 +302,7 @@ def sd_comparisons(
     idx = resample_indices(n, resamples, seed)
     boot_sd = {c: np.std(complete[c][idx], axis=-1, ddof=1) for c in conds}
     sds = {
-        c: Estimate(value=float(np.std(complete[c], ddof=1)), ci95=percentile_ci(boot_sd[c]))
+        c: Estimate(value=float(np.std(complete[c], ddof=1)), ci95=bonett_sd_interval(complete[c]))
         for c in conds
     }
     *refs, last = conds

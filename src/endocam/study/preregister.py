@@ -115,8 +115,9 @@ def plan(study: str | Path, config: AnalysisConfig | None = None) -> dict[str, A
     if len(conds) >= FRIEDMAN_MIN_CONDITIONS:
         tests.insert(1, f"omnibus: Friedman over the {len(conds)} conditions, Kendall's W")
     tests += [
-        f"SD across assessors of {last} against {', '.join(reversed(refs))}: ratio with a "
-        "bootstrap 95 % interval, Pitman-Morgan test",
+        "SD across assessors per condition with Bonett's 95 % interval; of "
+        f"{last} against {', '.join(reversed(refs))}: ratio with a paired BCa bootstrap 95 % "
+        "interval, Pitman-Morgan test",
         "agreement: ICC(2,1) and Krippendorff's alpha (interval) with bootstrap 95 % intervals",
     ]
     return {

@@ -122,7 +122,7 @@ def _condition_axis(ax: Any, names: list[str]) -> None:
 
 
 def plot_assessor_sd(result: AnalysisResult, path: Path) -> None:
-    """SD of the assessment error across assessors per condition, with bootstrap 95 % intervals.
+    """SD of the assessment error across assessors per condition, with Bonett's 95 % intervals.
 
     Parameters
     ----------
@@ -150,7 +150,7 @@ def plot_assessor_sd(result: AnalysisResult, path: Path) -> None:
     _condition_axis(ax, names)
     ax.set_ylabel("SD of the error across assessors (touches)")
     n = result.assessors.n_complete if result.assessors else 0
-    ax.set_title(f"Spread across assessors (n = {n}, 95 % bootstrap CI)")
+    ax.set_title(f"Spread across assessors (n = {n}, Bonett's 95 % CI)")
     ax.grid(axis="y", alpha=0.3)
     fig.savefig(path, dpi=BOXPLOT_DPI, format="png")
 

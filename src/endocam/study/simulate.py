@@ -20,7 +20,7 @@ read-only (:meth:`~endocam.study.db.StudyDB.export_rows`) and analysed by
 
 **What is checked** (:func:`simulate`), over R seeded replications (``default_rng([seed, r])``):
 
-- *coverage*: the share of replications whose 95 % bootstrap interval holds the true value, for
+- *coverage*: the share of replications whose 95 % interval holds the true value, for
   the SD across assessors per condition and each SD ratio, with its Monte Carlo SE
   :math:`\sqrt{c(1-c)/R}`;
 - *rejections*: the share of replications whose primary test (:mod:`endocam.study.power`: the
@@ -28,6 +28,20 @@ read-only (:meth:`~endocam.study.db.StudyDB.export_rows`) and analysed by
   against the rate **predicted** by the same tests on many errors drawn directly from the model
   (no app, no database): with an effect this is the power, without one the false-positive rate
   (≤ α/2 in one direction). The two must agree within their Monte Carlo error.
+
+**The rates in process** (:func:`rate_check`): the app replications above prove the pipeline
+but cost ~50 ms each; the rejection rates need hundreds of studies. :func:`analysis_rejections`
+draws R studies' errors from the same reports (:func:`model_errors`) and runs on each the
+function ``study analyze`` runs on its complete cases,
+:func:`endocam.study.analysis.within_subject_tests` (scipy's Wilcoxon per pair, Holm's
+correction), counting rejections by a :class:`Criterion`: the primary test in the true
+direction (with an effect: the power) or any pair (without one: the family-wise false-positive
+rate, ≤ α by Holm). The prediction is ``study power``'s simulation (:func:`predicted_rate`: its
+own batched tests, :func:`endocam.study.power.study_p_values`, on S studies drawn
+independently); a correct analysis rejects binomial(R, p) times, so the two agree within
+``AGREEMENT_SE`` combined SEs :math:`\sqrt{p(1-p)(1/R + 1/S)}`. An analysis that lost Holm's
+adjustment or tested one-sided rejects more often and fails the check
+(``tests/test_study_simulate.py`` states how likely).
 
 The analysis runs without an outlier rule by default: the known values are those of all
 assessors, and an outlier rule trims the spread it is asked to recover (``outliers`` changes it).
@@ -39,6 +53,8 @@ import math
 import os
 import tempfile
 from collections.abc import Callable
+from enum import StrEnum
+from itertools import combinations
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -47,7 +63,13 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 from scipy import stats
 
-from endocam.study.analysis import AnalysisConfig, AnalysisResult, OutlierRule, analyze
+from endocam.study.analysis import (
+    AnalysisConfig,
+    AnalysisResult,
+    OutlierRule,
+    analyze,
+    within_subject_tests,
+)
 from endocam.study.manifest import MAX_TOUCHES, Manifest, load_manifest
 from endocam.study.power import primary_pair, study_p_values
 
@@ -84,6 +106,28 @@ class TrueEffects(_Frozen):
     mean_error: dict[str, float]
     sd_error: dict[str, float]
     sd_ratio: dict[str, float]
+
+
+class Criterion(StrEnum):
+    """What counts as a rejection in a simulated study."""
+
+    PRIMARY = "primary"  # the primary test (power.primary_pair) at α, in the true direction
+    FAMILYWISE = "familywise"  # any pairwise test at α (Holm bounds its rate by α)
+
+
+class RateCheck(_Frozen):
+    """Result of :func:`rate_check`: the analysis's rejections against the predicted rate."""
+
+    criterion: Criterion
+    n_assessors: int
+    replications: int
+    rejections: int
+    rate: float
+    predicted_rate: float
+    predicted_simulations: int
+    mc_se: float
+    tolerance: float
+    agrees: bool
 
 
 class Coverage(_Frozen):
@@ -258,22 +302,124 @@ def run_replication(
     return analyze(rows, manifest, config), reports
 
 
+def model_errors(
+    model: AssessorModel, manifest: Manifest, rng: np.random.Generator, simulations: int
+) -> NDArray[np.float64]:
+    """(simulations, n, k) errors |r - t| (touches) on each condition's most difficult video.
+
+    The analysed errors of ``simulations`` studies of ``model.n_assessors`` assessors, from the
+    reports :func:`draw_reports` gives (the ones the app replications send), drawn directly
+    (no app, no database); conditions in the study's order.
+    """
+    n = model.n_assessors
+    reports = draw_reports(model, manifest, rng, simulations * n)
+    hardest = [manifest.most_difficult(c) for c in model.conditions]
+    errors = [np.abs(reports[v.id] - v.true_touches).reshape(simulations, n) for v in hardest]
+    return np.stack(errors, axis=-1).astype(np.float64)
+
+
+def rejected(
+    p_holm: NDArray[np.float64],
+    effect: NDArray[np.float64],
+    criterion: Criterion,
+    primary: int,
+    alpha: float,
+) -> NDArray[np.bool_]:
+    """(S,) whether each study rejects by ``criterion`` (:class:`Criterion`).
+
+    p_holm, effect : (S, m) Holm-adjusted p-values and rank-biserial correlations of the m
+    pairs (``combinations`` order; NaN p counts as no rejection); primary : the primary pair's
+    index among them.
+    """
+    with np.errstate(invalid="ignore"):
+        if criterion == Criterion.FAMILYWISE:
+            return np.any(p_holm < alpha, axis=-1)
+        return (p_holm[:, primary] < alpha) & (effect[:, primary] > 0)
+
+
 def predicted_rate(
-    model: AssessorModel, manifest: Manifest, config: AnalysisConfig, alpha: float, seed: int
+    model: AssessorModel,
+    manifest: Manifest,
+    config: AnalysisConfig,
+    alpha: float,
+    seed: int,
+    criterion: Criterion = Criterion.PRIMARY,
+    simulations: int = PREDICTION_SIMULATIONS,
 ) -> float:
-    """Rejection rate of the primary test on errors drawn directly from the model."""
-    rng = np.random.default_rng([seed, 2**31])
-    n, s = model.n_assessors, PREDICTION_SIMULATIONS
-    errors = np.empty((s, n, len(model.conditions)))
-    for i, (c, b, sd) in enumerate(
-        zip(model.conditions, model.bias_touches, model.noise_sd_touches, strict=True)
-    ):
-        t = manifest.most_difficult(c).true_touches
-        reports = np.clip(np.rint(t + b + sd * rng.standard_normal((s, n))), 0, MAX_TOUCHES)
-        errors[..., i] = np.abs(reports - t)
+    """Rejection rate by ``criterion`` that ``study power``'s simulation predicts.
+
+    ``study power``'s own batched tests (:func:`endocam.study.power.study_p_values`) on
+    ``simulations`` studies drawn directly from the model (``default_rng([seed, 2**31])``).
+    """
+    errors = model_errors(model, manifest, np.random.default_rng([seed, 2**31]), simulations)
     p_holm, effect, _ = study_p_values(errors, config)
     index, _ = primary_pair(model.conditions)
-    return float(np.mean((p_holm[:, index] < alpha) & (effect[:, index] > 0)))
+    return float(np.mean(rejected(p_holm, effect, criterion, index, alpha)))
+
+
+def analysis_rejections(
+    model: AssessorModel,
+    manifest: Manifest,
+    replications: int,
+    seed: int,
+    alpha: float,
+    criterion: Criterion,
+) -> int:
+    """How many of ``replications`` studies drawn from the model the analysis's tests reject.
+
+    Each study's complete-case errors (:func:`model_errors`, ``default_rng([seed, 2**32 + 1])``)
+    go to :func:`endocam.study.analysis.within_subject_tests`, the function ``study analyze``
+    runs on its complete cases (scipy's Wilcoxon per pair, Holm's correction), one study per
+    call; the outlier rule is none (the errors are the complete cases as they are).
+    """
+    errors = model_errors(model, manifest, np.random.default_rng([seed, 2**32 + 1]), replications)
+    index, _ = primary_pair(model.conditions)
+    pairs = [f"{a}_vs_{b}" for a, b in combinations(model.conditions, 2)]
+    p_holm = np.ones((replications, len(pairs)))
+    effect = np.zeros((replications, len(pairs)))
+    for r in range(replications):
+        table = {c: errors[r, :, i] for i, c in enumerate(model.conditions)}
+        tests = within_subject_tests(table, resamples=1, seed=r)  # the interval is not used
+        for m, name in enumerate(pairs):
+            test = tests.wilcoxon.get(name)
+            if test is not None and test.p_holm is not None:
+                p_holm[r, m], effect[r, m] = test.p_holm, test.rank_biserial or 0.0
+    return int(np.sum(rejected(p_holm, effect, criterion, index, alpha)))
+
+
+def rate_check(
+    model: AssessorModel,
+    manifest: Manifest,
+    replications: int,
+    seed: int = 0,
+    alpha: float = 0.05,
+    criterion: Criterion = Criterion.PRIMARY,
+    simulations: int = PREDICTION_SIMULATIONS,
+) -> RateCheck:
+    r"""The analysis's rejection rate against ``study power``'s prediction (module docstring).
+
+    If the analysis is right, its rejections are binomial(R, p) with p the rate the power
+    simulation predicts from S studies; the two agree within ``AGREEMENT_SE`` combined Monte
+    Carlo SEs, :math:`\sqrt{p(1-p)(1/R + 1/S)}`.
+    """
+    config = AnalysisConfig(outliers=OutlierRule.NONE)
+    hits = analysis_rejections(model, manifest, replications, seed, alpha, criterion)
+    predicted = predicted_rate(model, manifest, config, alpha, seed, criterion, simulations)
+    variance = max(predicted * (1.0 - predicted), 1.0 / replications)
+    se = math.sqrt(variance * (1.0 / replications + 1.0 / simulations))
+    rate = hits / replications
+    return RateCheck(
+        criterion=criterion,
+        n_assessors=model.n_assessors,
+        replications=replications,
+        rejections=hits,
+        rate=rate,
+        predicted_rate=predicted,
+        predicted_simulations=simulations,
+        mc_se=se,
+        tolerance=AGREEMENT_SE * se,
+        agrees=abs(rate - predicted) <= AGREEMENT_SE * se,
+    )
 
 
 def _coverage(true_value: float, intervals: list[tuple[float, float] | None]) -> Coverage:
