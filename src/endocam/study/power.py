@@ -28,9 +28,9 @@ seeded per (seed, n)), runs the analysis's own steps on each (the per-condition 
 of a power p is :math:`\sqrt{p(1-p)/S}`. Holm's adjustment is applied to all simulations at once
 by :func:`holm_batch` (the formula of ``statsmodels``' ``multipletests(method="holm")``, against
 which it is tested: ``multipletests`` runs a full garbage collection on every call, 0.1–0.5 s,
-too slow for thousands of studies; :func:`endocam.study.analysis.holm` is the analysis's own,
-one study at a time, so that the two stay independent and ``simulate.rate_check`` can catch a
-mistake in either).
+too slow for thousands of studies; the analysis's own :func:`endocam.study.analysis.holm` calls
+``multipletests``, one study at a time, so that the two stay independent and
+``simulate.rate_check`` can catch a mistake in either).
 The sample size is the smallest n whose simulated power reaches the target: a coarse grid, then
 bisection, from ``MIN_N`` assessors up (a target already reached there is reported as such).
 With ≤ 13 pairs and ties (whole touches) scipy's Wilcoxon test is an exact permutation test,
