@@ -397,8 +397,7 @@ def test_the_pose_between_is_the_prediction_at_that_time() -> None:
 
 def test_the_prediction_stops_where_the_gap_closes(monkeypatch: pytest.MonkeyPatch) -> None:
     """A ring predicted to run into the wire is scored where its rim comes within the closing
-    gap (the wire stops it), not at the first pose past it, inside the wire; without the
-    clamp, that pose is scored."""
+    gap (the wire stops it), not at the first pose past it, inside the wire (at 4 mm)."""
     import endocam.control.policies.visible as visible
 
     wire = centred_wire()
@@ -415,14 +414,37 @@ def test_the_prediction_stops_where_the_gap_closes(monkeypatch: pytest.MonkeyPat
         scored.append(T.copy())  # the ring pose the candidates are scored on
         return real(window, radius, T, *rest)
 
-    for clamp, offset_m in ((True, 2.5e-3), (False, 4.0e-3)):
-        scored.clear()
-        monkeypatch.setattr(visible, "occluders", occluders)
-        context = PolicyContext(CAMERA, start, clear, rcm, DT, wire=wire, ring=RingConfig())
-        policy = VisiblePolicy(ControllerConfig(), VisibleConfig(contact_clamp=clamp))
+    monkeypatch.setattr(visible, "occluders", occluders)
+    context = PolicyContext(CAMERA, start, clear, rcm, DT, wire=wire, ring=RingConfig())
+    policy = VisiblePolicy(ControllerConfig(), VisibleConfig())
+    policy.reset(context)
+    policy._score([clear, inside], 0.0)
+    assert len(scored) == 1
+    np.testing.assert_allclose(scored[0][:3, 3], P_RING + 2.5e-3 * E_CONTACT, atol=ATOL_PRED_M)
+
+
+def test_the_default_horizon_reaches_a_touch_three_quarters_of_a_second_ahead() -> None:
+    """The default look-ahead (0.75 s over 4 poses, round 12) engages on a ring closing on
+    the wire at 3 mm/s whose gap closes ~0.7 s ahead; the 0.5 s pose alone (round 11's
+    default) is still 1.2 mm clear, beyond ``engage_clearance``, and is not scored."""
+    speed = 3.0e-3  # m/s towards the wire: the rim's clearance falls 1:1 from 3 mm
+    t_now = 0.1  # s, the step; the ring was accepted at 0 and at t_now
+    wire = centred_wire()
+    up_perp = np.array([0.0, 0.0, 1.0]) - N_RING[2] * N_RING
+    rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)
+    start = look_at_pose(P_RING + 0.045 * N_RING, P_RING)
+
+    def ring_at(t: float) -> np.ndarray:
+        return ring_pose(P_RING + speed * t * E_CONTACT, N_RING)
+
+    for cfg, engaged in (
+        (VisibleConfig(), True),
+        (VisibleConfig(lookahead=0.5, horizon_poses=1), False),
+    ):
+        context = PolicyContext(CAMERA, start, ring_at(0.0), rcm, DT, wire=wire, ring=RingConfig())
+        policy = VisiblePolicy(ControllerConfig(), cfg)
         policy.reset(context)
-        policy._score([clear, inside], 0.0)
-        monkeypatch.setattr(visible, "occluders", real)
-        assert len(scored) == 1
-        np.testing.assert_allclose(scored[0][:3, 3], P_RING + offset_m * E_CONTACT,
-                                   atol=ATOL_PRED_M)  # fmt: skip
+        policy._track.extend([(0.0, ring_at(0.0)), (t_now, ring_at(t_now))])
+        policy._score(policy._ahead_poses(ring_at(t_now), t_now, t_now), t_now)
+        assert (policy.idle_scorings == 0) is engaged
+        assert bool(policy.last_scores) is engaged
