@@ -49,6 +49,9 @@ class PerceptionConfig(BaseModel):
     Attributes
     ----------
     source : PerceptionSource
+    filter_alpha, filter_beta : float
+        The alpha-beta track filter between the estimator and the controller
+        (:class:`TrackFilter`).
     frame_rate : float
         The endoscope's frame rate, frames/s (≤ ``episode.control_rate``).
     processing_delay : float
@@ -78,6 +81,20 @@ class PerceptionConfig(BaseModel):
     image_model: bool = Field(
         True, description="Apply the image model (noise, blur, highlights, gain) (stereo)."
     )
+    filter_alpha: float = Field(
+        0.35,
+        gt=0.0,
+        le=1.0,
+        description="Alpha-beta track filter on the estimates (stereo): the share of an "
+        "estimate's innovation taken into the pose (1 with beta 0: raw estimates).",
+    )
+    filter_beta: float = Field(
+        0.06,
+        ge=0.0,
+        lt=1.0,
+        description="Alpha-beta track filter (stereo): the share of the innovation per frame "
+        "period taken into the rates.",
+    )
 
     @property
     def stereo(self) -> bool:
@@ -100,19 +117,34 @@ def capture_steps(n: int, dt: float, frame_rate: float) -> np.ndarray:
     return np.unique(steps[steps < n])
 
 
-def estimate_in_world(est: RingEstimate, T_world_cam: FloatArray) -> FloatArray:
+def estimate_in_world(
+    est: RingEstimate, T_world_cam: FloatArray, n_world_prior: FloatArray | None = None
+) -> FloatArray:
     """(4, 4) the ring pose an estimate gives, world, m; its z the estimated face normal.
 
-    ``T_world_cam`` (4, 4): the camera (rig centre, optical frame) at the capture, m. The
-    normal keeps the estimator's sign (towards the camera); the ring's rotation about it is not
-    observable (a torus) and is set by the smallest rotation taking the world z to it.
+    ``T_world_cam`` (4, 4): the camera (rig centre, optical frame) at the capture, m. A ring
+    has no front: the normal takes the sign of ``n_world_prior`` (3,) (the track's last
+    normal, world), so the observations' normals do not flip when the camera changes side;
+    without a prior, the estimator's (towards the camera). The ring's rotation about the
+    normal is not observable (a torus): a rotation taking a world axis to it.
     """
     R_wc = T_world_cam[:3, :3]
     n = R_wc @ est.n_cam
-    n = n / np.linalg.norm(n)
+    if n_world_prior is not None and float(n @ n_world_prior) < 0.0:
+        n = -n
+    return ring_pose(R_wc @ est.p_cam_ring + T_world_cam[:3, 3], n)
+
+
+def ring_pose(p_world: FloatArray, n_world: FloatArray) -> FloatArray:
+    """(4, 4) a ring pose with centre ``p_world`` (3,), m, and face normal ``n_world`` (3,).
+
+    The normal is normalised; the rotation about it (not observable on a torus) takes a
+    world axis to the normal.
+    """
+    n = n_world / np.linalg.norm(n_world)
     T = np.eye(4)
     T[:3, :3] = _frame_with_z(n)
-    T[:3, 3] = R_wc @ est.p_cam_ring + T_world_cam[:3, 3]
+    T[:3, 3] = p_world
     return T
 
 
@@ -122,6 +154,42 @@ def _frame_with_z(n: FloatArray) -> FloatArray:
     x = np.cross(helper, n)
     x /= np.linalg.norm(x)
     return np.column_stack([x, np.cross(n, x), n])
+
+
+FILTER_RESET_S = 0.25  # s, a gap between estimates longer than this restarts the track filter
+
+
+class TrackFilter:
+    """An alpha-beta filter on the estimated ring centre and normal (world), per estimate.
+
+    The estimator's normal is noisy near the ring's axis (1–5°, docs/perception.md), more
+    than a tracker's noise the observation gate allows (``control.gate.FLOOR_RAD``); the
+    filter takes ``alpha`` of each innovation into the pose and ``beta / Δt`` of it into the
+    rates (constant-velocity prediction: no lag on a steady motion). A gap longer than
+    :data:`FILTER_RESET_S` restarts it at the estimate. ``alpha = 1, beta = 0``: the raw
+    estimates.
+    """
+
+    def __init__(self, alpha: float, beta: float) -> None:
+        self.alpha, self.beta = alpha, beta
+        self.t: float | None = None
+        self.x = np.zeros(6)  # centre (m), unit normal
+        self.v = np.zeros(6)  # their rates, m/s and 1/s
+
+    def update(self, t: float, p_world: FloatArray, n_world: FloatArray) -> FloatArray:
+        """The filtered (6,) centre (m) and unit normal after the estimate at ``t`` s."""
+        z = np.concatenate([p_world, n_world])
+        if self.t is None or not 0.0 < t - self.t <= FILTER_RESET_S:
+            self.x, self.v = z, np.zeros(6)
+        else:
+            dt = t - self.t
+            predicted = self.x + self.v * dt
+            r = z - predicted
+            self.x = predicted + self.alpha * r
+            self.v = self.v + (self.beta / dt) * r
+            self.x[3:] /= np.linalg.norm(self.x[3:])
+        self.t = t
+        return self.x.copy()
 
 
 @dataclass(frozen=True)

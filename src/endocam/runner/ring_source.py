@@ -33,8 +33,10 @@ from endocam.perception.image_model import ImageModelConfig, degrade
 from endocam.perception.loop import (
     CAPTURE_TOL_S,
     EstimateLog,
+    TrackFilter,
     capture_steps,
     estimate_in_world,
+    ring_pose,
 )
 from endocam.robot.actuator import ArmKind
 from endocam.runner.step import EpisodeWorld
@@ -85,6 +87,7 @@ class StereoSource:
         self.image = ImageModelConfig() if per.image_model else None
         self.rng = np.random.default_rng((seed, IMAGE_STREAM))
         self.delay = ep.sensing_latency + per.processing_delay
+        self.filter = TrackFilter(per.filter_alpha, per.filter_beta)
         self.dt = 1.0 / ep.control_rate
         self._rim = _rim(config.task.ring.major_radius)
         n = world.n
@@ -156,7 +159,9 @@ class StereoSource:
         self.frame_ok.append(out.estimate is not None)
         if out.estimate is not None:
             t = float(world.t[k])
-            T_est = estimate_in_world(out.estimate, T_world_cam)
+            T_est = estimate_in_world(out.estimate, T_world_cam, self._last[1])
+            x = self.filter.update(t, T_est[:3, 3], T_est[:3, 2])
+            T_est = ring_pose(x[:3], x[3:])
             self._pending.append(_Pending(t + self.delay, t, T_est))
             self._last = (t, T_est[:3, 2])
 
