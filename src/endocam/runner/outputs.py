@@ -295,7 +295,8 @@ def episode_columns(result: EpisodeResult) -> dict[str, np.ndarray]:
         cols["est_ok"] = est.ok.astype(int)
         cols["est_age_s"] = log.t - est.t_capture
     cols["reason"] = np.array(log.reason, dtype=object)
-    names = episode_column_names(ArmKind(log.arm), est is not None)
+    carrier = ArmKind(log.arm)
+    names = episode_column_names(carrier) if est is None else episode_column_names(carrier, True)
     if set(cols) != set(names):
         drift = sorted(set(cols).symmetric_difference(names))
         raise RuntimeError(f"episode.csv columns drifted from the log schema: {drift}")
