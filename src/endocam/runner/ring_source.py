@@ -44,6 +44,7 @@ from endocam.sim.render import WireChaserScene
 
 RIM_POINTS = 24  # points on the ring's core circle: the highlights' candidate sites
 PRIOR_MAX_AGE = 0.2  # s, the last estimate settles an ambiguous normal for this long
+MAX_BLUR_PX = 48.0  # px, the longest motion blur applied: past it the ring is a smear either way
 IMAGE_STREAM = 26  # the image model's stream of the run's seed (issue 26), apart from others
 
 
@@ -186,6 +187,9 @@ class StereoSource:
             uv0 = cam.project(self._prev_cam, world.T_world_ring[k - 1, :3, 3], eye)
             if np.all(np.isfinite(uv0)) and np.all(np.isfinite(uv1)):
                 velocity = (uv1 - uv0) / self.dt
+        blur = float(np.hypot(*velocity)) * self.image.exposure
+        if blur > MAX_BLUR_PX:  # a jump of the projection (near the eye's plane), not a blur
+            velocity *= MAX_BLUR_PX / blur
         rim = self._rim @ T_ring[:3, :3].T + T_ring[:3, 3]
         sites = cam.project(T_world_cam, rim, eye)
         sites = sites[np.all(np.isfinite(sites), axis=1)]
