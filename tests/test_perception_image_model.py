@@ -111,3 +111,11 @@ def test_bad_configs_are_refused(kwargs: dict) -> None:
 def test_a_non_image_is_refused() -> None:
     with pytest.raises(ValueError, match="image"):
         motion_blur(np.zeros((4, 4)), (2.0, 0.0))
+
+
+def test_a_blur_longer_than_the_image_is_shortened_to_its_diagonal() -> None:
+    img = np.zeros((24, 32, 3), dtype=np.uint8)
+    img[12, 16] = 255
+    huge = motion_blur(img, (1e7, 0.0))  # a square kernel this long would need 4e14 bytes
+    diagonal = motion_blur(img, (40.0, 0.0))  # the 24x32 image's diagonal: 40 px
+    assert np.array_equal(huge, diagonal)

@@ -19,6 +19,7 @@ from endocam.camera import DEFAULT_BASELINE, DEFAULT_FOVY, Intrinsics, StereoCam
 from endocam.control.config import ControllerConfig
 from endocam.faults import FaultsConfig
 from endocam.geometry import FloatArray, R_from_euler_xyz, make_pose
+from endocam.perception.loop import PerceptionConfig
 from endocam.robot.actuator import ArmKind
 from endocam.robot.cartesian import MotionLimits
 from endocam.task.config import TaskConfig
@@ -111,6 +112,11 @@ class ExperimentConfig(BaseModel):
         default_factory=FaultsConfig,
         description="Injected sensor and actuator faults (all off by default).",
     )
+    perception: PerceptionConfig = Field(
+        default_factory=PerceptionConfig,
+        description="Where the controller's ring pose comes from: 'truth' or the stereo "
+        "estimator on the rendered images (docs/perception.md).",
+    )
 
     @model_validator(mode="after")
     def _bounded(self) -> ExperimentConfig:
@@ -126,6 +132,24 @@ class ExperimentConfig(BaseModel):
                 f"controller.ring_max_age ({self.controller.ring_max_age} s): every ring pose "
                 "would be too old to act on"
             )
+        per, ep = self.perception, self.episode
+        if per.stereo:
+            if self.faults.any:
+                raise ValueError(
+                    "faults: not supported with perception.source 'stereo' yet (the faults "
+                    "rewrite the true sensed poses; use perception.source 'truth')"
+                )
+            if per.frame_rate > ep.control_rate:
+                raise ValueError(
+                    f"perception.frame_rate ({per.frame_rate:g}/s) must not exceed "
+                    f"episode.control_rate ({ep.control_rate:g}/s)"
+                )
+            if not ep.sensing_latency + per.processing_delay < self.controller.ring_max_age:
+                raise ValueError(
+                    f"episode.sensing_latency + perception.processing_delay "
+                    f"({ep.sensing_latency + per.processing_delay:g} s) must be less than "
+                    f"controller.ring_max_age ({self.controller.ring_max_age} s)"
+                )
         return self
 
 

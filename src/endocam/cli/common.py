@@ -9,13 +9,20 @@ import argparse
 from pathlib import Path
 from typing import NoReturn
 
-from endocam.config import ExperimentConfig, load_config, load_faults
+from endocam.config import ExperimentConfig, config_from_mapping, load_config, load_faults
+from endocam.perception.loop import PerceptionSource
 from endocam.robot.carriers import ArmKind
 
 EXIT_USAGE = 2
 EXIT_INTERNAL = 1
 EXIT_UNSAFE = 3  # a run or experiment wrote its results, and its safety check found violations
 ARM_CHOICES = tuple(k.value for k in ArmKind)  # the carrier choices, from their one source
+PERCEPTION_CHOICES = tuple(s.value for s in PerceptionSource)  # --perception
+PERCEPTION_HELP = (
+    "where the controller's ring pose comes from: truth (the simulator's, sensing_latency "
+    "late) or stereo (the estimator on the rendered stereo images; docs/perception.md); "
+    "default: the config's perception.source (truth)"
+)
 MAX_WORKERS = 64  # count: --workers
 
 
@@ -64,6 +71,26 @@ def with_faults(config: ExperimentConfig, path: str | None) -> ExperimentConfig:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     return config.model_copy(update={"faults": faults})
+
+
+def with_perception(config: ExperimentConfig, source: str | None) -> ExperimentConfig:
+    """``config`` with ``perception.source`` replaced by ``--perception``, if given.
+
+    Validated as a whole (a :class:`UsageError` of one line, e.g. stereo with faults).
+    """
+    if source is None:
+        return config
+    data = config.model_dump(mode="json")
+    data["perception"]["source"] = source
+    try:
+        return config_from_mapping(data, "--perception")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def perception_arg(parser: argparse.ArgumentParser) -> None:
+    """Add ``--perception truth|stereo`` (:func:`with_perception`) to ``parser``."""
+    parser.add_argument("--perception", choices=PERCEPTION_CHOICES, help=PERCEPTION_HELP)
 
 
 def out_dir(path: str) -> Path:

@@ -17,7 +17,9 @@ from endocam.cli.common import (
     integer,
     load_config_arg,
     out_dir,
+    perception_arg,
     with_faults,
+    with_perception,
 )
 from endocam.cli.export import export_runs, require_mcap
 from endocam.config import ExperimentConfig
@@ -33,7 +35,8 @@ MAX_EXTRA_SEEDS = 1000  # count: --seeds of experiment tracking
 
 def _config(args: argparse.Namespace) -> ExperimentConfig:
     cfg = load_config_arg(getattr(args, "config", None))
-    return with_faults(cfg, getattr(args, "faults", None))
+    cfg = with_faults(cfg, getattr(args, "faults", None))
+    return with_perception(cfg, getattr(args, "perception", None))
 
 
 def _control_points(n: int) -> None:
@@ -233,6 +236,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--config", help="TOML or YAML config file (see `endocam config`)")
     _faults_arg(p)
+    perception_arg(p)
     _mcap_arg(p)
     p.set_defaults(handler=_run)
 
@@ -245,6 +249,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--seed", type=integer, default=DEFAULT_SEED, help=SEED_HELP)
     d.add_argument("--no-video", action="store_true", help="skip the videos")
     d.add_argument("--config", help="TOML or YAML config file")
+    perception_arg(d)
     _mcap_arg(d)
     d.set_defaults(handler=_demo)
 
@@ -299,6 +304,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     et.add_argument("--workers", type=integer, default=2, help="worker processes (default 2)")
     et.add_argument("--config", help="TOML or YAML config file")
     _faults_arg(et)
+    perception_arg(et)
     _mcap_arg(et)
     et.set_defaults(handler=_tracking)
     ef = esub.add_parser(

@@ -7,6 +7,7 @@ from typing import Any
 
 from endocam.cli.common import (
     ARM_CHOICES,
+    PERCEPTION_CHOICES,
     UsageError,
     check_workers,
     integer,
@@ -72,6 +73,13 @@ def _short_forms(args: argparse.Namespace) -> dict[str, Any]:
         bad = [a for a in grid["arm"] if a not in ARM_CHOICES]
         if bad:
             raise UsageError(f"unknown arm {bad[0]!r}; choose from: {', '.join(ARM_CHOICES)}")
+    if args.perception:
+        grid["perception.source"] = _list(args.perception)
+        bad = [v for v in grid["perception.source"] if v not in PERCEPTION_CHOICES]
+        if bad:
+            raise UsageError(
+                f"unknown perception {bad[0]!r}; choose from: {', '.join(PERCEPTION_CHOICES)}"
+            )
     for item in args.set or []:
         path, sep, values = item.partition("=")
         if not sep or not path.strip():
@@ -150,6 +158,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--control-points", help="comma-separated counts (default 71)")
     s.add_argument("--seeds", help="e.g. 0-99 or 0,3,7 (default 1)")
     s.add_argument("--arm", help="comma-separated carriers: free, psm, ecm (default the config's)")
+    s.add_argument(
+        "--perception",
+        help="comma-separated ring pose sources: truth, stereo (default the config's, truth)",
+    )
     s.add_argument(
         "--set",
         action="append",

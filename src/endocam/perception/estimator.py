@@ -121,6 +121,10 @@ class EstimatorConfig:
     ambiguous_separation : float
         ... required where the two candidates are farther apart than this, rad (closer
         candidates are both near the truth).
+    prior_fraction : float
+        An ambiguous choice is settled by a prior normal (the track's, e.g. the last
+        estimate) when one hypothesis lies within this fraction of the hypotheses' separation
+        of it (the other then lies about ``1 - prior_fraction`` of it away), in (0, 0.5).
     """
 
     min_coverage: float = 0.5
@@ -132,10 +136,13 @@ class EstimatorConfig:
     min_normal_margin: float = math.radians(2.0)
     margin_depth: float = 0.06
     ambiguous_separation: float = math.radians(20.0)
+    prior_fraction: float = 0.25
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_coverage <= 1.0:
             raise ValueError(f"min_coverage must be in (0, 1], got {self.min_coverage}")
+        if not 0.0 < self.prior_fraction < 0.5:
+            raise ValueError(f"prior_fraction must be in (0, 0.5), got {self.prior_fraction}")
         if not 0.0 < self.depth_range[0] < self.depth_range[1]:
             raise ValueError(f"depth_range must be 0 < near < far m, got {self.depth_range}")
         for name in (
@@ -285,8 +292,16 @@ def estimate_ring_detail(
     right: NDArray[np.generic],
     model: RingModel,
     config: EstimatorConfig | None = None,
+    prior: FloatArray | None = None,
 ) -> EstimateResult:
-    """:func:`estimate_ring_pose` with the reason when there is no estimate (same parameters)."""
+    """:func:`estimate_ring_pose` with the reason when there is no estimate (same parameters).
+
+    ``prior`` (3,): a unit normal in the camera frame the ring is expected to have (a
+    tracker's last estimate, carried to this camera pose), or None. It only settles a choice
+    of normal the second eye leaves ambiguous, and only when one hypothesis lies within
+    ``config.prior_fraction`` of their separation of it (:func:`settle_choice`); everything
+    else is as without.
+    """
     cfg = EstimatorConfig() if config is None else config
     k = model.camera.intrinsics
     shape = (k.height, k.width)
@@ -330,7 +345,10 @@ def estimate_ring_detail(
         return EstimateResult(None, EstimateStatus.NORMALS_DISAGREE)
     needed = cfg.min_normal_margin * max(1.0, z / cfg.margin_depth)
     if choice.separation > cfg.ambiguous_separation and choice.margin < needed:
-        return EstimateResult(None, EstimateStatus.AMBIGUOUS)
+        settled = settle_choice(choice, prior, cfg.prior_fraction * choice.separation)
+        if settled is None or settled.disagreement > cfg.max_normal_disagreement:
+            return EstimateResult(None, EstimateStatus.AMBIGUOUS)
+        n, disagreement = settled.n, settled.disagreement
     p = _triangulate(conics[0], conics[1], n, model.camera)
     if p is None or not cfg.depth_range[0] <= p[2] <= cfg.depth_range[1]:
         return EstimateResult(None, EstimateStatus.BAD_DEPTH)
@@ -366,12 +384,37 @@ class NormalChoice(NamedTuple):
     separation : float
         The angle between the two candidates of the left eye, rad (about twice the viewing
         angle): what a wrong choice would cost.
+    other : (3,)
+        The other hypothesis: the unit mean of its best-agreeing pair, camera frame.
     """
 
     n: FloatArray
     disagreement: float
     margin: float
     separation: float
+    other: FloatArray
+
+
+def settle_choice(
+    choice: NormalChoice, prior: FloatArray | None, tolerance: float
+) -> NormalChoice | None:
+    """An ambiguous :class:`NormalChoice` settled by a ``prior`` unit normal (3,), or None.
+
+    The hypothesis within ``tolerance`` (rad) of the prior (up to sign) is taken, if exactly
+    one is; its ``disagreement`` is its pair's (the best one's plus the margin for the other).
+    """
+    if prior is None:
+        return None
+    near = [
+        math.acos(min(1.0, abs(float(h @ prior)))) <= tolerance for h in (choice.n, choice.other)
+    ]
+    if near == [True, False]:
+        return choice
+    if near == [False, True]:
+        return choice._replace(
+            n=choice.other, other=choice.n, disagreement=choice.disagreement + choice.margin
+        )
+    return None
 
 
 def choose_normal(
@@ -395,9 +438,15 @@ def choose_normal(
         j = int(np.argmax(cos))
         per_left.append((math.acos(cos[j]), a + right[j]))
     (d0, s0), (d1, s1) = per_left
-    best, other, s = (d0, d1, s0) if d0 <= d1 else (d1, d0, s1)
+    best, other, s, s_other = (d0, d1, s0, s1) if d0 <= d1 else (d1, d0, s1, s0)
     separation = math.acos(float(np.clip(left[0] @ left[1], -1.0, 1.0)))
-    return NormalChoice(np.asarray(s / np.linalg.norm(s)), best, other - best, separation)
+    return NormalChoice(
+        np.asarray(s / np.linalg.norm(s)),
+        best,
+        other - best,
+        separation,
+        np.asarray(s_other / np.linalg.norm(s_other)),
+    )
 
 
 def _triangulate(

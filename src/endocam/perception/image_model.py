@@ -77,13 +77,17 @@ def motion_blur(image: NDArray[np.uint8], blur_px: ArrayLike) -> NDArray[np.uint
     """``image`` (H, W, 3) uint8 smeared along ``blur_px`` (2,) = (du, dv), px, centred.
 
     A box kernel along the segment (anti-aliased line of length ``|blur_px|``); under one pixel
-    returns a copy.
+    returns a copy. A blur longer than the image's diagonal is shortened to it (a longer one
+    smears the image no more, and its square kernel would grow without bound).
     """
     img = _check_image(image)
     d = np.asarray(blur_px, dtype=float).reshape(2)
     if not np.all(np.isfinite(d)):
         raise ValueError(f"blur_px must be finite, got {d}")
     length = float(np.hypot(*d))
+    diagonal = float(np.hypot(*img.shape[:2]))
+    if length > diagonal:
+        d, length = d * (diagonal / length), diagonal
     if length < 1.0:
         return img.copy()
     half = math.ceil(0.5 * length) + 1

@@ -14,6 +14,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,6 +38,9 @@ from endocam.task.layout import overview_camera_pose
 from endocam.task.touches import TouchReport, touch_events
 from endocam.task.trajectory import RingTrajectory, TrajectoryKind, make_trajectory
 from endocam.task.wire import Wire
+
+if TYPE_CHECKING:
+    from endocam.perception.loop import EstimateLog
 
 UNREACHABLE = "unreachable"
 """Log state of a step whose goal the carrier concedes (``ActuatorStep.reachable`` is false)."""
@@ -95,7 +99,8 @@ class EpisodeLog:
     T_world_ring : (N, 4, 4)
         True ring pose (ring z = face normal), m.
     T_world_ring_sensed : (N, 4, 4)
-        Ring pose the policy saw (delayed by the sensing latency), m.
+        The true ring pose delayed by the sensing latency (faults applied), m: what the policy
+        saw on ``perception.source = "truth"`` (on ``stereo``: ``estimates.T_world_ring_seen``).
     T_world_cam : (N, 4, 4)
         Camera (optical frame) pose at the start of each step, m.
     T_world_cmd : (N, 4, 4)
@@ -128,6 +133,9 @@ class EpisodeLog:
     fault : (N,) or None
         Injected faults active at each step (:mod:`endocam.faults`), ``+``-joined; ``None``
         (logged as empty) without faults.
+    estimates : EstimateLog or None
+        On ``perception.source = "stereo"``: the estimates delivered per step and the frames
+        (:mod:`endocam.perception.loop`); ``None`` on ``truth``.
     """
 
     t: FloatArray
@@ -147,6 +155,7 @@ class EpisodeLog:
     goal_position_error: FloatArray | None = None
     goal_orientation_error: FloatArray | None = None
     fault: np.ndarray | None = None
+    estimates: EstimateLog | None = None
 
 
 @dataclass(frozen=True)
@@ -250,6 +259,7 @@ def run_episode(
     ep = config.episode
     dt = 1.0 / ep.control_rate
     world = episode_world(config, trajectory)
+    true_world = world  # what a stereo source renders (the faults below rewrite the sensing)
     n, t, T_ring = world.n, world.t, world.T_world_ring
     T_overview = overview_camera_pose(config.task, camera)
     kind = episode_arm(config, spec.policy)
@@ -287,15 +297,24 @@ def run_episode(
         )
     )
 
-    loop = EpisodeLoop(world, carrier, step_faults)
+    stereo = None
+    if config.perception.stereo:  # renders (MuJoCo): imported for a stereo run only
+        from endocam.runner.ring_source import StereoSource
+
+        stereo = StereoSource(config, true_world, kind, spec.seed, world.T_world_ring_sensed[0])
+    loop = EpisodeLoop(world, carrier, step_faults, stereo)
     log = StepRecorder(n, kind, len(actuator.joint_names))
     chunk = max(1, n // 100)
     observe, policy_step, loop_step, record = loop.observation, policy.step, loop.step, log.record
-    for k in range(n):
-        cmd = policy_step(observe())
-        record(cmd, loop_step(cmd))
-        if progress is not None and (k + 1) % chunk == 0:
-            progress(chunk)
+    try:
+        for k in range(n):
+            cmd = policy_step(observe())
+            record(cmd, loop_step(cmd))
+            if progress is not None and (k + 1) % chunk == 0:
+                progress(chunk)
+    finally:
+        if stereo is not None:
+            stereo.close()
     if progress is not None and n % chunk:
         progress(n % chunk)
 
@@ -319,6 +338,7 @@ def run_episode(
         goal_position_error=np.array(log.pos_err, dtype=float) if jointed else None,
         goal_orientation_error=np.array(log.ori_err, dtype=float) if jointed else None,
         fault=schedule.labels() if schedule is not None else None,
+        estimates=stereo.log() if stereo is not None else None,
     )
     return EpisodeResult(
         config=config,

@@ -75,12 +75,26 @@ def joint_column(joint: str) -> str:
     return f"q_{joint}"
 
 
-def episode_column_names(carrier: ArmKind) -> tuple[str, ...]:
+ESTIMATE_COLUMNS = (
+    *xyz_names("est"),
+    "est_nx",
+    "est_ny",
+    "est_nz",
+    "est_ok",
+    "est_age_s",
+)
+"""A stereo run's estimate columns: the estimated ring centre (world, m) and unit face normal
+(world) delivered at the step, ``est_ok`` 1 where one was, ``est_age_s`` its age (the step's
+time less its capture time, s); empty where none."""
+
+
+def episode_column_names(carrier: ArmKind, estimates: bool = False) -> tuple[str, ...]:
     """``episode.csv``'s columns, in order, for a camera carried by ``carrier``.
 
     Poses are world, m, quaternions scalar first; ``q_<joint>`` rad or m (an arm's joints),
     ``goal_conceded_mm`` / ``_deg`` (an arm's distance from the commanded goal), the tracking
-    errors in the units their names give.
+    errors in the units their names give; with ``estimates`` (``perception.source =
+    "stereo"``), :data:`ESTIMATE_COLUMNS` before ``reason``.
     """
     arm: tuple[str, ...] = ()
     if carrier is not ArmKind.FREE:
@@ -108,18 +122,28 @@ def episode_column_names(carrier: ArmKind) -> tuple[str, ...]:
         "image_error_px",
         "center_error_mm",
         "orientation_error_deg",
+        *(ESTIMATE_COLUMNS if estimates else ()),
         "reason",
     )
 
 
-def log_section(carrier: ArmKind, duration: float, control_period: float) -> dict[str, Any]:
-    """``scene.json``'s ``log`` section: what the run's ``episode.csv`` must be (SI)."""
-    return {
+def log_section(
+    carrier: ArmKind, duration: float, control_period: float, estimates: bool = False
+) -> dict[str, Any]:
+    """``scene.json``'s ``log`` section: what the run's ``episode.csv`` must be (SI).
+
+    ``"estimates": true`` only for a run with :data:`ESTIMATE_COLUMNS` (a truth run's section
+    is as before them).
+    """
+    section: dict[str, Any] = {
         "format": LOG_FORMAT,
         "carrier": carrier.value,
         "duration": float(duration),
         "control_period": float(control_period),
     }
+    if estimates:
+        section["estimates"] = True
+    return section
 
 
 @dataclass(frozen=True)
@@ -134,11 +158,14 @@ class LogHeader:
         The trajectory's duration, s.
     control_period : float
         Time between logged steps, s.
+    estimates : bool
+        The log has :data:`ESTIMATE_COLUMNS` (a stereo run).
     """
 
     carrier: ArmKind
     duration: float
     control_period: float
+    estimates: bool = False
 
     @property
     def steps(self) -> int:
@@ -181,7 +208,12 @@ class LogHeader:
                     f"{where}: log {key} {value!r} is not a positive number (s)"
                 )
             values[key] = float(value)
-        return cls(ArmKind(section["carrier"]), values["duration"], values["control_period"])
+        estimates = section.get("estimates", False)
+        if not isinstance(estimates, bool):
+            raise MalformedLogError(f"{where}: log estimates {estimates!r} is not true or false")
+        return cls(
+            ArmKind(section["carrier"]), values["duration"], values["control_period"], estimates
+        )
 
 
 def validate_header(header: LogHeader, names: Sequence[str], where: str) -> None:
@@ -194,7 +226,7 @@ def validate_header(header: LogHeader, names: Sequence[str], where: str) -> None
     repeated = [n for n, count in Counter(names).items() if count > 1]
     if repeated:
         raise MalformedLogError(f"{where}: column {repeated[0]} appears more than once")
-    expected = episode_column_names(header.carrier)
+    expected = episode_column_names(header.carrier, header.estimates)
     missing = [n for n in expected if n not in names]
     extra = [n for n in names if n not in expected]
     carrier = header.carrier.value

@@ -34,6 +34,7 @@ from endocam import __version__
 from endocam.control.types import TrackingState
 from endocam.geometry import FloatArray, quat_wxyz_from_R
 from endocam.metrics import summarize
+from endocam.perception.loop import estimation_summary
 from endocam.robot.actuator import ArmKind
 from endocam.runner.check import (
     CHECK_JSON,
@@ -249,7 +250,10 @@ def scene_dict(result: EpisodeResult) -> dict[str, Any]:
             "seed": result.spec.seed,
         },
         "log": log_section(
-            ArmKind(result.log.arm), result.trajectory.duration, 1.0 / cfg.episode.control_rate
+            ArmKind(result.log.arm),
+            result.trajectory.duration,
+            1.0 / cfg.episode.control_rate,
+            result.log.estimates is not None,
         ),
         "config": cfg.model_dump(mode="json"),
         "endocam_version": __version__,
@@ -284,8 +288,15 @@ def episode_columns(result: EpisodeResult) -> dict[str, np.ndarray]:
     cols["image_error_px"] = result.image_error  # raw: NaN behind the camera
     cols["center_error_mm"] = result.center_error * 1e3
     cols["orientation_error_deg"] = np.degrees(result.orientation_error)
+    est = log.estimates
+    if est is not None:  # a stereo run: the estimates delivered, empty where none
+        cols.update(zip(xyz_names("est"), est.p_world.T, strict=True))
+        cols.update(zip(("est_nx", "est_ny", "est_nz"), est.n_world.T, strict=True))
+        cols["est_ok"] = est.ok.astype(int)
+        cols["est_age_s"] = log.t - est.t_capture
     cols["reason"] = np.array(log.reason, dtype=object)
-    names = episode_column_names(ArmKind(log.arm))
+    carrier = ArmKind(log.arm)
+    names = episode_column_names(carrier) if est is None else episode_column_names(carrier, True)
     if set(cols) != set(names):
         drift = sorted(set(cols).symmetric_difference(names))
         raise RuntimeError(f"episode.csv columns drifted from the log schema: {drift}")
@@ -373,6 +384,11 @@ def metrics_dict(result: EpisodeResult) -> dict[str, Any]:
             "duration_s": float(result.trajectory.duration),
             "control_steps": len(result.log.t),
         },
+        **(
+            {"perception": estimation_summary(result.log.estimates, result.trajectory.poses)}
+            if result.log.estimates is not None
+            else {}
+        ),
         "config": result.config.model_dump(mode="json"),
         "endocam_version": __version__,
     }

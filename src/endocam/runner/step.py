@@ -9,6 +9,10 @@ a named :class:`StepRecord` (the log's row). The episode runner's policy supplie
 in :func:`endocam.runner.episode.run_episode`; the environment's agent supplies it (a set point
 moved by the action) in :class:`endocam.envs.wire_chaser.WireChaserEnv`. Both therefore tell the
 carrier the same things.
+
+What the controller senses of the ring comes from a :class:`RingSource` the loop asks each
+step: :class:`TruthSource` (the world's delayed true pose, the default) or the stereo
+estimator's ``endocam.runner.ring_source.StereoSource`` (``perception.source = "stereo"``).
 """
 
 from __future__ import annotations
@@ -129,6 +133,32 @@ def start_carrier(
     return Carrier(actuator, workspace, T_now)
 
 
+class RingSource(Protocol):
+    """What the controller senses of the ring, asked once or more per control step."""
+
+    def sense(self, k: int, T_world_cam: FloatArray, q: FloatArray) -> tuple[FloatArray, float]:
+        """The ring pose the controller has at step ``k`` and its capture stamp.
+
+        ``T_world_cam`` (4, 4): the camera pose at the start of the step, world, m; ``q``
+        (J,): the carrier's joints then (rad / m). Returns ``T_world_ring`` (4, 4), world, m
+        (all NaN: nothing sensed yet) and ``t_ring``, s. Asking again for the same ``k`` gives
+        the same answer.
+        """
+        ...
+
+
+class TruthSource:
+    """The world's sensed ring pose: the true pose ``sensing_latency`` late (faults applied)."""
+
+    def __init__(self, world: EpisodeWorld) -> None:
+        self._t_ring = world.t_ring.tolist()
+        self._sensed = list(world.T_world_ring_sensed)
+
+    def sense(self, k: int, T_world_cam: FloatArray, q: FloatArray) -> tuple[FloatArray, float]:
+        """Row ``k`` of the world's sensed poses and stamps (the camera plays no part)."""
+        return self._sensed[k], self._t_ring[k]
+
+
 class Command(Protocol):
     """What :meth:`EpisodeLoop.step` reads of a command (a policy's ``CameraCommand`` is one)."""
 
@@ -200,6 +230,8 @@ class EpisodeLoop:
         From :func:`start_carrier`.
     faults : StepFaults, optional
         In-loop fault injection (overruns, goals beyond reach, stalled joints).
+    source : RingSource, optional
+        What the controller senses of the ring; default :class:`TruthSource` of ``world``.
 
     Attributes
     ----------
@@ -212,7 +244,11 @@ class EpisodeLoop:
     """
 
     def __init__(
-        self, world: EpisodeWorld, carrier: Carrier, faults: StepFaults | None = None
+        self,
+        world: EpisodeWorld,
+        carrier: Carrier,
+        faults: StepFaults | None = None,
+        source: RingSource | None = None,
     ) -> None:
         self.world = world
         self.actuator = carrier.actuator
@@ -224,10 +260,9 @@ class EpisodeLoop:
         self.q = carrier.actuator.q
         self.reach_offset: FloatArray | None = None
         """How far the carrier's last target lay from its command, m (``None`` without joints)."""
+        self.source: RingSource = TruthSource(world) if source is None else source
         # per step: plain floats and row views made once
         self._t = world.t.tolist()
-        self._t_ring = world.t_ring.tolist()
-        self._sensed = list(world.T_world_ring_sensed)
         self._tips = list(world.p_world_tips)
 
     @property
@@ -238,32 +273,30 @@ class EpisodeLoop:
     def observation(self) -> Observation:
         """What a policy sees at the current step (the sensed ring, the camera, the tips)."""
         k = self.k
+        T_ring, t_ring = self.source.sense(k, self.T_world_cam, self.q)
         # Observation(...) without its Python-level __new__ (no checks): this runs every step
         return tuple.__new__(
             Observation,
-            (
-                self._t[k],
-                self._sensed[k],
-                self.T_world_cam,
-                self._tips[k],
-                self.reach_offset,
-                self._t_ring[k],
-            ),
+            (self._t[k], T_ring, self.T_world_cam, self._tips[k], self.reach_offset, t_ring),
         )
 
     def step(self, command: Command) -> StepRecord:
         """One control period: the carrier heads for ``command``; the world moves on one row.
 
         The carrier is told the command's pose, its velocity and the distance to the point it
-        looks at (:func:`endocam.view.look_distance` of the sensed ring; a carrier without
-        joints pivots no view and is told ``d_f``).
+        looks at (:func:`endocam.view.look_distance` of the sensed ring, the source's; a
+        carrier without joints pivots no view and is told ``d_f``).
         """
         k = self.k
         if k >= len(self._t):
             raise RuntimeError("the episode has ended")
         T_goal, twist = command.T_world_cam, command.twist
         jointed = self.jointed
-        look = look_distance(T_goal, self._sensed[k], command.d_f) if jointed else command.d_f
+        if jointed:
+            T_ring = self.source.sense(k, self.T_world_cam, self.q)[0]
+            look = look_distance(T_goal, T_ring, command.d_f)
+        else:
+            look = command.d_f
         if self.faults is None:
             out = self.actuator.step(T_goal, look, twist)
         else:

@@ -1,0 +1,284 @@
+"""The control loop on perception: its settings, its frame schedule and what it logs.
+
+With ``perception.source = "stereo"`` an episode's controller is fed what the stereo endoscope
+sees (docs/perception.md, "The loop on perception")::
+
+    capture (both eyes at the camera pose of the capture step, every 1/frame_rate s)
+      → image model (seeded from the run's seed) → estimator (camera frame)
+      → world frame through the camera pose at capture → delay (sensing_latency +
+        processing_delay) → the observation, stamped with the capture time
+      → the controller's checks (stale pose, the observation gate) → the controller
+
+This module holds the parts that need no renderer: :class:`PerceptionConfig`, the capture
+steps (:func:`capture_steps`), the estimate in world (:func:`estimate_in_world`), the
+per-step log (:class:`EstimateLog`) and its error summary (:func:`estimation_summary`). The
+source that renders, runs the estimator and delivers is ``endocam.runner.ring_source``.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from endocam.geometry import FloatArray
+
+if TYPE_CHECKING:
+    from endocam.perception.estimator import RingEstimate
+
+CAPTURE_TOL_S = 1e-9  # s, a frame due within this of a control step is captured at that step
+MEASURED_PROCESSING_S = 0.010
+"""s: the estimator's time per pair, bench/perception_estimator.py's median wall time on a
+shared 2-core machine (7.7–9.7 ms over round 11's runs), rounded up: the default delay."""
+
+
+class PerceptionSource(enum.Enum):
+    """Where the controller's ring pose comes from."""
+
+    TRUTH = "truth"  # the simulator's true pose, ``episode.sensing_latency`` late
+    STEREO = "stereo"  # the stereo estimator on the rendered, degraded endoscope images
+
+
+class PerceptionConfig(BaseModel):
+    """How the controller perceives the ring (frozen; ``truth``: as every run before).
+
+    Attributes
+    ----------
+    source : PerceptionSource
+    filter_alpha, filter_beta : float
+        The alpha-beta track filter between the estimator and the controller
+        (:class:`TrackFilter`).
+    frame_rate : float
+        The endoscope's frame rate, frames/s (≤ ``episode.control_rate``).
+    processing_delay : float
+        The estimator's processing time added to ``episode.sensing_latency``, s: stated, not
+        the wall clock, so a run repeats (the measured wall time is logged apart).
+    image_model : bool
+        Degrade the rendered images (``ImageModelConfig()`` defaults) before the estimator.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    source: PerceptionSource = Field(
+        PerceptionSource.TRUTH,
+        description="Ring pose source: 'truth' (the simulator's pose, sensing_latency late) or "
+        "'stereo' (the estimator on the rendered stereo images).",
+    )
+    frame_rate: float = Field(
+        30.0, gt=0.0, le=240.0, description="Endoscope frame rate (stereo), frames/s."
+    )
+    processing_delay: float = Field(
+        MEASURED_PROCESSING_S,
+        ge=0.0,
+        le=1.0,
+        description="Estimator processing time added to the sensing latency (stereo), s "
+        "(default: the bench's median, 7.7-9.7 ms, rounded up).",
+    )
+    image_model: bool = Field(
+        True, description="Apply the image model (noise, blur, highlights, gain) (stereo)."
+    )
+    filter_alpha: float = Field(
+        0.35,
+        gt=0.0,
+        le=1.0,
+        description="Alpha-beta track filter on the estimates (stereo): the share of an "
+        "estimate's innovation taken into the pose (1 with beta 0: raw estimates).",
+    )
+    filter_beta: float = Field(
+        0.06,
+        ge=0.0,
+        lt=1.0,
+        description="Alpha-beta track filter (stereo): the share of the innovation per frame "
+        "period taken into the rates.",
+    )
+
+    @property
+    def stereo(self) -> bool:
+        """Whether the controller is fed the stereo estimator's poses."""
+        return self.source is PerceptionSource.STEREO
+
+
+def capture_steps(n: int, dt: float, frame_rate: float) -> np.ndarray:
+    """(F,) int: the control steps at which the endoscope captures a frame.
+
+    Frame ``j`` is due at ``j / frame_rate`` s and is captured at the first control step at or
+    after it (within :data:`CAPTURE_TOL_S`); ``n`` steps of ``dt`` s. With ``frame_rate`` up to
+    ``1 / dt`` every frame has its own step.
+    """
+    if n <= 0:
+        return np.zeros(0, dtype=int)
+    duration = (n - 1) * dt
+    due = np.arange(0.0, duration + CAPTURE_TOL_S, 1.0 / frame_rate)
+    steps = np.ceil(due / dt - CAPTURE_TOL_S / dt).astype(int)
+    return np.unique(steps[steps < n])
+
+
+def estimate_in_world(
+    est: RingEstimate, T_world_cam: FloatArray, n_world_prior: FloatArray | None = None
+) -> FloatArray:
+    """(4, 4) the ring pose an estimate gives, world, m; its z the estimated face normal.
+
+    ``T_world_cam`` (4, 4): the camera (rig centre, optical frame) at the capture, m. A ring
+    has no front: the normal takes the sign of ``n_world_prior`` (3,) (the track's last
+    normal, world), so the observations' normals do not flip when the camera changes side;
+    without a prior, the estimator's (towards the camera). The ring's rotation about the
+    normal is not observable (a torus): a rotation taking a world axis to it.
+    """
+    R_wc = T_world_cam[:3, :3]
+    n = R_wc @ est.n_cam
+    if n_world_prior is not None and float(n @ n_world_prior) < 0.0:
+        n = -n
+    return ring_pose(R_wc @ est.p_cam_ring + T_world_cam[:3, 3], n)
+
+
+def ring_pose(p_world: FloatArray, n_world: FloatArray) -> FloatArray:
+    """(4, 4) a ring pose with centre ``p_world`` (3,), m, and face normal ``n_world`` (3,).
+
+    The normal is normalised; the rotation about it (not observable on a torus) takes a
+    world axis to the normal.
+    """
+    n = n_world / np.linalg.norm(n_world)
+    T = np.eye(4)
+    T[:3, :3] = _frame_with_z(n)
+    T[:3, 3] = p_world
+    return T
+
+
+def _frame_with_z(n: FloatArray) -> FloatArray:
+    """(3, 3) a rotation whose third column is the unit vector ``n`` (3,)."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, n)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(n, x), n])
+
+
+FILTER_RESET_S = 0.25  # s, a gap between estimates longer than this restarts the track filter
+
+
+class TrackFilter:
+    """An alpha-beta filter on the estimated ring centre and normal (world), per estimate.
+
+    The estimator's normal is noisy near the ring's axis (1–5°, docs/perception.md), more
+    than a tracker's noise the observation gate allows (``control.gate.FLOOR_RAD``); the
+    filter takes ``alpha`` of each innovation into the pose and ``beta / Δt`` of it into the
+    rates (constant-velocity prediction: no lag on a steady motion). A gap longer than
+    :data:`FILTER_RESET_S` restarts it at the estimate. ``alpha = 1, beta = 0``: the raw
+    estimates.
+    """
+
+    def __init__(self, alpha: float, beta: float) -> None:
+        self.alpha, self.beta = alpha, beta
+        self.t: float | None = None
+        self.x = np.zeros(6)  # centre (m), unit normal
+        self.v = np.zeros(6)  # their rates, m/s and 1/s
+
+    def update(self, t: float, p_world: FloatArray, n_world: FloatArray) -> FloatArray:
+        """The filtered (6,) centre (m) and unit normal after the estimate at ``t`` s."""
+        z = np.concatenate([p_world, n_world])
+        if self.t is None or not 0.0 < t - self.t <= FILTER_RESET_S:
+            self.x, self.v = z, np.zeros(6)
+        else:
+            dt = t - self.t
+            predicted = self.x + self.v * dt
+            r = z - predicted
+            self.x = predicted + self.alpha * r
+            self.v = self.v + (self.beta / dt) * r
+            self.x[3:] /= np.linalg.norm(self.x[3:])
+        self.t = t
+        return self.x.copy()
+
+
+@dataclass(frozen=True)
+class EstimateLog:
+    """What the stereo source did over an episode (N control steps, F frames), SI, world.
+
+    Attributes
+    ----------
+    p_world : (N, 3)
+        The estimated ring centre delivered at each step, m; NaN where none was delivered.
+    n_world : (N, 3)
+        Its unit face normal (towards the camera at capture); NaN where none.
+    t_capture : (N,)
+        The capture time of the estimate delivered at each step, s; NaN where none.
+    T_world_ring_seen : (N, 4, 4)
+        The ring pose the controller was given at each step (the last delivered estimate;
+        all NaN before the first), m.
+    t_ring_seen : (N,)
+        Its capture stamp, s (the step's time before the first estimate).
+    frame_steps : (F,) int
+        The control steps at which a frame was captured.
+    frame_ok : (F,) bool
+        Whether the frame gave an estimate.
+    frame_status : (F,) str
+        The estimator's status per frame (``EstimateStatus`` values).
+    frame_wall_s : (F,)
+        Measured wall time of the estimator per frame, s (not used by the loop).
+    frame_cpu_s : (F,)
+        Its thread CPU time per frame, s.
+    """
+
+    p_world: FloatArray
+    n_world: FloatArray
+    t_capture: FloatArray
+    T_world_ring_seen: FloatArray
+    t_ring_seen: FloatArray
+    frame_steps: np.ndarray
+    frame_ok: np.ndarray
+    frame_status: np.ndarray
+    frame_wall_s: FloatArray
+    frame_cpu_s: FloatArray
+
+    @property
+    def ok(self) -> np.ndarray:
+        """(N,) bool: an estimate was delivered at the step."""
+        return np.isfinite(self.t_capture)
+
+
+def estimate_errors(log: EstimateLog, T_world_ring_at: Any) -> tuple[FloatArray, FloatArray]:
+    """The delivered estimates' errors against the true ring pose at their capture.
+
+    ``T_world_ring_at(t)``: the true ring poses (M, 4, 4) at times ``t`` (M,), s (a
+    trajectory's ``poses``). Returns the centre errors (D,), m, and the normal errors up to
+    sign (D,), rad, of the D delivered estimates.
+    """
+    ok = log.ok
+    if not ok.any():
+        return np.zeros(0), np.zeros(0)
+    T_true = T_world_ring_at(log.t_capture[ok])
+    centre = np.linalg.norm(log.p_world[ok] - T_true[:, :3, 3], axis=1)
+    cos = np.abs(np.einsum("ij,ij->i", log.n_world[ok], T_true[:, :3, 2]))
+    return centre, np.arccos(np.clip(cos, 0.0, 1.0))
+
+
+def _stats(values: FloatArray, scale: float) -> dict[str, float | None]:
+    if len(values) == 0:
+        return {"median": None, "p95": None, "max": None}
+    v = np.asarray(values) * scale
+    return {
+        "median": float(np.median(v)),
+        "p95": float(np.percentile(v, 95.0)),
+        "max": float(np.max(v)),
+    }
+
+
+def estimation_summary(log: EstimateLog, T_world_ring_at: Any) -> dict[str, Any]:
+    """``metrics.json``'s ``perception`` section: errors (mm, deg), estimate share, time (ms)."""
+    centre, normal = estimate_errors(log, T_world_ring_at)
+    frames = len(log.frame_steps)
+    statuses, counts = np.unique(log.frame_status, return_counts=True)
+    return {
+        "frames": frames,
+        "estimate_share": float(np.mean(log.frame_ok)) if frames else 0.0,
+        "frame_status": {str(s): int(c) for s, c in zip(statuses, counts, strict=True)},
+        "delivered": int(np.count_nonzero(log.ok)),
+        "center_error_mm": _stats(centre, 1e3),
+        "normal_error_deg": _stats(normal, math.degrees(1.0)),
+        "estimator_time_ms": {
+            "median_wall": float(np.median(log.frame_wall_s) * 1e3) if frames else None,
+            "median_cpu": float(np.median(log.frame_cpu_s) * 1e3) if frames else None,
+        },
+    }
