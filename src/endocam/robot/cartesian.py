@@ -94,6 +94,7 @@ _SQRT3 = math.sqrt(3.0)
 _SNAP_POS = 1e-12  # m or rad: smaller target offsets are round-off
 _SNAP_VEL = 1e-12  # m/s or rad/s: smaller velocities are round-off
 _SNAP_ACC = 1e-10  # m/s² or rad/s²: smaller accelerations are round-off
+_INSIDE_ACC = 1.0 - 1e-9  # an acceleration at its limit, as a share of it: round-off kept inside
 
 
 def _snap(values: list[float], tol: float) -> list[float]:
@@ -417,14 +418,30 @@ class CartesianLimiter:
         return np.array(self._v)
 
     def _retry(self, inp: InputParameter) -> Result:
-        """Ruckig fails on rare round-off residue near rest (~1e-16): snap it to 0 and retry."""
+        """Ruckig refused the state: the round-off it trips on removed, then a target at rest.
+
+        Ruckig fails on rare round-off residue near rest (~1e-16), snapped to 0, and on an
+        acceleration that sits exactly at its limit while the target moves (seen with a noisy
+        perceived ring): it is kept ``_INSIDE_ACC`` inside the limit. If ruckig still refuses,
+        the camera arrives at the target at rest (always a solution from a state within the
+        limits) rather than stop the episode; the next step asks again.
+        """
+        amax = inp.max_acceleration
         inp.current_velocity = _snap(self._v, _SNAP_VEL)
-        inp.current_acceleration = _snap(self._acc, _SNAP_ACC)
+        inp.current_acceleration = [
+            max(-_INSIDE_ACC * m, min(_INSIDE_ACC * m, a))
+            for a, m in zip(_snap(self._acc, _SNAP_ACC), amax, strict=True)
+        ]
         inp.target_position = [
             c if abs(t - c) < _SNAP_POS else t
             for t, c in zip(inp.target_position, inp.current_position, strict=True)
         ]
-        return self._otg.update(inp, self._out)
+        try:
+            return self._otg.update(inp, self._out)
+        except RuckigError:
+            inp.target_velocity = [0.0] * 6
+            self._moving_target = False
+            return self._otg.update(inp, self._out)
 
     def step(self, T_world_target: FloatArray, twist: FloatArray | None = None) -> FloatArray:
         """Advance one control period towards ``T_world_target`` (4, 4); returns the new pose.
