@@ -65,10 +65,36 @@ class TimedQueue(queue.Queue[Any]):
             self.blocked += time.perf_counter() - t0
 
 
-def _port() -> int:
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that is free now (the robot's Zenoh endpoint)."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def serve_robot(
+    arm: str, config: Path, control_points: int, seed: int, limits: tuple[float, float]
+) -> tuple[subprocess.Popen[str], str]:
+    """``endocam robot serve`` as a second process on a free port: (the process, its endpoint).
+
+    ``limits``: how long it waits for a controller and its watchdog (silence timeout), s
+    (wall). Its standard output is a pipe (its last line says how the episode ended).
+    """
+    wait, watchdog = limits
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).parents[1] / "src")}
+    robot = subprocess.Popen(
+        [
+            *(sys.executable, "-m", "endocam.cli", "robot", "serve", "--arm", arm),
+            *("--config", str(config), "--control-points", str(control_points)),
+            *("--seed", str(seed), "--endpoint", endpoint),
+            *("--wait", str(wait), "--watchdog", str(watchdog)),
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    return robot, endpoint
 
 
 def run(
@@ -92,17 +118,8 @@ def run(
         update={"trajectory": cfg.task.trajectory.model_copy(update={"duration": 5.0})}
     )
     run_episode(cfg.model_copy(update={"task": warm}), spec)  # numba: load every kernel path
-    endpoint = f"tcp/127.0.0.1:{_port()}"
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).parents[1] / "src")}
-    robot = subprocess.Popen(
-        [
-            *(sys.executable, "-m", "endocam.cli", "robot", "serve", "--arm", arm_name),
-            *("--config", str(config), "--control-points", "71", "--seed", "1"),
-            *("--endpoint", endpoint, "--wait", str(WAIT_S), "--watchdog", str(watchdog)),
-        ],
-        env=env,
-        stdout=subprocess.PIPE,
-        text=True,
+    robot, endpoint = serve_robot(
+        arm_name, config, spec.control_points, spec.seed, (WAIT_S, watchdog)
     )
     kind = ArmKind(arm_name)
     dt = 1.0 / rate

@@ -19,8 +19,6 @@ import argparse
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 from endocam.config import load_config
 from endocam.control.types import Observation
 from endocam.geometry import FloatArray
@@ -29,6 +27,7 @@ from endocam.robot.actuator import ArmKind
 from endocam.runner import step
 from endocam.runner.episode import EpisodeSpec, run_episode
 from endocam.task.trajectory import TrajectoryKind
+from link_tracking import errors  # bench/: the same mean errors as the link's table
 
 CODEC = Codec()
 
@@ -68,13 +67,7 @@ def main() -> None:
         for method in (exact, observed):
             step.EpisodeLoop.observation = method
             r = run_episode(cfg, spec)
-            rows.append(
-                (
-                    float(np.nanmean(r.image_error)),
-                    float(np.nanmean(r.center_error)) * 1e3,
-                    float(np.degrees(np.nanmean(r.orientation_error))),
-                )
-            )
+            rows.append(tuple(errors(r).values()))  # image px, centre mm, orientation deg
         step.EpisodeLoop.observation = exact
         cells = " | ".join(
             f"{a:.3f} {b:.3f} {100 * (b - a) / a:+.1f}" for a, b in zip(*rows, strict=True)

@@ -16,10 +16,6 @@ Run (60 s at 100 Hz; the issue's target: every tracking error within 5 %)::
 from __future__ import annotations
 
 import argparse
-import os
-import socket
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -31,17 +27,12 @@ from endocam.link.client import ZenohArm, run_remote
 from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode
 from endocam.task.trajectory import TrajectoryKind
+from link_latency import serve_robot  # bench/: the robot process, as there
 
 WAIT_S = 180.0  # s: the robot's start-up on a loaded machine
 TIMEOUT_S = 5.0  # s: the robot answers within this (a loaded machine: no false silences)
 CONTROL_POINTS = 71
 SEED = 1
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def errors(r: EpisodeResult) -> dict[str, float]:
@@ -55,19 +46,8 @@ def errors(r: EpisodeResult) -> dict[str, float]:
 
 def over_link(config_file: Path, cfg: ExperimentConfig, spec: EpisodeSpec) -> tuple[Any, str]:
     """The episode with the arm served by a second process; (RemoteRun, the robot's last line)."""
-    endpoint = f"tcp/127.0.0.1:{_port()}"
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).parents[1] / "src")}
-    robot = subprocess.Popen(
-        [
-            *(sys.executable, "-m", "endocam.cli", "robot", "serve"),
-            *("--arm", cfg.episode.arm.value, "--config", str(config_file)),
-            *("--control-points", str(spec.control_points), "--seed", str(spec.seed)),
-            *("--endpoint", endpoint, "--wait", str(WAIT_S), "--watchdog", str(TIMEOUT_S)),
-        ],
-        env=env,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
+    arm_name, points = cfg.episode.arm.value, spec.control_points
+    robot, endpoint = serve_robot(arm_name, config_file, points, spec.seed, (WAIT_S, TIMEOUT_S))
     arm = ZenohArm(cfg.episode.arm, endpoint, 1.0 / cfg.episode.control_rate, TIMEOUT_S)
     try:
         remote = run_remote(cfg, spec, arm, WAIT_S)
