@@ -177,3 +177,16 @@ def so3_exp(theta: ArrayLike) -> FloatArray:
 def angle_between(u: FloatArray, v: FloatArray) -> float:
     """Angle (rad, in [0, π]) between two non-zero vectors (3,), robust near 0 and π."""
     return float(np.arctan2(np.linalg.norm(np.cross(u, v)), np.dot(u, v)))
+
+
+def frame_with_z(n: FloatArray) -> FloatArray:
+    """(3, 3) a rotation whose third column is the unit vector ``n`` (3,).
+
+    Its first two columns span the plane normal to ``n`` (a circle about ``n``: ``cos φ x +
+    sin φ y``); the rotation about ``n`` is arbitrary (the world axis least aligned with ``n``
+    crossed with it).
+    """
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, n)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(n, x), n])

@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from endocam.camera import StereoCamera
-from endocam.geometry import FloatArray
+from endocam.geometry import FloatArray, frame_with_z
 from endocam.perception.ellipse import (
     ImageEllipse,
     centre_image,
@@ -490,9 +490,7 @@ def draw_estimate(
         estimate.p_cam_ring - model.camera.T_cam_eye("left" if eye == "left" else "right")[:3, 3]
     )
     n = estimate.n_cam
-    e1 = np.cross(n, [0.0, 1.0, 0.0] if abs(n[1]) < 0.9 else [1.0, 0.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(n, e1)
+    e1, e2, _ = frame_with_z(n).T  # the circle's plane
     phi = np.linspace(0.0, 2.0 * math.pi, 72)
     R = model.major_radius
     circle = p_eye + R * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from endocam.geometry import FloatArray
+from endocam.geometry import FloatArray, frame_with_z
 
 if TYPE_CHECKING:
     from endocam.perception.estimator import RingEstimate
@@ -143,17 +143,9 @@ def ring_pose(p_world: FloatArray, n_world: FloatArray) -> FloatArray:
     """
     n = n_world / np.linalg.norm(n_world)
     T = np.eye(4)
-    T[:3, :3] = _frame_with_z(n)
+    T[:3, :3] = frame_with_z(n)
     T[:3, 3] = p_world
     return T
-
-
-def _frame_with_z(n: FloatArray) -> FloatArray:
-    """(3, 3) a rotation whose third column is the unit vector ``n`` (3,)."""
-    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, n)
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(n, x), n])
 
 
 FILTER_RESET_S = 0.25  # s, a gap between estimates longer than this restarts the track filter
