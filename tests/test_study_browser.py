@@ -243,7 +243,7 @@ def test_phone_width_participant_with_a_typed_id(
     page.keyboard.type("phone-1")
     page.keyboard.press("Enter")  # no consent yet: the browser keeps the form
     assert page.evaluate("document.getElementById('consent').validity.valueMissing")
-    assert StudyDB(db_path).participants()[-1].participant_id != "phone-1"
+    assert "phone-1" not in {p.participant_id for p in StudyDB(db_path).participants()}
     _consent(page)
     with page.expect_navigation():
         page.get_by_role("button").click()  # demographics left empty
@@ -271,6 +271,8 @@ def test_phone_width_participant_with_a_typed_id(
 
 
 REDIRECT_AFTER_S = 0.2  # s, the must-watch study's last page before it goes back
+SKIP_TO_END_S = 0.1  # s of the 1 s video left when the participant skips ahead
+SETTLE_MS = 200  # ms for the page to act on the server's reply to its "ended" event
 
 
 def test_must_watch_in_chromium_then_the_automatic_redirect(
@@ -299,9 +301,20 @@ def test_must_watch_in_chromium_then_the_automatic_redirect(
         expect(page.locator("#answer_button")).to_be_disabled()  # study.js: not watched yet
         page.evaluate("answer_button.disabled = false")  # past the page's rule: the server's
         _type_and_submit(page, "reported_touches", "1")
-        expect(page.get_by_role("alert")).to_contain_text("watch the video once to its end")
+        expect(page.get_by_role("alert")).to_contain_text("without skipping ahead")
         expect(page.locator("#answer_button")).to_be_disabled()
-        page.evaluate("study_video.playbackRate = 8; study_video.play()")  # 1 s video, faster
+        with page.expect_response("**/api/event") as logged:  # skipped ahead to the last frames
+            page.evaluate(
+                "study_video.addEventListener('ended', () => { window.ended = 1 }, {once: true});"
+                f"study_video.currentTime = study_video.duration - {SKIP_TO_END_S};"
+                "study_video.play()"
+            )
+        page.wait_for_function("window.ended === 1")
+        page.wait_for_timeout(SETTLE_MS)  # the "ended" event's reply would enable the button
+        expect(page.locator("#answer_button")).to_be_disabled()  # ended, most of it unseen
+        assert logged.value.ok
+        page.evaluate("study_video.currentTime = 0; study_video.playbackRate = 8")
+        page.evaluate("study_video.play()")  # 1 s video, faster, from the start
         expect(page.locator("#answer_button")).to_be_enabled()  # after the logged "ended"
         _type_and_submit(page, "reported_touches", "1")
         expect(page.get_by_role("heading", level=1)).to_have_text("Set 1 of 3: video 2 of 3")
@@ -311,7 +324,8 @@ def test_must_watch_in_chromium_then_the_automatic_redirect(
                 api.post(f"{base}/api/attention", data={"answer": ATTENTION_ANSWER})
                 continue
             vid = step["video_id"]
-            api.post(f"{base}/api/event", data={"video_id": vid, "kind": "ended"})
+            whole = {"kind": "ended", "media_time_s": 1.0, "watched_s": 1.0}  # s, a 1 s video
+            api.post(f"{base}/api/event", data=whole | {"video_id": vid})
             assert api.post(f"{base}/api/answer", data={"video_id": vid, "reported_touches": 2}).ok
         with page.expect_navigation(url=back):  # the done page sends the browser back
             page.goto(base + "/study")

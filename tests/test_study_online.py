@@ -17,7 +17,7 @@ from fastapi.testclient import TestClient
 
 from endocam.study.app import create_app
 from endocam.study.catalogue import DEFAULT_CATALOGUE, load_catalogue
-from endocam.study.db import StudyDB
+from endocam.study.db import MIN_WATCHED_SHARE, StudyDB
 from endocam.study.export import TABLES
 from endocam.study.flow import video_sequence
 from endocam.study.manifest import load_manifest
@@ -30,6 +30,7 @@ pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conf
 ADMIN = "online-admin"
 AUTH = {"Authorization": f"Bearer {ADMIN}"}
 CODE = "C0DE42"
+SHARE_STEP = 1e-3  # s: the page reports times to the ms, so one step below the must-watch share
 RETURN_URL = "https://app.prolific.com/submissions/complete?cc={code}"
 PLATFORM = {"PROLIFIC_PID": "5f0aa1b2c3d4e5f6a7b8c9d0", "STUDY_ID": "st1", "SESSION_ID": "se1"}
 
@@ -58,7 +59,8 @@ def client(study: Path, db_path: Path) -> Iterator[TestClient]:
 
 def _watch(c: TestClient, video_id: str, rate: float = 1.0) -> None:
     for kind in ("play", "ended"):
-        body = {"video_id": video_id, "kind": kind, "playback_rate": rate, "watched_s": 1.0}
+        body = {"video_id": video_id, "kind": kind, "playback_rate": rate}
+        body |= {"media_time_s": 1.0, "watched_s": 1.0}  # s: the whole of a 1 s video
         assert c.post("/api/event", json=body).status_code == 204
 
 
@@ -141,6 +143,14 @@ def test_must_watch_rule_and_interaction_log(client: TestClient, db_path: Path) 
     client.get("/study")  # the page is served: 'shown'
     answer = {"video_id": vid, "reported_touches": 4}
     assert client.post("/api/answer", json=answer).status_code == 409  # not watched to the end
+    skipped = [  # the end reached, but most of the video skipped, or no played time reported
+        {"kind": "ended", "media_time_s": 1.0, "watched_s": 1.0 * MIN_WATCHED_SHARE - SHARE_STEP},
+        {"kind": "ended", "media_time_s": 1.0},
+    ]
+    for e in skipped:
+        assert client.post("/api/event", json={"video_id": vid} | e).status_code == 204
+        refused = client.post("/api/answer", json=answer)
+        assert refused.status_code == 409 and "without skipping" in refused.json()["detail"]
     events = [
         {"kind": "play", "media_time_s": 0.0, "playback_rate": 1.0, "watched_s": 0.0},
         {"kind": "ratechange", "media_time_s": 0.2, "playback_rate": 2.0, "watched_s": 0.2},

@@ -14,7 +14,8 @@ Every participant-facing text comes from the message catalogue (:mod:`endocam.st
 
 The video pages post player events (play, pause, seek, rate change, end, watched seconds) to
 ``/api/event`` from :file:`static/study.js`; with the manifest's ``must_watch`` an answer is
-accepted only after the video was played to its end once.
+accepted only after the video was played to its end once with ``db.MIN_WATCHED_SHARE`` of it
+played on the way (skipping ahead to the end does not count).
 
 JSON API (the pages post plain forms; the API serves scripts and tests):
 
@@ -76,7 +77,7 @@ from endocam.study.api_models import (
     validation_error_body,
 )
 from endocam.study.catalogue import Catalogue, load_catalogue
-from endocam.study.db import ABANDON_AFTER_S, StudyDB
+from endocam.study.db import ABANDON_AFTER_S, MIN_WATCHED_SHARE, StudyDB
 from endocam.study.export import (
     TABLES,
     TableName,
@@ -105,6 +106,7 @@ PRACTICE_ID = "_practice"  # video id of the practice video (never a manifest id
 PRIOR_ASSESSMENT = ("yes", "no", "unsure")
 REDIRECT_AFTER_S = 5.0  # s the last page shows the completion code before going back
 ADMIN_DISABLED = "the admin pages are disabled: start with an admin token"
+MUST_WATCH_REFUSAL = "watch the whole video to its end first, without skipping ahead"
 _HERE = Path(__file__).parent
 TEMPLATES_DIR = _HERE / "templates"
 STATIC_DIR = _HERE / "static"
@@ -173,7 +175,11 @@ def create_app(
         video_files[PRACTICE_ID] = study_root / manifest.practice.file
     templates = Jinja2Templates(directory=str(TEMPLATES_DIR))
     templates.env.globals.update(
-        t=t, manifest=manifest, max_touches=MAX_TOUCHES, max_years=MAX_TRAINING_YEARS
+        t=t,
+        manifest=manifest,
+        max_touches=MAX_TOUCHES,
+        max_years=MAX_TRAINING_YEARS,
+        min_watched_share=MIN_WATCHED_SHARE,
     )
     limiter = RateLimiter(session_rate)
     recruitment_params = (manifest.recruitment.id_param, *manifest.recruitment.extra_params)
@@ -271,7 +277,7 @@ def create_app(
     def submit_practice(participant: Participant, touches: int) -> None:
         expect_step(participant, StepKind.PRACTICE)
         if manifest.must_watch and not db.watched_to_end(participant, PRACTICE_ID):
-            raise RefusedError(409, "watch the video to its end first", "error_must_watch")
+            raise RefusedError(409, MUST_WATCH_REFUSAL, "error_must_watch")
         try:
             db.record_practice(participant, touches)
         except ConflictError as exc:
@@ -289,7 +295,7 @@ def create_app(
                 409, f"video {video_id!r} is not the current step ({step.kind.value})"
             )
         if manifest.must_watch and not db.watched_to_end(participant, video_id):
-            raise RefusedError(409, "watch the video to its end first", "error_must_watch")
+            raise RefusedError(409, MUST_WATCH_REFUSAL, "error_must_watch")
         try:
             db.record_answer(participant, video_id, touches, is_done)
         except ConflictError as exc:

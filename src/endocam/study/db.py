@@ -57,6 +57,16 @@ SCHEMA_VERSION = 2
 BUSY_TIMEOUT_S = 10.0  # s, how long a writer waits for the lock
 MAX_EVENTS_PER_VIDEO = 2000  # interaction events stored per session and video (the rest dropped)
 EVENT_KINDS = ("shown", "play", "pause", "seeked", "ratechange", "ended", "progress")
+MIN_WATCHED_SHARE = 0.95
+"""Share of a video's duration that must have been played at least once (seeks and replays not
+counted) for its ``ended`` event to count as watched to the end: the page reports the played
+share from its ``timeupdate`` events, ~0.25 s apart, so an honest viewing reaches ~1.0, and a
+viewer who skipped ahead to the end does not."""
+
+WATCHED_TO_END = "(kind = 'ended' AND watched_s >= ? * media_time_s)"
+"""SQL condition on an event row: an ``ended`` event after :data:`MIN_WATCHED_SHARE` of the
+video was played (``watched_s`` and ``media_time_s``, the position at the end, both reported; a
+missing one makes it false)."""
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS participants (
@@ -548,8 +558,9 @@ class StudyDB:
                 " MIN(CASE WHEN kind = 'shown' THEN received END),"
                 " SUM(kind = 'play'), SUM(kind = 'pause'), SUM(kind = 'seeked'),"
                 " SUM(kind = 'ratechange'), MAX(playback_rate), COALESCE(MAX(watched_s), 0),"
-                " MAX(kind = 'ended')"
-                " FROM events GROUP BY participant_pk, video_id"
+                f" COALESCE(MAX({WATCHED_TO_END}), 0)"
+                " FROM events GROUP BY participant_pk, video_id",
+                (MIN_WATCHED_SHARE,),
             ).fetchall()
         return {
             (r[0], r[1]): VideoInteraction(
@@ -566,11 +577,15 @@ class StudyDB:
         }
 
     def watched_to_end(self, participant: Participant, video_id: str) -> bool:
-        """Whether the page reported the video played to its end at least once."""
+        """Whether the video was played to its end with :data:`MIN_WATCHED_SHARE` of it played.
+
+        An end reached by skipping ahead does not count.
+        """
         with self._connect() as conn:
             row = conn.execute(
-                "SELECT 1 FROM events WHERE participant_pk = ? AND video_id = ? AND kind = 'ended'",
-                (participant.pk, video_id),
+                "SELECT 1 FROM events WHERE participant_pk = ? AND video_id = ?"
+                f" AND {WATCHED_TO_END}",
+                (participant.pk, video_id, MIN_WATCHED_SHARE),
             ).fetchone()
         return row is not None
 

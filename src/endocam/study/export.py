@@ -24,7 +24,7 @@ from typing import Any, Literal, Union, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from endocam.study.db import ABANDON_AFTER_S, StudyDB
+from endocam.study.db import ABANDON_AFTER_S, MIN_WATCHED_SHARE, StudyDB
 from endocam.study.flow import attention_after_set
 from endocam.study.manifest import Manifest
 
@@ -86,10 +86,12 @@ class ResponseExport(_Row):
         description="Fastest playback rate reported (1 = normal speed); empty if no event."
     )
     watched_s: float = Field(
-        description="Seconds of video played, as last reported by the page, s."
+        description="Seconds of the video played at least once (skipped parts and replays not"
+        " counted), as last reported by the page, s."
     )
     watched_to_end: bool = Field(
-        description="Whether the video was played to its end at least once."
+        description="Whether the video was played to its end at least once, with at least"
+        f" {MIN_WATCHED_SHARE:.0%} of it played (the must-watch rule)."
     )
     attention_passed: bool | None = Field(
         description="Attention question right (true), wrong (false), or not answered (empty)."
@@ -144,7 +146,9 @@ class EventExport(_Row):
     )
     media_time_s: float | None = Field(description="Player position when the event fired, s.")
     playback_rate: float | None = Field(description="Playback rate at the event (1 = normal).")
-    watched_s: float | None = Field(description="Seconds of video played so far on the page, s.")
+    watched_s: float | None = Field(
+        description="Seconds of the video played at least once so far on the page, s."
+    )
     received: str = Field(description="ISO 8601 UTC time the server stored the event.")
 
 

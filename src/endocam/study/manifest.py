@@ -24,7 +24,8 @@ message catalogue replacing :file:`study/messages/en.json`, e.g. another languag
 ``demographics`` (ask years of surgical training and prior skill assessment), ``practice``
 (``{"file": ..., "true_touches": ...}``: a practice video with feedback before the first set),
 ``shuffle_within_set`` (each participant sees a set's videos in a random, stored order; default
-true), ``must_watch`` (a video must be watched once to its end before its answer is accepted) and
+true), ``must_watch`` (a video must be watched once to its end, without skipping ahead, before its
+answer is accepted) and
 ``recruitment`` (URL parameters naming the participant, completion code and redirect URL).
 ``touch_definition`` defaults to :data:`DEFAULT_TOUCH_DEFINITION`, the one ``true_touches``
 counts.

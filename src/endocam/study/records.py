@@ -119,9 +119,11 @@ class VideoInteraction:
     max_playback_rate : float or None
         Fastest playback rate used (1 = normal speed).
     watched_s : float
-        Seconds of video played, as last reported by the page (s of media time).
+        Seconds of the video played at least once, as last reported by the page (s of media
+        time; skipped-over parts and replays not counted).
     ended : bool
-        Whether the video was played to its end at least once.
+        Whether the video was played to its end at least once after ``db.MIN_WATCHED_SHARE``
+        of it had been played (the must-watch rule).
     """
 
     first_shown: str | None

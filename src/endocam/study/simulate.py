@@ -83,6 +83,9 @@ REFERENCE_NOISE_SD = 1.5  # touches, every reference condition's counting noise 
 EFFECT_BIAS = -0.75  # touches, the last condition's bias with an effect
 EFFECT_NOISE_SD = 1.05  # touches, the last condition's noise with an effect (about -30 % SD)
 UNLIMITED_STARTS = 10**9  # session starts allowed per second: the synthetic ones come fast
+WATCHED_WHOLE = {"kind": "ended", "media_time_s": 1.0, "watched_s": 1.0}
+"""The page's ``ended`` event of a simulated assessor who watched the whole video (times in s; a
+nominal 1 s video: the must-watch rule compares the two)."""
 SHM_DIR = "/dev/shm"  # memory-backed folder for the replications' databases (Linux)
 ADMIN_TOKEN = "simulated-assessors"  # the in-process app's admin token (never served)
 
@@ -258,7 +261,7 @@ def answer_through_app(study: Path, db_path: Path, reports: dict[str, NDArray[np
                     continue
                 vid = "_practice" if kind == "practice" else step["video_id"]
                 if manifest.must_watch:
-                    await post("/api/event", {"video_id": vid, "kind": "ended"}, 204)
+                    await post("/api/event", WATCHED_WHOLE | {"video_id": vid}, 204)
                 if kind == "practice":
                     assert manifest.practice is not None
                     body = {"reported_touches": manifest.practice.true_touches}
