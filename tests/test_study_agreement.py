@@ -91,6 +91,7 @@ def test_pitman_morgan_of_a_table_worked_by_hand() -> None:
     t_swapped, p_swapped = pitman_morgan(y, x)  # the smaller SD first: the sign flips
     assert t_swapped == pytest.approx(-t, rel=REL) and p_swapped == pytest.approx(p, rel=REL)
     assert math.isnan(pitman_morgan(x, x + 1.0)[0])  # D constant: undefined
+    assert math.isnan(pitman_morgan(x, np.full_like(x, 2.0))[1])  # y constant: no p = 0
 
 
 def test_sd_across_assessors_and_the_ratio() -> None:

@@ -235,14 +235,16 @@ def pitman_morgan(x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[float
     """Pitman–Morgan test of ``var x == var y`` for paired samples (module docstring).
 
     x, y : (n,) paired values, n ≥ 3.  Returns ``(t, two-sided p)`` on n − 2 degrees of freedom;
-    NaN where ``x + y`` or ``x − y`` is constant.
+    NaN where ``x``, ``y``, ``x + y`` or ``x − y`` is constant: a constant sample (every
+    assessor giving the same error, as discrete counts can) is no bivariate normal, and the
+    test would report ``p = 0`` from a correlation of exactly ±1.
     """
     n = x.size
     s, d = x + y, x - y
-    if n < 3 or np.std(s) == 0.0 or np.std(d) == 0.0:
+    if n < 3 or min(np.std(x), np.std(y), np.std(s), np.std(d)) == 0.0:
         return float("nan"), float("nan")
     r = float(np.corrcoef(s, d)[0, 1])
-    if abs(r) >= 1.0:
+    if abs(r) >= 1.0:  # y exactly linear in x with a slope other than ±1: the SDs surely differ
         return float(np.sign(r) * np.inf), 0.0
     t = r * np.sqrt(n - 2) / np.sqrt(1.0 - r * r)
     return float(t), float(2.0 * stats.t.sf(abs(t), n - 2))
