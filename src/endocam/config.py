@@ -118,6 +118,23 @@ class ExperimentConfig(BaseModel):
         "estimator on the rendered images (docs/perception.md).",
     )
 
+    @property
+    def controller_on_source(self) -> ControllerConfig:
+        """The controller's parameters with the gate's noise floor of the ring pose's source.
+
+        ``truth``: ``controller`` as it is; ``stereo``: its ``ring_gate_floor_*`` replaced by
+        ``perception.gate_floor_*`` (the floor is the sensor's, not the controller's).
+        """
+        per = self.perception
+        if not per.stereo:
+            return self.controller
+        return self.controller.model_copy(
+            update={
+                "ring_gate_floor_position": per.gate_floor_position,
+                "ring_gate_floor_angle": per.gate_floor_angle,
+            }
+        )
+
     @model_validator(mode="after")
     def _bounded(self) -> ExperimentConfig:
         steps = self.task.trajectory.duration * self.episode.control_rate

@@ -36,6 +36,16 @@ MEASURED_PROCESSING_S = 0.010
 shared 2-core machine (7.7–9.7 ms over round 11's runs), rounded up: the default delay."""
 
 
+STEREO_FLOOR_M = 1.0e-3
+"""m: the gate's centre noise floor on stereo. The innovation the gate sees on the filtered
+estimates (their constant-velocity prediction's miss, frame to frame) was 0.15-0.23 mm at the
+p95 and 0.27-0.41 mm at the p99 over round 12's six free-camera episodes (docs/perception.md);
+the raw estimator's centre error p95 0.23 mm (bench/perception_estimator.py): ~4× the p95."""
+STEREO_FLOOR_RAD = math.radians(3.0)
+"""rad: the gate's normal noise floor on stereo: the same innovation's p95 was 2.3-3.1° (p99
+4.8-6.4°); the raw estimator's normal error p95 3.9°. Below 6°, so a 6° jump is refused."""
+
+
 class PerceptionSource(enum.Enum):
     """Where the controller's ring pose comes from."""
 
@@ -96,6 +106,28 @@ class PerceptionConfig(BaseModel):
         "period taken into the rates.",
     )
 
+    resample: bool = Field(
+        True,
+        description="Give the controller the track filter's pose at every control step, "
+        "predicted to the step's time less sensing_latency and stamped so (as the truth "
+        "source's), up to controller.ring_max_age after the last capture; off: the last "
+        "estimate held, stamped with its capture time.",
+    )
+    gate_floor_position: float = Field(
+        STEREO_FLOOR_M,
+        gt=0.0,
+        le=0.01,
+        description="The observation gate's centre noise floor on stereo, m (replaces "
+        "controller.ring_gate_floor_position; docs/perception.md, 'The gate's floor').",
+    )
+    gate_floor_angle: float = Field(
+        STEREO_FLOOR_RAD,
+        gt=0.0,
+        le=math.radians(20.0),
+        description="The observation gate's normal noise floor on stereo, rad (replaces "
+        "controller.ring_gate_floor_angle).",
+    )
+
     @property
     def stereo(self) -> bool:
         """Whether the controller is fed the stereo estimator's poses."""
@@ -146,6 +178,27 @@ def ring_pose(p_world: FloatArray, n_world: FloatArray) -> FloatArray:
     T[:3, :3] = frame_with_z(n)
     T[:3, 3] = p_world
     return T
+
+
+def resampled(
+    track: FloatArray, t_capture: float, t: float, latency: float, max_age: float
+) -> tuple[FloatArray, float]:
+    """The ring pose the controller is given at control time ``t`` (s), and its stamp.
+
+    ``track`` (12,): the track filter's centre (m), unit normal and their rates (m/s, 1/s),
+    world, after the estimate captured at ``t_capture`` (s), the last one delivered. While
+    ``t − t_capture ≤ max_age`` (s): the track predicted at constant velocity to
+    ``t − latency`` and stamped so, a fresh pose every control step exactly ``latency`` old,
+    like the truth source's (the controller's predictor differences evenly spaced samples and
+    predicts across ``latency``; a 30 Hz pose held for three steps reads to it as a jerky ring,
+    and its noise is amplified by the differences). Past ``max_age``: the filter's pose at
+    the capture, stamped with it (stale: the controller holds). Returns (4, 4) and s.
+    """
+    if not t - t_capture <= max_age:
+        return ring_pose(track[:3], track[3:6]), t_capture
+    t_pose = max(t - latency, t_capture)
+    x = track[:6] + track[6:] * (t_pose - t_capture)
+    return ring_pose(x[:3], x[3:6]), t_pose
 
 
 FILTER_RESET_S = 0.25  # s, a gap between estimates longer than this restarts the track filter

@@ -36,6 +36,7 @@ from endocam.perception.loop import (
     TrackFilter,
     capture_steps,
     estimate_in_world,
+    resampled,
     ring_pose,
 )
 from endocam.robot.actuator import ArmKind
@@ -52,6 +53,7 @@ class _Pending(NamedTuple):
     t_deliver: float  # s
     t_capture: float  # s
     T_world_ring: FloatArray  # (4, 4), m
+    track: FloatArray  # (12,): the filter's centre (m), normal, and their rates (m/s, 1/s)
 
 
 class StereoSource:
@@ -88,6 +90,10 @@ class StereoSource:
         self.image = ImageModelConfig() if per.image_model else None
         self.rng = np.random.default_rng((seed, IMAGE_STREAM))
         self.delay = ep.sensing_latency + per.processing_delay
+        self.latency = ep.sensing_latency
+        self.resample = per.resample
+        self.max_age = config.controller.ring_max_age
+        self._track: tuple[float, FloatArray] | None = None  # capture time, (12,) filter state
         self.filter = TrackFilter(per.filter_alpha, per.filter_beta)
         self.dt = 1.0 / ep.control_rate
         self._rim = _rim(config.task.ring.major_radius)
@@ -129,9 +135,12 @@ class StereoSource:
         while self._pending and self._pending[0].t_deliver <= t + CAPTURE_TOL_S:
             got = self._pending.popleft()
             self._now = (got.T_world_ring, got.t_capture)
+            self._track = (got.t_capture, got.track)
             self.p_world[k] = got.T_world_ring[:3, 3]
             self.n_world[k] = got.T_world_ring[:3, 2]
             self.t_capture[k] = got.t_capture
+        if self.resample and self._track is not None:
+            self._now = resampled(self._track[1], self._track[0], t, self.latency, self.max_age)
         self.T_seen[k] = self._now[0]
         if math.isfinite(self._now[0][0, 0]):
             self.t_seen[k] = self._now[1]
@@ -163,7 +172,8 @@ class StereoSource:
             T_est = estimate_in_world(out.estimate, T_world_cam, self._last[1])
             x = self.filter.update(t, T_est[:3, 3], T_est[:3, 2])
             T_est = ring_pose(x[:3], x[3:])
-            self._pending.append(_Pending(t + self.delay, t, T_est))
+            track = np.concatenate([x, self.filter.v])
+            self._pending.append(_Pending(t + self.delay, t, T_est, track))
             self._last = (t, T_est[:3, 2])
 
     def _prior(self, k: int, T_world_cam: FloatArray) -> FloatArray | None:
