@@ -2,7 +2,8 @@
 
 Runs the ``endocam`` tracker on one of the paper's paths (``--path``, e.g. ``ideal-36``) on
 ``truth`` and on ``stereo`` with each ``--variant`` (``name:field=value,...`` over the
-``perception`` section, e.g. ``nofilter:filter_alpha=1,filter_beta=0``), for the episode's
+``perception`` section, or dotted paths, e.g. ``nofilter:filter_alpha=1,filter_beta=0`` or
+``nopredict:controller.tracker.predict=false``), for the episode's
 first ``--seconds`` s (the world cut there; the ring moves as in the full episode), and prints
 per run the means over the steps (image error px, 3D error of the left eye mm, orientation
 error deg, ring out of view %) and the steps held by the gate and as stale. Stereo episodes
@@ -87,6 +88,7 @@ def main() -> int:
     ap.add_argument("--variant", action="append", default=[])
     ap.add_argument("--truth", action="store_true", help="also run on truth")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--npz", default=None, help="folder: per-step arrays of each run")
     args = ap.parse_args()
     paths = {p.name: p for p in paper_paths()}
     if args.path not in paths:
@@ -103,10 +105,15 @@ def main() -> int:
         runs.append(("truth", base))
     for text in args.variant:
         name, fields = parse_variant(text)
-        per = base.perception.model_validate(
-            {**base.perception.model_dump(), "source": "stereo", **fields}
-        )
-        config = ExperimentConfig.model_validate({**base.model_dump(), "perception": per})
+        data = base.model_dump()
+        data["perception"] = {**data["perception"], "source": "stereo"}
+        for key, value in fields.items():  # perception fields, or dotted paths from the top
+            parts = key.split(".") if "." in key else ["perception", key]
+            node = data
+            for part in parts[:-1]:
+                node = node[part]
+            node[parts[-1]] = value
+        config = ExperimentConfig.model_validate(data)
         runs.append((name, config))
     out = {}
     for name, config in runs:
@@ -116,6 +123,24 @@ def main() -> int:
         row["cpu_s"] = time.process_time() - c0
         row["wall_s"] = time.perf_counter() - t0
         out[name] = row
+        if args.npz:
+            os.makedirs(args.npz, exist_ok=True)
+            est = result.log.estimates
+            np.savez(
+                os.path.join(args.npz, f"{args.path}-{args.arm}-{name}.npz"),
+                t=result.log.t,
+                image_error_px=result.image_error_saturated,
+                center_error_m=result.center_error,
+                orientation_error_rad=result.orientation_error,
+                state=result.log.state,
+                reason=np.asarray(result.log.reason),
+                T_world_ring=result.log.T_world_ring,
+                T_world_cam=result.log.T_world_cam,
+                T_world_ring_seen=result.log.T_world_ring_sensed
+                if est is None
+                else est.T_world_ring_seen,
+                t_ring_seen=result.log.t if est is None else est.t_ring_seen,
+            )
         cells = " ".join(f"{k}={v:.3g}" for k, v in row.items())
         print(f"{args.path} {args.arm} {args.seconds:g}s {name}: {cells}", flush=True)
     if args.json:

@@ -14,7 +14,13 @@ import pytest
 
 from endocam.config import ExperimentConfig
 from endocam.perception.estimator import NormalChoice, settle_choice
-from endocam.perception.loop import TrackFilter, capture_steps, estimate_errors
+from endocam.perception.loop import (
+    FILTER_REFUSALS,
+    TrackFilter,
+    capture_steps,
+    estimate_errors,
+    resampled,
+)
 from endocam.robot.actuator import ArmKind
 from endocam.runner.log_schema import (
     ESTIMATE_COLUMNS,
@@ -103,10 +109,10 @@ def test_the_stereo_source_delivers_estimates_late_and_stamped() -> None:
     assert np.all(age >= delay - TIME_TOL_S)
     for k in range(6):  # nothing yet: a missing pose, stamped now
         assert np.isnan(seen[k][0]).all() and seen[k][1] == pytest.approx(k * DT_S)
-    for k in range(6, n):  # between deliveries: the last estimate, its capture stamp
-        last = delivered[delivered <= k][-1]
-        assert seen[k][1] == log.t_capture[last]
+    for k in range(6, n):  # every step after the first: the track's pose for now, stamped now
+        assert seen[k][1] == pytest.approx(k * DT_S)
         assert np.array_equal(seen[k][0], log.T_world_ring_seen[k])
+        assert np.linalg.norm(seen[k][0][:3, 3] - P_WORLD_RING) <= CENTRE_TOL_M
     centre, normal = estimate_errors(log, lambda t: np.repeat(T_ring[None], len(t), axis=0))
     assert len(centre) == 4
     assert centre.max() <= CENTRE_TOL_M and normal.max() <= NORMAL_TOL
@@ -158,3 +164,40 @@ def test_the_track_filter_follows_a_steady_motion_and_damps_noise() -> None:
     assert np.median(out[30:]) <= 0.6 * np.median(raw[30:])  # a still ring: noise damped
     x = noisy.update(300 * frame_s + 1.0, np.ones(3), np.array([1.0, 0.0, 0.0]))  # after a gap
     assert np.array_equal(x, np.array([1.0, 1.0, 1.0, 1.0, 0.0, 0.0]))  # restarted
+
+
+def test_the_track_filter_refuses_a_wild_estimate_and_restarts_after_a_run() -> None:
+    """An estimate beyond the filter's gates leaves its state as it was; FILTER_REFUSALS in a
+    row restart it at the next estimate (the ring moved)."""
+    frame_s = 1.0 / 30.0  # s
+    gate_m, gate_rad = 2.0e-3, math.radians(6.0)  # m, rad
+    f = TrackFilter(0.35, 0.06, gate_m, gate_rad)
+    n0 = np.array([0.0, 0.0, 1.0])
+    for j in range(10):
+        x = f.update(j * frame_s, np.zeros(3), n0)
+    assert x is not None
+    turned = np.array([0.0, math.sin(2 * gate_rad), math.cos(2 * gate_rad)])
+    assert f.update(10 * frame_s, np.zeros(3), turned) is None
+    assert f.update(11 * frame_s, np.array([2 * gate_m, 0.0, 0.0]), n0) is None
+    kept = f.update(12 * frame_s, np.zeros(3), n0)
+    assert kept is not None and np.allclose(kept, x)  # the refused ones left no trace
+    moved = np.array([0.01, 0.0, 0.0])
+    answers = [f.update((13 + j) * frame_s, moved, n0) for j in range(FILTER_REFUSALS + 1)]
+    assert all(a is None for a in answers[:-1])
+    assert answers[-1] is not None and np.array_equal(answers[-1][:3], moved)  # restarted
+    assert f.refused_total == 2 + FILTER_REFUSALS
+
+
+def test_the_controller_is_given_the_track_predicted_to_now_until_it_is_too_old() -> None:
+    """The track (centre, normal and rates) predicted across its age and the lead, stamped
+    with the control time; past max_age: the pose at its capture with its capture stamp (so
+    the controller's stale rule holds the camera)."""
+    v = np.array([0.01, -0.02, 0.0])  # m/s
+    track = np.concatenate([P_WORLD_RING, [0.0, 0.0, 1.0], v, [0.0, 0.0, 0.0]])
+    t_capture, lead, max_age = 1.0, 0.04, 0.25  # s
+    T, stamp = resampled(track, t_capture, t_capture + 0.1, lead, max_age)
+    assert stamp == t_capture + 0.1
+    np.testing.assert_allclose(T[:3, 3], P_WORLD_RING + v * (0.1 + lead), atol=TIME_TOL_S)
+    T, stamp = resampled(track, t_capture, t_capture + max_age + DT_S, lead, max_age)
+    assert stamp == t_capture
+    np.testing.assert_allclose(T[:3, 3], P_WORLD_RING, atol=TIME_TOL_S)

@@ -36,6 +36,13 @@ MEASURED_PROCESSING_S = 0.010
 shared 2-core machine (7.7–9.7 ms over round 11's runs), rounded up: the default delay."""
 
 
+FILTER_GATE_M = 2.0e-3
+"""m: the track filter's centre gate: the raw estimator's centre error was 0.23 mm at the p95
+and 2.1 mm at the max over 300 pairs (bench/perception_estimator.py, image model on)."""
+FILTER_GATE_RAD = math.radians(6.0)
+"""rad: the filter's normal gate: the raw normal error was 3.9° at the p95, 16.5° at the max;
+an estimate 6° off moves the filter's pose by alpha × 6° (2.1° at the default alpha), under
+the controller gate's stereo floor (3°)."""
 STEREO_FLOOR_M = 1.0e-3
 """m: the gate's centre noise floor on stereo. The innovation the gate sees on the filtered
 estimates (their constant-velocity prediction's miss, frame to frame) was 0.15-0.23 mm at the
@@ -106,12 +113,26 @@ class PerceptionConfig(BaseModel):
         "period taken into the rates.",
     )
 
+    filter_gate_position: float = Field(
+        FILTER_GATE_M,
+        gt=0.0,
+        description="The track filter refuses an estimate whose centre is farther than this "
+        "from its prediction, m (stereo).",
+    )
+    filter_gate_angle: float = Field(
+        FILTER_GATE_RAD,
+        gt=0.0,
+        le=math.pi,
+        description="The track filter refuses an estimate whose normal is turned more than "
+        "this from its prediction, rad (stereo).",
+    )
     resample: bool = Field(
         True,
         description="Give the controller the track filter's pose at every control step, "
-        "predicted to the step's time less sensing_latency and stamped so (as the truth "
-        "source's), up to controller.ring_max_age after the last capture; off: the last "
-        "estimate held, stamped with its capture time.",
+        "predicted across the capture's age and the carrier's lead and stamped with the "
+        "step's time, up to controller.ring_max_age after the last capture (the controller's "
+        "own prediction off); off: the last estimate held, stamped with its capture time, and "
+        "the controller predicting from it.",
     )
     gate_floor_position: float = Field(
         STEREO_FLOOR_M,
@@ -181,58 +202,81 @@ def ring_pose(p_world: FloatArray, n_world: FloatArray) -> FloatArray:
 
 
 def resampled(
-    track: FloatArray, t_capture: float, t: float, latency: float, max_age: float
+    track: FloatArray, t_capture: float, t: float, lead: float, max_age: float
 ) -> tuple[FloatArray, float]:
     """The ring pose the controller is given at control time ``t`` (s), and its stamp.
 
     ``track`` (12,): the track filter's centre (m), unit normal and their rates (m/s, 1/s),
     world, after the estimate captured at ``t_capture`` (s), the last one delivered. While
-    ``t − t_capture ≤ max_age`` (s): the track predicted at constant velocity to
-    ``t − latency`` and stamped so, a fresh pose every control step exactly ``latency`` old,
-    like the truth source's (the controller's predictor differences evenly spaced samples and
-    predicts across ``latency``; a 30 Hz pose held for three steps reads to it as a jerky ring,
-    and its noise is amplified by the differences). Past ``max_age``: the filter's pose at
-    the capture, stamped with it (stale: the controller holds). Returns (4, 4) and s.
+    ``t − t_capture ≤ max_age`` (s): the track predicted at constant velocity to ``t + lead``
+    (across the capture's whole age and the carrier's lead, s), stamped ``t``: the filter,
+    whose rates come from many frames, is the loop's one predictor (the controller's own,
+    which differences 30 ms apart samples, amplified the estimates' noise ~10×; it is off on
+    stereo, ``ExperimentConfig.controller_on_source``). Past ``max_age``: the filter's pose at
+    the capture, stamped with it (stale: the controller holds). Returns (4, 4), m, and s.
     """
     if not t - t_capture <= max_age:
         return ring_pose(track[:3], track[3:6]), t_capture
-    t_pose = max(t - latency, t_capture)
-    x = track[:6] + track[6:] * (t_pose - t_capture)
-    return ring_pose(x[:3], x[3:6]), t_pose
+    x = track[:6] + track[6:] * (t + lead - t_capture)
+    return ring_pose(x[:3], x[3:6]), t
 
 
 FILTER_RESET_S = 0.25  # s, a gap between estimates longer than this restarts the track filter
+FILTER_REFUSALS = 3  # count: this many refused estimates in a row restart the filter at the next
 
 
 class TrackFilter:
     """An alpha-beta filter on the estimated ring centre and normal (world), per estimate.
 
-    The estimator's normal is noisy near the ring's axis (1–5°, docs/perception.md), more
-    than a tracker's noise the observation gate allows (``control.gate.FLOOR_RAD``); the
+    The estimator's normal is noisy near the ring's axis (1–5°, docs/perception.md); the
     filter takes ``alpha`` of each innovation into the pose and ``beta / Δt`` of it into the
-    rates (constant-velocity prediction: no lag on a steady motion). A gap longer than
-    :data:`FILTER_RESET_S` restarts it at the estimate. ``alpha = 1, beta = 0``: the raw
-    estimates.
+    rates (constant-velocity prediction: no lag on a steady motion). An estimate whose
+    innovation exceeds ``gate_position`` (m, the centre) or ``gate_angle`` (rad, the normal)
+    is refused (a bad fit, a wrong choice of normal: the filter predicts on); after
+    :data:`FILTER_REFUSALS` refusals in a row, or a gap longer than :data:`FILTER_RESET_S`,
+    the filter restarts at the next estimate (the ring moved; the controller's gate judges
+    the jump). ``alpha = 1, beta = 0`` and infinite gates: the raw estimates.
     """
 
-    def __init__(self, alpha: float, beta: float) -> None:
+    def __init__(
+        self,
+        alpha: float,
+        beta: float,
+        gate_position: float = math.inf,
+        gate_angle: float = math.pi,
+    ) -> None:
         self.alpha, self.beta = alpha, beta
+        self.gate_position, self.gate_angle = gate_position, gate_angle
         self.t: float | None = None
         self.x = np.zeros(6)  # centre (m), unit normal
         self.v = np.zeros(6)  # their rates, m/s and 1/s
+        self.refused = 0  # refusals in a row
+        self.refused_total = 0  # refusals since the start
 
-    def update(self, t: float, p_world: FloatArray, n_world: FloatArray) -> FloatArray:
-        """The filtered (6,) centre (m) and unit normal after the estimate at ``t`` s."""
+    def update(self, t: float, p_world: FloatArray, n_world: FloatArray) -> FloatArray | None:
+        """The filtered (6,) centre (m) and unit normal after the estimate at ``t`` s.
+
+        ``None``: the estimate was refused (its innovation beyond the gates); the state is
+        kept.
+        """
         z = np.concatenate([p_world, n_world])
-        if self.t is None or not 0.0 < t - self.t <= FILTER_RESET_S:
+        restart = self.t is None or not 0.0 < t - self.t <= FILTER_RESET_S
+        if restart or self.refused >= FILTER_REFUSALS:
             self.x, self.v = z, np.zeros(6)
         else:
             dt = t - self.t
             predicted = self.x + self.v * dt
             r = z - predicted
+            n_pred = predicted[3:] / np.linalg.norm(predicted[3:])
+            turn = math.acos(min(1.0, max(-1.0, float(n_pred @ n_world))))
+            if np.linalg.norm(r[:3]) > self.gate_position or turn > self.gate_angle:
+                self.refused += 1
+                self.refused_total += 1
+                return None
             self.x = predicted + self.alpha * r
             self.v = self.v + (self.beta / dt) * r
             self.x[3:] /= np.linalg.norm(self.x[3:])
+        self.refused = 0
         self.t = t
         return self.x.copy()
 
@@ -264,6 +308,8 @@ class EstimateLog:
         Measured wall time of the estimator per frame, s (not used by the loop).
     frame_cpu_s : (F,)
         Its thread CPU time per frame, s.
+    filter_refused : int
+        Estimates the track filter refused (beyond its gates; none delivered for them).
     """
 
     p_world: FloatArray
@@ -276,6 +322,7 @@ class EstimateLog:
     frame_status: np.ndarray
     frame_wall_s: FloatArray
     frame_cpu_s: FloatArray
+    filter_refused: int = 0
 
     @property
     def ok(self) -> np.ndarray:
@@ -319,6 +366,7 @@ def estimation_summary(log: EstimateLog, T_world_ring_at: Any) -> dict[str, Any]
         "frames": frames,
         "estimate_share": float(np.mean(log.frame_ok)) if frames else 0.0,
         "frame_status": {str(s): int(c) for s, c in zip(statuses, counts, strict=True)},
+        "filter_refused": log.filter_refused,
         "delivered": int(np.count_nonzero(log.ok)),
         "center_error_mm": _stats(centre, 1e3),
         "normal_error_deg": _stats(normal, math.degrees(1.0)),

@@ -90,11 +90,14 @@ class StereoSource:
         self.image = ImageModelConfig() if per.image_model else None
         self.rng = np.random.default_rng((seed, IMAGE_STREAM))
         self.delay = ep.sensing_latency + per.processing_delay
-        self.latency = ep.sensing_latency
+        tracker = config.controller.tracker
+        self.lead = tracker.carrier_lead if tracker.predict else 0.0
         self.resample = per.resample
         self.max_age = config.controller.ring_max_age
         self._track: tuple[float, FloatArray] | None = None  # capture time, (12,) filter state
-        self.filter = TrackFilter(per.filter_alpha, per.filter_beta)
+        self.filter = TrackFilter(
+            per.filter_alpha, per.filter_beta, per.filter_gate_position, per.filter_gate_angle
+        )
         self.dt = 1.0 / ep.control_rate
         self._rim = _rim(config.task.ring.major_radius)
         n = world.n
@@ -140,7 +143,7 @@ class StereoSource:
             self.n_world[k] = got.T_world_ring[:3, 2]
             self.t_capture[k] = got.t_capture
         if self.resample and self._track is not None:
-            self._now = resampled(self._track[1], self._track[0], t, self.latency, self.max_age)
+            self._now = resampled(self._track[1], self._track[0], t, self.lead, self.max_age)
         self.T_seen[k] = self._now[0]
         if math.isfinite(self._now[0][0, 0]):
             self.t_seen[k] = self._now[1]
@@ -171,6 +174,8 @@ class StereoSource:
             t = float(world.t[k])
             T_est = estimate_in_world(out.estimate, T_world_cam, self._last[1])
             x = self.filter.update(t, T_est[:3, 3], T_est[:3, 2])
+            if x is None:  # refused by the filter's gate: no new pose from this frame
+                return
             T_est = ring_pose(x[:3], x[3:])
             track = np.concatenate([x, self.filter.v])
             self._pending.append(_Pending(t + self.delay, t, T_est, track))
@@ -218,6 +223,7 @@ class StereoSource:
             frame_status=np.array(self.frame_status, dtype=str),
             frame_wall_s=np.array(self.frame_wall, dtype=float),
             frame_cpu_s=np.array(self.frame_cpu, dtype=float),
+            filter_refused=self.filter.refused_total,
         )
 
     def close(self) -> None:
