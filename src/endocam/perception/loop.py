@@ -260,11 +260,10 @@ class TrackFilter:
         kept.
         """
         z = np.concatenate([p_world, n_world])
-        restart = self.t is None or not 0.0 < t - self.t <= FILTER_RESET_S
-        if restart or self.refused >= FILTER_REFUSALS:
+        dt = math.inf if self.t is None else t - self.t
+        if not 0.0 < dt <= FILTER_RESET_S or self.refused >= FILTER_REFUSALS:
             self.x, self.v = z, np.zeros(6)
         else:
-            dt = t - self.t
             predicted = self.x + self.v * dt
             r = z - predicted
             n_pred = predicted[3:] / np.linalg.norm(predicted[3:])
