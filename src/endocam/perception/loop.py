@@ -307,6 +307,11 @@ class EstimateLog:
         Measured wall time of the estimator per frame, s (not used by the loop).
     frame_cpu_s : (F,)
         Its thread CPU time per frame, s.
+    lost : (K,) bool
+        The steps asked so far on which the ring was lost: no estimate delivered yet, or the
+        last one captured more than ``controller.ring_max_age`` before (the controller holds).
+    dt_s : float
+        The control period, s.
     filter_refused : int
         Estimates the track filter refused (beyond its gates; none delivered for them).
     """
@@ -321,6 +326,8 @@ class EstimateLog:
     frame_status: np.ndarray
     frame_wall_s: FloatArray
     frame_cpu_s: FloatArray
+    lost: np.ndarray
+    dt_s: float
     filter_refused: int = 0
 
     @property
@@ -356,12 +363,34 @@ def _stats(values: FloatArray, scale: float) -> dict[str, float | None]:
     }
 
 
+def lost_summary(log: EstimateLog) -> dict[str, Any]:
+    """Why the controller held for want of an estimate: the lost stretches and their frames.
+
+    ``share`` of the steps lost, ``stretches`` (runs of lost steps), ``longest_s`` (s), and
+    ``frame_status``: the estimator's status counts over the frames captured while lost
+    (``no_ring``: the ring out of view or too small; ``ambiguous``, ``low_coverage``, ...).
+    """
+    lost = np.asarray(log.lost, dtype=bool)
+    edges = np.diff(np.concatenate([[0], lost.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    steps = log.frame_steps
+    during = log.frame_status[lost[steps[steps < len(lost)]]] if len(steps) else log.frame_status
+    statuses, counts = np.unique(during, return_counts=True)
+    return {
+        "share": float(lost.mean()) if len(lost) else 0.0,
+        "stretches": len(starts),
+        "longest_s": float((ends - starts).max() * log.dt_s) if len(starts) else 0.0,
+        "frame_status": {str(s): int(c) for s, c in zip(statuses, counts, strict=True)},
+    }
+
+
 def estimation_summary(log: EstimateLog, T_world_ring_at: Any) -> dict[str, Any]:
     """``metrics.json``'s ``perception`` section: errors (mm, deg), estimate share, time (ms)."""
     centre, normal = estimate_errors(log, T_world_ring_at)
     frames = len(log.frame_steps)
     statuses, counts = np.unique(log.frame_status, return_counts=True)
     return {
+        "lost": lost_summary(log),
         "frames": frames,
         "estimate_share": float(np.mean(log.frame_ok)) if frames else 0.0,
         "frame_status": {str(s): int(c) for s, c in zip(statuses, counts, strict=True)},

@@ -115,6 +115,8 @@ class StereoSource:
         self.t_capture = np.full(n, np.nan)
         self.T_seen = np.full((n, 4, 4), np.nan)
         self.t_seen = np.array(world.t, dtype=float)
+        self.lost = np.zeros(n, dtype=bool)
+        self._last_capture = -math.inf  # the last delivered estimate's capture time, s
         self.frame_ok: list[bool] = []
         self.frame_status: list[str] = []
         self.frame_wall: list[float] = []
@@ -139,11 +141,13 @@ class StereoSource:
             got = self._pending.popleft()
             self._now = (got.T_world_ring, got.t_capture)
             self._track = (got.t_capture, got.track)
+            self._last_capture = got.t_capture
             self.p_world[k] = got.T_world_ring[:3, 3]
             self.n_world[k] = got.T_world_ring[:3, 2]
             self.t_capture[k] = got.t_capture
         if self.resample and self._track is not None:
             self._now = resampled(self._track[1], self._track[0], t, self.lead, self.max_age)
+        self.lost[k] = not t - self._last_capture <= self.max_age
         self.T_seen[k] = self._now[0]
         if math.isfinite(self._now[0][0, 0]):
             self.t_seen[k] = self._now[1]
@@ -223,6 +227,8 @@ class StereoSource:
             frame_status=np.array(self.frame_status, dtype=str),
             frame_wall_s=np.array(self.frame_wall, dtype=float),
             frame_cpu_s=np.array(self.frame_cpu, dtype=float),
+            lost=self.lost[: self._k + 1],
+            dt_s=self.dt,
             filter_refused=self.filter.refused_total,
         )
 
