@@ -140,6 +140,11 @@ def main() -> int:
                 if est is None
                 else est.T_world_ring_seen,
                 t_ring_seen=result.log.t if est is None else est.t_ring_seen,
+                est_t_capture=np.zeros(0) if est is None else est.t_capture,
+                est_p=np.zeros(0) if est is None else est.p_world,
+                est_n=np.zeros(0) if est is None else est.n_world,
+                frame_steps=np.zeros(0) if est is None else est.frame_steps,
+                frame_status=np.zeros(0) if est is None else est.frame_status,
             )
         cells = " ".join(f"{k}={v:.3g}" for k, v in row.items())
         print(f"{args.path} {args.arm} {args.seconds:g}s {name}: {cells}", flush=True)

@@ -15,7 +15,6 @@ import pytest
 from endocam.config import ExperimentConfig
 from endocam.perception.estimator import NormalChoice, settle_choice
 from endocam.perception.loop import (
-    FILTER_REFUSALS,
     TrackFilter,
     capture_steps,
     estimate_errors,
@@ -166,26 +165,24 @@ def test_the_track_filter_follows_a_steady_motion_and_damps_noise() -> None:
     assert np.array_equal(x, np.array([1.0, 1.0, 1.0, 1.0, 0.0, 0.0]))  # restarted
 
 
-def test_the_track_filter_refuses_a_wild_estimate_and_restarts_after_a_run() -> None:
-    """An estimate beyond the filter's gates leaves its state as it was; FILTER_REFUSALS in a
-    row restart it at the next estimate (the ring moved)."""
+def test_the_track_filter_clips_a_wild_estimate_and_still_follows_a_real_change() -> None:
+    """An estimate far beyond the filter's gates moves its pose by at most alpha times the gate
+    (no jump for the controller's gate to refuse); a real, lasting change is followed."""
     frame_s = 1.0 / 30.0  # s
-    gate_m, gate_rad = 2.0e-3, math.radians(6.0)  # m, rad
-    f = TrackFilter(0.35, 0.06, gate_m, gate_rad)
+    alpha, gate_m, gate_rad = 0.2, 2.0e-3, math.radians(6.0)  # -, m, rad
+    f = TrackFilter(alpha, 0.02, gate_m, gate_rad)
     n0 = np.array([0.0, 0.0, 1.0])
     for j in range(10):
         x = f.update(j * frame_s, np.zeros(3), n0)
-    assert x is not None
-    turned = np.array([0.0, math.sin(2 * gate_rad), math.cos(2 * gate_rad)])
-    assert f.update(10 * frame_s, np.zeros(3), turned) is None
-    assert f.update(11 * frame_s, np.array([2 * gate_m, 0.0, 0.0]), n0) is None
-    kept = f.update(12 * frame_s, np.zeros(3), n0)
-    assert kept is not None and np.allclose(kept, x)  # the refused ones left no trace
-    moved = np.array([0.01, 0.0, 0.0])
-    answers = [f.update((13 + j) * frame_s, moved, n0) for j in range(FILTER_REFUSALS + 1)]
-    assert all(a is None for a in answers[:-1])
-    assert answers[-1] is not None and np.array_equal(answers[-1][:3], moved)  # restarted
-    assert f.refused_total == 2 + FILTER_REFUSALS
+    turned = np.array([0.0, math.sin(8 * gate_rad), math.cos(8 * gate_rad)])  # 48° off
+    y = f.update(10 * frame_s, np.array([10 * gate_m, 0.0, 0.0]), turned)
+    assert np.linalg.norm(y[:3] - x[:3]) <= alpha * gate_m * (1 + 1e-9)
+    assert math.acos(min(1.0, float(y[3:] @ x[3:]))) <= alpha * gate_rad * (1 + 1e-9)
+    assert f.clipped == 1
+    moved = np.array([0.01, 0.0, 0.0])  # m: the ring is now 1 cm away, for good
+    for j in range(11, 11 + 10 * 30):  # 10 s
+        y = f.update(j * frame_s, moved, n0)
+    assert np.linalg.norm(y[:3] - moved) <= STEADY_TOL_M  # followed
 
 
 def test_the_controller_is_given_the_track_predicted_to_now_until_it_is_too_old() -> None:

@@ -41,8 +41,8 @@ FILTER_GATE_M = 2.0e-3
 and 2.1 mm at the max over 300 pairs (bench/perception_estimator.py, image model on)."""
 FILTER_GATE_RAD = math.radians(6.0)
 """rad: the filter's normal gate: the raw normal error was 3.9° at the p95, 16.5° at the max;
-an estimate 6° off moves the filter's pose by alpha × 6° (2.1° at the default alpha), under
-the controller gate's stereo floor (3°)."""
+an estimate 6° or more off moves the filter's pose by at most alpha × 6° (1.2° at the default
+alpha), under the controller gate's stereo floor (3°)."""
 STEREO_FLOOR_M = 1.0e-3
 """m: the gate's centre noise floor on stereo. The innovation the gate sees on the filtered
 estimates (their constant-velocity prediction's miss, frame to frame) was 0.15-0.23 mm at the
@@ -99,14 +99,15 @@ class PerceptionConfig(BaseModel):
         True, description="Apply the image model (noise, blur, highlights, gain) (stereo)."
     )
     filter_alpha: float = Field(
-        0.35,
+        0.2,
         gt=0.0,
         le=1.0,
         description="Alpha-beta track filter on the estimates (stereo): the share of an "
-        "estimate's innovation taken into the pose (1 with beta 0: raw estimates).",
+        "estimate's innovation taken into the pose (1 with beta 0: raw estimates; 0.2: "
+        "steady image error 4.5 px against 6.1 at 0.35 on ideal-36, docs/perception.md).",
     )
     filter_beta: float = Field(
-        0.06,
+        0.02,
         ge=0.0,
         lt=1.0,
         description="Alpha-beta track filter (stereo): the share of the innovation per frame "
@@ -116,15 +117,15 @@ class PerceptionConfig(BaseModel):
     filter_gate_position: float = Field(
         FILTER_GATE_M,
         gt=0.0,
-        description="The track filter refuses an estimate whose centre is farther than this "
-        "from its prediction, m (stereo).",
+        description="The track filter clips an estimate's centre innovation to this length, "
+        "m (stereo).",
     )
     filter_gate_angle: float = Field(
         FILTER_GATE_RAD,
         gt=0.0,
         le=math.pi,
-        description="The track filter refuses an estimate whose normal is turned more than "
-        "this from its prediction, rad (stereo).",
+        description="The track filter clips an estimate's normal innovation to this angle, "
+        "rad (stereo).",
     )
     resample: bool = Field(
         True,
@@ -222,7 +223,6 @@ def resampled(
 
 
 FILTER_RESET_S = 0.25  # s, a gap between estimates longer than this restarts the track filter
-FILTER_REFUSALS = 3  # count: this many refused estimates in a row restart the filter at the next
 
 
 class TrackFilter:
@@ -230,12 +230,13 @@ class TrackFilter:
 
     The estimator's normal is noisy near the ring's axis (1–5°, docs/perception.md); the
     filter takes ``alpha`` of each innovation into the pose and ``beta / Δt`` of it into the
-    rates (constant-velocity prediction: no lag on a steady motion). An estimate whose
-    innovation exceeds ``gate_position`` (m, the centre) or ``gate_angle`` (rad, the normal)
-    is refused (a bad fit, a wrong choice of normal: the filter predicts on); after
-    :data:`FILTER_REFUSALS` refusals in a row, or a gap longer than :data:`FILTER_RESET_S`,
-    the filter restarts at the next estimate (the ring moved; the controller's gate judges
-    the jump). ``alpha = 1, beta = 0`` and infinite gates: the raw estimates.
+    rates (constant-velocity prediction: no lag on a steady motion). An innovation longer
+    than ``gate_position`` (m, the centre) or ``gate_angle`` (rad, the normal) is clipped to
+    that length first (a Huber filter): a bad fit or a wrong choice of normal moves the pose
+    by at most ``alpha`` times the gate, and a real change the filter lags is still followed,
+    at most that much per estimate, with no jump the controller's gate would refuse. A gap
+    longer than :data:`FILTER_RESET_S` restarts it at the estimate. ``alpha = 1, beta = 0``
+    and infinite gates: the raw estimates.
     """
 
     def __init__(
@@ -246,36 +247,32 @@ class TrackFilter:
         gate_angle: float = math.pi,
     ) -> None:
         self.alpha, self.beta = alpha, beta
-        self.gate_position, self.gate_angle = gate_position, gate_angle
+        self.gate_position = gate_position
+        self.gate_normal = 2.0 * math.sin(0.5 * min(gate_angle, math.pi))  # chord, unit normals
         self.t: float | None = None
         self.x = np.zeros(6)  # centre (m), unit normal
         self.v = np.zeros(6)  # their rates, m/s and 1/s
-        self.refused = 0  # refusals in a row
-        self.refused_total = 0  # refusals since the start
+        self.clipped = 0  # estimates whose innovation was clipped, since the start
 
-    def update(self, t: float, p_world: FloatArray, n_world: FloatArray) -> FloatArray | None:
-        """The filtered (6,) centre (m) and unit normal after the estimate at ``t`` s.
-
-        ``None``: the estimate was refused (its innovation beyond the gates); the state is
-        kept.
-        """
+    def update(self, t: float, p_world: FloatArray, n_world: FloatArray) -> FloatArray:
+        """The filtered (6,) centre (m) and unit normal after the estimate at ``t`` s."""
         z = np.concatenate([p_world, n_world])
         dt = math.inf if self.t is None else t - self.t
-        if not 0.0 < dt <= FILTER_RESET_S or self.refused >= FILTER_REFUSALS:
+        if not 0.0 < dt <= FILTER_RESET_S:
             self.x, self.v = z, np.zeros(6)
         else:
             predicted = self.x + self.v * dt
             r = z - predicted
-            n_pred = predicted[3:] / np.linalg.norm(predicted[3:])
-            turn = math.acos(min(1.0, max(-1.0, float(n_pred @ n_world))))
-            if np.linalg.norm(r[:3]) > self.gate_position or turn > self.gate_angle:
-                self.refused += 1
-                self.refused_total += 1
-                return None
+            clipped = False
+            for part, gate in ((slice(0, 3), self.gate_position), (slice(3, 6), self.gate_normal)):
+                length = float(np.linalg.norm(r[part]))
+                if length > gate:
+                    r[part] *= gate / length
+                    clipped = True
+            self.clipped += clipped
             self.x = predicted + self.alpha * r
             self.v = self.v + (self.beta / dt) * r
             self.x[3:] /= np.linalg.norm(self.x[3:])
-        self.refused = 0
         self.t = t
         return self.x.copy()
 
@@ -312,8 +309,8 @@ class EstimateLog:
         last one captured more than ``controller.ring_max_age`` before (the controller holds).
     dt_s : float
         The control period, s.
-    filter_refused : int
-        Estimates the track filter refused (beyond its gates; none delivered for them).
+    filter_clipped : int
+        Estimates whose innovation the track filter clipped to its gates.
     """
 
     p_world: FloatArray
@@ -328,7 +325,7 @@ class EstimateLog:
     frame_cpu_s: FloatArray
     lost: np.ndarray
     dt_s: float
-    filter_refused: int = 0
+    filter_clipped: int = 0
 
     @property
     def ok(self) -> np.ndarray:
@@ -394,7 +391,7 @@ def estimation_summary(log: EstimateLog, T_world_ring_at: Any) -> dict[str, Any]
         "frames": frames,
         "estimate_share": float(np.mean(log.frame_ok)) if frames else 0.0,
         "frame_status": {str(s): int(c) for s, c in zip(statuses, counts, strict=True)},
-        "filter_refused": log.filter_refused,
+        "filter_clipped": log.filter_clipped,
         "delivered": int(np.count_nonzero(log.ok)),
         "center_error_mm": _stats(centre, 1e3),
         "normal_error_deg": _stats(normal, math.degrees(1.0)),

@@ -178,8 +178,6 @@ class StereoSource:
             t = float(world.t[k])
             T_est = estimate_in_world(out.estimate, T_world_cam, self._last[1])
             x = self.filter.update(t, T_est[:3, 3], T_est[:3, 2])
-            if x is None:  # refused by the filter's gate: no new pose from this frame
-                return
             T_est = ring_pose(x[:3], x[3:])
             track = np.concatenate([x, self.filter.v])
             self._pending.append(_Pending(t + self.delay, t, T_est, track))
@@ -229,7 +227,7 @@ class StereoSource:
             frame_cpu_s=np.array(self.frame_cpu, dtype=float),
             lost=self.lost[: self._k + 1],
             dt_s=self.dt,
-            filter_refused=self.filter.refused_total,
+            filter_clipped=self.filter.clipped,
         )
 
     def close(self) -> None:
