@@ -44,7 +44,11 @@ from endocam.runner.step import EpisodeWorld
 from endocam.sim.render import WireChaserScene
 
 RIM_POINTS = 24  # points on the ring's core circle: the highlights' candidate sites
-PRIOR_MAX_AGE = 0.2  # s, the last estimate settles an ambiguous normal for this long
+PRIOR_MAX_AGE = 1.0  # s, the last estimate settles an ambiguous normal for this long
+"""Before the first estimate the setup's registration is the prior, without a lapse (the PSM's
+far start view gave only `ambiguous` pairs once a 0.2 s prior had lapsed, and never
+approached). A prior settles a choice only when one hypothesis lies within a quarter of the
+two's separation of it (``EstimatorConfig.prior_fraction``)."""
 MAX_BLUR_PX = 48.0  # px, the longest motion blur applied: past it the ring is a smear either way
 IMAGE_STREAM = 26  # the image model's stream of the run's seed (issue 26), apart from others
 
@@ -108,8 +112,9 @@ class StereoSource:
         self._k = -1
         self._now: tuple[FloatArray, float] = (np.full((4, 4), np.nan), 0.0)
         self._prev_cam: FloatArray | None = None
-        # the last estimate's time and normal (world): the estimator's prior
-        self._last: tuple[float, FloatArray] = (0.0, np.array(T_world_ring_start[:3, 2]))
+        # the last estimate's time and normal (world): the estimator's prior (before the
+        # first estimate: the setup's registration, which does not lapse)
+        self._last: tuple[float, FloatArray] = (math.inf, np.array(T_world_ring_start[:3, 2]))
         self.p_world = np.full((n, 3), np.nan)
         self.n_world = np.full((n, 3), np.nan)
         self.t_capture = np.full(n, np.nan)
@@ -184,7 +189,10 @@ class StereoSource:
             self._last = (t, T_est[:3, 2])
 
     def _prior(self, k: int, T_world_cam: FloatArray) -> FloatArray | None:
-        """The last estimate's normal in this camera's frame, if at most PRIOR_MAX_AGE old."""
+        """The last estimate's normal in this camera's frame, if at most PRIOR_MAX_AGE old.
+
+        Before the first estimate: the setup's registration normal.
+        """
         if self.world.t[k] - self._last[0] > PRIOR_MAX_AGE:
             return None
         return np.asarray(T_world_cam[:3, :3].T @ self._last[1])
