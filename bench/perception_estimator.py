@@ -40,6 +40,7 @@ from endocam.runner.experiments import paper_paths
 from endocam.runner.perception_experiment import (
     CARRIERS,
     CONDITIONS,
+    DEFAULT_FRAMES,
     sample_pairs,
     summarise,
     tracker_episodes,
@@ -63,7 +64,9 @@ STRESS = {
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=300, help="stereo pairs over all episodes")
+    parser.add_argument(
+        "--frames", type=int, default=DEFAULT_FRAMES, help="stereo pairs over all episodes"
+    )
     parser.add_argument("--json", default=None, help="write the report here too")
     parser.add_argument(
         "--stress", action="store_true", help="also each STRESS variant of the image model"

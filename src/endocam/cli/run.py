@@ -334,7 +334,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--frames",
         type=integer,
         default=300,
-        help="stereo pairs over the twelve episodes (default 300: ~5 min on one core)",
+        help="stereo pairs over the twelve episodes (default 300: about a minute)",
     )
     epc.add_argument("--config", help="TOML or YAML config file")
     epc.set_defaults(handler=_perception)

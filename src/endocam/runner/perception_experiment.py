@@ -46,7 +46,7 @@ WILD_M = 20e-3  # m, an estimate off by more than this is wild (issue 26)
 WILD_RAD = math.radians(45.0)  # rad, likewise for the normal
 SKIP_S = 1.0  # s, pairs before this (the camera settling from its start) are not sampled
 IMAGE_SEED = 0  # seeds the image model: pair i uses default_rng((IMAGE_SEED, i))
-DEFAULT_FRAMES = 300  # pairs: ~3-5 min on one core
+DEFAULT_FRAMES = 300  # pairs: ~1 min on the shared 2-core machine
 CONDITIONS = ("rendered", "image_model")
 Stress = Mapping[str, tuple[ImageModelConfig, float | None]]
 """Extra conditions: name → (image model, blur speed along the image's x, px/s, or None for
@@ -263,7 +263,7 @@ def plot_errors(rows: list[dict[str, Any]], path: Path) -> None:
                 if pts:
                     x, y = np.array(pts, dtype=float).T
                     ax.scatter(x, y, s=8, alpha=0.6, color=colour, label=cond.replace("_", " "))
-            ax.set_yscale("symlog", linthresh=1.0)
+            ax.set_yscale("log")
             ax.grid(True, alpha=0.3)
             if row_i == 1:
                 ax.set_xlabel(xlabel)
