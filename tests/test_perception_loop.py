@@ -18,6 +18,7 @@ from endocam.perception.loop import (
     TrackFilter,
     capture_steps,
     estimate_errors,
+    prior_normal,
     resampled,
 )
 from endocam.robot.actuator import ArmKind
@@ -198,3 +199,16 @@ def test_the_controller_is_given_the_track_predicted_to_now_until_it_is_too_old(
     T, stamp = resampled(track, t_capture, t_capture + max_age + DT_S, lead, max_age)
     assert stamp == t_capture
     np.testing.assert_allclose(T[:3, 3], P_WORLD_RING, atol=TIME_TOL_S)
+
+
+def test_the_registration_is_the_prior_until_the_first_estimate() -> None:
+    """Before any estimate the setup's normal settles ambiguous pairs however long it takes
+    (the PSM's far start); after one, its normal does for ``max_age`` only."""
+    T_cam = look_at_pose(P_WORLD_RING + np.array([0.0, -DISTANCE_M, 0.0]), P_WORLD_RING)
+    n = R_WORLD_RING[:, 2]
+    max_age = 1.0  # s
+    before = prior_normal(30.0, math.inf, n, T_cam, max_age)
+    assert before is not None
+    np.testing.assert_allclose(before, T_cam[:3, :3].T @ n, atol=TIME_TOL_S)
+    assert prior_normal(30.0, 29.5, n, T_cam, max_age) is not None
+    assert prior_normal(30.0, 28.5, n, T_cam, max_age) is None

@@ -222,6 +222,21 @@ def resampled(
     return ring_pose(x[:3], x[3:6]), t
 
 
+def prior_normal(
+    t: float, t_last: float, n_world_last: FloatArray, T_world_cam: FloatArray, max_age: float
+) -> FloatArray | None:
+    """The estimator's prior at ``t`` (s): the last normal in this camera's frame, or None.
+
+    ``n_world_last`` (3,): the last estimate's unit normal, world, captured at ``t_last`` (s;
+    ``inf`` before the first estimate: then the setup's registration normal, which does not
+    lapse); ``T_world_cam`` (4, 4) the camera now. None once the estimate is more than
+    ``max_age`` (s) old.
+    """
+    if t - t_last > max_age:
+        return None
+    return np.asarray(T_world_cam[:3, :3].T @ n_world_last)
+
+
 FILTER_RESET_S = 0.25  # s, a gap between estimates longer than this restarts the track filter
 
 

@@ -36,6 +36,7 @@ from endocam.perception.loop import (
     TrackFilter,
     capture_steps,
     estimate_in_world,
+    prior_normal,
     resampled,
     ring_pose,
 )
@@ -189,13 +190,9 @@ class StereoSource:
             self._last = (t, T_est[:3, 2])
 
     def _prior(self, k: int, T_world_cam: FloatArray) -> FloatArray | None:
-        """The last estimate's normal in this camera's frame, if at most PRIOR_MAX_AGE old.
-
-        Before the first estimate: the setup's registration normal.
-        """
-        if self.world.t[k] - self._last[0] > PRIOR_MAX_AGE:
-            return None
-        return np.asarray(T_world_cam[:3, :3].T @ self._last[1])
+        """The estimator's prior at step ``k`` (:func:`~endocam.perception.loop.prior_normal`)."""
+        t_last, n_last = self._last
+        return prior_normal(float(self.world.t[k]), t_last, n_last, T_world_cam, PRIOR_MAX_AGE)
 
     def _degrade(self, image: np.ndarray, eye: Eye, k: int, T_world_cam: FloatArray) -> np.ndarray:
         """``image`` through the image model, blurred by the ring's image velocity in ``eye``.
