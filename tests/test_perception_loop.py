@@ -14,7 +14,13 @@ import pytest
 
 from endocam.config import ExperimentConfig
 from endocam.perception.estimator import NormalChoice, settle_choice
-from endocam.perception.loop import TrackFilter, capture_steps, estimate_errors
+from endocam.perception.loop import (
+    TrackFilter,
+    capture_steps,
+    estimate_errors,
+    prior_normal,
+    resampled,
+)
 from endocam.robot.actuator import ArmKind
 from endocam.runner.log_schema import (
     ESTIMATE_COLUMNS,
@@ -103,10 +109,10 @@ def test_the_stereo_source_delivers_estimates_late_and_stamped() -> None:
     assert np.all(age >= delay - TIME_TOL_S)
     for k in range(6):  # nothing yet: a missing pose, stamped now
         assert np.isnan(seen[k][0]).all() and seen[k][1] == pytest.approx(k * DT_S)
-    for k in range(6, n):  # between deliveries: the last estimate, its capture stamp
-        last = delivered[delivered <= k][-1]
-        assert seen[k][1] == log.t_capture[last]
+    for k in range(6, n):  # every step after the first: the track's pose for now, stamped now
+        assert seen[k][1] == pytest.approx(k * DT_S)
         assert np.array_equal(seen[k][0], log.T_world_ring_seen[k])
+        assert np.linalg.norm(seen[k][0][:3, 3] - P_WORLD_RING) <= CENTRE_TOL_M
     centre, normal = estimate_errors(log, lambda t: np.repeat(T_ring[None], len(t), axis=0))
     assert len(centre) == 4
     assert centre.max() <= CENTRE_TOL_M and normal.max() <= NORMAL_TOL
@@ -158,3 +164,51 @@ def test_the_track_filter_follows_a_steady_motion_and_damps_noise() -> None:
     assert np.median(out[30:]) <= 0.6 * np.median(raw[30:])  # a still ring: noise damped
     x = noisy.update(300 * frame_s + 1.0, np.ones(3), np.array([1.0, 0.0, 0.0]))  # after a gap
     assert np.array_equal(x, np.array([1.0, 1.0, 1.0, 1.0, 0.0, 0.0]))  # restarted
+
+
+def test_the_track_filter_clips_a_wild_estimate_and_still_follows_a_real_change() -> None:
+    """An estimate far beyond the filter's gates moves its pose by at most alpha times the gate
+    (no jump for the controller's gate to refuse); a real, lasting change is followed."""
+    frame_s = 1.0 / 30.0  # s
+    alpha, gate_m, gate_rad = 0.2, 2.0e-3, math.radians(6.0)  # -, m, rad
+    f = TrackFilter(alpha, 0.02, gate_m, gate_rad)
+    n0 = np.array([0.0, 0.0, 1.0])
+    for j in range(10):
+        x = f.update(j * frame_s, np.zeros(3), n0)
+    turned = np.array([0.0, math.sin(8 * gate_rad), math.cos(8 * gate_rad)])  # 48° off
+    y = f.update(10 * frame_s, np.array([10 * gate_m, 0.0, 0.0]), turned)
+    assert np.linalg.norm(y[:3] - x[:3]) <= alpha * gate_m * (1 + 1e-9)
+    assert math.acos(min(1.0, float(y[3:] @ x[3:]))) <= alpha * gate_rad * (1 + 1e-9)
+    assert f.clipped == 1
+    moved = np.array([0.01, 0.0, 0.0])  # m: the ring is now 1 cm away, for good
+    for j in range(11, 11 + 10 * 30):  # 10 s
+        y = f.update(j * frame_s, moved, n0)
+    assert np.linalg.norm(y[:3] - moved) <= STEADY_TOL_M  # followed
+
+
+def test_the_controller_is_given_the_track_predicted_to_now_until_it_is_too_old() -> None:
+    """The track (centre, normal and rates) predicted across its age and the lead, stamped
+    with the control time; past max_age: the pose at its capture with its capture stamp (so
+    the controller's stale rule holds the camera)."""
+    v = np.array([0.01, -0.02, 0.0])  # m/s
+    track = np.concatenate([P_WORLD_RING, [0.0, 0.0, 1.0], v, [0.0, 0.0, 0.0]])
+    t_capture, lead, max_age = 1.0, 0.04, 0.25  # s
+    T, stamp = resampled(track, t_capture, t_capture + 0.1, lead, max_age)
+    assert stamp == t_capture + 0.1
+    np.testing.assert_allclose(T[:3, 3], P_WORLD_RING + v * (0.1 + lead), atol=TIME_TOL_S)
+    T, stamp = resampled(track, t_capture, t_capture + max_age + DT_S, lead, max_age)
+    assert stamp == t_capture
+    np.testing.assert_allclose(T[:3, 3], P_WORLD_RING, atol=TIME_TOL_S)
+
+
+def test_the_registration_is_the_prior_until_the_first_estimate() -> None:
+    """Before any estimate the setup's normal settles ambiguous pairs however long it takes
+    (the PSM's far start); after one, its normal does for ``max_age`` only."""
+    T_cam = look_at_pose(P_WORLD_RING + np.array([0.0, -DISTANCE_M, 0.0]), P_WORLD_RING)
+    n = R_WORLD_RING[:, 2]
+    max_age = 1.0  # s
+    before = prior_normal(30.0, math.inf, n, T_cam, max_age)
+    assert before is not None
+    np.testing.assert_allclose(before, T_cam[:3, :3].T @ n, atol=TIME_TOL_S)
+    assert prior_normal(30.0, 29.5, n, T_cam, max_age) is not None
+    assert prior_normal(30.0, 28.5, n, T_cam, max_age) is None

@@ -34,6 +34,10 @@ def test_a_stereo_run_that_sees_no_ring_holds_and_logs_empty_estimates(tmp_path:
     assert metrics["check"]["ok"], metrics["check"]
     per = metrics["perception"]
     assert per["frames"] == 31 and per["estimate_share"] == 0.0 and per["delivered"] == 0
+    lost = per["lost"]  # and says why: lost all along, no frame found the ring
+    assert lost["share"] == 1.0 and lost["stretches"] == 1
+    assert lost["longest_s"] == cfg.task.trajectory.duration + 1.0 / cfg.episode.control_rate
+    assert lost["frame_status"] == {"no_ring": 31}
     with open(tmp_path / "episode.csv", newline="", encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))
     assert set(ESTIMATE_COLUMNS) <= set(rows[0])

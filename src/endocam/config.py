@@ -118,6 +118,26 @@ class ExperimentConfig(BaseModel):
         "estimator on the rendered images (docs/perception.md).",
     )
 
+    @property
+    def controller_on_source(self) -> ControllerConfig:
+        """The controller's parameters as the ring pose's source needs them.
+
+        ``truth``: ``controller`` as it is. ``stereo``: its ``ring_gate_floor_*`` replaced by
+        ``perception.gate_floor_*`` (the floor is the sensor's, not the controller's); with
+        ``perception.resample`` the tracker's own prediction off (the stereo source's track
+        filter predicts across the delay and the carrier's lead, ``perception.loop.resampled``).
+        """
+        per, controller = self.perception, self.controller
+        if not per.stereo:
+            return controller
+        update: dict[str, object] = {
+            "ring_gate_floor_position": per.gate_floor_position,
+            "ring_gate_floor_angle": per.gate_floor_angle,
+        }
+        if per.resample:
+            update["tracker"] = controller.tracker.model_copy(update={"predict": False})
+        return controller.model_copy(update=update)
+
     @model_validator(mode="after")
     def _bounded(self) -> ExperimentConfig:
         steps = self.task.trajectory.duration * self.episode.control_rate

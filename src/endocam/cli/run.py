@@ -31,6 +31,7 @@ from endocam.task.trajectory import TrajectoryKind
 
 SEED_HELP = f"noise seed (default {DEFAULT_SEED})"
 MAX_EXTRA_SEEDS = 1000  # count: --seeds of experiment tracking
+MAX_PERCEPTION_FRAMES = 100_000  # count: --frames of experiment perception (~1 s each)
 
 
 def _config(args: argparse.Namespace) -> ExperimentConfig:
@@ -149,6 +150,20 @@ def _tracking(args: argparse.Namespace) -> int:
     )
     print(table)
     return _finish(args, out)
+
+
+def _perception(args: argparse.Namespace) -> int:
+    from endocam.runner.experiments import paper_paths
+    from endocam.runner.perception_experiment import CARRIERS, run_perception_experiment
+
+    least = len(paper_paths()) * len(CARRIERS)
+    if not least <= args.frames <= MAX_PERCEPTION_FRAMES:
+        raise UsageError(f"--frames must be in {least}..{MAX_PERCEPTION_FRAMES}, got {args.frames}")
+    cfg = load_config_arg(args.config)
+    out = out_dir(args.out)
+    print(run_perception_experiment(cfg, out, args.frames))
+    print(f"perception report: {out}")
+    return 0
 
 
 def _faults(args: argparse.Namespace) -> int:
@@ -307,6 +322,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     perception_arg(et)
     _mcap_arg(et)
     et.set_defaults(handler=_tracking)
+    epc = esub.add_parser(
+        "perception",
+        help="the stereo estimator alone on rendered pairs over the paper's six paths (the "
+        "tracker's episodes, free camera and PSM), as rendered and through the image model: "
+        "errors against distance, viewing angle and occluded fraction (pairs.csv, report.json, "
+        "errors.png)",
+    )
+    epc.add_argument("--out", required=True, help="output folder (replaced atomically)")
+    epc.add_argument(
+        "--frames",
+        type=integer,
+        default=300,
+        help="stereo pairs over the twelve episodes (default 300: about a minute)",
+    )
+    epc.add_argument("--config", help="TOML or YAML config file")
+    epc.set_defaults(handler=_perception)
     ef = esub.add_parser(
         "faults",
         help="the fault matrix: each fault alone at two severities, then all at once, on the "

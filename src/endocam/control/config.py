@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from endocam.control.clearance import WIRE_CLEARANCE, ClearanceGuard
-from endocam.control.gate import RingGate, RingLimits
+from endocam.control.gate import FLOOR_M, FLOOR_RAD, RingGate, RingLimits
 from endocam.control.goal import SIDE_HYSTERESIS
 from endocam.control.windows import D_F_STEP, ImageWindows
 from endocam.task.wire import Wire
@@ -222,18 +222,19 @@ class ControllerConfig(BaseModel):
         gt=0,
         le=1e6,
         description="observation gate: largest ring-centre acceleration, m/s²: a ring pose may "
-        "be 0.5 mm + ½·a·Δt² from the accepted track's constant-velocity prediction, Δt after "
-        "its last pose (up to ring_gate_position). The default task's ring ≤ 0.05 m/s², a "
-        "10 s episode's ≤ 1.5, a 3 s episode's ≤ 15",
+        "be ring_gate_floor_position + ½·a·Δt² from the accepted track's constant-velocity "
+        "prediction, Δt after its last pose (up to ring_gate_position). The default task's "
+        "ring ≤ 0.05 m/s², a 10 s episode's ≤ 1.5, a 3 s episode's ≤ 15",
     )
     ring_max_angular_acceleration: float = Field(
         500.0,
         gt=0,
         le=1e8,
         description="observation gate: largest second derivative of the ring's unit normal, "
-        "1/s²: the normal may be 0.5° + ½·α·Δt² from its prediction (up to ring_gate_angle). "
-        "The default task's ≤ 5, a 10 s episode's ≤ 200, a 3 s episode's ≤ 1700: faster "
-        "tasks than ~5 s need a larger value (and cannot tell a 5° outlier from the ring)",
+        "1/s²: the normal may be ring_gate_floor_angle + ½·α·Δt² from its prediction (up to "
+        "ring_gate_angle). The default task's ≤ 5, a 10 s episode's ≤ 200, a 3 s episode's "
+        "≤ 1700: faster tasks than ~5 s need a larger value (and cannot tell a 5° outlier "
+        "from the ring)",
     )
     ring_gate_position: float = Field(
         0.005,
@@ -256,6 +257,23 @@ class ControllerConfig(BaseModel):
         le=1.0,
         description="observation gate: longest gap between two ring poses compared step to "
         "step, s, and longest time a returning pose's reach grows over",
+    )
+    ring_gate_floor_position: float = Field(
+        FLOOR_M,
+        gt=0,
+        le=0.01,
+        description="observation gate: the ring centre's innovation always allowed, m: the "
+        "observation source's position noise (0.5 mm: the truth source; a stereo run takes "
+        "perception.gate_floor_position). A larger floor raises ring_gate_position and "
+        "ring_gap_position by its rise over 0.5 mm (RingLimits.with_floor)",
+    )
+    ring_gate_floor_angle: float = Field(
+        FLOOR_RAD,
+        gt=0,
+        le=math.radians(20.0),
+        description="observation gate: the normal's innovation always allowed, rad (0.5°: "
+        "the truth source; a stereo run takes perception.gate_floor_angle). A larger floor "
+        "raises ring_gate_angle and ring_gap_angle by its rise over 0.5°",
     )
     ring_max_age: float = Field(
         0.25,
@@ -343,7 +361,11 @@ class ControllerConfig(BaseModel):
 
     @property
     def ring_limits(self) -> RingLimits:
-        """The observation gate's bounds (``control.gate.RingLimits``)."""
+        """The observation gate's bounds (``control.gate.RingLimits``).
+
+        The caps above are stated over the truth source's floor (0.5 mm, 0.5°); a larger
+        ``ring_gate_floor_*`` raises them by its rise (``RingLimits.with_floor``).
+        """
         return RingLimits(
             max_speed=self.ring_max_speed,
             max_rate=self.ring_max_rate,
@@ -356,7 +378,7 @@ class ControllerConfig(BaseModel):
             gap_position=self.ring_gap_position,
             gap_angle=self.ring_gap_angle,
             confirm=self.ring_confirm,
-        )
+        ).with_floor(self.ring_gate_floor_position, self.ring_gate_floor_angle)
 
     @property
     def windows(self) -> ImageWindows:

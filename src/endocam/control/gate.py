@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import astuple, dataclass, fields
+from dataclasses import astuple, dataclass, fields, replace
 from typing import Protocol
 
 import numpy as np
@@ -31,8 +31,8 @@ from endocam.workspace.cone import ConeWorkspace
 
 STALE_REASON = "ring pose stale (older than ring_max_age, or stamped in the future); holding"
 CLOCK_TOL = 1e-6  # s, a capture stamp this far after the control time is round-off, not a fault
-FLOOR_M = 0.5e-3  # m: innovation always allowed (a tracker's position noise)
-FLOOR_RAD = math.radians(0.5)  # rad: innovation always allowed (a tracker's normal noise)
+FLOOR_M = 0.5e-3  # m: the default innovation always allowed (the truth source's position noise)
+FLOOR_RAD = math.radians(0.5)  # rad: the default for the normal (the truth source's noise)
 MIN_DT = 1e-4  # s: two stamps closer than this give no velocity (a repeated pose)
 
 
@@ -59,15 +59,15 @@ class RingLimits:
     ----------
     max_speed : float
         Fastest ring centre, m/s: two poses ``Δt`` apart agree only if the centre moved at
-        most ``FLOOR_M + max_speed · Δt``.
+        most ``floor_position + max_speed · Δt``.
     max_rate : float
         Fastest turn of the ring normal, rad/s (same use).
     max_acceleration : float
         Largest acceleration of the ring centre, m/s²: the position innovation allowed after
-        ``Δt`` is ``FLOOR_M + ½ a Δt²``, up to ``position_gate``.
+        ``Δt`` is ``floor_position + ½ a Δt²``, up to ``position_gate``.
     max_angular_acceleration : float
         Largest second derivative of the unit normal, 1/s² (rad/s² for a steady turn): the
-        angle innovation allowed is ``FLOOR_RAD + ½ α Δt²``, up to ``angle_gate``.
+        angle innovation allowed is ``floor_angle + ½ α Δt²``, up to ``angle_gate``.
     position_gate : float
         The position innovation's cap, m: a pose farther from the prediction is never taken
         as it comes, however long the gate has refused.
@@ -81,13 +81,20 @@ class RingLimits:
         or the tracker now sees it there): it is taken, inside the workspace only.
     gap_position : float
         After a gap, m: a refused run that began after the gap is taken once its centre, at the
-        run's mid-time, is within ``FLOOR_M + ¼ a Δt²`` (up to this cap) of the bridge from the
-        accepted track (:func:`gate_bridges`). Outliers beyond twice it are refused after a gap.
+        run's mid-time, is within ``floor_position + ¼ a Δt²`` (up to this cap) of the bridge
+        from the accepted track (:func:`gate_bridges`). Outliers beyond twice it are refused
+        after a gap.
     gap_angle : float
-        The same for the normal, rad (``FLOOR_RAD + ¼ α Δt²``, up to this cap).
+        The same for the normal, rad (``floor_angle + ¼ α Δt²``, up to this cap).
     confirm : float
         How long, s, a run that began after a gap must agree step to step before the bridge
         is tried (its velocity is the run's mean; at least two poses).
+    floor_position : float
+        The innovation always allowed, m: the observation source's position noise (its
+        default ``FLOOR_M``, the truth source's; a stereo source's is larger, see
+        :meth:`with_floor`).
+    floor_angle : float
+        The normal's innovation always allowed, rad (default ``FLOOR_RAD``).
     """
 
     max_speed: float
@@ -101,6 +108,28 @@ class RingLimits:
     gap_position: float
     gap_angle: float
     confirm: float
+    floor_position: float = FLOOR_M
+    floor_angle: float = FLOOR_RAD
+
+    def with_floor(self, floor_position: float, floor_angle: float) -> RingLimits:
+        """These limits for a source with other noise floors.
+
+        ``floor_position`` (m), ``floor_angle`` (rad): each cap (``position_gate``,
+        ``gap_position``; ``angle_gate``, ``gap_angle``) raised by the floor's rise over this
+        one's (never lowered), so the room a cap leaves for the ring's motion above the noise
+        stays as stated. The same floors: these limits.
+        """
+        rise_m = max(0.0, floor_position - self.floor_position)
+        rise_rad = max(0.0, floor_angle - self.floor_angle)
+        return replace(
+            self,
+            position_gate=self.position_gate + rise_m,
+            gap_position=self.gap_position + rise_m,
+            angle_gate=self.angle_gate + rise_rad,
+            gap_angle=self.gap_angle + rise_rad,
+            floor_position=floor_position,
+            floor_angle=floor_angle,
+        )
 
 
 GATE_BOUNDS = np.dtype([(f.name, np.float64) for f in fields(RingLimits)], align=True)
@@ -123,6 +152,8 @@ class GateLimits(Protocol):
     gap_position: float
     gap_angle: float
     confirm: float
+    floor_position: float
+    floor_angle: float
 
 
 def outlier_detected(
@@ -215,8 +246,8 @@ def gate_fits(
 
     The track (``memory``: a :data:`GATE_MEMORY` record) moved by ``−shift`` (6,: centre, m;
     normal; zeros for the track itself), predicted at constant velocity to ``t``, is within
-    ``FLOOR_M + ½ a Δt²`` (capped at ``position_gate``) of the centre and
-    ``FLOOR_RAD + ½ α Δt²`` (capped at ``angle_gate``) of the normal, ``Δt = |t − memory.t|``.
+    ``floor_position + ½ a Δt²`` (capped at ``position_gate``) of the centre and
+    ``floor_angle + ½ α Δt²`` (capped at ``angle_gate``) of the normal, ``Δt = |t − memory.t|``.
     """
     dt = t - memory.t
     c, v = memory.centre, memory.velocity
@@ -236,8 +267,8 @@ def gate_fits(
     )
     turn = normal_angle(predicted, x)
     half = 0.5 * dt * dt
-    p_tol = min(limits.position_gate, FLOOR_M + half * limits.max_acceleration)
-    a_tol = min(limits.angle_gate, FLOOR_RAD + half * limits.max_angular_acceleration)
+    p_tol = min(limits.position_gate, limits.floor_position + half * limits.max_acceleration)
+    a_tol = min(limits.angle_gate, limits.floor_angle + half * limits.max_angular_acceleration)
     return dp <= p_tol and turn <= a_tol
 
 
@@ -252,8 +283,8 @@ def gate_bridges(
     second-order estimates of the ring at ``t_m``. A ring that left the accepted pose ``a``
     (``accepted``: centre, normal, rates ``v``) with acceleration within ``a_max`` is, after
     ``Δt = t_m − accepted.t``, within ``¼ a_max Δt²`` of the trapezoid bridge
-    ``a + ½ (v + u) Δt``: ``m`` must be within ``FLOOR_M + ¼ max_acceleration Δt²`` (up to
-    ``gap_position``) of it, and its normal within ``FLOOR_RAD + ¼ max_angular_acceleration
+    ``a + ½ (v + u) Δt``: ``m`` must be within ``floor_position + ¼ max_acceleration Δt²``
+    (up to ``gap_position``) of it, and its normal within ``floor_angle + ¼ max_angular_acceleration
     Δt²`` (up to ``gap_angle``). False for a run shorter than ``MIN_DT``.
     """
     span = t - first.t
@@ -272,8 +303,8 @@ def gate_bridges(
     dp = dist3(mid[0], mid[1], mid[2], bridge[0], bridge[1], bridge[2])
     turn = normal_angle((bridge[3], bridge[4], bridge[5]), mid)
     quarter = 0.25 * dt * dt
-    p_tol = min(limits.gap_position, FLOOR_M + quarter * limits.max_acceleration)
-    a_tol = min(limits.gap_angle, FLOOR_RAD + quarter * limits.max_angular_acceleration)
+    p_tol = min(limits.gap_position, limits.floor_position + quarter * limits.max_acceleration)
+    a_tol = min(limits.gap_angle, limits.floor_angle + quarter * limits.max_angular_acceleration)
     return dp <= p_tol and turn <= a_tol
 
 
@@ -281,14 +312,17 @@ def gate_bridges(
 def gate_step(memory: GateMemory, limits: GateLimits, t: float, x: Sequence[float]) -> bool:
     """Whether ``x`` at ``t`` (s) lies where the ring could have gone since ``memory``'s pose.
 
-    The centre moved at most ``FLOOR_M + max_speed · Δt`` and the normal turned at most
-    ``FLOOR_RAD + max_rate · Δt``, ``Δt = |t − memory.t|``.
+    The centre moved at most ``floor_position + max_speed · Δt`` and the normal turned at
+    most ``floor_angle + max_rate · Δt``, ``Δt = |t − memory.t|``.
     """
     dt = abs(t - memory.t)
     c, n = memory.centre, memory.normal
     dp = dist3(x[0], x[1], x[2], c[0], c[1], c[2])
     turn = normal_angle((n[0], n[1], n[2]), x)
-    return dp <= FLOOR_M + limits.max_speed * dt and turn <= FLOOR_RAD + limits.max_rate * dt
+    return (
+        dp <= limits.floor_position + limits.max_speed * dt
+        and turn <= limits.floor_angle + limits.max_rate * dt
+    )
 
 
 @register_jitable  # also callable from compiled kernels (the same source)

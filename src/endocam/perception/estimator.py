@@ -432,11 +432,17 @@ def choose_normal(
     -------
     NormalChoice
     """
+    # each eye's tilt from its line of sight is half its candidates' separation; the tilt
+    # read off an ellipse's axis ratio has an error ~ 1 / sin(tilt): weigh by sin²
+    w_left = 1.0 - float(np.clip(left[0] @ left[1], -1.0, 1.0))  # 2 sin²(tilt)
+    w_right = 1.0 - float(np.clip(right[0] @ right[1], -1.0, 1.0))
+    if w_left + w_right <= 0.0:
+        w_left = w_right = 1.0
     per_left = []
     for a in left:
         cos = [float(np.clip(a @ b, -1.0, 1.0)) for b in right]
         j = int(np.argmax(cos))
-        per_left.append((math.acos(cos[j]), a + right[j]))
+        per_left.append((math.acos(cos[j]), w_left * a + w_right * right[j]))
     (d0, s0), (d1, s1) = per_left
     best, other, s, s_other = (d0, d1, s0, s1) if d0 <= d1 else (d1, d0, s1, s0)
     separation = math.acos(float(np.clip(left[0] @ left[1], -1.0, 1.0)))

@@ -36,6 +36,23 @@ MEASURED_PROCESSING_S = 0.010
 shared 2-core machine (7.7–9.7 ms over round 11's runs), rounded up: the default delay."""
 
 
+FILTER_GATE_M = 2.0e-3
+"""m: the track filter's centre gate: the raw estimator's centre error was 0.23 mm at the p95
+and 2.1 mm at the max over 300 pairs (bench/perception_estimator.py, image model on)."""
+FILTER_GATE_RAD = math.radians(6.0)
+"""rad: the filter's normal gate: the raw normal error was 3.9° at the p95, 16.5° at the max;
+an estimate 6° or more off moves the filter's pose by at most alpha × 6° (1.2° at the default
+alpha), under the controller gate's stereo floor (3°)."""
+STEREO_FLOOR_M = 1.0e-3
+"""m: the gate's centre noise floor on stereo. The innovation the gate sees on the filtered
+estimates (their constant-velocity prediction's miss, frame to frame) was 0.15-0.23 mm at the
+p95 and 0.27-0.41 mm at the p99 over round 12's six free-camera episodes (docs/perception.md);
+the raw estimator's centre error p95 0.23 mm (bench/perception_estimator.py): ~4× the p95."""
+STEREO_FLOOR_RAD = math.radians(3.0)
+"""rad: the gate's normal noise floor on stereo: the same innovation's p95 was 2.3-3.1° (p99
+4.8-6.4°); the raw estimator's normal error p95 3.9°. Below 6°, so a 6° jump is refused."""
+
+
 class PerceptionSource(enum.Enum):
     """Where the controller's ring pose comes from."""
 
@@ -82,18 +99,55 @@ class PerceptionConfig(BaseModel):
         True, description="Apply the image model (noise, blur, highlights, gain) (stereo)."
     )
     filter_alpha: float = Field(
-        0.35,
+        0.2,
         gt=0.0,
         le=1.0,
         description="Alpha-beta track filter on the estimates (stereo): the share of an "
-        "estimate's innovation taken into the pose (1 with beta 0: raw estimates).",
+        "estimate's innovation taken into the pose (1 with beta 0: raw estimates; 0.2: "
+        "steady image error 4.5 px against 6.1 at 0.35 on ideal-36, docs/perception.md).",
     )
     filter_beta: float = Field(
-        0.06,
+        0.02,
         ge=0.0,
         lt=1.0,
         description="Alpha-beta track filter (stereo): the share of the innovation per frame "
         "period taken into the rates.",
+    )
+
+    filter_gate_position: float = Field(
+        FILTER_GATE_M,
+        gt=0.0,
+        description="The track filter clips an estimate's centre innovation to this length, "
+        "m (stereo).",
+    )
+    filter_gate_angle: float = Field(
+        FILTER_GATE_RAD,
+        gt=0.0,
+        le=math.pi,
+        description="The track filter clips an estimate's normal innovation to this angle, "
+        "rad (stereo).",
+    )
+    resample: bool = Field(
+        True,
+        description="Give the controller the track filter's pose at every control step, "
+        "predicted across the capture's age and the carrier's lead and stamped with the "
+        "step's time, up to controller.ring_max_age after the last capture (the controller's "
+        "own prediction off); off: the last estimate held, stamped with its capture time, and "
+        "the controller predicting from it.",
+    )
+    gate_floor_position: float = Field(
+        STEREO_FLOOR_M,
+        gt=0.0,
+        le=0.01,
+        description="The observation gate's centre noise floor on stereo, m (replaces "
+        "controller.ring_gate_floor_position; docs/perception.md, 'The gate's floor').",
+    )
+    gate_floor_angle: float = Field(
+        STEREO_FLOOR_RAD,
+        gt=0.0,
+        le=math.radians(20.0),
+        description="The observation gate's normal noise floor on stereo, rad (replaces "
+        "controller.ring_gate_floor_angle).",
     )
 
     @property
@@ -148,35 +202,89 @@ def ring_pose(p_world: FloatArray, n_world: FloatArray) -> FloatArray:
     return T
 
 
+def resampled(
+    track: FloatArray, t_capture: float, t: float, lead: float, max_age: float
+) -> tuple[FloatArray, float]:
+    """The ring pose the controller is given at control time ``t`` (s), and its stamp.
+
+    ``track`` (12,): the track filter's centre (m), unit normal and their rates (m/s, 1/s),
+    world, after the estimate captured at ``t_capture`` (s), the last one delivered. While
+    ``t − t_capture ≤ max_age`` (s): the track predicted at constant velocity to ``t + lead``
+    (across the capture's whole age and the carrier's lead, s), stamped ``t``: the filter,
+    whose rates come from many frames, is the loop's one predictor (the controller's own,
+    which differences 30 ms apart samples, amplified the estimates' noise ~10×; it is off on
+    stereo, ``ExperimentConfig.controller_on_source``). Past ``max_age``: the filter's pose at
+    the capture, stamped with it (stale: the controller holds). Returns (4, 4), m, and s.
+    """
+    if not t - t_capture <= max_age:
+        return ring_pose(track[:3], track[3:6]), t_capture
+    x = track[:6] + track[6:] * (t + lead - t_capture)
+    return ring_pose(x[:3], x[3:6]), t
+
+
+def prior_normal(
+    t: float, t_last: float, n_world_last: FloatArray, T_world_cam: FloatArray, max_age: float
+) -> FloatArray | None:
+    """The estimator's prior at ``t`` (s): the last normal in this camera's frame, or None.
+
+    ``n_world_last`` (3,): the last estimate's unit normal, world, captured at ``t_last`` (s;
+    ``inf`` before the first estimate: then the setup's registration normal, which does not
+    lapse); ``T_world_cam`` (4, 4) the camera now. None once the estimate is more than
+    ``max_age`` (s) old.
+    """
+    if t - t_last > max_age:
+        return None
+    return np.asarray(T_world_cam[:3, :3].T @ n_world_last)
+
+
 FILTER_RESET_S = 0.25  # s, a gap between estimates longer than this restarts the track filter
 
 
 class TrackFilter:
     """An alpha-beta filter on the estimated ring centre and normal (world), per estimate.
 
-    The estimator's normal is noisy near the ring's axis (1–5°, docs/perception.md), more
-    than a tracker's noise the observation gate allows (``control.gate.FLOOR_RAD``); the
+    The estimator's normal is noisy near the ring's axis (1–5°, docs/perception.md); the
     filter takes ``alpha`` of each innovation into the pose and ``beta / Δt`` of it into the
-    rates (constant-velocity prediction: no lag on a steady motion). A gap longer than
-    :data:`FILTER_RESET_S` restarts it at the estimate. ``alpha = 1, beta = 0``: the raw
-    estimates.
+    rates (constant-velocity prediction: no lag on a steady motion). An innovation longer
+    than ``gate_position`` (m, the centre) or ``gate_angle`` (rad, the normal) is clipped to
+    that length first (a Huber filter): a bad fit or a wrong choice of normal moves the pose
+    by at most ``alpha`` times the gate, and a real change the filter lags is still followed,
+    at most that much per estimate, with no jump the controller's gate would refuse. A gap
+    longer than :data:`FILTER_RESET_S` restarts it at the estimate. ``alpha = 1, beta = 0``
+    and infinite gates: the raw estimates.
     """
 
-    def __init__(self, alpha: float, beta: float) -> None:
+    def __init__(
+        self,
+        alpha: float,
+        beta: float,
+        gate_position: float = math.inf,
+        gate_angle: float = math.pi,
+    ) -> None:
         self.alpha, self.beta = alpha, beta
+        self.gate_position = gate_position
+        self.gate_normal = 2.0 * math.sin(0.5 * min(gate_angle, math.pi))  # chord, unit normals
         self.t: float | None = None
         self.x = np.zeros(6)  # centre (m), unit normal
         self.v = np.zeros(6)  # their rates, m/s and 1/s
+        self.clipped = 0  # estimates whose innovation was clipped, since the start
 
     def update(self, t: float, p_world: FloatArray, n_world: FloatArray) -> FloatArray:
         """The filtered (6,) centre (m) and unit normal after the estimate at ``t`` s."""
         z = np.concatenate([p_world, n_world])
-        if self.t is None or not 0.0 < t - self.t <= FILTER_RESET_S:
+        dt = math.inf if self.t is None else t - self.t
+        if not 0.0 < dt <= FILTER_RESET_S:
             self.x, self.v = z, np.zeros(6)
         else:
-            dt = t - self.t
             predicted = self.x + self.v * dt
             r = z - predicted
+            clipped = False
+            for part, gate in ((slice(0, 3), self.gate_position), (slice(3, 6), self.gate_normal)):
+                length = float(np.linalg.norm(r[part]))
+                if length > gate:
+                    r[part] *= gate / length
+                    clipped = True
+            self.clipped += clipped
             self.x = predicted + self.alpha * r
             self.v = self.v + (self.beta / dt) * r
             self.x[3:] /= np.linalg.norm(self.x[3:])
@@ -211,6 +319,13 @@ class EstimateLog:
         Measured wall time of the estimator per frame, s (not used by the loop).
     frame_cpu_s : (F,)
         Its thread CPU time per frame, s.
+    lost : (K,) bool
+        The steps asked so far on which the ring was lost: no estimate delivered yet, or the
+        last one captured more than ``controller.ring_max_age`` before (the controller holds).
+    dt_s : float
+        The control period, s.
+    filter_clipped : int
+        Estimates whose innovation the track filter clipped to its gates.
     """
 
     p_world: FloatArray
@@ -223,6 +338,9 @@ class EstimateLog:
     frame_status: np.ndarray
     frame_wall_s: FloatArray
     frame_cpu_s: FloatArray
+    lost: np.ndarray
+    dt_s: float
+    filter_clipped: int = 0
 
     @property
     def ok(self) -> np.ndarray:
@@ -257,15 +375,38 @@ def _stats(values: FloatArray, scale: float) -> dict[str, float | None]:
     }
 
 
+def lost_summary(log: EstimateLog) -> dict[str, Any]:
+    """Why the controller held for want of an estimate: the lost stretches and their frames.
+
+    ``share`` of the steps lost, ``stretches`` (runs of lost steps), ``longest_s`` (s), and
+    ``frame_status``: the estimator's status counts over the frames captured while lost
+    (``no_ring``: the ring out of view or too small; ``ambiguous``, ``low_coverage``, ...).
+    """
+    lost = np.asarray(log.lost, dtype=bool)
+    edges = np.diff(np.concatenate([[0], lost.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    steps = log.frame_steps
+    during = log.frame_status[lost[steps[steps < len(lost)]]] if len(steps) else log.frame_status
+    statuses, counts = np.unique(during, return_counts=True)
+    return {
+        "share": float(lost.mean()) if len(lost) else 0.0,
+        "stretches": len(starts),
+        "longest_s": float((ends - starts).max() * log.dt_s) if len(starts) else 0.0,
+        "frame_status": {str(s): int(c) for s, c in zip(statuses, counts, strict=True)},
+    }
+
+
 def estimation_summary(log: EstimateLog, T_world_ring_at: Any) -> dict[str, Any]:
     """``metrics.json``'s ``perception`` section: errors (mm, deg), estimate share, time (ms)."""
     centre, normal = estimate_errors(log, T_world_ring_at)
     frames = len(log.frame_steps)
     statuses, counts = np.unique(log.frame_status, return_counts=True)
     return {
+        "lost": lost_summary(log),
         "frames": frames,
         "estimate_share": float(np.mean(log.frame_ok)) if frames else 0.0,
         "frame_status": {str(s): int(c) for s, c in zip(statuses, counts, strict=True)},
+        "filter_clipped": log.filter_clipped,
         "delivered": int(np.count_nonzero(log.ok)),
         "center_error_mm": _stats(centre, 1e3),
         "normal_error_deg": _stats(normal, math.degrees(1.0)),

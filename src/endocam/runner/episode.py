@@ -246,7 +246,7 @@ def run_episode(
     -------
     EpisodeResult
     """
-    policy = make_policy(spec.policy, config.controller)  # unknown names fail before any work
+    policy = make_policy(spec.policy, config.controller_on_source)  # unknown names fail first
     camera = config.camera.stereo()
     wire = Wire(config.task.wire)
     trajectory = make_trajectory(

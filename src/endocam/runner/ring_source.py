@@ -36,6 +36,8 @@ from endocam.perception.loop import (
     TrackFilter,
     capture_steps,
     estimate_in_world,
+    prior_normal,
+    resampled,
     ring_pose,
 )
 from endocam.robot.actuator import ArmKind
@@ -43,7 +45,11 @@ from endocam.runner.step import EpisodeWorld
 from endocam.sim.render import WireChaserScene
 
 RIM_POINTS = 24  # points on the ring's core circle: the highlights' candidate sites
-PRIOR_MAX_AGE = 0.2  # s, the last estimate settles an ambiguous normal for this long
+PRIOR_MAX_AGE = 1.0  # s, the last estimate settles an ambiguous normal for this long
+"""Before the first estimate the setup's registration is the prior, without a lapse (the PSM's
+far start view gave only `ambiguous` pairs once a 0.2 s prior had lapsed, and never
+approached). A prior settles a choice only when one hypothesis lies within a quarter of the
+two's separation of it (``EstimatorConfig.prior_fraction``)."""
 MAX_BLUR_PX = 48.0  # px, the longest motion blur applied: past it the ring is a smear either way
 IMAGE_STREAM = 26  # the image model's stream of the run's seed (issue 26), apart from others
 
@@ -52,6 +58,7 @@ class _Pending(NamedTuple):
     t_deliver: float  # s
     t_capture: float  # s
     T_world_ring: FloatArray  # (4, 4), m
+    track: FloatArray  # (12,): the filter's centre (m), normal, and their rates (m/s, 1/s)
 
 
 class StereoSource:
@@ -88,7 +95,14 @@ class StereoSource:
         self.image = ImageModelConfig() if per.image_model else None
         self.rng = np.random.default_rng((seed, IMAGE_STREAM))
         self.delay = ep.sensing_latency + per.processing_delay
-        self.filter = TrackFilter(per.filter_alpha, per.filter_beta)
+        tracker = config.controller.tracker
+        self.lead = tracker.carrier_lead if tracker.predict else 0.0
+        self.resample = per.resample
+        self.max_age = config.controller.ring_max_age
+        self._track: tuple[float, FloatArray] | None = None  # capture time, (12,) filter state
+        self.filter = TrackFilter(
+            per.filter_alpha, per.filter_beta, per.filter_gate_position, per.filter_gate_angle
+        )
         self.dt = 1.0 / ep.control_rate
         self._rim = _rim(config.task.ring.major_radius)
         n = world.n
@@ -99,13 +113,16 @@ class StereoSource:
         self._k = -1
         self._now: tuple[FloatArray, float] = (np.full((4, 4), np.nan), 0.0)
         self._prev_cam: FloatArray | None = None
-        # the last estimate's time and normal (world): the estimator's prior
-        self._last: tuple[float, FloatArray] = (0.0, np.array(T_world_ring_start[:3, 2]))
+        # the last estimate's time and normal (world): the estimator's prior (before the
+        # first estimate: the setup's registration, which does not lapse)
+        self._last: tuple[float, FloatArray] = (math.inf, np.array(T_world_ring_start[:3, 2]))
         self.p_world = np.full((n, 3), np.nan)
         self.n_world = np.full((n, 3), np.nan)
         self.t_capture = np.full(n, np.nan)
         self.T_seen = np.full((n, 4, 4), np.nan)
         self.t_seen = np.array(world.t, dtype=float)
+        self.lost = np.zeros(n, dtype=bool)
+        self._last_capture = -math.inf  # the last delivered estimate's capture time, s
         self.frame_ok: list[bool] = []
         self.frame_status: list[str] = []
         self.frame_wall: list[float] = []
@@ -129,9 +146,14 @@ class StereoSource:
         while self._pending and self._pending[0].t_deliver <= t + CAPTURE_TOL_S:
             got = self._pending.popleft()
             self._now = (got.T_world_ring, got.t_capture)
+            self._track = (got.t_capture, got.track)
+            self._last_capture = got.t_capture
             self.p_world[k] = got.T_world_ring[:3, 3]
             self.n_world[k] = got.T_world_ring[:3, 2]
             self.t_capture[k] = got.t_capture
+        if self.resample and self._track is not None:
+            self._now = resampled(self._track[1], self._track[0], t, self.lead, self.max_age)
+        self.lost[k] = not t - self._last_capture <= self.max_age
         self.T_seen[k] = self._now[0]
         if math.isfinite(self._now[0][0, 0]):
             self.t_seen[k] = self._now[1]
@@ -163,14 +185,14 @@ class StereoSource:
             T_est = estimate_in_world(out.estimate, T_world_cam, self._last[1])
             x = self.filter.update(t, T_est[:3, 3], T_est[:3, 2])
             T_est = ring_pose(x[:3], x[3:])
-            self._pending.append(_Pending(t + self.delay, t, T_est))
+            track = np.concatenate([x, self.filter.v])
+            self._pending.append(_Pending(t + self.delay, t, T_est, track))
             self._last = (t, T_est[:3, 2])
 
     def _prior(self, k: int, T_world_cam: FloatArray) -> FloatArray | None:
-        """The last estimate's normal in this camera's frame, if at most PRIOR_MAX_AGE old."""
-        if self.world.t[k] - self._last[0] > PRIOR_MAX_AGE:
-            return None
-        return np.asarray(T_world_cam[:3, :3].T @ self._last[1])
+        """The estimator's prior at step ``k`` (:func:`~endocam.perception.loop.prior_normal`)."""
+        t_last, n_last = self._last
+        return prior_normal(float(self.world.t[k]), t_last, n_last, T_world_cam, PRIOR_MAX_AGE)
 
     def _degrade(self, image: np.ndarray, eye: Eye, k: int, T_world_cam: FloatArray) -> np.ndarray:
         """``image`` through the image model, blurred by the ring's image velocity in ``eye``.
@@ -208,6 +230,9 @@ class StereoSource:
             frame_status=np.array(self.frame_status, dtype=str),
             frame_wall_s=np.array(self.frame_wall, dtype=float),
             frame_cpu_s=np.array(self.frame_cpu, dtype=float),
+            lost=self.lost[: self._k + 1],
+            dt_s=self.dt,
+            filter_clipped=self.filter.clipped,
         )
 
     def close(self) -> None:
