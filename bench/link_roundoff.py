@@ -1,8 +1,9 @@
 """How much an episode's tracking errors move when its observed poses lose float64 round-off.
 
 No link here: the same in-process episode twice, the second with the camera and ring poses the
-policy observes rounded through a quaternion and back (``Codec.pose`` / ``decode_pose``: what
-the link's ``measured_cp`` and ``ring/measured_cp`` do to them, ~1e-16 relative). A policy
+policy observes and the pose it commands rounded through a quaternion and back (``Codec.pose``
+/ ``decode_pose``: what the link's ``measured_cp``, ``ring/measured_cp`` and ``servo_cp`` do to
+them, ~1e-16 relative; ``link_tracking.link_rounding``). A policy
 whose decisions flip on such a difference (a planner's threshold) gives a different, equally
 valid episode; the tracking errors of the two show how far a link run can differ from the
 in-process one for that reason alone (``bench/link_tracking.py``).
@@ -23,7 +24,7 @@ from endocam.config import load_config
 from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import EpisodeSpec, run_episode
 from endocam.task.trajectory import TrajectoryKind
-from link_tracking import errors, rounded_observations  # bench/: as in the link's table
+from link_tracking import errors, link_rounding  # bench/: as in the link's table
 
 
 def main() -> None:
@@ -46,7 +47,7 @@ def main() -> None:
     for seed in args.seeds:
         spec = EpisodeSpec(args.policy, TrajectoryKind.NOISY, 71, seed)
         rows = [tuple(errors(run_episode(cfg, spec)).values())]  # image px, centre mm, deg
-        with rounded_observations():
+        with link_rounding():
             rows.append(tuple(errors(run_episode(cfg, spec)).values()))
         cells = " | ".join(
             f"{a:.3f} {b:.3f} {100 * (b - a) / a:+.1f}" for a, b in zip(*rows, strict=True)

@@ -1,15 +1,16 @@
 """Tracking errors of an episode over the Zenoh link against the same episode in-process.
 
 For each carrier, policy and seed: the episode in this process (``run_episode``); the same
-episode in this process with the observed camera and ring poses rounded through a quaternion
-and back (what the link's ``measured_cp`` and ``ring/measured_cp`` do to them, ~1e-16 relative:
-``rounded``); and the same episode with the arm in a second process (``endocam robot serve``)
-and the policy here (``run_remote``, lock-stepped: one control period per command).
+episode in this process with its poses rounded through a quaternion and back as the link
+rounds them, ~1e-16 relative (the observed camera and ring: ``measured_cp``,
+``ring/measured_cp``; the command: ``servo_cp``; :func:`link_rounding`); and the same
+episode with the arm in a second process (``endocam robot serve``) and the policy here
+(``run_remote``, lock-stepped: one control period per command).
 
 The controllers are chaotic at float64 round-off (a 1e-16 change in an observation can flip a
 planner's branch), so one seed's link-vs-in-process difference says little by itself. Per seed
 the table prints each mean tracking error (image-centring px, 3-D centre mm, orientation deg)
-in-process and its relative change (%) with rounded observations (*round-off*) and over the link
+in-process and its relative change (%) with rounded poses (*round-off*) and over the link
 (*link*), and the largest camera position difference (mm) of the link run from the in-process
 and from the rounded run. Per carrier and policy a summary row gives, for each error, the
 round-off spread (the smallest and largest change over the seeds) beside the link's, and the
@@ -30,7 +31,7 @@ import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -68,21 +69,40 @@ def rounded(T: FloatArray) -> FloatArray:
     return CODEC.decode_pose(CODEC.pose(T, 0))[0]
 
 
+class RoundedCommand(NamedTuple):
+    """A policy's command with its pose rounded as ``servo_cp`` rounds it (``EpisodeLoop.step``)."""
+
+    T_world_cam: FloatArray
+    d_f: float
+    twist: FloatArray | None
+
+
 @contextmanager
-def rounded_observations() -> Iterator[None]:
-    """In-process episodes whose policy observes camera and ring poses rounded as over the link."""
-    exact = step.EpisodeLoop.observation
+def link_rounding() -> Iterator[None]:
+    """In-process episodes whose poses are rounded as over the link, and nothing else.
+
+    The policy observes the camera and ring poses through a quaternion and back (the link's
+    ``measured_cp`` and ``ring/measured_cp``) and the carrier is given the command's pose the
+    same way (``servo_cp``); velocities and distances travel as float64, unrounded.
+    """
+    exact_observation, exact_step = step.EpisodeLoop.observation, step.EpisodeLoop.step
 
     def observed(loop: step.EpisodeLoop) -> Observation:
-        o = exact(loop)
+        o = exact_observation(loop)
         ring = None if o.T_world_ring is None else rounded(o.T_world_ring)
         return o._replace(T_world_ring=ring, T_world_cam=rounded(o.T_world_cam))
 
+    def commanded(loop: step.EpisodeLoop, command: step.Command) -> step.StepRecord:
+        sent = RoundedCommand(rounded(command.T_world_cam), command.d_f, command.twist)
+        return exact_step(loop, sent)
+
     step.EpisodeLoop.observation = observed  # type: ignore[method-assign]
+    step.EpisodeLoop.step = commanded  # type: ignore[method-assign]
     try:
         yield
     finally:
-        step.EpisodeLoop.observation = exact  # type: ignore[method-assign]
+        step.EpisodeLoop.observation = exact_observation  # type: ignore[method-assign]
+        step.EpisodeLoop.step = exact_step  # type: ignore[method-assign]
 
 
 def over_link(config_file: Path, cfg: ExperimentConfig, spec: EpisodeSpec) -> tuple[Any, str]:
@@ -154,7 +174,7 @@ def main() -> None:
             for seed in args.seeds:
                 spec = EpisodeSpec(policy, TrajectoryKind.NOISY, CONTROL_POINTS, seed)
                 local = run_episode(cfg, spec)
-                with rounded_observations():
+                with link_rounding():
                     rnd = run_episode(cfg, spec)
                 remote, robot_line = over_link(config_file, cfg, spec)
                 e = errors(local)
