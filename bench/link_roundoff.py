@@ -1,8 +1,9 @@
 """How much an episode's tracking errors move when its observed poses lose float64 round-off.
 
 No link here: the same in-process episode twice, the second with the camera and ring poses the
-policy observes rounded through a quaternion and back (``Codec.pose`` / ``decode_pose``: what
-the link's ``measured_cp`` and ``ring/measured_cp`` do to them, ~1e-16 relative). A policy
+policy observes and the pose it commands rounded through a quaternion and back (``Codec.pose``
+/ ``decode_pose``: what the link's ``measured_cp``, ``ring/measured_cp`` and ``servo_cp`` do to
+them, ~1e-16 relative; ``link_tracking.link_rounding``). A policy
 whose decisions flip on such a difference (a planner's threshold) gives a different, equally
 valid episode; the tracking errors of the two show how far a link run can differ from the
 in-process one for that reason alone (``bench/link_tracking.py``).
@@ -20,21 +21,10 @@ import tempfile
 from pathlib import Path
 
 from endocam.config import load_config
-from endocam.control.types import Observation
-from endocam.geometry import FloatArray
-from endocam.link.messages import Codec
 from endocam.robot.actuator import ArmKind
-from endocam.runner import step
 from endocam.runner.episode import EpisodeSpec, run_episode
 from endocam.task.trajectory import TrajectoryKind
-from link_tracking import errors  # bench/: the same mean errors as the link's table
-
-CODEC = Codec()
-
-
-def rounded(T: FloatArray) -> FloatArray:
-    """``T`` (4, 4), m, through a ``geometry_msgs/PoseStamped`` and back."""
-    return CODEC.decode_pose(CODEC.pose(T, 0))[0]
+from link_tracking import errors, link_rounding  # bench/: as in the link's table
 
 
 def main() -> None:
@@ -51,24 +41,14 @@ def main() -> None:
         encoding="utf-8",
     )
     cfg = load_config(config_file)
-    exact = step.EpisodeLoop.observation
-
-    def observed(loop: step.EpisodeLoop) -> Observation:
-        o = exact(loop)
-        assert o.T_world_ring is not None
-        return o._replace(T_world_ring=rounded(o.T_world_ring), T_world_cam=rounded(o.T_world_cam))
-
     print(
         "seed | image_px exact rounded % | center_mm exact rounded % | orient_deg exact rounded %"
     )
     for seed in args.seeds:
         spec = EpisodeSpec(args.policy, TrajectoryKind.NOISY, 71, seed)
-        rows = []
-        for method in (exact, observed):
-            step.EpisodeLoop.observation = method
-            r = run_episode(cfg, spec)
-            rows.append(tuple(errors(r).values()))  # image px, centre mm, orientation deg
-        step.EpisodeLoop.observation = exact
+        rows = [tuple(errors(run_episode(cfg, spec)).values())]  # image px, centre mm, deg
+        with link_rounding():
+            rows.append(tuple(errors(run_episode(cfg, spec)).values()))
         cells = " | ".join(
             f"{a:.3f} {b:.3f} {100 * (b - a) / a:+.1f}" for a, b in zip(*rows, strict=True)
         )

@@ -1,30 +1,47 @@
 """Tracking errors of an episode over the Zenoh link against the same episode in-process.
 
-For each carrier and policy: the episode in this process (``run_episode``), then the same
-episode (same options and seed) with the arm in a second process (``endocam robot serve``) and
-the policy here (``run_remote``, lock-stepped: one control period per command). Prints, per
-episode, the mean image-centring error (px), 3-D centre error (mm) and orientation error (deg)
-of both runs, their relative difference (%), the steps over the link, and the largest camera
-position difference between the two logs (mm: where round-off made them part).
+For each carrier, policy and seed: the episode in this process (``run_episode``); the same
+episode in this process with its poses rounded through a quaternion and back as the link
+rounds them, ~1e-16 relative (the observed camera and ring: ``measured_cp``,
+``ring/measured_cp``; the command: ``servo_cp``; :func:`link_rounding`); and the same
+episode with the arm in a second process (``endocam robot serve``) and the policy here
+(``run_remote``, lock-stepped: one control period per command).
 
-Run (60 s at 100 Hz; the issue's target: every tracking error within 5 %)::
+The controllers are chaotic at float64 round-off (a 1e-16 change in an observation can flip a
+planner's branch), so one seed's link-vs-in-process difference says little by itself. Per seed
+the table prints each mean tracking error (image-centring px, 3-D centre mm, orientation deg)
+in-process and its relative change (%) with rounded poses (*round-off*) and over the link
+(*link*), and the largest camera position difference (mm) of the link run from the in-process
+and from the rounded run. Per carrier and policy a summary row gives, for each error, the
+round-off spread (the smallest and largest change over the seeds) beside the link's, and the
+verdict: the link is *within the round-off spread* when its largest change over the seeds (in
+magnitude) is no larger than the round-off's (to ``TIE_PCT``).
 
-    MUJOCO_GL=egl OMP_NUM_THREADS=1 PYTHONPATH=src .venv/bin/python bench/link_tracking.py \\
-        --duration 60 --arms free psm --policies endocam orientation
+Run (60 s at 100 Hz, 4 seeds; the issue's target: every tracking error within 5 %)::
+
+    MUJOCO_GL=egl OMP_NUM_THREADS=1 PYTHONPATH=src nice -n 5 .venv/bin/python \\
+        bench/link_tracking.py --duration 60 --arms free psm --policies endocam orientation \\
+        --seeds 1 2 3 4
 """
 
 from __future__ import annotations
 
 import argparse
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from endocam.config import ExperimentConfig, load_config
+from endocam.control.types import Observation
+from endocam.geometry import FloatArray
 from endocam.link.client import ZenohArm, run_remote
+from endocam.link.messages import Codec
 from endocam.robot.actuator import ArmKind
+from endocam.runner import step
 from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode
 from endocam.task.trajectory import TrajectoryKind
 from link_latency import serve_robot  # bench/: the robot process, as there
@@ -33,6 +50,9 @@ WAIT_S = 180.0  # s: the robot's start-up on a loaded machine
 TIMEOUT_S = 5.0  # s: the robot answers within this (a loaded machine: no false silences)
 CONTROL_POINTS = 71
 SEED = 1
+CODEC = Codec()
+KEYS = ("image_px", "center_mm", "orient_deg")
+TIE_PCT = 0.05  # %: half the summary's print resolution (0.1 %): closer counts as equal
 
 
 def errors(r: EpisodeResult) -> dict[str, float]:
@@ -42,6 +62,47 @@ def errors(r: EpisodeResult) -> dict[str, float]:
         "center_mm": float(np.nanmean(r.center_error) * 1e3),
         "orient_deg": float(np.degrees(np.nanmean(r.orientation_error))),
     }
+
+
+def rounded(T: FloatArray) -> FloatArray:
+    """``T`` (4, 4), m, through a ``geometry_msgs/PoseStamped`` and back."""
+    return CODEC.decode_pose(CODEC.pose(T, 0))[0]
+
+
+class RoundedCommand(NamedTuple):
+    """A policy's command with its pose rounded as ``servo_cp`` rounds it (``EpisodeLoop.step``)."""
+
+    T_world_cam: FloatArray
+    d_f: float
+    twist: FloatArray | None
+
+
+@contextmanager
+def link_rounding() -> Iterator[None]:
+    """In-process episodes whose poses are rounded as over the link, and nothing else.
+
+    The policy observes the camera and ring poses through a quaternion and back (the link's
+    ``measured_cp`` and ``ring/measured_cp``) and the carrier is given the command's pose the
+    same way (``servo_cp``); velocities and distances travel as float64, unrounded.
+    """
+    exact_observation, exact_step = step.EpisodeLoop.observation, step.EpisodeLoop.step
+
+    def observed(loop: step.EpisodeLoop) -> Observation:
+        o = exact_observation(loop)
+        ring = None if o.T_world_ring is None else rounded(o.T_world_ring)
+        return o._replace(T_world_ring=ring, T_world_cam=rounded(o.T_world_cam))
+
+    def commanded(loop: step.EpisodeLoop, command: step.Command) -> step.StepRecord:
+        sent = RoundedCommand(rounded(command.T_world_cam), command.d_f, command.twist)
+        return exact_step(loop, sent)
+
+    step.EpisodeLoop.observation = observed  # type: ignore[method-assign]
+    step.EpisodeLoop.step = commanded  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        step.EpisodeLoop.observation = exact_observation  # type: ignore[method-assign]
+        step.EpisodeLoop.step = exact_step  # type: ignore[method-assign]
 
 
 def over_link(config_file: Path, cfg: ExperimentConfig, spec: EpisodeSpec) -> tuple[Any, str]:
@@ -57,23 +118,47 @@ def over_link(config_file: Path, cfg: ExperimentConfig, spec: EpisodeSpec) -> tu
     return remote, (out.strip().splitlines() or [""])[-1]
 
 
-def _cells(a: dict[str, float], b: dict[str, float]) -> str:
-    return " | ".join(f"{a[k]:.3f} {b[k]:.3f} {100 * (b[k] - a[k]) / a[k]:+.2f}" for k in a)
+def change_pct(a: dict[str, float], b: dict[str, float]) -> dict[str, float]:
+    """Relative change of each mean error from ``a`` to ``b``, %."""
+    return {k: 100.0 * (b[k] - a[k]) / a[k] for k in a}
+
+
+def max_dpos_mm(a: EpisodeResult, b: EpisodeResult, steps: int) -> float:
+    """Largest camera position difference of two runs over their first ``steps`` steps, mm."""
+    pa, pb = a.log.T_world_cam[:steps, :3, 3], b.log.T_world_cam[:steps, :3, 3]
+    return float(np.linalg.norm(pa - pb, axis=1).max() * 1e3)
+
+
+def summary(roundoff: list[dict[str, float]], link: list[dict[str, float]]) -> str:
+    """Per error: round-off [min, max] %, link [min, max] %, and whether the link is within."""
+    cells = []
+    for k in KEYS:
+        r, lk = [x[k] for x in roundoff], [x[k] for x in link]
+        within = max(abs(v) for v in lk) <= max(abs(v) for v in r) + TIE_PCT
+        cells.append(
+            f"[{min(r):+.1f}, {max(r):+.1f}] [{min(lk):+.1f}, {max(lk):+.1f}] "
+            f"{'yes' if within else 'no'}"
+        )
+    return " | ".join(cells)
 
 
 def main() -> None:
-    """Parse the options, run each pair, print the table."""
+    """Parse the options, run each seed three ways, print the table."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--duration", type=float, default=60.0, help="s (default 60)")
     p.add_argument("--rate", type=float, default=100.0, help="control rate, Hz (default 100)")
     p.add_argument("--arms", nargs="+", default=["free", "psm"], choices=[k.value for k in ArmKind])
     p.add_argument("--policies", nargs="+", default=["endocam", "orientation"])
-    p.add_argument("--seeds", type=int, nargs="+", default=[SEED], help="noise seeds (default 1)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4], help="noise seeds")
     args = p.parse_args()
     folder = Path(tempfile.mkdtemp())
     print(
-        "arm policy steps | image_px in link % | center_mm in link % | orient_deg in link % "
-        "| max_dpos_mm"
+        "arm policy seed steps | per error: in-process, round-off %, link % "
+        "(image_px | center_mm | orient_deg) | max_dpos_mm link-in-process, link-rounded"
+    )
+    print(
+        "summary rows | per error: round-off [min, max] %, link [min, max] %, "
+        "link within the round-off spread"
     )
     for arm_name in args.arms:
         config_file = folder / f"{arm_name}.toml"
@@ -84,27 +169,29 @@ def main() -> None:
         )
         cfg = load_config(config_file)
         for policy in args.policies:
-            both: list[tuple[dict[str, float], dict[str, float]]] = []
+            roundoff: list[dict[str, float]] = []
+            link: list[dict[str, float]] = []
             for seed in args.seeds:
                 spec = EpisodeSpec(policy, TrajectoryKind.NOISY, CONTROL_POINTS, seed)
                 local = run_episode(cfg, spec)
+                with link_rounding():
+                    rnd = run_episode(cfg, spec)
                 remote, robot_line = over_link(config_file, cfg, spec)
-                a, b = errors(local), errors(remote.result)
-                both.append((a, b))
+                e = errors(local)
+                roundoff.append(change_pct(e, errors(rnd)))
+                link.append(change_pct(e, errors(remote.result)))
                 m = remote.steps
-                dpos = np.linalg.norm(
-                    remote.result.log.T_world_cam[:m, :3, 3] - local.log.T_world_cam[:m, :3, 3],
-                    axis=1,
+                cells = " | ".join(
+                    f"{e[k]:.3f} {roundoff[-1][k]:+.2f} {link[-1][k]:+.2f}" for k in KEYS
                 )
-                name = f"{arm_name} {policy} seed {seed} {m}"
-                print(f"{name} | {_cells(a, b)} | {dpos.max() * 1e3:.3g}", flush=True)
+                far = f"{max_dpos_mm(local, remote.result, m):.3g}"
+                far += f" {max_dpos_mm(rnd, remote.result, m):.3g}"
+                print(f"{arm_name} {policy} {seed} {m} | {cells} | {far}", flush=True)
                 if remote.lost:
                     print(f"  link lost: {remote.lost}", flush=True)
                 print(f"  {robot_line}", flush=True)
-            if len(both) > 1:
-                a = {k: float(np.mean([x[0][k] for x in both])) for k in both[0][0]}
-                b = {k: float(np.mean([x[1][k] for x in both])) for k in both[0][0]}
-                print(f"{arm_name} {policy} mean of {len(both)} | {_cells(a, b)} |", flush=True)
+            n = len(args.seeds)
+            print(f"{arm_name} {policy} over {n} seeds | {summary(roundoff, link)}", flush=True)
 
 
 if __name__ == "__main__":
