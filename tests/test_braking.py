@@ -38,6 +38,7 @@ from endocam.robot.braking import (
     profile_rows,
 )
 from endocam.robot.camera_arm import CameraArm, natural_pose
+from endocam.robot.carriers import arm_mount
 from endocam.robot.cartesian import CartesianLimiter, MotionLimits
 from endocam.robot.cartesian_stop import CartesianState, box_corners
 from endocam.robot.dh import chain_points, pose12_from_matrix
@@ -179,8 +180,8 @@ def test_roots_cover_lines_and_no_roots() -> None:
 @pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
 def test_arm_braking_points_are_chain_points_of_the_path(kind: ArmKind) -> None:
     cfg = ExperimentConfig()
-    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-    arm = CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
+    T_rcm, T_tip_cam = arm_mount(kind, cfg.episode.T_tip_cam, cfg.task.scene.T_world_rcm)
+    arm = CameraArm(kind, T_rcm, T_tip_cam, 0.01)
     model = arm.model
     vmax = PSM_MAX_VELOCITY if kind is ArmKind.PSM else ECM_MAX_VELOCITY
     amax = PSM_MAX_ACCELERATION if kind is ArmKind.PSM else ECM_MAX_ACCELERATION
@@ -231,8 +232,8 @@ def test_brakes_inside_asks_the_same_points_either_way(
     kind: ArmKind, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     cfg = ExperimentConfig()
-    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-    arm = CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
+    T_rcm, T_tip_cam = arm_mount(kind, cfg.episode.T_tip_cam, cfg.task.scene.T_world_rcm)
+    arm = CameraArm(kind, T_rcm, T_tip_cam, 0.01)
     model = arm.model
     vmax = np.array(PSM_MAX_VELOCITY if kind is ArmKind.PSM else ECM_MAX_VELOCITY)
     rng = np.random.default_rng(15)
@@ -263,8 +264,8 @@ def test_brakes_inside_is_the_workspaces_answer_on_the_path(
     wire = Wire(cfg.task.wire)
     rcm = np.array(cfg.task.scene.rcm_position)
     feature = wire.point(0.5 * wire.length)
-    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-    arm = CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
+    T_rcm, T_tip_cam = arm_mount(kind, cfg.episode.T_tip_cam, cfg.task.scene.T_world_rcm)
+    arm = CameraArm(kind, T_rcm, T_tip_cam, 0.01)
     model = arm.model
     vmax = np.array(PSM_MAX_VELOCITY if kind is ArmKind.PSM else ECM_MAX_VELOCITY)
     rng = np.random.default_rng(16)

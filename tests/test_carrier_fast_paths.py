@@ -39,6 +39,7 @@ from endocam.robot.arm_targets import (
     wrist_jump,
 )
 from endocam.robot.camera_arm import CameraArm, arm_model, natural_pose
+from endocam.robot.carriers import arm_mount
 from endocam.robot.dh import pose12_to_matrix
 from endocam.robot.ik import IK_ORIENTATION_TOL_RAD, IK_POSITION_TOL_M
 from endocam.robot.kinematics import LIMIT_SLACK
@@ -55,8 +56,8 @@ ACOS_ATOL_RAD = 1e-6  # rad: scipy's magnitude() of a near-identity rotation (ac
 
 def _arm(kind: ArmKind) -> CameraArm:
     cfg = ExperimentConfig()
-    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
+    T_rcm, T_tip_cam = arm_mount(kind, cfg.episode.T_tip_cam, cfg.task.scene.T_world_rcm)
+    return CameraArm(kind, T_rcm, T_tip_cam, 0.01)
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

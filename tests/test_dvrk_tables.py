@@ -19,7 +19,7 @@ import pytest
 from endocam.robot import ECM, ECM_CHAIN, PSM, PSM_CHAIN, DHChain
 from endocam.robot.dvrk_frames import (
     ECM_TOOLTIP_OFFSET_STRAIGHT,
-    T_ISI_OPENCV,
+    T_TIP_CAM_ECM,
     dvrk_ecm_tip,
     ecm_camera_from_dvrk_tip,
 )
@@ -97,18 +97,16 @@ def test_psm_tip_is_the_dvrk_tip() -> None:
         np.testing.assert_allclose(psm.forward(q), expected, atol=ATOL_M, rtol=0.0)
 
 
-def test_ecm_camera_is_the_dvrk_last_frame_and_its_tip_a_quarter_turn_away() -> None:
+def test_ecm_tip_is_the_dvrk_tip_and_its_camera_the_isi_frame_in_opencv_terms() -> None:
     ecm = ECM()
     for q in _samples(DVRK_ECM, seed=12):
-        last = _table_fk(DVRK_ECM, q)
-        T_rcm_cam = ecm.forward(q)
-        np.testing.assert_allclose(T_rcm_cam, last, atol=ATOL_M, rtol=0.0)
-        T_rcm_tip = last @ DVRK_ECM_TOOLTIP_STRAIGHT  # what the dVRK reports at q
+        T_rcm_tip = _table_fk(DVRK_ECM, q) @ DVRK_ECM_TOOLTIP_STRAIGHT  # the dVRK's at q
+        np.testing.assert_allclose(ecm.forward(q), T_rcm_tip, atol=ATOL_M, rtol=0.0)
+        T_rcm_cam = ecm_camera_from_dvrk_tip(T_rcm_tip)
         np.testing.assert_allclose(dvrk_ecm_tip(T_rcm_cam), T_rcm_tip, atol=ATOL_M, rtol=0.0)
-        np.testing.assert_allclose(ecm_camera_from_dvrk_tip(T_rcm_tip), T_rcm_cam, atol=ATOL_M)
-        # the dVRK's camera in OpenCV terms is endocam's turned +90° about the optical axis
-        R = T_rcm_cam[:3, :3].T @ (T_rcm_tip @ T_ISI_OPENCV)[:3, :3]
-        angle = math.atan2(R[1, 0], R[0, 0])
-        np.testing.assert_allclose(R[2], [0.0, 0.0, 1.0], atol=ATOL_RAD)
-        assert abs(angle - math.pi / 2) <= ATOL_RAD
+        # OpenCV's x right, y down are the ISI tip's −x, −y; both look along the tip's z
+        np.testing.assert_allclose(T_rcm_cam[:3, 0], -T_rcm_tip[:3, 0], atol=ATOL_RAD)
+        np.testing.assert_allclose(T_rcm_cam[:3, 1], -T_rcm_tip[:3, 1], atol=ATOL_RAD)
+        np.testing.assert_allclose(T_rcm_cam[:3, 2:], T_rcm_tip[:3, 2:], atol=ATOL_M)
     np.testing.assert_array_equal(ECM_TOOLTIP_OFFSET_STRAIGHT, DVRK_ECM_TOOLTIP_STRAIGHT)
+    np.testing.assert_array_equal(T_TIP_CAM_ECM, np.diag([-1.0, -1.0, 1.0, 1.0]))

@@ -15,6 +15,7 @@ from endocam.robot.actuator import ActuatorStatus, ArmKind
 from endocam.robot.arm_guard import stop_point
 from endocam.robot.arm_targets import VIEW_BISECTIONS, view_towards_port
 from endocam.robot.camera_arm import CameraArm, natural_pose
+from endocam.robot.carriers import arm_mount
 from endocam.robot.dh import chain_frames
 from endocam.robot.kinematics import LIMIT_SLACK
 from endocam.runner.episode import UNREACHABLE, EpisodeResult, EpisodeSpec, episode_arm, run_episode
@@ -62,9 +63,9 @@ def _run(policy: str, arm: str, kind: str = "noisy", **scene: object) -> Episode
 def _arm_for(result: EpisodeResult) -> CameraArm:
     cfg = result.config
     kind = ArmKind(result.log.arm)
-    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
+    T_rcm, T_tip_cam = arm_mount(kind, cfg.episode.T_tip_cam, cfg.task.scene.T_world_rcm)
     dt = 1.0 / cfg.episode.control_rate
-    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, dt)
+    return CameraArm(kind, T_rcm, T_tip_cam, dt)
 
 
 @pytest.fixture(scope="module")
@@ -141,7 +142,8 @@ def _short(duration: float):  # type: ignore[no-untyped-def]
 
 def _ecm_arm() -> CameraArm:
     cfg = ExperimentConfig()
-    return CameraArm(ArmKind.ECM, cfg.task.scene.T_world_rcm, np.eye(4), 0.01)
+    T_rcm, T_tip_cam = arm_mount(ArmKind.ECM, np.eye(4), cfg.task.scene.T_world_rcm)
+    return CameraArm(ArmKind.ECM, T_rcm, T_tip_cam, 0.01)
 
 
 LOOK_DISTANCE_M = 0.05  # m: the controller's default working distance

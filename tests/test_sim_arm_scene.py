@@ -12,6 +12,7 @@ import pytest
 from endocam.config import ExperimentConfig
 from endocam.robot.actuator import ArmKind
 from endocam.robot.camera_arm import CameraArm
+from endocam.robot.carriers import arm_mount
 from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode
 from endocam.sim.arm_scene import ARM_PREFIX, CAMERA_BODY_GEOM, camera_arm_links
 from endocam.sim.render import WireChaserScene, log_arm
@@ -50,8 +51,8 @@ def psm_scene(psm_episode: EpisodeResult) -> Iterator[WireChaserScene]:
 def _camera_arm(result: EpisodeResult) -> CameraArm:
     cfg = result.config
     kind = ArmKind(result.log.arm)
-    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
+    T_rcm, T_tip_cam = arm_mount(kind, cfg.episode.T_tip_cam, cfg.task.scene.T_world_rcm)
+    return CameraArm(kind, T_rcm, T_tip_cam, 0.01)
 
 
 def _show_step(scene: WireChaserScene, result: EpisodeResult, k: int) -> None:

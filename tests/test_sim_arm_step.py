@@ -11,6 +11,7 @@ from endocam.geometry import make_pose
 from endocam.robot.actuator import ActuatorStatus, ArmKind
 from endocam.robot.arm import MotionStatus
 from endocam.robot.camera_arm import CameraArm, natural_pose
+from endocam.robot.carriers import arm_mount
 from endocam.robot.dh import (
     chain_points,
     pose12_from_matrix,
@@ -35,8 +36,8 @@ def _random_pose(rng: np.random.Generator) -> np.ndarray:
 
 def _arm(kind: ArmKind) -> CameraArm:
     cfg = ExperimentConfig()
-    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-    return CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, 0.01)
+    T_rcm, T_tip_cam = arm_mount(kind, cfg.episode.T_tip_cam, cfg.task.scene.T_world_rcm)
+    return CameraArm(kind, T_rcm, T_tip_cam, 0.01)
 
 
 def test_pose12_kernels_match_numpy():

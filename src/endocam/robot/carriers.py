@@ -4,12 +4,31 @@ from __future__ import annotations
 
 import numpy as np
 
+from endocam.geometry import FloatArray
 from endocam.robot.actuator import Actuator, ArmKind, WorkspaceBound
 from endocam.robot.camera_arm import CameraArm
 from endocam.robot.cartesian import MotionLimits
+from endocam.robot.dvrk_frames import T_RCM_RCMECM, T_TIP_CAM_ECM
 from endocam.robot.free_camera import FreeCamera
 
-__all__ = ["make_actuator"]
+__all__ = ["arm_mount", "make_actuator"]
+
+
+def arm_mount(
+    kind: ArmKind, T_tip_cam: object, T_world_rcm: object
+) -> tuple[FloatArray, FloatArray]:
+    """Where an arm of ``kind`` sits and carries its camera: ``(T_world_rcm_arm, T_tip_cam_arm)``.
+
+    ``T_tip_cam`` (4, 4), m: the PSM's camera in its tool-tip frame (``episode.tip_cam_*``).
+    ``T_world_rcm`` (4, 4), m: the scene's RCM frame (the port). The PSM takes both as given.
+    The ECM's tip is the dVRK's (ISI camera frame): its camera is
+    :data:`~endocam.robot.dvrk_frames.T_TIP_CAM_ECM` on it, under the RCM frame turned by
+    :data:`~endocam.robot.dvrk_frames.T_RCM_RCMECM`.
+    """
+    T_rcm = np.asarray(T_world_rcm, dtype=float)
+    if kind is ArmKind.ECM:
+        return T_rcm @ T_RCM_RCMECM, T_TIP_CAM_ECM.copy()
+    return T_rcm, np.asarray(T_tip_cam, dtype=float)
 
 
 def make_actuator(
@@ -39,5 +58,5 @@ def make_actuator(
     """
     if kind is ArmKind.FREE:
         return FreeCamera(limits, dt, workspace)
-    T_cam = T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-    return CameraArm(kind, T_world_rcm, T_cam, dt, workspace)
+    T_rcm, T_cam = arm_mount(kind, T_tip_cam, T_world_rcm)
+    return CameraArm(kind, T_rcm, T_cam, dt, workspace)

@@ -2,15 +2,15 @@
 
 Joint order: ``yaw, pitch, insertion, roll`` (rad, rad, m, rad). Base frame: the RCM.
 
-Tool-tip / camera frame. The chain ends with an identity tool-tip offset, so the ECM's tip
-frame is the last DH frame: its origin is on the scope axis at distance
-``insertion + (0.3829 − 0.3822)`` m from the RCM and its **z axis points along the scope,
-away from the RCM** — the viewing direction of a 0° endoscope. For a straight scope this is
-an OpenCV-style optical frame (z forward); the image's x/y turn with the roll joint. A
-different optical mount (e.g. a 30° scope) is a ``T_tip_cam`` given to
-:meth:`~endocam.robot.kinematics.RcmArm.solve_camera`. Whatever the mount, the optical axis
-of a straight scope passes through the RCM. The dVRK appends a tool-tip offset ``Rz(−π/2)``
-(an ISI camera frame: x left, y up) instead; docs/robot.md relates the two frames.
+Tool-tip frame: the dVRK's. The chain ends with the dVRK's straight-scope tool-tip offset
+``Rz(−π/2)`` (:data:`~endocam.robot.dvrk_frames.ECM_TOOLTIP_OFFSET_STRAIGHT`), so
+``forward(q)`` is the dVRK's ``local/measured_cp`` at ``q``: an ISI camera frame (x left,
+y up), origin on the scope axis at ``insertion + (0.3829 − 0.3822)`` m from the RCM, **z along
+the scope, away from the RCM** — the viewing direction of a 0° endoscope. endocam's camera
+(OpenCV optical frame) sits on it at
+:data:`~endocam.robot.dvrk_frames.T_TIP_CAM_ECM` (``Rz(π)``), under the RCM frame
+``T_world_rcm · T_RCM_RCMECM`` (:func:`endocam.robot.carriers.arm_mount`). Whatever the
+mount, the optical axis of a straight scope passes through the RCM.
 
 IK (position first, closed form). With 4 DoF the ECM cannot reach a general 6-DoF goal:
 
@@ -51,6 +51,7 @@ from endocam.robot.dh import (
     pose12_times,
     pose12_to_matrix,
 )
+from endocam.robot.dvrk_frames import ECM_TOOLTIP_OFFSET_STRAIGHT
 from endocam.robot.ik import (
     IK_ORIENTATION_TOL_RAD,
     IK_POSITION_TOL_M,
@@ -87,9 +88,9 @@ ECM_CHAIN = DHChain(
         DHLink("insertion", _HALF_PI, 0.0, 0.0, 0.0, -0.3822, _P, 0.0, 0.255),
         DHLink("roll", 0.0, 0.0, 0.3829, 0.0, 0.0, _R, -1.552, 1.552),
     ),
-    T_last_tip=np.eye(4),
+    T_last_tip=ECM_TOOLTIP_OFFSET_STRAIGHT,
 )
-"""The Classic ECM's modified-DH chain, base frame = RCM, identity tool-tip offset.
+"""The Classic ECM's modified-DH chain, base frame = RCM, the dVRK's straight-scope tool tip.
 
 DH values and joint limits from jhu-dvrk/sawIntuitiveResearchKit ``share/kinematic/ecm.json``
 (commit 09fdffe8): yaw ±1.5708 rad (±90°), pitch −0.76794-1.1344 rad (−44°-65°), insertion

@@ -75,6 +75,7 @@ from endocam.robot.arm import (
     PSM_MAX_VELOCITY,
 )
 from endocam.robot.camera_arm import CameraArm, arm_model
+from endocam.robot.carriers import arm_mount
 from endocam.runner.episode import BLOCKED, UNREACHABLE
 from endocam.runner.log_schema import (
     TIME_TOL_S,
@@ -514,8 +515,8 @@ def _fk(log: RunLog) -> list[Violation]:
     if kind is ArmKind.FREE:
         return []
     cfg = log.config
-    T_tip_cam = cfg.episode.T_tip_cam if kind is ArmKind.PSM else np.eye(4)
-    arm = CameraArm(kind, cfg.task.scene.T_world_rcm, T_tip_cam, log.header.control_period)
+    T_rcm, T_tip_cam = arm_mount(kind, cfg.episode.T_tip_cam, cfg.task.scene.T_world_rcm)
+    arm = CameraArm(kind, T_rcm, T_tip_cam, log.header.control_period)
     names = arm.joint_names
     q = np.stack([log.columns[joint_column(n)] for n in names], axis=1)
     ok = np.isfinite(q).all(axis=1)

@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from endocam.camera import Eye, StereoCamera
 from endocam.geometry import FloatArray, as_pose, as_vector3, quat_wxyz_from_R
 from endocam.robot.camera_arm import ArmKind, arm_model, natural_pose
+from endocam.robot.carriers import arm_mount
 from endocam.sim.arm_scene import ArmLink, add_camera_arm
 from endocam.sim.scene import (
     CAMERA_BODY,
@@ -92,7 +93,7 @@ class WireChaserScene:
         if self.arm is not None:
             self._arm_links = add_camera_arm(spec, self.arm, task_cfg.instruments, camera)
             self._arm_model = arm_model(self.arm)
-            self._T_world_rcm = task_cfg.scene.T_world_rcm
+            self._T_world_rcm = arm_mount(self.arm, np.eye(4), task_cfg.scene.T_world_rcm)[0]
         self.model = spec.compile()
         self.data = mujoco.MjData(self.model)
         self._mocap = {
