@@ -14,6 +14,14 @@ policy:
   (``runner.check`` on the written run), CPU s per episode (the control loop alone);
 - what hides the gap from a viewer with both eyes (touches per hider).
 
+``--diagnose`` adds, per ``endocam-visible`` touch, what decides a miss: the camera's lag
+(deg) to the arm's command and to the view the policy was turned to (its target axis), and an
+**oracle on the candidate set**: ideal cameras (at the logged working distance, level) placed
+on the policy's own candidate axes about the true normal at the closing instant, on the camera's
+side and on both, and on a denser set (5–25° every 5°, 12 azimuths), each measured as the study
+measures the gap. A miss whose target view resolves is a lag; one whose best candidate does is a
+choice; one no candidate resolves is a candidate-set problem.
+
 Run (``--seeds`` takes ranges, ``7-26``; ``--visible`` overrides ``VisibleConfig`` fields, for
 tuning; ``--touches-csv`` writes one row per touch)::
 
@@ -38,14 +46,32 @@ import numpy as np
 
 import endocam.control.policies.visible as visible
 from endocam.config import ExperimentConfig
+from endocam.control.occlusion import (
+    RingShape,
+    direction_table,
+    eye_positions,
+    gap_points,
+    view_directions,
+    view_scores,
+    wire_window,
+)
 from endocam.robot.actuator import ArmKind
 from endocam.runner.check import check_run
 from endocam.runner.episode import EpisodeSpec, run_episode
 from endocam.runner.experiments import ground_truth, study_path_config
 from endocam.runner.outputs import write_run
 from endocam.sim.render import WireChaserScene
-from endocam.study.visibility import closing_gap, control_step
+from endocam.study.observer import PRE_TOUCH_S
+from endocam.study.visibility import (
+    GAP_SEEN,
+    GAP_SEEN_DT,
+    ClosingGap,
+    closing_gap,
+    control_step,
+    view_gap,
+)
 from endocam.task.study_paths import STUDY_TRAJECTORIES, study_trajectory_seeds
+from endocam.task.touches import clearances
 from endocam.task.trajectory import TrajectoryKind
 
 
@@ -61,6 +87,105 @@ class Tally:
     violations: int = 0
     cpu_s: list[float] = field(default_factory=list)
     hiders: Counter[str] = field(default_factory=Counter)
+
+
+DENSE_TILTS_RAD = np.radians([5.0, 10.0, 15.0, 20.0, 25.0])  # the oracle's denser set
+DENSE_AZIMUTHS = 12
+
+
+def axis_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle between two directions (3,), deg."""
+    c = float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-12)
+    return math.degrees(math.acos(min(1.0, max(-1.0, c))))
+
+
+def ideal_camera(p_c: np.ndarray, u: np.ndarray, d_f: float) -> np.ndarray:
+    """T_world_cam (4, 4): a level camera ``d_f`` m along the unit ``u`` (3,) from ``p_c``,
+    looking back at it (the scorer's eye placement, ``occlusion.eye_positions``)."""
+    z = -u
+    x = np.array([-u[1], u[0], 0.0])
+    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, np.cross(z, x), z, p_c + d_f * u
+    return T
+
+
+def diagnose(
+    result: Any, scene: WireChaserScene, gap: ClosingGap, t_start: float, axes: dict[int, Any]
+) -> dict[str, Any]:
+    """One touch's lag and candidate-set oracle (module docstring); ``axes`` per control step:
+    the policy's (target, applied) axes."""
+    vc = visible.VisibleConfig()
+    t0 = max(t_start - PRE_TOUCH_S, 0.0)
+    ts = np.append(np.arange(t0, t_start, GAP_SEEN_DT), t_start)
+    T_rings = result.trajectory.poses(ts)
+    c, p = clearances(T_rings, result.wire, result.config.task.ring)
+    closing = np.flatnonzero(c <= GAP_SEEN)
+    i = int(closing[0]) if closing.size else len(ts) - 1
+    k = control_step(result, float(ts[i]))
+    T_ring, n = T_rings[i], T_rings[i][:3, 2]
+    T_cam, T_cmd = result.log.T_world_cam[k], result.log.T_world_cmd[k]
+    u_cam = -T_cam[:3, 2]
+    side = 1.0 if float(u_cam @ n) >= 0.0 else -1.0
+    d_f = float(result.log.d_f[k])
+
+    def resolved(u: np.ndarray) -> bool:
+        return view_gap(scene, T_ring, ideal_camera(T_ring[:3, 3], u, d_f), p[i]).resolved
+
+    row: dict[str, Any] = {
+        "tilt_deg": round(axis_angle_deg(u_cam, side * n), 1),
+        "arm_lag_deg": round(axis_angle_deg(T_cam[:3, 2], T_cmd[:3, 2]), 1),
+    }
+    target = axes.get(k)
+    row["target_lag_deg"] = "" if target is None else round(axis_angle_deg(u_cam, target[0]), 1)
+    row["target_resolved"] = "" if target is None else int(resolved(target[0]))
+    row["engaged"] = "" if target is None else int(target[2])
+    p_cam = T_cam[:3, 3]
+    u_line = (p_cam - T_ring[:3, 3]) / np.linalg.norm(p_cam - T_ring[:3, 3])
+    row["off_centre_deg"] = round(axis_angle_deg(u_line, u_cam), 1)
+    row["line_lag_deg"] = "" if target is None else round(axis_angle_deg(u_line, target[0]), 1)
+    row["line_resolved"] = int(resolved(u_line))
+    row["normal_resolved"] = int(resolved(side * n))
+    own = view_directions(n, direction_table(vc.tilts, vc.azimuths))
+    ray = np.array([resolved(side * u) for u in own])
+    row["side_cands"] = int(ray.sum())
+    # the scorer's own model at the true closing pose: its best view on this side, and whether
+    # the ray casts agree with it (a model/prediction problem against a choice rule one)
+    window = wire_window(result.wire, T_ring[:3, 3], vc.window)
+    shape = RingShape.of(result.config.task.ring)
+    gaps = gap_points(T_ring, window, shape, result.wire.radius, vc.rim_points, vc.weight_scale)
+    dirs = side * own
+    eyes = eye_positions(T_ring[:3, 3], dirs, d_f, float(result.camera.baseline))
+    focal = float(result.camera.intrinsics.K[1, 1])
+    shares = view_scores(eyes, -dirs, gaps, window, T_ring, shape, result.wire.radius, focal,
+                         vc.resolved_px).max(axis=1)  # fmt: skip
+    tilt = np.concatenate([[0.0], np.repeat(vc.tilts, vc.azimuths)])
+    best = int(np.argmax(shares - vc.tilt_cost * tilt))
+    row["model_best_resolved"] = int(ray[best])
+    row["model_best_tilt"] = round(math.degrees(float(tilt[best])))
+    for h in (0.1, 0.25, 0.5):  # the model's choice on the pose predicted h s ahead
+        t_obs = float(ts[i]) - h - 0.05
+        P = result.trajectory.poses(np.array([t_obs - vc.velocity_window, t_obs]))
+        T_p = visible.predicted_pose(P[0], P[1], vc.velocity_window, h + 0.05,
+                                     vc.max_predicted_turn)  # fmt: skip
+        n_p = T_p[:3, 2]
+        dirs_p = side * view_directions(n_p, direction_table(vc.tilts, vc.azimuths))
+        gaps_p = gap_points(T_p, window, shape, result.wire.radius, vc.rim_points,
+                            vc.weight_scale)  # fmt: skip
+        eyes_p = eye_positions(T_p[:3, 3], dirs_p, d_f, float(result.camera.baseline))
+        sh = view_scores(eyes_p, -dirs_p, gaps_p, window, T_p, shape, result.wire.radius,
+                         focal, vc.resolved_px).max(axis=1)  # fmt: skip
+        b = int(np.argmax(sh - vc.tilt_cost * tilt))
+        row[f"pred{h}_best_resolved"] = int(resolved(dirs_p[b]))
+    row["model_agree"] = round(float(np.mean((shares > 0.5) == ray)), 2)
+    row["other_cands"] = sum(resolved(-side * u) for u in own)
+    row["n_cands"] = len(own)
+    dense = view_directions(n, direction_table(DENSE_TILTS_RAD, DENSE_AZIMUTHS))
+    row["dense_side"] = sum(resolved(side * u) for u in dense)
+    row["dense_both"] = row["dense_side"] + sum(resolved(-side * u) for u in dense)
+    row["n_dense"] = len(dense)
+    scene.set_psm2_tip(result.log.p_world_tips[k, 1])  # as closing_gap left it
+    return row
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -99,6 +224,9 @@ def main() -> None:
     parser.add_argument("--paths", default="", help="study path names (default: all three)")
     parser.add_argument("--visible", default="", help="VisibleConfig overrides: key=value,...")
     parser.add_argument("--touches-csv", default="", help="write one row per touch here")
+    parser.add_argument(
+        "--diagnose", action="store_true", help="lag and candidate oracle per unresolved touch"
+    )
     args = parser.parse_args()
     seeds = parse_seeds(args.seeds)
     policies = [p for p in args.policies.split(",") if p]
@@ -116,6 +244,19 @@ def main() -> None:
         reset(self, context)
 
     setattr(visible.VisiblePolicy, "reset", recording_reset)  # noqa: B010
+    axes: dict[int, Any] = {}  # control step → the policy's (target, applied) axes
+    step = visible.VisiblePolicy.step
+    rate = ExperimentConfig().episode.control_rate
+
+    def recording_step(self: visible.VisiblePolicy, obs: Any) -> Any:
+        command = step(self, obs)
+        a = self.view_axes(obs.T_world_ring)
+        if a is not None:
+            axes[round(float(obs.t) * rate)] = (*a, self.engaged)
+        return command
+
+    if args.diagnose:
+        setattr(visible.VisiblePolicy, "step", recording_step)  # noqa: B010
     base = ExperimentConfig()
     base = base.model_copy(
         update={"episode": base.episode.model_copy(update={"arm": ArmKind(args.arm)})}
@@ -152,6 +293,11 @@ def main() -> None:
                             if gap.hidden_by is not None:
                                 tally.hiders[gap.hidden_by] += 1
                             k = control_step(result, gap.t_s)
+                            extra = (
+                                diagnose(result, scene, gap, float(ev.t_start), axes)
+                                if args.diagnose and policy == visible.VisiblePolicy.name
+                                else {}
+                            )
                             rows.append(
                                 {
                                     "seed": seed,
@@ -165,6 +311,7 @@ def main() -> None:
                                     "orientation_deg": round(
                                         math.degrees(float(result.orientation_error[k])), 1
                                     ),
+                                    **extra,
                                 }
                             )
                     counts = ""
@@ -175,6 +322,7 @@ def main() -> None:
                             f"{v.tilted_steps / len(result.log.t):.0%} of steps"
                         )
                     seen.clear()
+                    axes.clear()
                     print(
                         f"  seed {seed} {traj.name} {policy}: {len(result.touches.events)} "
                         f"touches, orientation {tally.orientation_deg[-1]:.1f} deg, "

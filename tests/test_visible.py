@@ -49,6 +49,7 @@ CAMERA = StereoCamera()
 FOCAL_PX = float(CAMERA.intrinsics.K[1, 1])
 DT = 0.01  # s, control period
 ATOL_M = 1e-12  # m: two formulas for the same distance
+ATOL_ANGLE = 1e-6  # rad: an axis on the normal up to round-off
 ATOL_SHARE = 1e-12  # unitless: the compiled and the numpy share of the same sight lines
 P_RING = np.array([0.0, 0.0, 0.06])  # m, the constructed scene's ring centre
 N_RING = np.array([1.0, 0.0, 0.1]) / math.hypot(1.0, 0.1)  # its normal: the first side is +1
@@ -281,6 +282,11 @@ def test_without_a_touch_near_the_camera_holds_the_normal() -> None:
             T_cam = policy.step(Observation(k * DT, T_ring, T_cam)).T_world_cam
         assert (policy.tilted_steps > 0) is tilted
         assert (policy.idle_scorings > 0) is not tilted
+        assert policy.engaged is tilted
+        axes = policy.view_axes(T_ring)  # the bench's record: target and applied axis
+        assert axes is not None
+        off = [math.acos(min(1.0, float(a @ N_RING))) for a in axes]
+        assert (min(off) > ATOL_ANGLE) is tilted and (max(off) > ATOL_ANGLE) is tilted
 
 
 def test_the_scorer_judges_the_ring_where_it_will_be() -> None:

@@ -300,6 +300,7 @@ class VisiblePolicy(EndocamPolicy):
         self.tilted_steps = 0  # steps the axis was off the normal this episode
         self.last_scores: dict[float, SideScore] = {}
         self.idle_scorings = 0  # scorings skipped this episode (no touch near)
+        self.engaged = False  # the last scoring had a touch near
         self._track: deque[tuple[float, FloatArray]] = deque()  # accepted (t_ring s, T_ring)
 
     def reset(self, context: PolicyContext) -> None:
@@ -312,6 +313,20 @@ class VisiblePolicy(EndocamPolicy):
         self._baseline = float(context.camera.baseline)
         self._dt = context.dt
         self._window = max(self.visible.velocity_window, context.dt)
+
+    def view_axes(self, T_ring: FloatArray | None) -> tuple[FloatArray, FloatArray] | None:
+        """The viewing axes (3,) the camera is turned to now, world: the target's, the applied.
+
+        Each is a unit direction from the ring centre to the camera, from the observed ring
+        pose ``T_ring`` (4, 4) and the side now. ``None``: no side yet, or no usable normal.
+        For benches (what the camera was sent to look along, against where it was).
+        """
+        n = None if T_ring is None else _unit_normal(np.asarray(T_ring, dtype=float))
+        side = self._side if self._side != 0.0 else self._want
+        if n is None or side == 0.0:
+            return None
+        n_arr = np.array(n)
+        return _axis(side, n_arr, self._targets[side]), _axis(side, n_arr, self._offset)
 
     # -- the side ----------------------------------------------------------------------------
 
@@ -425,7 +440,8 @@ class VisiblePolicy(EndocamPolicy):
         side_now = self._side if self._side != 0.0 else self._want
         if n is None:
             return
-        if nearest > vc.engage_clearance:  # no touch near: the normal, the side held
+        self.engaged = nearest <= vc.engage_clearance
+        if not self.engaged:  # no touch near: the normal, the side held
             self.idle_scorings += 1
             self._since = None
             if side_now != 0.0:
