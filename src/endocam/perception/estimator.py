@@ -14,7 +14,9 @@ Per pair (:func:`estimate_ring_pose`; the method and its failure modes: docs/per
    ambiguity, :func:`endocam.perception.ellipse.circle_normals`); the true one is seen by both
    eyes, the false ones differ (each is the true normal mirrored about that eye's line of
    sight, and the lines of sight differ by ``baseline / Z``). The pair of candidates, one per eye,
-   that agree best gives the normal (their mean); the others are discarded.
+   that agree best gives the normal (their mean); the others are discarded. Near the ring's
+   axis, where an ellipse's shape barely shows the tilt, that normal is blended with the plane
+   of the core ellipses' row-matched disparities (:func:`plane_normal`, :func:`blended_normal`).
 5. **Centre**: each eye's image of the circle's centre for that normal, triangulated.
 6. **Reject what is inconsistent**: rows that differ between the eyes, a depth outside
    ``depth_range``, a core ellipse that is not a circle of radius ``R`` at the triangulated
