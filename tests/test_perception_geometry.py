@@ -20,7 +20,7 @@ from endocam.perception.ellipse import (
     fit_rim,
     radius_over_distance,
 )
-from endocam.perception.estimator import choose_normal
+from endocam.perception.estimator import choose_normal, plane_normal
 from endocam.perception.segment import HUE_TOL, SAT_MIN, VAL_MIN, ColourKeys, hue_mask, segment
 from endocam.task.config import SceneConfig
 
@@ -29,6 +29,7 @@ pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conf
 K = StereoCamera().intrinsics.K
 ATOL_UNIT = 1e-9  # unitless, unit vectors and normalised image coordinates from exact conics
 RTOL_RADIUS = 1e-9  # unitless, the radius from an exact conic
+PLANE_ATOL = 1e-6  # unitless: exact conics, but a least-squares fit of disparities ~1e-3
 FIT_TOL_PX = 0.5  # px, a drawn ellipse's fit: half a pixel (the pixel grid's resolution)
 
 
@@ -80,6 +81,26 @@ def test_the_second_candidate_is_the_mirror_image() -> None:
     off = sorted(math.degrees(math.acos(min(1.0, abs(float(c @ n))))) for c in cands)
     assert off[0] < 1e-6
     assert 70.0 < off[1] < 90.0
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 1.0, 5.0, 40.0])
+def test_the_disparity_plane_gives_the_normal(tilt_deg: float) -> None:
+    """Two eyes' exact conics of one circle: the row-matched disparities' plane is its plane,
+    along the axis too (where the ellipse's shape barely changes with the tilt)."""
+    rng = np.random.default_rng(1)
+    baseline = StereoCamera().baseline
+    for _ in range(5):
+        p, _, rho = random_circle(rng)
+        az = rng.uniform(0.0, 2.0 * math.pi)
+        tilt = math.radians(tilt_deg)
+        sight = -p / np.linalg.norm(p)  # from the ring to the camera
+        side = np.cross(sight, [math.cos(az), math.sin(az), 0.0])
+        n = math.cos(tilt) * sight + math.sin(tilt) * side / np.linalg.norm(side)
+        half = np.array([0.5 * baseline, 0.0, 0.0])  # the eyes sit at ∓baseline/2 along x
+        got = plane_normal(exact_conic(p + half, n, rho), exact_conic(p - half, n, rho))
+        assert got is not None
+        assert got[2] < 0.0  # faces the eyes
+        np.testing.assert_allclose(got, n, atol=PLANE_ATOL)
 
 
 def test_not_an_ellipse_gives_none() -> None:

@@ -14,7 +14,9 @@ Per pair (:func:`estimate_ring_pose`; the method and its failure modes: docs/per
    ambiguity, :func:`endocam.perception.ellipse.circle_normals`); the true one is seen by both
    eyes, the false ones differ (each is the true normal mirrored about that eye's line of
    sight, and the lines of sight differ by ``baseline / Z``). The pair of candidates, one per eye,
-   that agree best gives the normal (their mean); the others are discarded.
+   that agree best gives the normal (their mean); the others are discarded. Near the ring's
+   axis, where an ellipse's shape barely shows the tilt, that normal is blended with the plane
+   of the core ellipses' row-matched disparities (:func:`plane_normal`, :func:`blended_normal`).
 5. **Centre**: each eye's image of the circle's centre for that normal, triangulated.
 6. **Reject what is inconsistent**: rows that differ between the eyes, a depth outside
    ``depth_range``, a core ellipse that is not a circle of radius ``R`` at the triangulated
@@ -121,6 +123,11 @@ class EstimatorConfig:
     ambiguous_separation : float
         ... required where the two candidates are farther apart than this, rad (closer
         candidates are both near the truth).
+    plane_tilt : float
+        The tilt (rad) from the line of sight at which the ellipses' normal and the disparity
+        plane's (:func:`plane_normal`) weigh the same: the normal is their mean weighted
+        ``sin² tilt`` to the ellipses' and ``sin² plane_tilt`` to the plane's (the ellipses'
+        error grows as ``1 / sin tilt`` near the axis; the plane's stays about 1°).
     prior_fraction : float
         An ambiguous choice is settled by a prior normal (the track's, e.g. the last
         estimate) when one hypothesis lies within this fraction of the hypotheses' separation
@@ -137,6 +144,7 @@ class EstimatorConfig:
     margin_depth: float = 0.06
     ambiguous_separation: float = math.radians(20.0)
     prior_fraction: float = 0.25
+    plane_tilt: float = math.radians(15.0)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_coverage <= 1.0:
@@ -153,6 +161,7 @@ class EstimatorConfig:
             "min_normal_margin",
             "margin_depth",
             "ambiguous_separation",
+            "plane_tilt",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
@@ -349,6 +358,7 @@ def estimate_ring_detail(
         if settled is None or settled.disagreement > cfg.max_normal_disagreement:
             return EstimateResult(None, EstimateStatus.AMBIGUOUS)
         n, disagreement = settled.n, settled.disagreement
+    n = blended_normal(n, plane_normal(conics[0], conics[1]), fl, fr, K, cfg.plane_tilt)
     p = _triangulate(conics[0], conics[1], n, model.camera)
     if p is None or not cfg.depth_range[0] <= p[2] <= cfg.depth_range[1]:
         return EstimateResult(None, EstimateStatus.BAD_DEPTH)
@@ -508,3 +518,98 @@ def draw_estimate(
     a, b = np.round(uv).astype(int)
     cv2.arrowedLine(out, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), (0, 255, 255), 2)
     return out
+
+
+def blended_normal(
+    n_ellipse: FloatArray,
+    n_plane: FloatArray | None,
+    left: ImageEllipse,
+    right: ImageEllipse,
+    K: FloatArray,
+    plane_tilt: float,
+) -> FloatArray:
+    """The ellipses' normal (3,) and the disparity plane's, weighted by the tilt from the sight.
+
+    The tilt is the plane normal's angle to the ray through the mean of the eyes' ellipse
+    centres (``K`` (3, 3) the eyes' intrinsics); the ellipses' weight is ``sin² tilt``, the
+    plane's ``sin² plane_tilt`` (rad). Both unit, camera frame, towards the eyes; the plane's
+    sign is taken to agree with the ellipses'. ``n_ellipse`` alone if there is no plane normal.
+    """
+    if n_plane is None:
+        return n_ellipse
+    uv = 0.5 * (left.centre + right.centre)
+    ray = np.linalg.solve(K, np.array([uv[0], uv[1], 1.0]))
+    ray /= np.linalg.norm(ray)
+    sin2_tilt = 1.0 - float(n_plane @ ray) ** 2
+    w_plane = math.sin(plane_tilt) ** 2
+    sign = 1.0 if float(n_plane @ n_ellipse) >= 0.0 else -1.0
+    n = sin2_tilt * n_ellipse + w_plane * sign * n_plane
+    return np.asarray(n / np.linalg.norm(n))
+
+
+PLANE_ROWS = 24  # rows of the core ellipses the stereo plane fit samples
+PLANE_ROW_SPAN = 0.9  # the central share of the ellipses' common rows it samples
+
+
+def plane_normal(Q_left: FloatArray, Q_right: FloatArray) -> FloatArray | None:
+    """The ring plane's unit normal (3,), camera frame, from the core ellipses' disparities.
+
+    ``Q_left``, ``Q_right`` (3, 3): each eye's core-circle conic in normalised coordinates (the
+    eyes are rectified and parallel, so a row ``y`` is one epipolar line). On ``PLANE_ROWS``
+    rows the two ends of each eye's chord are matched (left end to left end); a plane
+    ``n · X = d`` in the left eye's frame has normalised disparity ``B / Z = B n · (x, y, 1) /
+    d``, linear in the left eye's ``(x, y)``: a least-squares fit of the disparity gives
+    ``n`` up to scale. Unlike the ellipse's shape, whose axis ratio changes as the cosine of the
+    tilt, the disparity changes as its sine: the tilt is well conditioned near the axis.
+    Pointing towards the eyes (negative z); None if fewer than 3 rows are shared or the fit is
+    degenerate.
+    """
+    spans = [_row_span(Q) for Q in (Q_left, Q_right)]
+    if spans[0] is None or spans[1] is None:
+        return None
+    lo, hi = max(spans[0][0], spans[1][0]), min(spans[0][1], spans[1][1])
+    if not hi > lo:
+        return None
+    mid, half = 0.5 * (lo + hi), 0.5 * PLANE_ROW_SPAN * (hi - lo)
+    y = np.linspace(mid - half, mid + half, PLANE_ROWS)
+    xl, xr = _chord_ends(Q_left, y), _chord_ends(Q_right, y)
+    ok = np.all(np.isfinite(xl) & np.isfinite(xr), axis=1)
+    if np.count_nonzero(ok) < 3:
+        return None
+    x = xl[ok].ravel()
+    A = np.stack([x, np.repeat(y[ok], 2), np.ones_like(x)], axis=1)
+    coef, *_ = np.linalg.lstsq(A, (xl[ok] - xr[ok]).ravel(), rcond=None)
+    norm = float(np.linalg.norm(coef))
+    if not norm > 0.0:
+        return None
+    n = coef / norm
+    return np.asarray(-n if n[2] > 0.0 else n)
+
+
+def _row_span(Q: FloatArray) -> tuple[float, float] | None:
+    """The rows ``y`` (normalised) the conic ``Q`` (3, 3) spans: (top, bottom), or None."""
+    # rows where the quadratic in x has a double root: its discriminant, quadratic in y, is 0
+    a, b, c = Q[0, 0], Q[0, 1], Q[0, 2]
+    # disc(y) = (b y + c)^2 - a (Q11 y^2 + 2 Q12 y + Q22)
+    p2 = b * b - a * Q[1, 1]
+    p1 = 2.0 * (b * c - a * Q[1, 2])
+    p0 = c * c - a * Q[2, 2]
+    roots = np.roots([p2, p1, p0])
+    if roots.shape != (2,) or np.any(np.abs(roots.imag) > 0.0):
+        return None
+    top, bottom = sorted(float(r) for r in roots.real)
+    return top, bottom
+
+
+def _chord_ends(Q: FloatArray, y: FloatArray) -> FloatArray:
+    """(len(y), 2) normalised x of the conic ``Q``'s chord ends on rows ``y``, left first.
+
+    NaN on rows off the conic.
+    """
+    a = Q[0, 0]
+    half_b = Q[0, 1] * y + Q[0, 2]
+    c = Q[1, 1] * y * y + 2.0 * Q[1, 2] * y + Q[2, 2]
+    disc = half_b * half_b - a * c
+    root = np.sqrt(np.where(disc >= 0.0, disc, np.nan))
+    ends = np.stack([(-half_b - root) / a, (-half_b + root) / a], axis=1)
+    return np.sort(ends, axis=1)
