@@ -7,6 +7,7 @@ code), and compared cell by cell with ``episode.csv`` parsed by the csv module.
 from __future__ import annotations
 
 import csv
+import json
 import math
 import shutil
 import sys
@@ -171,12 +172,56 @@ def test_jpeg_frames_and_size(run_dir: Path, tmp_path: Path) -> None:
     assert (run_dir / "episode.mcap").stat().st_size <= 1.5 * source
 
 
+@pytest.mark.parametrize("estimates", [False, True])
 @pytest.mark.parametrize("carrier", list(ArmKind))
-def test_topics_carry_each_column_once(carrier: ArmKind) -> None:
-    columns = [c for topic in topic_map(carrier) for c in topic.columns]
-    assert sorted(columns) == sorted(episode_column_names(carrier))
+def test_topics_carry_each_column_once(carrier: ArmKind, estimates: bool) -> None:
+    columns = [c for topic in topic_map(carrier, estimates) for c in topic.columns]
+    assert sorted(columns) == sorted(episode_column_names(carrier, estimates))
     joints = [t for t in topic_map(carrier) if t.type == "sensor_msgs/msg/JointState"]
     assert len(joints) == (0 if carrier is ArmKind.FREE else 1)
+
+
+EST_TOPICS = {  # the reader's side: topic -> the estimate columns, in field order
+    "/ring/estimate/position": ("point", ("est_x", "est_y", "est_z")),
+    "/ring/estimate/normal": ("vector", ("est_nx", "est_ny", "est_nz")),
+}
+
+
+def test_a_stereo_runs_estimates_come_back_exactly(run_dir: Path, tmp_path: Path) -> None:
+    """A run's log with the estimate columns (as a stereo run writes them) read back exactly."""
+    stereo = tmp_path / "stereo"
+    stereo.mkdir()
+    scene = json.loads((run_dir / "scene.json").read_text())
+    scene["log"]["estimates"] = True
+    (stereo / "scene.json").write_text(json.dumps(scene))
+    with open(run_dir / "episode.csv", newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    rng = np.random.default_rng(26)
+    for k, row in enumerate(rows):  # an estimate on two steps of three, none on the third
+        ok = k % 3 != 2
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        est = [*rng.normal(scale=0.05, size=3), *n, 1.0, rng.uniform(0.05, 0.2)]
+        names = ("est_x", "est_y", "est_z", "est_nx", "est_ny", "est_nz", "est_ok", "est_age_s")
+        row.update({c: repr(float(v)) if ok else "" for c, v in zip(names, est, strict=True)})
+        row["est_ok"] = "1" if ok else "0"
+    columns = episode_column_names(ArmKind.PSM, estimates=True)
+    with open(stereo / "episode.csv", "w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=columns)
+        writer.writeheader()
+        writer.writerows(rows)
+    out = tmp_path / "stereo.mcap"
+    assert main(["export", "mcap", str(stereo), "--out", str(out), "--video", "none"]) == 0
+    expected, topics = _csv(stereo / "episode.csv"), _decode(out)
+    got: dict[str, list[object]] = {}
+    for topic, (field, names) in EST_TOPICS.items():
+        for axis, name in zip("xyz", names, strict=True):
+            got[name] = [getattr(getattr(m, field), axis) for _, m in topics[topic]]
+    got["est_ok"] = [m.data for _, m in topics["/ring/estimate/ok"]]
+    got["est_age_s"] = [m.data for _, m in topics["/ring/estimate/age_s"]]
+    for name, values in got.items():  # float64 both ways: equal bit for bit, NaN where empty
+        np.testing.assert_array_equal(values, expected[name], err_msg=name)
+    assert sum(expected["est_ok"]) == sum(1 for k in range(len(rows)) if k % 3 != 2)
 
 
 def test_bad_input_exits_2_and_writes_nothing(

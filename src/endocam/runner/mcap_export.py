@@ -78,6 +78,7 @@ _DEPS = {
     "Time": "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec",
     "Pose": "MSG: geometry_msgs/Pose\nPoint position\nQuaternion orientation",
     "Point": "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z",
+    "Vector3": "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z",
     "Quaternion": "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\n"
     "float64 w 1",
 }
@@ -92,6 +93,9 @@ SCHEMAS: dict[str, str] = {
     ),
     "geometry_msgs/msg/PointStamped": _msgdef(
         "std_msgs/Header header\ngeometry_msgs/Point point", "Header", "Time", "Point"
+    ),
+    "geometry_msgs/msg/Vector3Stamped": _msgdef(
+        "std_msgs/Header header\ngeometry_msgs/Vector3 vector", "Header", "Time", "Vector3"
     ),
     "sensor_msgs/msg/JointState": _msgdef(
         "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n"
@@ -113,6 +117,7 @@ SCHEMAS: dict[str, str] = {
 
 POSE = "geometry_msgs/msg/PoseStamped"
 POINT = "geometry_msgs/msg/PointStamped"
+VECTOR = "geometry_msgs/msg/Vector3Stamped"
 FLOAT = "std_msgs/msg/Float64"
 TEXT = "std_msgs/msg/String"
 
@@ -138,10 +143,13 @@ class Topic:
     columns: tuple[str, ...]
 
 
-def topic_map(carrier: ArmKind) -> tuple[Topic, ...]:
+def topic_map(carrier: ArmKind, estimates: bool = False) -> tuple[Topic, ...]:
     """Every per-step topic for a camera carried by ``carrier``, with the columns it carries.
 
-    Together they carry each column of ``episode_column_names(carrier)`` exactly once.
+    Together they carry each column of ``episode_column_names(carrier, estimates)`` exactly
+    once; with ``estimates`` (a stereo run) also the estimator's ring centre
+    (``/ring/estimate/position``, world, m), unit face normal (``/ring/estimate/normal``,
+    world), ``est_ok`` and ``est_age_s`` (s), NaN where no estimate was delivered.
     """
     arm = ARM_NAMESPACES[carrier]
 
@@ -172,6 +180,13 @@ def topic_map(carrier: ArmKind) -> tuple[Topic, ...]:
             Topic(f"/{arm}/measured_js", "sensor_msgs/msg/JointState", q),
             Topic("/endocam/goal_conceded_mm", FLOAT, ("goal_conceded_mm",)),
             Topic("/endocam/goal_conceded_deg", FLOAT, ("goal_conceded_deg",)),
+        ]
+    if estimates:
+        topics += [
+            Topic("/ring/estimate/position", POINT, xyz_names("est")),
+            Topic("/ring/estimate/normal", VECTOR, ("est_nx", "est_ny", "est_nz")),
+            Topic("/ring/estimate/ok", FLOAT, ("est_ok",)),
+            Topic("/ring/estimate/age_s", FLOAT, ("est_age_s",)),
         ]
     return tuple(topics)
 
@@ -293,7 +308,7 @@ def _write(
 ) -> dict[str, int]:
     from mcap_ros2.writer import Writer
 
-    topics = topic_map(run.header.carrier)
+    topics = topic_map(run.header.carrier, run.header.estimates)
     vtopic = video_topic(video) if frames else None
     used = {t.type for t in topics} | ({vtopic.type} if vtopic is not None else set())
     cols = run.columns
@@ -342,6 +357,8 @@ def _message(
         }
     if topic.type == POINT:
         return {"header": header, "point": {"x": v[0], "y": v[1], "z": v[2]}}
+    if topic.type == VECTOR:
+        return {"header": header, "vector": {"x": v[0], "y": v[1], "z": v[2]}}
     if topic.type == "sensor_msgs/msg/JointState":
         return {"header": header, "name": joints, "position": v, "velocity": [], "effort": []}
     if topic.type == "std_msgs/msg/Bool":
