@@ -61,18 +61,16 @@ from endocam.runner.episode import EpisodeSpec, run_episode
 from endocam.runner.experiments import ground_truth, study_path_config
 from endocam.runner.outputs import write_run
 from endocam.sim.render import WireChaserScene
-from endocam.study.observer import PRE_TOUCH_S
 from endocam.study.visibility import (
-    GAP_SEEN,
-    GAP_SEEN_DT,
     ClosingGap,
     closing_gap,
+    closing_moment,
     control_step,
     view_gap,
 )
 from endocam.task.study_paths import STUDY_TRAJECTORIES, study_trajectory_seeds
-from endocam.task.touches import clearances
 from endocam.task.trajectory import TrajectoryKind
+from endocam.view import look_at_pose
 
 
 @dataclass
@@ -99,38 +97,23 @@ def axis_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return math.degrees(math.acos(min(1.0, max(-1.0, c))))
 
 
-def ideal_camera(p_c: np.ndarray, u: np.ndarray, d_f: float) -> np.ndarray:
-    """T_world_cam (4, 4): a level camera ``d_f`` m along the unit ``u`` (3,) from ``p_c``,
-    looking back at it (the scorer's eye placement, ``occlusion.eye_positions``)."""
-    z = -u
-    x = np.array([-u[1], u[0], 0.0])
-    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-9 else np.array([1.0, 0.0, 0.0])
-    T = np.eye(4)
-    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, np.cross(z, x), z, p_c + d_f * u
-    return T
-
-
 def diagnose(
     result: Any, scene: WireChaserScene, gap: ClosingGap, t_start: float, axes: dict[int, Any]
 ) -> dict[str, Any]:
     """One touch's lag and candidate-set oracle (module docstring); ``axes`` per control step:
     the policy's (target, applied) axes."""
     vc = visible.VisibleConfig()
-    t0 = max(t_start - PRE_TOUCH_S, 0.0)
-    ts = np.append(np.arange(t0, t_start, GAP_SEEN_DT), t_start)
-    T_rings = result.trajectory.poses(ts)
-    c, p = clearances(T_rings, result.wire, result.config.task.ring)
-    closing = np.flatnonzero(c <= GAP_SEEN)
-    i = int(closing[0]) if closing.size else len(ts) - 1
-    k = control_step(result, float(ts[i]))
-    T_ring, n = T_rings[i], T_rings[i][:3, 2]
+    moment = closing_moment(result, t_start)
+    k, T_ring, p_gap = moment.k, moment.T_world_ring, moment.p_world_gap
+    n = T_ring[:3, 2]
     T_cam, T_cmd = result.log.T_world_cam[k], result.log.T_world_cmd[k]
     u_cam = -T_cam[:3, 2]
     side = 1.0 if float(u_cam @ n) >= 0.0 else -1.0
     d_f = float(result.log.d_f[k])
 
     def resolved(u: np.ndarray) -> bool:
-        return view_gap(scene, T_ring, ideal_camera(T_ring[:3, 3], u, d_f), p[i]).resolved
+        T_cam_ideal = look_at_pose(T_ring[:3, 3] + d_f * u, T_ring[:3, 3])
+        return view_gap(scene, T_ring, T_cam_ideal, p_gap).resolved
 
     row: dict[str, Any] = {
         "tilt_deg": round(axis_angle_deg(u_cam, side * n), 1),
@@ -164,7 +147,7 @@ def diagnose(
     row["model_best_resolved"] = int(ray[best])
     row["model_best_tilt"] = round(math.degrees(float(tilt[best])))
     for h in (0.1, 0.25, 0.5):  # the model's choice on the pose predicted h s ahead
-        t_obs = float(ts[i]) - h - 0.05
+        t_obs = moment.t_s - h - 0.05
         P = result.trajectory.poses(np.array([t_obs - vc.velocity_window, t_obs]))
         T_p = visible.predicted_pose(P[0], P[1], vc.velocity_window, h + 0.05,
                                      vc.max_predicted_turn)  # fmt: skip

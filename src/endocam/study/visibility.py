@@ -44,14 +44,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict
 
 from endocam.camera import MIN_DEPTH, Eye, StereoCamera, points_in_eye
-from endocam.geometry import as_pose, as_vector3
+from endocam.geometry import FloatArray, as_pose, as_vector3
 from endocam.study.observer import PRE_TOUCH_S
 from endocam.task.touches import contact_normal
 
@@ -269,6 +269,40 @@ def closing_gap(result: EpisodeResult, scene: WireChaserScene, t_start: float) -
     nearest control step: the test every validation clip's view passes
     (:func:`endocam.study.observer_clips.gap_visible`).
     """
+    moment = closing_moment(result, t_start)
+    scene.set_psm2_tip(result.log.p_world_tips[moment.k, 1])
+    return view_gap(
+        scene, moment.T_world_ring, result.log.T_world_cam[moment.k], moment.p_world_gap, moment.t_s
+    )
+
+
+class ClosingMoment(NamedTuple):
+    """The closing instant of one touch (module docstring).
+
+    Attributes
+    ----------
+    t_s : float
+        The instant, s.
+    k : int
+        The control step nearest to it.
+    T_world_ring : (4, 4)
+        The true ring pose then, world, m.
+    p_world_gap : (3,)
+        The ring's point closest to the wire then, world, m.
+    """
+
+    t_s: float
+    k: int
+    T_world_ring: FloatArray
+    p_world_gap: FloatArray
+
+
+def closing_moment(result: EpisodeResult, t_start: float) -> ClosingMoment:
+    """The closing instant of the touch whose onset is ``t_start`` (s).
+
+    The first sample of the window before the onset with the clearance at most ``GAP_SEEN``
+    (the window's end if none is).
+    """
     from endocam.task.touches import clearances
 
     t0 = max(t_start - PRE_TOUCH_S, 0.0)
@@ -277,9 +311,8 @@ def closing_gap(result: EpisodeResult, scene: WireChaserScene, t_start: float) -
     c, p = clearances(T_rings, result.wire, result.config.task.ring)
     closing = np.flatnonzero(c <= GAP_SEEN)
     i = int(closing[0]) if closing.size else len(ts) - 1
-    k = control_step(result, float(ts[i]))
-    scene.set_psm2_tip(result.log.p_world_tips[k, 1])
-    return view_gap(scene, T_rings[i], result.log.T_world_cam[k], p[i], float(ts[i]))
+    t_s = float(ts[i])
+    return ClosingMoment(t_s, control_step(result, t_s), T_rings[i], p[i])
 
 
 def gap_hidden_by(
