@@ -31,7 +31,7 @@ import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
@@ -69,21 +69,18 @@ def rounded(T: FloatArray) -> FloatArray:
     return CODEC.decode_pose(CODEC.pose(T, 0))[0]
 
 
-class RoundedCommand(NamedTuple):
-    """A policy's command with its pose rounded as ``servo_cp`` rounds it (``EpisodeLoop.step``)."""
-
-    T_world_cam: FloatArray
-    d_f: float
-    twist: FloatArray | None
-
-
 @contextmanager
 def link_rounding() -> Iterator[None]:
     """In-process episodes whose poses are rounded as over the link, and nothing else.
 
     The policy observes the camera and ring poses through a quaternion and back (the link's
-    ``measured_cp`` and ``ring/measured_cp``) and the carrier is given the command's pose the
-    same way (``servo_cp``); velocities and distances travel as float64, unrounded.
+    ``measured_cp`` and ``ring/measured_cp``), the carrier is given the command's pose the
+    same way (``servo_cp``), and the controller's side computes what it tells the carrier from
+    what it received as ``run_remote`` does (the look distance from the rounded ring, the
+    target's offset from the rounded ``setpoint_cp``; :func:`endocam.runner.step.told_look`,
+    :func:`endocam.runner.step.target_offset`); velocities and distances travel as float64,
+    unrounded. With no fault, the episode is then the link's to the last bit (round 14: the
+    largest camera position difference 0 mm on every seed).
     """
     exact_observation, exact_step = step.EpisodeLoop.observation, step.EpisodeLoop.step
 
@@ -93,8 +90,18 @@ def link_rounding() -> Iterator[None]:
         return o._replace(T_world_ring=ring, T_world_cam=rounded(o.T_world_cam))
 
     def commanded(loop: step.EpisodeLoop, command: step.Command) -> step.StepRecord:
-        sent = RoundedCommand(rounded(command.T_world_cam), command.d_f, command.twist)
-        return exact_step(loop, sent)
+        # as run_remote on the controller's side: the look distance from the ring it received
+        # (rounded), the target's offset from the robot's rounded setpoint_cp and the command
+        # as the controller holds it (exact); the carrier heads for the rounded servo_cp
+        k, jointed = loop.k, loop.jointed
+        T_ring = loop.source.sense(k, loop.T_world_cam, loop.q)[0] if jointed else None
+        look = step.told_look(command, None if T_ring is None else rounded(T_ring), jointed)
+        out = loop.actuator.step(rounded(command.T_world_cam), look, command.twist)
+        answer = out._replace(T_world_target=rounded(out.T_world_target))
+        loop.reach_offset = step.target_offset(answer, command, jointed)
+        record = step.StepRecord(k, loop.T_world_cam, loop.q, look, out)
+        loop.T_world_cam, loop.q, loop.k = out.T_world_cam, out.q, k + 1
+        return record
 
     step.EpisodeLoop.observation = observed  # type: ignore[method-assign]
     step.EpisodeLoop.step = commanded  # type: ignore[method-assign]

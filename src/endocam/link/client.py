@@ -43,12 +43,11 @@ from endocam.runner.episode import (
     contact_at,
     episode_arm,
 )
-from endocam.runner.step import StepRecord
+from endocam.runner.step import StepRecord, target_offset, told_look
 from endocam.task.config import TaskConfig
 from endocam.task.layout import overview_camera_pose
 from endocam.task.touches import touch_events
 from endocam.task.trajectory import RingTrajectory
-from endocam.view import look_distance
 
 DEFAULT_TIMEOUT_S = 0.5  # s (wall): the robot answers a command within this, or it is silent
 RING_ATOL_M = 1e-9  # m: the robot's sensed ring vs this world's (same options: equal to round-off)
@@ -361,14 +360,13 @@ def run_remote(
             float(world.t[k]), s.T_world_ring, s.T_world_cam, s.p_world_tips, reach, s.t_ring
         )
         cmd = policy.step(obs)
-        look = look_distance(cmd.T_world_cam, s.T_world_ring, cmd.d_f) if jointed else cmd.d_f
+        look = told_look(cmd, s.T_world_ring, jointed)
         try:
             out = arm.step(cmd.T_world_cam, look, cmd.twist)
         except LinkLostError as exc:
             lost = f"controller holding: {exc}"
             break
-        if jointed:
-            reach = out.T_world_target[:3, 3] - cmd.T_world_cam[:3, 3]
+        reach = target_offset(out, cmd, jointed)
         log.record(cmd, StepRecord(k, s.T_world_cam, s.q, look, out))
         m = k + 1
     if m < 2:

@@ -220,6 +220,31 @@ class StepRecord(NamedTuple):
     carrier: ActuatorStep
 
 
+def told_look(command: Command, T_world_ring: FloatArray | None, jointed: bool) -> float:
+    """The distance to the point ``command`` looks at, as a carrier is told it, m.
+
+    A carrier with joints is told :func:`endocam.view.look_distance` of the sensed ring
+    ``T_world_ring`` ((4, 4), world, m); one without joints pivots no view, and with no ring
+    sensed (``None``) there is no point to look at: both are told the command's working
+    distance ``d_f``. The episode loop and the link's
+    controller (:func:`endocam.link.client.run_remote`) both use this rule.
+    """
+    if not jointed or T_world_ring is None:
+        return command.d_f
+    return look_distance(command.T_world_cam, T_world_ring, command.d_f)
+
+
+def target_offset(out: ActuatorStep, command: Command, jointed: bool) -> FloatArray | None:
+    """How far the carrier's target lay from ``command``, (3,) world, m; ``None`` without joints.
+
+    The next observation's ``p_world_reach_offset``: the planner measures its progress against
+    the view the carrier can reach, not the one it asked for.
+    """
+    if not jointed:
+        return None
+    return out.T_world_target[:3, 3] - command.T_world_cam[:3, 3]
+
+
 class EpisodeLoop:
     """An episode's world and carrier, advanced one control period per :meth:`step`.
 
@@ -292,17 +317,13 @@ class EpisodeLoop:
             raise RuntimeError("the episode has ended")
         T_goal, twist = command.T_world_cam, command.twist
         jointed = self.jointed
-        if jointed:
-            T_ring = self.source.sense(k, self.T_world_cam, self.q)[0]
-            look = look_distance(T_goal, T_ring, command.d_f)
-        else:
-            look = command.d_f
+        T_ring = self.source.sense(k, self.T_world_cam, self.q)[0] if jointed else None
+        look = told_look(command, T_ring, jointed)
         if self.faults is None:
             out = self.actuator.step(T_goal, look, twist)
         else:
             out = self.actuator.step(*self.faults.command(k, T_goal, twist, look))
-        if jointed:
-            self.reach_offset = out.T_world_target[:3, 3] - T_goal[:3, 3]
+        self.reach_offset = target_offset(out, command, jointed)
         record = StepRecord(k, self.T_world_cam, self.q, look, out)
         self.T_world_cam, self.q = out.T_world_cam, out.q
         self.k = k + 1
