@@ -139,10 +139,6 @@ def test_perception_config_is_checked() -> None:
         stereo_config(frame_rate=200.0)  # above the 100 Hz control rate
     with pytest.raises(ValueError, match="ring_max_age"):
         stereo_config(processing_delay=0.5)
-    with pytest.raises(ValueError, match="faults"):
-        ExperimentConfig.model_validate(
-            {"perception": {"source": "stereo"}, "faults": {"ring_dropout": {"rate": 0.1}}}
-        )
 
 
 def test_the_track_filter_follows_a_steady_motion_and_damps_noise() -> None:

@@ -154,11 +154,6 @@ class ExperimentConfig(BaseModel):
             )
         per, ep = self.perception, self.episode
         if per.stereo:
-            if self.faults.any:
-                raise ValueError(
-                    "faults: not supported with perception.source 'stereo' yet (the faults "
-                    "rewrite the true sensed poses; use perception.source 'truth')"
-                )
             if per.frame_rate > ep.control_rate:
                 raise ValueError(
                     f"perception.frame_rate ({per.frame_rate:g}/s) must not exceed "

@@ -272,6 +272,18 @@ def _rotation(axis: FloatArray, angle: float) -> FloatArray:
     return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * K @ K
 
 
+def _outlier(spec: OutlierFault, b: Burst) -> tuple[FloatArray, FloatArray]:
+    """An outlier burst's offset (3,), world, m, and turn (3, 3) of the ring's frame."""
+    offset = spec.distance * _unit_from(b.draw[0], b.draw[1])
+    phi = 2.0 * math.pi * b.draw[2]  # an axis in the ring's face: the normal turns by angle
+    return offset, _rotation(np.array([math.cos(phi), math.sin(phi), 0.0]), spec.angle)
+
+
+def _bad_entry(b: Burst, value: float) -> tuple[int, int, float]:
+    """A NaN/inf burst's entry of the pose's top 3 rows (row, column) and its value."""
+    return int(b.draw[0] * 3), int(b.draw[1] * 4), value if b.draw[2] < 0.5 else -value
+
+
 def apply_observation_faults(
     schedule: FaultSchedule,
     t: FloatArray,
@@ -319,16 +331,13 @@ def apply_observation_faults(
         T[b.start : b.stop] = T[b.start]
         t_ring[b.start : b.stop] = t_ring[b.start]
     for b in schedule.bursts.get("ring_outlier", ()):
-        spec = cfg.ring_outlier
-        offset = spec.distance * _unit_from(b.draw[0], b.draw[1])
-        phi = 2.0 * math.pi * b.draw[2]  # an axis in the ring's face: the normal turns by angle
-        R_ring_outlier = _rotation(np.array([math.cos(phi), math.sin(phi), 0.0]), spec.angle)
+        offset, R_ring_outlier = _outlier(cfg.ring_outlier, b)
         T[b.start : b.stop, :3, 3] += offset
         T[b.start : b.stop, :3, :3] = T[b.start : b.stop, :3, :3] @ R_ring_outlier
     for name, value in (("ring_nan", math.nan), ("ring_inf", math.inf)):
         for b in schedule.bursts.get(name, ()):
-            i, j = int(b.draw[0] * 3), int(b.draw[1] * 4)  # one entry of the top 3 rows
-            T[b.start : b.stop, i, j] = value if b.draw[2] < 0.5 else -value
+            i, j, v = _bad_entry(b, value)
+            T[b.start : b.stop, i, j] = v
     for b in schedule.bursts.get("ring_dropout", ()):
         T[b.start : b.stop] = math.nan
     for b in schedule.bursts.get("tip_dropout", ()):
@@ -392,3 +401,67 @@ class StepFaults:
             self._stalled = stalled
         self._last = (T_world_cmd, twist)
         return sent, look_distance, sent_twist
+
+
+RING_FAULTS = (
+    "latency_spike",
+    "tracker_frozen",
+    "ring_outlier",
+    "ring_nan",
+    "ring_inf",
+    "ring_dropout",
+)
+"""The ring-observation faults, in the order they are applied."""
+
+
+class DeliveredFaults:
+    """The ring faults applied step by step to what a perception source delivers.
+
+    The same schedule, the same draws and the same effects as :func:`apply_observation_faults`
+    on the true sensed poses, on the pose the source gives the controller at each step: a
+    latency spike gives the pose it gave ``extra_delay`` earlier (with its stamp); a frozen
+    tracker and a dropout give the pose it gave before the burst, with that pose's stamp (no
+    new estimate: it ages, and past ``ring_max_age`` the controller holds "stale"); an
+    outlier is displaced and turned by the burst's offset and rotation; NaN/inf corrupt the
+    same entry.
+
+    Parameters
+    ----------
+    schedule : FaultSchedule
+    dt : float
+        Control period, s.
+    """
+
+    def __init__(self, schedule: FaultSchedule, dt: float) -> None:
+        self.config = schedule.config
+        self._at: list[list[tuple[str, Burst]]] = [[] for _ in range(schedule.n)]
+        for name in RING_FAULTS:
+            for b in schedule.bursts.get(name, ()):
+                for k in range(b.start, b.stop):
+                    self._at[k].append((name, b))
+        self._lag = max(1, round(self.config.latency_spike.extra_delay / dt))
+
+    def apply(self, k: int, T_given: FloatArray, t_given: FloatArray) -> tuple[FloatArray, float]:
+        """The faulted pose (4, 4), world, m, and stamp (s) the controller gets at step ``k``.
+
+        ``T_given`` (≥ k + 1, 4, 4) and ``t_given`` (≥ k + 1,): what the source gave (without
+        faults) at steps 0 … k, world, m, and s.
+        """
+        T, t_ring = T_given[k], float(t_given[k])
+        for name, b in self._at[k]:
+            if name == "latency_spike":
+                j = max(0, k - self._lag)
+                T, t_ring = T_given[j], float(t_given[j])
+            elif name in ("tracker_frozen", "ring_dropout"):
+                j = max(0, b.start - 1)
+                T, t_ring = T_given[j], float(t_given[j])
+            elif name == "ring_outlier":
+                offset, R_ring_outlier = _outlier(self.config.ring_outlier, b)
+                T = np.array(T, dtype=float)
+                T[:3, 3] += offset
+                T[:3, :3] = T[:3, :3] @ R_ring_outlier
+            else:
+                i, j, v = _bad_entry(b, math.nan if name == "ring_nan" else math.inf)
+                T = np.array(T, dtype=float)
+                T[i, j] = v
+        return T, t_ring

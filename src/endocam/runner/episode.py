@@ -21,7 +21,12 @@ import numpy as np
 from endocam.camera import StereoCamera
 from endocam.config import ExperimentConfig
 from endocam.control.types import CameraCommand, PolicyContext, TrackingState
-from endocam.faults import StepFaults, apply_observation_faults, fault_schedule
+from endocam.faults import (
+    DeliveredFaults,
+    StepFaults,
+    apply_observation_faults,
+    fault_schedule,
+)
 from endocam.geometry import FloatArray
 from endocam.metrics import (
     center_error_3d,
@@ -301,7 +306,10 @@ def run_episode(
     if config.perception.stereo:  # renders (MuJoCo): imported for a stereo run only
         from endocam.runner.ring_source import StereoSource
 
-        stereo = StereoSource(config, true_world, kind, spec.seed, world.T_world_ring_sensed[0])
+        ring_faults = DeliveredFaults(schedule, dt) if schedule is not None else None
+        stereo = StereoSource(
+            config, true_world, kind, spec.seed, true_world.T_world_ring_sensed[0], ring_faults
+        )
     loop = EpisodeLoop(world, carrier, step_faults, stereo)
     log = StepRecorder(n, kind, len(actuator.joint_names))
     chunk = max(1, n // 100)

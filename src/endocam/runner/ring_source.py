@@ -27,6 +27,7 @@ import numpy as np
 
 from endocam.camera import Eye
 from endocam.config import ExperimentConfig
+from endocam.faults import DeliveredFaults
 from endocam.geometry import FloatArray
 from endocam.perception.estimator import RingModel, estimate_ring_detail
 from endocam.perception.image_model import ImageModelConfig, degrade
@@ -77,6 +78,9 @@ class StereoSource:
     T_world_ring_start : (4, 4)
         The ring pose the controller is given at its reset (the setup's registration), m:
         its normal is the estimator's prior until the first estimate.
+    faults : DeliveredFaults, optional
+        The run's ring faults, applied to what the source gives the controller at each step
+        (``T_world_ring_seen`` logs the faulted pose; ``est_*`` the estimator's own).
     """
 
     def __init__(
@@ -86,6 +90,7 @@ class StereoSource:
         kind: ArmKind,
         seed: int,
         T_world_ring_start: FloatArray,
+        faults: DeliveredFaults | None = None,
     ) -> None:
         per, ep = config.perception, config.episode
         self.camera = config.camera.stereo()
@@ -112,6 +117,7 @@ class StereoSource:
         self._pending: deque[_Pending] = deque()
         self._k = -1
         self._now: tuple[FloatArray, float] = (np.full((4, 4), np.nan), 0.0)
+        self._given = self._now  # what the controller is given at step _k (faults applied)
         self._prev_cam: FloatArray | None = None
         # the last estimate's time and normal (world): the estimator's prior (before the
         # first estimate: the setup's registration, which does not lapse)
@@ -120,6 +126,9 @@ class StereoSource:
         self.n_world = np.full((n, 3), np.nan)
         self.t_capture = np.full(n, np.nan)
         self.T_seen = np.full((n, 4, 4), np.nan)
+        self.faults = faults
+        self._T_given = np.full((n, 4, 4), np.nan)  # what was given without faults
+        self._t_given = np.zeros(n)
         self.t_seen = np.array(world.t, dtype=float)
         self.lost = np.zeros(n, dtype=bool)
         self._last_capture = -math.inf  # the last delivered estimate's capture time, s
@@ -135,7 +144,7 @@ class StereoSource:
         are the camera and the carrier's joints at the start of step ``k``.
         """
         if k == self._k:
-            return self._now
+            return self._given
         if k != self._k + 1:
             raise RuntimeError(f"StereoSource: step {k} asked after step {self._k}")
         self._k = k
@@ -154,12 +163,16 @@ class StereoSource:
         if self.resample and self._track is not None:
             self._now = resampled(self._track[1], self._track[0], t, self.lead, self.max_age)
         self.lost[k] = not t - self._last_capture <= self.max_age
-        self.T_seen[k] = self._now[0]
-        if math.isfinite(self._now[0][0, 0]):
-            self.t_seen[k] = self._now[1]
-        else:
+        if not math.isfinite(self._now[0][0, 0]):
             self._now = (self._now[0], t)  # nothing yet: a missing pose stamped now
-        return self._now
+        self._given = self._now
+        if self.faults is not None:
+            self._T_given[k], self._t_given[k] = self._now
+            self._given = self.faults.apply(k, self._T_given, self._t_given)
+        self.T_seen[k] = self._given[0]
+        if math.isfinite(self._given[0][0, 0]):
+            self.t_seen[k] = self._given[1]
+        return self._given
 
     def _capture(self, k: int, T_world_cam: FloatArray, q: FloatArray) -> None:
         """Render, degrade and estimate frame ``k``; queue its estimate for delivery."""

@@ -1,0 +1,98 @@
+"""Faults on the stereo path: the ring faults applied to what the perception source delivers.
+
+A delivered sequence of poses (a ring moving along x, stamped with the step time) stands in for
+the stereo source's output: no rendering, no kernel.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from endocam.config import ExperimentConfig
+from endocam.faults import DeliveredFaults, FaultsConfig, fault_schedule
+
+pytestmark = pytest.mark.no_kernels
+
+DT_S = 0.01  # s, control period
+N = 400  # control steps
+SPEED_M_S = 0.05  # m/s, the delivered ring's speed along world x
+ATOL_M = 1e-12  # m, round-off on centimetre offsets
+ATOL_RAD = 1e-9  # rad, arccos of a unit dot product near 5°
+
+
+def _delivered() -> tuple[np.ndarray, np.ndarray]:
+    """(N, 4, 4) poses, world, m, and (N,) stamps, s: what a source gave without faults."""
+    t = np.arange(N) * DT_S
+    T = np.tile(np.eye(4), (N, 1, 1))
+    T[:, 0, 3] = SPEED_M_S * t
+    return T, t
+
+
+def _given(faults: FaultsConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the controller is given at each step under ``faults``, and the schedule's labels."""
+    schedule = fault_schedule(faults, N, DT_S, arm=False)
+    applied = DeliveredFaults(schedule, DT_S)
+    T, t = _delivered()
+    out = [applied.apply(k, T, t) for k in range(N)]
+    return np.array([o[0] for o in out]), np.array([o[1] for o in out]), schedule.labels()
+
+
+def test_the_validator_accepts_faults_with_stereo_perception() -> None:
+    cfg = ExperimentConfig.model_validate(
+        {"perception": {"source": "stereo"}, "faults": {"ring_outlier": {"rate": 1.0}}}
+    )
+    assert cfg.faults.any and cfg.perception.stereo
+
+
+def test_a_small_outlier_moves_the_delivered_pose_by_its_size_on_the_faulty_steps_only() -> None:
+    distance, angle = 0.02, math.radians(5.0)  # m, rad: the small fault of docs/safety.md
+    faults = FaultsConfig(
+        ring_outlier={"rate": 1.0, "burst": 0.2, "distance": distance, "angle": angle}
+    )
+    T_given, _, labels = _given(faults)
+    T, _ = _delivered()
+    faulty = labels == "ring_outlier"
+    assert faulty.any() and not faulty.all()
+    shift = np.linalg.norm(T_given[:, :3, 3] - T[:, :3, 3], axis=1)
+    turn = np.arccos(np.clip(np.einsum("ni,ni->n", T_given[:, :3, 2], T[:, :3, 2]), -1.0, 1.0))
+    np.testing.assert_allclose(shift[faulty], distance, atol=ATOL_M)
+    np.testing.assert_allclose(turn[faulty], angle, atol=ATOL_RAD)
+    assert np.all(shift[~faulty] == 0.0) and np.all(turn[~faulty] == 0.0)
+
+
+def test_a_nan_fault_gives_a_non_finite_pose_on_its_steps() -> None:
+    T_given, _, labels = _given(FaultsConfig(ring_nan={"rate": 1.0, "burst": 0.1}))
+    faulty = labels == "ring_nan"
+    assert faulty.any()
+    finite = np.isfinite(T_given).all(axis=(1, 2))
+    assert not finite[faulty].any() and finite[~faulty].all()
+
+
+def test_a_dropout_gives_no_new_estimate_so_its_age_passes_ring_max_age() -> None:
+    max_age = ExperimentConfig().controller.ring_max_age  # s
+    burst = 2.0 * max_age  # s
+    T_given, t_given, labels = _given(FaultsConfig(ring_dropout={"rate": 0.5, "burst": burst}))
+    T, t = _delivered()
+    faulty = labels == "ring_dropout"
+    first = int(np.argmax(faulty))
+    assert faulty.any() and first > 0
+    run = np.arange(first, first + round(burst / DT_S))
+    assert faulty[run].all()
+    np.testing.assert_array_equal(T_given[run], np.broadcast_to(T[first - 1], (len(run), 4, 4)))
+    age = t[run] - t_given[run]  # s
+    assert age.max() > max_age  # the controller's stale rule holds it
+    assert np.array_equal(t_given[~faulty], t[~faulty])
+
+
+def test_a_latency_spike_gives_an_older_estimate() -> None:
+    extra = 0.1  # s
+    faults = FaultsConfig(latency_spike={"rate": 1.0, "burst": 0.2, "extra_delay": extra})
+    T_given, t_given, labels = _given(faults)
+    _, t = _delivered()
+    faulty = labels == "latency_spike"
+    assert faulty.any()
+    np.testing.assert_allclose(t[faulty] - t_given[faulty], extra, atol=1e-9)
+    np.testing.assert_allclose(T_given[faulty, 0, 3], SPEED_M_S * t_given[faulty], atol=ATOL_M)
