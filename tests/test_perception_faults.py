@@ -96,3 +96,77 @@ def test_a_latency_spike_gives_an_older_estimate() -> None:
     assert faulty.any()
     np.testing.assert_allclose(t[faulty] - t_given[faulty], extra, atol=1e-9)
     np.testing.assert_allclose(T_given[faulty, 0, 3], SPEED_M_S * t_given[faulty], atol=ATOL_M)
+
+
+class _NoScene:
+    """Stands in for the renderer: the stereo source's wiring is tested, not its images."""
+
+    arm = None
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def _stereo_given(
+    monkeypatch: pytest.MonkeyPatch, faults: FaultsConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What a stereo source (its estimate: the true pose) gives the controller at each step."""
+    from endocam.runner import ring_source
+    from endocam.runner.episode import episode_world
+    from endocam.task.trajectory import TrajectoryKind, make_trajectory
+
+    def capture(self, k: int, T_world_cam: np.ndarray, q: np.ndarray) -> None:  # type: ignore[no-untyped-def]
+        t, T = float(self.world.t[k]), self.world.T_world_ring[k]
+        track = np.concatenate([T[:3, 3], T[:3, 2], np.zeros(6)])
+        self._pending.append(ring_source._Pending(t + self.delay, t, T, track))
+
+    monkeypatch.setattr(ring_source, "WireChaserScene", _NoScene)
+    monkeypatch.setattr(ring_source.RingModel, "from_task", staticmethod(lambda *a: None))
+    monkeypatch.setattr(ring_source.StereoSource, "_capture", capture)
+    cfg = ExperimentConfig.model_validate(
+        {
+            "task": {"trajectory": {"duration": 3.0}},
+            "perception": {"source": "stereo"},
+            "faults": faults.model_dump(),
+        }
+    )
+    world = episode_world(cfg, make_trajectory(cfg.task, TrajectoryKind.IDEAL, seed=0))
+    dt = 1.0 / cfg.episode.control_rate
+    schedule = fault_schedule(cfg.faults, world.n, dt, arm=False)
+    source = ring_source.StereoSource(
+        cfg,
+        world,
+        ring_source.ArmKind.FREE,
+        0,
+        world.T_world_ring[0],
+        DeliveredFaults(schedule, dt),
+    )
+    out = [source.sense(k, np.eye(4), np.zeros(0)) for k in range(world.n)]
+    return np.array([o[0] for o in out]), np.array([o[1] for o in out]), schedule.labels()
+
+
+def test_the_stereo_source_gives_the_controller_the_faulted_estimate(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    max_age = ExperimentConfig().controller.ring_max_age  # s
+    faults = FaultsConfig(  # seed 3: NaN bursts within and apart from two dropouts
+        seed=3,
+        ring_nan={"rate": 1.0, "burst": 0.1},
+        ring_dropout={"rate": 0.5, "burst": 2.0 * max_age},
+    )
+    T_clean, t_clean, _ = _stereo_given(monkeypatch, FaultsConfig())
+    T_given, t_given, labels = _stereo_given(monkeypatch, faults)
+    nan = np.array(["ring_nan" in s for s in labels])
+    dropout = np.array(["ring_dropout" in s for s in labels])
+    nan &= ~dropout  # a dropout gives the last pose before it, whatever else is wrong
+    assert nan.any() and dropout.any()
+    assert not np.isfinite(T_given[nan]).all(axis=(1, 2)).any()  # refused by the controller
+    alone = dropout & ~nan
+    age = np.arange(len(labels))[alone] * 0.01 - t_given[alone]  # s (100 Hz control)
+    assert age.max() > max_age  # no new estimate: the controller holds, stale
+    clean = ~nan & ~dropout
+    np.testing.assert_array_equal(T_given[clean], T_clean[clean])
+    np.testing.assert_array_equal(t_given[clean], t_clean[clean])

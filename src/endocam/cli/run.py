@@ -347,6 +347,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     ef.add_argument("--out", required=True, help="output folder (replaced atomically)")
     ef.add_argument("--workers", type=integer, default=2, help="worker processes (default 2)")
     ef.add_argument("--config", help="TOML or YAML config file (its faults section is ignored)")
+    perception_arg(ef)  # the matrix on the stereo estimate (faults on what it delivers)
     _mcap_arg(ef)
     ef.set_defaults(handler=_faults)
 
