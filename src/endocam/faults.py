@@ -420,10 +420,10 @@ class DeliveredFaults:
     The same schedule, the same draws and the same effects as :func:`apply_observation_faults`
     on the true sensed poses, on the pose the source gives the controller at each step: a
     latency spike gives the pose it gave ``extra_delay`` earlier (with its stamp); a frozen
-    tracker and a dropout give the pose it gave before the burst, with that pose's stamp (no
-    new estimate: it ages, and past ``ring_max_age`` the controller holds "stale"); an
-    outlier is displaced and turned by the burst's offset and rotation; NaN/inf corrupt the
-    same entry.
+    tracker gives the pose it gave before the burst, with that pose's stamp (no new estimate:
+    it ages, and past ``ring_max_age`` the controller holds, stale); an outlier is displaced
+    and turned by the burst's offset and rotation; NaN/inf corrupt the same entry; a dropout
+    gives no pose (all NaN: the controller holds at once, as on truth).
 
     Parameters
     ----------
@@ -452,7 +452,9 @@ class DeliveredFaults:
             if name == "latency_spike":
                 j = max(0, k - self._lag)
                 T, t_ring = T_given[j], float(t_given[j])
-            elif name in ("tracker_frozen", "ring_dropout"):
+            elif name == "ring_dropout":
+                T = np.full((4, 4), math.nan)
+            elif name == "tracker_frozen":
                 j = max(0, b.start - 1)
                 T, t_ring = T_given[j], float(t_given[j])
             elif name == "ring_outlier":
