@@ -172,3 +172,22 @@ def test_the_stereo_source_gives_the_controller_the_faulted_estimate(
     clean = ~nan & ~dropout
     np.testing.assert_array_equal(T_given[clean], T_clean[clean])
     np.testing.assert_array_equal(t_given[clean], t_clean[clean])
+
+
+def test_a_frozen_or_late_pose_carries_its_capture_time_not_the_prediction_stamp() -> None:
+    """A source that predicts to the present stamps its pose now; repeated as old, the pose
+    carries when its information was captured, so the stale rule counts that age."""
+    delay_s = 0.06  # s, the capture's age behind each stamp
+    faults = FaultsConfig(
+        tracker_frozen={"rate": 1.0, "burst": 0.3}, latency_spike={"rate": 1.0, "burst": 0.3}
+    )
+    schedule = fault_schedule(faults, N, DT_S, arm=False)
+    applied = DeliveredFaults(schedule, DT_S)
+    T, t = _delivered()
+    captured = t - delay_s
+    old = schedule.mask("tracker_frozen") | schedule.mask("latency_spike")
+    assert old.any()
+    for k in np.flatnonzero(old):
+        _, stamp = applied.apply(int(k), T, t, captured)
+        _, stamp_now = applied.apply(int(k), T, t)
+        assert stamp == pytest.approx(stamp_now - delay_s, abs=1e-12)  # s

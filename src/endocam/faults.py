@@ -441,22 +441,32 @@ class DeliveredFaults:
                     self._at[k].append((name, b))
         self._lag = max(1, round(self.config.latency_spike.extra_delay / dt))
 
-    def apply(self, k: int, T_given: FloatArray, t_given: FloatArray) -> tuple[FloatArray, float]:
+    def apply(
+        self,
+        k: int,
+        T_given: FloatArray,
+        t_given: FloatArray,
+        t_captured: FloatArray | None = None,
+    ) -> tuple[FloatArray, float]:
         """The faulted pose (4, 4), world, m, and stamp (s) the controller gets at step ``k``.
 
         ``T_given`` (≥ k + 1, 4, 4) and ``t_given`` (≥ k + 1,): what the source gave (without
-        faults) at steps 0 … k, world, m, and s.
+        faults) at steps 0 … k, world, m, and s. ``t_captured`` (≥ k + 1,), s: when what it
+        gave was captured (a source that predicts its pose to the present stamps it now): an
+        old pose repeated (frozen tracker, latency spike) carries its capture time, so the
+        controller's stale rule counts the information's age, never less. Default ``t_given``.
         """
+        t_old = t_given if t_captured is None else t_captured
         T, t_ring = T_given[k], float(t_given[k])
         for name, b in self._at[k]:
             if name == "latency_spike":
                 j = max(0, k - self._lag)
-                T, t_ring = T_given[j], float(t_given[j])
+                T, t_ring = T_given[j], float(t_old[j])
             elif name == "ring_dropout":
                 T = np.full((4, 4), math.nan)
             elif name == "tracker_frozen":
                 j = max(0, b.start - 1)
-                T, t_ring = T_given[j], float(t_given[j])
+                T, t_ring = T_given[j], float(t_old[j])
             elif name == "ring_outlier":
                 offset, R_ring_outlier = _outlier(self.config.ring_outlier, b)
                 T = np.array(T, dtype=float)

@@ -552,7 +552,8 @@ def _fk(log: RunLog) -> list[Violation]:
 def _lost_hold(log: RunLog) -> list[Violation]:
     names = [fault_names(f) for f in log.columns["fault"]]
     refused = OBSERVATION_INVALID_FAULTS  # an outlier the gate does not promise to see is not
-    spec, limits = log.config.faults.ring_outlier, log.config.controller.ring_limits
+    # the gate the run had: on stereo, its noise floors (ExperimentConfig.controller_on_source)
+    spec, limits = log.config.faults.ring_outlier, log.config.controller_on_source.ring_limits
     refused = refused - {"ring_outlier"}
     invalid = np.array([bool(f & refused) for f in names])
     outlier = np.array(["ring_outlier" in f for f in names], dtype=bool)

@@ -129,6 +129,7 @@ class StereoSource:
         self.faults = faults
         self._T_given = np.full((n, 4, 4), np.nan)  # what was given without faults
         self._t_given = np.zeros(n)
+        self._t_captured = np.zeros(n)  # when what was given was captured, s
         self.t_seen = np.array(world.t, dtype=float)
         self.lost = np.zeros(n, dtype=bool)
         self._last_capture = -math.inf  # the last delivered estimate's capture time, s
@@ -168,7 +169,10 @@ class StereoSource:
         self._given = self._now
         if self.faults is not None:
             self._T_given[k], self._t_given[k] = self._now
-            self._given = self.faults.apply(k, self._T_given, self._t_given)
+            # the information's own age: a resampled pose is stamped now, its estimate earlier
+            last = self._last_capture
+            self._t_captured[k] = last if math.isfinite(last) else self._now[1]
+            self._given = self.faults.apply(k, self._T_given, self._t_given, self._t_captured)
         self.T_seen[k] = self._given[0]
         if math.isfinite(self._given[0][0, 0]):
             self.t_seen[k] = self._given[1]
