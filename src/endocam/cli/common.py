@@ -76,7 +76,8 @@ def with_faults(config: ExperimentConfig, path: str | None) -> ExperimentConfig:
 def with_perception(config: ExperimentConfig, source: str | None) -> ExperimentConfig:
     """``config`` with ``perception.source`` replaced by ``--perception``, if given.
 
-    Validated as a whole (a :class:`UsageError` of one line, e.g. stereo at a frame rate above the control rate).
+    Validated as a whole (a :class:`UsageError` of one line, e.g. a stereo frame rate above
+    the control rate).
     """
     if source is None:
         return config
