@@ -11,6 +11,12 @@ render both eyes at 30 Hz: ~5 s of CPU per simulated second.
 
   MUJOCO_GL=egl OMP_NUM_THREADS=1 PYTHONPATH=src .venv/bin/python bench/perception_loop.py \
       --path ideal-36 --seconds 20 --variant base: --variant hold:resample=false
+
+A variant's ``oracle=centre``, ``oracle=normal`` or ``oracle=both`` replaces that part of every
+estimate the estimator delivers by the truth at the frame's capture (the ring pose at that step
+in the camera at that step), keeping everything else (the frames the estimator lost, the track
+filter, the delays, the resampling): what the loop would do with a perfect centre, normal or
+both on the same capture schedule — the share of the error each part of the estimate causes.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ from typing import Any
 import numpy as np
 
 import endocam.runner.episode as episode_module
+import endocam.runner.ring_source as ring_source_module
 from endocam.config import ExperimentConfig
 from endocam.control.checks import GATE_REASON
 from endocam.control.gate import STALE_REASON
@@ -70,6 +77,44 @@ def summary(result: EpisodeResult) -> dict[str, float]:
     }
 
 
+ORACLES = ("centre", "normal", "both")
+
+
+def with_oracle(part: str | None) -> None:
+    """Make the stereo source deliver the truth's ``part`` of each estimate (None: undo)."""
+    estimate = ring_source_module.estimate_ring_detail
+    capture = ring_source_module.StereoSource._capture
+    real_estimate = getattr(estimate, "real", estimate)
+    real_capture = getattr(capture, "real", capture)
+    if part is None:
+        ring_source_module.estimate_ring_detail = real_estimate
+        ring_source_module.StereoSource._capture = real_capture  # type: ignore[method-assign]
+        return
+    truth: dict[str, np.ndarray] = {}
+
+    def oracle_capture(self: Any, k: int, T_world_cam: np.ndarray, q: np.ndarray) -> None:
+        truth["T_cam_ring"] = np.linalg.inv(T_world_cam) @ self.world.T_world_ring[k]
+        real_capture(self, k, T_world_cam, q)
+
+    def oracle_estimate(*args: Any, **kwargs: Any) -> Any:
+        out = real_estimate(*args, **kwargs)
+        if out.estimate is None:
+            return out
+        T = truth["T_cam_ring"]
+        p, n = out.estimate.p_cam_ring, out.estimate.n_cam
+        n_true = T[:3, 2] if float(T[:3, 2] @ T[:3, 3]) < 0.0 else -T[:3, 2]  # towards the eye
+        if part in ("centre", "both"):
+            p = T[:3, 3].copy()
+        if part in ("normal", "both"):
+            n = n_true.copy()
+        return replace(out, estimate=replace(out.estimate, p_cam_ring=p, n_cam=n))
+
+    oracle_estimate.real = real_estimate  # type: ignore[attr-defined]
+    oracle_capture.real = real_capture  # type: ignore[attr-defined]
+    ring_source_module.estimate_ring_detail = oracle_estimate
+    ring_source_module.StereoSource._capture = oracle_capture  # type: ignore[method-assign]
+
+
 def parse_variant(text: str) -> tuple[str, dict[str, Any]]:
     """``name:field=value,...`` → (name, the perception fields, JSON values)."""
     name, _, rest = text.partition(":")
@@ -100,11 +145,15 @@ def main() -> int:
     base = base.model_copy(
         update={"episode": base.episode.model_copy(update={"arm": ArmKind(args.arm)})}
     )
-    runs: list[tuple[str, ExperimentConfig]] = []
+    runs: list[tuple[str, ExperimentConfig, str | None]] = []
     if args.truth:
-        runs.append(("truth", base))
+        runs.append(("truth", base, None))
     for text in args.variant:
         name, fields = parse_variant(text)
+        oracle = fields.pop("oracle", None)
+        if oracle is not None and oracle not in ORACLES:
+            print(f"--variant {name}: oracle must be one of {ORACLES}", file=sys.stderr)
+            return 2
         data = base.model_dump()
         data["perception"] = {**data["perception"], "source": "stereo"}
         for key, value in fields.items():  # perception fields, or dotted paths from the top
@@ -114,11 +163,13 @@ def main() -> int:
                 node = node[part]
             node[parts[-1]] = value
         config = ExperimentConfig.model_validate(data)
-        runs.append((name, config))
+        runs.append((name, config, oracle))
     out = {}
-    for name, config in runs:
+    for name, config, oracle in runs:
         t0, c0 = time.perf_counter(), time.process_time()
+        with_oracle(oracle)
         result = run_episode(config, path.spec("endocam"))
+        with_oracle(None)
         row = summary(result)
         row["cpu_s"] = time.process_time() - c0
         row["wall_s"] = time.perf_counter() - t0

@@ -182,6 +182,24 @@ def test_the_track_filter_clips_a_wild_estimate_and_still_follows_a_real_change(
     assert np.linalg.norm(y[:3] - moved) <= STEADY_TOL_M  # followed
 
 
+def test_the_track_filter_gives_the_normal_its_own_gains() -> None:
+    """One estimate's innovation, within the gates: the centre takes its alpha of it and the
+    normal the normal's; without ``normal_gains`` both take the centre's."""
+    frame_s = 1.0 / 30.0  # s
+    alpha, alpha_n = 0.2, 0.6  # -
+    n0, p1 = np.array([0.0, 0.0, 1.0]), np.array([1.0e-3, 0.0, 0.0])  # -, m
+    tilt = math.radians(3.0)  # rad, under the default gate
+    n1 = np.array([0.0, math.sin(tilt), math.cos(tilt)])
+    for gains, expected in (((alpha_n, 0.0), alpha_n), (None, alpha)):
+        f = TrackFilter(alpha, 0.0, normal_gains=gains)
+        f.update(0.0, np.zeros(3), n0)
+        y = f.update(frame_s, p1, n1)
+        np.testing.assert_allclose(y[:3], alpha * p1, atol=1e-15)  # m
+        turned = math.atan2(y[4], y[5])  # rad, about x
+        blended = math.atan2(expected * math.sin(tilt), 1.0 - expected + expected * math.cos(tilt))
+        assert turned == pytest.approx(blended, abs=1e-12)  # rad
+
+
 def test_the_controller_is_given_the_track_predicted_to_now_until_it_is_too_old() -> None:
     """The track (centre, normal and rates) predicted across its age and the lead, stamped
     with the control time; past max_age: the pose at its capture with its capture stamp (so

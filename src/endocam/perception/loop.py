@@ -114,6 +114,19 @@ class PerceptionConfig(BaseModel):
         "period taken into the rates.",
     )
 
+    filter_alpha_normal: float | None = Field(
+        None,
+        gt=0.0,
+        le=1.0,
+        description="The track filter's alpha for the face normal (stereo); default: filter_alpha.",
+    )
+    filter_beta_normal: float | None = Field(
+        None,
+        ge=0.0,
+        lt=1.0,
+        description="The track filter's beta for the face normal (stereo); default: filter_beta.",
+    )
+
     filter_gate_position: float = Field(
         FILTER_GATE_M,
         gt=0.0,
@@ -251,7 +264,8 @@ class TrackFilter:
     by at most ``alpha`` times the gate, and a real change the filter lags is still followed,
     at most that much per estimate, with no jump the controller's gate would refuse. A gap
     longer than :data:`FILTER_RESET_S` restarts it at the estimate. ``alpha = 1, beta = 0``
-    and infinite gates: the raw estimates.
+    and infinite gates: the raw estimates. ``normal_gains`` ``(alpha, beta)`` of the normal
+    when they differ from the centre's (default: the same).
     """
 
     def __init__(
@@ -260,8 +274,12 @@ class TrackFilter:
         beta: float,
         gate_position: float = math.inf,
         gate_angle: float = math.pi,
+        normal_gains: tuple[float, float] | None = None,
     ) -> None:
         self.alpha, self.beta = alpha, beta
+        a_n, b_n = (alpha, beta) if normal_gains is None else normal_gains
+        self._alpha = np.array([alpha] * 3 + [a_n] * 3)  # (6,): the centre's, the normal's
+        self._beta = np.array([beta] * 3 + [b_n] * 3)
         self.gate_position = gate_position
         self.gate_normal = 2.0 * math.sin(0.5 * min(gate_angle, math.pi))  # chord, unit normals
         self.t: float | None = None
@@ -285,8 +303,8 @@ class TrackFilter:
                     r[part] *= gate / length
                     clipped = True
             self.clipped += clipped
-            self.x = predicted + self.alpha * r
-            self.v = self.v + (self.beta / dt) * r
+            self.x = predicted + self._alpha * r
+            self.v = self.v + (self._beta / dt) * r
             self.x[3:] /= np.linalg.norm(self.x[3:])
         self.t = t
         return self.x.copy()
