@@ -184,14 +184,14 @@ def test_the_track_filter_clips_a_wild_estimate_and_still_follows_a_real_change(
 
 def test_the_track_filter_gives_the_normal_its_own_gains() -> None:
     """One estimate's innovation, within the gates: the centre takes its alpha of it and the
-    normal the normal's; without ``normal_gains`` both take the centre's."""
+    normal the normal's; without ``alpha_normal`` both take the centre's."""
     frame_s = 1.0 / 30.0  # s
     alpha, alpha_n = 0.2, 0.6  # -
     n0, p1 = np.array([0.0, 0.0, 1.0]), np.array([1.0e-3, 0.0, 0.0])  # -, m
     tilt = math.radians(3.0)  # rad, under the default gate
     n1 = np.array([0.0, math.sin(tilt), math.cos(tilt)])
-    for gains, expected in (((alpha_n, 0.0), alpha_n), (None, alpha)):
-        f = TrackFilter(alpha, 0.0, normal_gains=gains)
+    for gain, expected in ((alpha_n, alpha_n), (None, alpha)):
+        f = TrackFilter(alpha, 0.0, alpha_normal=gain)
         f.update(0.0, np.zeros(3), n0)
         y = f.update(frame_s, p1, n1)
         np.testing.assert_allclose(y[:3], alpha * p1, atol=1e-15)  # m

@@ -264,8 +264,8 @@ class TrackFilter:
     by at most ``alpha`` times the gate, and a real change the filter lags is still followed,
     at most that much per estimate, with no jump the controller's gate would refuse. A gap
     longer than :data:`FILTER_RESET_S` restarts it at the estimate. ``alpha = 1, beta = 0``
-    and infinite gates: the raw estimates. ``normal_gains`` ``(alpha, beta)`` of the normal
-    when they differ from the centre's (default: the same).
+    and infinite gates: the raw estimates. ``alpha_normal``, ``beta_normal``: the normal's
+    gains (``None``: the centre's).
     """
 
     def __init__(
@@ -274,10 +274,11 @@ class TrackFilter:
         beta: float,
         gate_position: float = math.inf,
         gate_angle: float = math.pi,
-        normal_gains: tuple[float, float] | None = None,
+        alpha_normal: float | None = None,
+        beta_normal: float | None = None,
     ) -> None:
-        self.alpha, self.beta = alpha, beta
-        a_n, b_n = (alpha, beta) if normal_gains is None else normal_gains
+        a_n = alpha if alpha_normal is None else alpha_normal
+        b_n = beta if beta_normal is None else beta_normal
         self._alpha = np.array([alpha] * 3 + [a_n] * 3)  # (6,): the centre's, the normal's
         self._beta = np.array([beta] * 3 + [b_n] * 3)
         self.gate_position = gate_position

@@ -105,14 +105,13 @@ class StereoSource:
         self.resample = per.resample
         self.max_age = config.controller.ring_max_age
         self._track: tuple[float, FloatArray] | None = None  # capture time, (12,) filter state
-        a_n = per.filter_alpha if per.filter_alpha_normal is None else per.filter_alpha_normal
-        b_n = per.filter_beta if per.filter_beta_normal is None else per.filter_beta_normal
         self.filter = TrackFilter(
             per.filter_alpha,
             per.filter_beta,
             per.filter_gate_position,
             per.filter_gate_angle,
-            normal_gains=(a_n, b_n),
+            per.filter_alpha_normal,
+            per.filter_beta_normal,
         )
         self.dt = 1.0 / ep.control_rate
         self._rim = _rim(config.task.ring.major_radius)
