@@ -17,6 +17,7 @@ from endocam.perception.ellipse import (
     ImageEllipse,
     centre_image,
     circle_normals,
+    core_ellipse,
     fit_rim,
     radius_over_distance,
 )
@@ -153,8 +154,15 @@ def test_segmenting_a_frame_without_the_ring_or_the_wire() -> None:
     assert not segment(speck, keys)[0].any()
 
 
+PIXEL_CENTRE_PX = 0.5  # px: pixel (i, j)'s centre is (j + 0.5, i + 0.5) (docs/conventions.md)
+
+
 def drawn_ring(centre: tuple[int, int], axes: tuple[int, int], angle_deg: float) -> np.ndarray:
-    """(240, 320) bool mask of a filled elliptical ring (tube 6 px wide)."""
+    """(240, 320) bool mask of a filled elliptical ring (tube 6 px wide).
+
+    OpenCV draws on pixel indices: the ring's centre is ``centre + PIXEL_CENTRE_PX`` in image
+    coordinates.
+    """
     mask = np.zeros((240, 320), np.uint8)
     cv2.ellipse(mask, centre, axes, angle_deg, 0, 360, 1, -1)
     inner = (axes[0] - 6, axes[1] - 6)
@@ -170,9 +178,11 @@ def test_the_rim_fit_leaves_out_an_occluders_edge() -> None:
     ring = mask & ~wire
     fit = fit_rim(ring, wire)
     assert fit is not None and fit.points is not None
-    assert abs(fit.centre[0] - 160) < FIT_TOL_PX and abs(fit.centre[1] - 120) < FIT_TOL_PX
+    centre = np.array([160.0, 120.0]) + PIXEL_CENTRE_PX
+    assert np.all(np.abs(fit.centre - centre) < FIT_TOL_PX)
     assert abs(fit.a - 50.5) < FIT_TOL_PX and abs(fit.b - 35.5) < FIT_TOL_PX
-    near_band = (fit.points[:, 1] >= 100 - 2) & (fit.points[:, 1] <= 111 + 2)  # OCCLUDER_PX
+    rows = fit.points[:, 1] - PIXEL_CENTRE_PX
+    near_band = (rows >= 100 - 2) & (rows <= 111 + 2)  # OCCLUDER_PX
     assert not near_band.any()
     assert fit.coverage < 1.0
 
@@ -182,7 +192,7 @@ def test_the_rim_fit_leaves_out_the_image_border() -> None:
     fit = fit_rim(mask)
     assert fit is not None and fit.points is not None
     assert fit.points[:, 0].max() < 319
-    assert abs(fit.centre[0] - 300) < 2 * FIT_TOL_PX
+    assert abs(fit.centre[0] - (300 + PIXEL_CENTRE_PX)) < 2 * FIT_TOL_PX
 
 
 def test_ellipse_conic_and_distances_agree() -> None:
@@ -195,3 +205,91 @@ def test_ellipse_conic_and_distances_agree() -> None:
     h = np.c_[pts, np.ones(len(pts))]
     np.testing.assert_allclose(np.einsum("ni,ij,nj->n", h, e.conic(), h), 0.0, atol=1e-9)
     np.testing.assert_allclose(e.distances(pts), 0.0, atol=1e-9)
+
+
+def test_rim_points_are_pixel_centres() -> None:
+    """A disk whose pixels are those with their centre inside it: the fit finds its centre.
+
+    Pixel (i, j) is in the mask when ``(j + ½, i + ½)`` lies within ``rho`` of the centre, so the
+    fit is centred on it, not half a pixel up and left (OpenCV's contour indices).
+    """
+    centre, rho = np.array([100.3, 80.7]), 30.0  # px
+    v, u = np.mgrid[0:160, 0:200] + PIXEL_CENTRE_PX
+    mask = (u - centre[0]) ** 2 + (v - centre[1]) ** 2 <= rho**2
+    fit = fit_rim(mask)
+    assert fit is not None
+    assert np.all(np.abs(fit.centre - centre) < DISK_CENTRE_TOL_PX)
+    assert abs(fit.a - rho) < FIT_TOL_PX and abs(fit.b - rho) < FIT_TOL_PX
+
+
+DISK_CENTRE_TOL_PX = 0.15  # px: a 30 px disk's pixel staircase moves its fit ~0.05 px
+CORE_TOL_PX = 0.08  # px: the per-point offset model misses by ≤ 0.04 px (1 mm tube, 5 cm)
+NAIVE_MIN_PX = 0.3  # px: the uniform shrink misses by 0.65-0.71 px in the same views
+
+
+def torus_outline(T_eye_ring: FloatArray, R: float, r: float) -> FloatArray:
+    """(M, 2) px, the exact outer silhouette of a torus in an eye (its contour generator).
+
+    A point ``c + r (cos ψ u + sin ψ n)`` of the tube about the core point ``c`` (radial ``u``,
+    face normal ``n``) is on the contour where its surface normal is across the ray:
+    ``A cos ψ + B sin ψ = −r`` with ``A = u · c``, ``B = n · c`` (the eye at the origin); of the
+    two roots per ``φ``, the one farther from the ring's image centre.
+    """
+    phi = np.linspace(0.0, 2.0 * math.pi, 720, endpoint=False)
+    Rm, t = T_eye_ring[:3, :3], T_eye_ring[:3, 3]
+    u = np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], axis=1) @ Rm.T
+    n = Rm[:, 2]
+    c = t + R * u
+    A, B = np.einsum("ij,ij->i", u, c), c @ n
+    base, half = np.arctan2(B, A), np.arccos(-r / np.hypot(A, B))
+    centre = (K @ (t / t[2]))[:2]
+    best = None
+    for psi in (base + half, base - half):
+        X = c + r * (np.cos(psi)[:, None] * u + np.sin(psi)[:, None] * n)
+        uv = (X[:, :2] / X[:, 2:3]) * [K[0, 0], K[1, 1]] + K[:2, 2]
+        if best is None:
+            best = uv
+        else:
+            far = np.linalg.norm(uv - centre, axis=1) > np.linalg.norm(best - centre, axis=1)
+            best = np.where(far[:, None], uv, best)
+    assert best is not None
+    return best
+
+
+def test_the_core_is_found_by_perspective_off_the_optical_axis() -> None:
+    """A ring 12° off an eye's axis and tilted: its core's image from the exact silhouette.
+
+    The silhouette's points moved half a pixel inwards (boundary pixels' centres, as
+    :func:`fit_rim` gives them); the core ellipse must pass through the core circle's image,
+    which shrinking the fitted outline by one tube width all round misses on the far side.
+    """
+    R, r = 5.0e-3, 1.0e-3  # m, the default ring
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        p = np.array([math.tan(math.radians(12.0)) * 0.05, rng.uniform(-0.003, 0.003), 0.05])
+        tilt, az = math.radians(rng.uniform(0.0, 10.0)), rng.uniform(0.0, 2.0 * math.pi)
+        sight = -p / np.linalg.norm(p)
+        side = np.cross(sight, [math.cos(az), math.sin(az), 0.0])
+        n = math.cos(tilt) * sight + math.sin(tilt) * side / np.linalg.norm(side)
+        T = np.eye(4)
+        T[:3, 2] = n
+        T[:3, 0] = np.cross([0.0, 1.0, 0.0], n) / np.linalg.norm(np.cross([0.0, 1.0, 0.0], n))
+        T[:3, 1] = np.cross(n, T[:3, 0])
+        T[:3, 3] = p
+        outline = torus_outline(T, R, r)
+        (cu, cv), (d1, d2), ang = cv2.fitEllipse(outline.astype(np.float32))
+        inward = -(outline - [cu, cv]) / np.linalg.norm(outline - [cu, cv], axis=1)[:, None]
+        pts = outline + PIXEL_CENTRE_PX * inward
+        a, b, angle = 0.5 * d1, 0.5 * d2, math.radians(ang)
+        if b > a:
+            a, b, angle = b, a, angle + 0.5 * math.pi
+        fit = ImageEllipse(np.array([cu, cv]), a, b, angle, points=pts)
+        phi = np.linspace(0.0, 2.0 * math.pi, 90, endpoint=False)
+        e1, e2 = T[:3, 0], T[:3, 1]
+        X = p + R * (np.outer(np.cos(phi), e1) + np.outer(np.sin(phi), e2))
+        core_px = X[:, :2] / X[:, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
+        core = core_ellipse(fit, K, r, p, n)
+        assert core is not None
+        assert float(np.max(core.distances(core_px))) < CORE_TOL_PX
+        naive = fit.shrunk(K[0, 0] * r / p[2])
+        assert float(np.max(naive.distances(core_px))) > NAIVE_MIN_PX

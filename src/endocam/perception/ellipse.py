@@ -108,6 +108,9 @@ def silhouette_points(
 ) -> FloatArray:
     """Points (u, v) of a mask's outer silhouette: (N, 2), px (see the module docstring).
 
+    Each point is a boundary pixel's centre, ``(j + 0.5, i + 0.5)`` for pixel ``(i, j)``
+    (docs/conventions.md; OpenCV's contours give ``(j, i)``).
+
     ``mask`` : (H, W) bool. ``occluder`` : (H, W) bool or None, pixels of what may hide the
     ring (the wire): silhouette points within ``OCCLUDER_PX`` of one are left out (an edge
     there may be the occluder's, not the ring's). Points on the image border are left out too;
@@ -130,7 +133,7 @@ def silhouette_points(
     pts = pts[inside]
     if occluder is not None and len(pts):
         pts = pts[~_near(occluder, pts)]
-    return np.asarray(pts)
+    return np.asarray(pts + PIXEL_CENTRE_PX)  # pixel (i, j)'s centre is (j + 0.5, i + 0.5)
 
 
 def _near(occluder: NDArray[np.bool_], pts: FloatArray) -> NDArray[np.bool_]:
@@ -291,3 +294,66 @@ def centre_image(Q: FloatArray, n: FloatArray) -> FloatArray | None:
     if abs(ray[2]) < 1e-12:
         return None
     return np.asarray(ray[:2] / ray[2])
+
+
+def core_ellipse(
+    fit: ImageEllipse, K: FloatArray, tube: float, p_eye: FloatArray, n: FloatArray
+) -> ImageEllipse | None:
+    """The core circle's image from a fitted outer silhouette, tube width by perspective.
+
+    ``fit.shrunk(tube_px)`` takes the tube's image width as the same all round the rim: true
+    for a ring seen face-on on the optical axis. Off the axis a sphere of radius ``r`` at depth
+    ``Z`` images as an ellipse ``r / Z`` wide across the ray and ``r / (Z cos θ)`` along it
+    (``θ`` the ray's angle to the axis), and the rim's depth varies across a tilted ring: an eye
+    that sees the ring 10–15° off its axis gets a core ~0.3 px too wide on that side, which the
+    other eye does not, and the disparity plane tilts by 1–2° (round 15). Here each silhouette
+    point moves inwards along the fit's normal by the tube's image half-width in that direction
+    at its own depth and ray, and the moved points are fitted again.
+
+    Parameters
+    ----------
+    fit : ImageEllipse
+        The outer silhouette's fit with its ``points`` (N, 2), px.
+    K : (3, 3)
+        The eye's intrinsics.
+    tube : float
+        The tube's radius (the ring's minor radius), m.
+    p_eye, n : (3,)
+        A first estimate of the ring's centre (m) and unit normal in this eye's frame: the
+        depths of the rim's points.
+
+    Returns
+    -------
+    ImageEllipse or None
+        The core's ellipse, px (``coverage``, ``rms_px``, ``points`` the fit's), or None
+        without points or when a ray misses the plane.
+    """
+    if fit.points is None or len(fit.points) < MIN_RIM_POINTS:
+        return None
+    f = np.array([K[0, 0], K[1, 1]])
+    x = (fit.points - K[:2, 2]) / f  # (N, 2) normalised
+    rays = np.concatenate([x, np.ones((len(x), 1))], axis=1)
+    along = rays @ n
+    if np.any(np.abs(along) < 1e-9):
+        return None
+    z = float(n @ p_eye) / along  # (N,) depth where each ray meets the ring's plane
+    if not np.all(z > 0.0):
+        return None
+    # the outward normal of the fitted ellipse at each point, normalised coordinates
+    C = K.T @ fit.conic() @ K
+    g = rays @ C[:, :2]  # (N, 2) half the conic's gradient
+    g /= np.linalg.norm(g, axis=1, keepdims=True)
+    c = fit.centre - K[:2, 2]
+    outward = np.sign(np.einsum("ij,ij->i", g, x - c / f))
+    g *= outward[:, None]
+    radial_len = np.linalg.norm(x, axis=1)
+    cos_theta2 = 1.0 / (1.0 + radial_len**2)
+    radial = x / np.maximum(radial_len, 1e-12)[:, None]
+    cos_beta2 = np.einsum("ij,ij->i", g, radial) ** 2
+    half = tube / z * np.sqrt(cos_beta2 / cos_theta2 + (1.0 - cos_beta2))
+    # the points are boundary pixels' centres, half a pixel inside the edge (fit_rim)
+    core = fit.points - g * (half[:, None] * f - PIXEL_CENTRE_PX)
+    out = _fit(core)
+    if out is None:
+        return None
+    return ImageEllipse(out.centre, out.a, out.b, out.angle, fit.coverage, fit.rms_px, fit.points)

@@ -18,7 +18,11 @@ Per pair (:func:`estimate_ring_pose`; the method and its failure modes: docs/per
    axis, where an ellipse's shape barely shows the tilt, that normal is blended with the plane
    of the core ellipses' row-matched disparities (:func:`plane_normal`, :func:`blended_normal`).
 5. **Centre**: each eye's image of the circle's centre for that normal, triangulated.
-6. **Reject what is inconsistent**: rows that differ between the eyes, a depth outside
+6. **Once more, by perspective**: with that centre and normal, each eye's core is found again
+   from its silhouette points, each moved in by the tube's image half-width at its own depth
+   and ray (:func:`endocam.perception.ellipse.core_ellipse`; the uniform shrink of step 3 is
+   exact only on the optical axis), and steps 4–5 are repeated on those cores.
+7. **Reject what is inconsistent**: rows that differ between the eyes, a depth outside
    ``depth_range``, a core ellipse that is not a circle of radius ``R`` at the triangulated
    distance, eyes whose normals disagree by more than ``max_normal_disagreement``.
 
@@ -43,6 +47,7 @@ from endocam.perception.ellipse import (
     ImageEllipse,
     centre_image,
     circle_normals,
+    core_ellipse,
     fit_rim,
     normalised_conic,
     radius_over_distance,
@@ -362,6 +367,9 @@ def estimate_ring_detail(
     p = _triangulate(conics[0], conics[1], n, model.camera)
     if p is None or not cfg.depth_range[0] <= p[2] <= cfg.depth_range[1]:
         return EstimateResult(None, EstimateStatus.BAD_DEPTH)
+    refined = _refined(fl, fr, model, n, p, cfg)
+    if refined is not None:
+        n, p, conics = refined
     size_err = 0.0
     half_baseline = np.array([0.5 * model.camera.baseline, 0.0, 0.0])
     for Q, p_eye in zip(conics, (p + half_baseline, p - half_baseline), strict=True):
@@ -377,6 +385,44 @@ def estimate_ring_detail(
     )
     est = RingEstimate(p, n, max(confidence, 1e-6), fl, fr)
     return EstimateResult(est, EstimateStatus.OK)
+
+
+def _refined(
+    fl: ImageEllipse,
+    fr: ImageEllipse,
+    model: RingModel,
+    n: FloatArray,
+    p: FloatArray,
+    cfg: EstimatorConfig,
+) -> tuple[FloatArray, FloatArray, list[FloatArray]] | None:
+    """The pose again from each eye's core by perspective (:func:`core_ellipse`), or None.
+
+    ``n`` (3,), ``p`` (3,), m: the first estimate, camera frame; the hypothesis of normal kept
+    is the one nearer ``n``. Returns the unit normal (3,), the centre (3,), m, and the eyes'
+    core conics (normalised), or None where a core or its pose cannot be had (the first
+    estimate then stands).
+    """
+    K = model.camera.intrinsics.K
+    half_baseline = np.array([0.5 * model.camera.baseline, 0.0, 0.0])
+    conics = []
+    normals = []
+    for fit, p_eye in ((fl, p + half_baseline), (fr, p - half_baseline)):
+        core = core_ellipse(fit, K, model.minor_radius, p_eye, n)
+        if core is None:
+            return None
+        Q = normalised_conic(core, K)
+        cand = circle_normals(Q)
+        if cand is None:
+            return None
+        conics.append(Q)
+        normals.append(cand)
+    choice = choose_normal(normals[0], normals[1])
+    n2 = choice.n if abs(float(choice.n @ n)) >= abs(float(choice.other @ n)) else choice.other
+    n2 = blended_normal(n2, plane_normal(conics[0], conics[1]), fl, fr, K, cfg.plane_tilt)
+    p2 = _triangulate(conics[0], conics[1], n2, model.camera)
+    if p2 is None or not cfg.depth_range[0] <= p2[2] <= cfg.depth_range[1]:
+        return None
+    return n2, p2, conics
 
 
 class NormalChoice(NamedTuple):
