@@ -483,3 +483,31 @@ def test_the_quaternion_tolerance_sits_between_round_off_and_a_9_digit_print(
         assert np.all(np.abs(norm - 1.0) <= QUAT_NORM_TOL)
     q = np.array([0.5, 0.5, 0.5, 0.5 + 0.5e-9])  # one component off by half a 9th digit
     assert abs(np.linalg.norm(q) - 1.0) > QUAT_NORM_TOL
+
+
+def test_an_outlier_is_judged_against_the_gate_of_the_runs_own_source(
+    free_run: Path, tmp_path: Path
+) -> None:
+    """A ring outlier between the truth gate's cap and the stereo gate's (raised by its noise
+    floor): a hold is owed on truth, not on stereo, whose gate does not promise to see it."""
+    truth = ExperimentConfig().controller.ring_limits
+    stereo_cfg = ExperimentConfig.model_validate(
+        {"perception": {"source": "stereo"}, "faults": {"ring_outlier": {"angle": 0.0}}}
+    )
+    stereo = stereo_cfg.controller_on_source.ring_limits
+    assert stereo.position_gate > truth.position_gate
+    distance = 0.5 * (truth.position_gate + stereo.position_gate)  # m, between the two caps
+
+    def edit(rows: list[dict[str, str]]) -> None:
+        assert rows[STEP]["state"] != "lost_tracking"
+        rows[STEP]["fault"] = "ring_outlier"
+
+    reported = {}
+    for source in ("truth", "stereo"):
+        run = _edited(free_run, tmp_path / source, edit)
+        scene = json.loads((run / SCENE_JSON).read_text())
+        scene["config"]["perception"]["source"] = source
+        scene["config"]["faults"]["ring_outlier"].update(distance=distance, angle=0.0)
+        (run / SCENE_JSON).write_text(json.dumps(scene))
+        reported[source] = _steps(run, "lost_hold")
+    assert reported == {"truth": {STEP}, "stereo": set()}
