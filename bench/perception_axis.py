@@ -22,7 +22,7 @@ import time
 import numpy as np
 
 from endocam.config import CameraConfig
-from endocam.perception.ellipse import normalised_conic
+from endocam.perception.ellipse import core_ellipse, normalised_conic
 from endocam.perception.estimator import (
     EstimatorConfig,
     RingModel,
@@ -81,10 +81,15 @@ def main() -> None:
                 continue
             errs["ellipses"].append(_angle_deg(old.n_cam, n_cam))
             errs["blended"].append(_angle_deg(new.n_cam, n_cam))
-            tube_px = camera.intrinsics.fx * tube_m / new.p_cam_ring[2]
             K = camera.intrinsics.K
-            Q = [normalised_conic(f.shrunk(tube_px), K) for f in (new.left, new.right)]
-            n_plane = plane_normal(Q[0], Q[1])
+            half = np.array([0.5 * camera.baseline, 0.0, 0.0])  # the eyes at ∓B/2 along x
+            cores = [
+                core_ellipse(f, K, tube_m, new.p_cam_ring + s * half, new.n_cam)
+                for f, s in ((new.left, 1.0), (new.right, -1.0))
+            ]
+            if cores[0] is None or cores[1] is None:
+                continue
+            n_plane = plane_normal(*(normalised_conic(c, K) for c in cores))
             if n_plane is not None:
                 errs["plane"].append(_angle_deg(n_plane, n_cam))
         cells = [f"{np.median(e):5.2f} / {np.max(e):5.2f}" if e else "--" for e in errs.values()]

@@ -345,7 +345,13 @@ class SceneConfig(BaseModel):
         description="Segments of the rendered wire tube mesh along its length, count.",
     )
     ring_mesh_segments: tuple[int, int] = Field(
-        (64, 16), description="Torus mesh resolution (around the core, around the tube), count."
+        (128, 48),
+        description="Torus mesh resolution (around the core, around the tube), count. A "
+        "polygon's silhouette is up to R (1 − cos(π/n)) inside the smooth ring's: at (128, 48) "
+        "1.5 µm and 2.1 µm, 0.02 px at 50 mm. (64, 16), before round 15, put the tube's "
+        "silhouette 19 µm (0.16 px) in at some views and not at others: the two eyes saw "
+        "different tube widths and the stereo estimator read a 0.5° tilt that no smooth ring "
+        "has (docs/perception.md, 'Round 15'); rendering cost unchanged (~6 ms per eye).",
     )
     rcm_position: Vec3 = Field(
         (0.20, 0.0, 0.12),
