@@ -3,7 +3,7 @@
 The ring at ``--distance`` mm, the camera turned off its normal by each angle in six directions,
 rendered at the loop's size (640x480, no image model) and estimated three ways: the eyes'
 ellipses alone (``plane_tilt`` ~0), the disparity plane alone
-(:func:`endocam.perception.estimator.plane_normal` on the estimate's core ellipses), and the
+(:func:`endocam.perception.disparity.plane_normal` on the estimate's core ellipses), and the
 blend (the defaults). Prints the normal error's median / max (deg) per angle and the
 estimator's median wall time per pair.
 
@@ -22,13 +22,9 @@ import time
 import numpy as np
 
 from endocam.config import CameraConfig
+from endocam.perception.disparity import plane_normal
 from endocam.perception.ellipse import core_ellipse, normalised_conic
-from endocam.perception.estimator import (
-    EstimatorConfig,
-    RingModel,
-    estimate_ring_detail,
-    plane_normal,
-)
+from endocam.perception.estimator import EstimatorConfig, RingModel, estimate_ring_detail
 from endocam.sim.render import WireChaserScene
 from endocam.task.config import TaskConfig
 from endocam.view import look_at_pose

@@ -246,3 +246,35 @@ def test_an_unresolved_choice_of_normal_gives_none(scene: WireChaserScene) -> No
     assert est is not None
     drawn = draw_estimate(left, est, MODEL)
     assert drawn.shape == left.shape and not np.array_equal(drawn, left)
+
+
+def hide_rim(image: np.ndarray, keep: float) -> np.ndarray:
+    """A copy with a wire-coloured band over the ring's middle rows, ``keep`` of its height
+    left at the top and at the bottom (the rim then covers well under half its ellipse)."""
+    ring = segment(image, MODEL.keys)[0]
+    rows = np.flatnonzero(ring.any(axis=1))
+    top, bottom = rows[0], rows[-1]
+    margin = round(keep * (bottom - top))
+    out = image.copy()
+    wire = np.round(np.asarray(TASK.scene.wire_rgba[:3]) * 255.0).astype(np.uint8)
+    out[top + margin : bottom - margin + 1, :] = wire
+    return out
+
+
+def test_one_eye_gives_the_pose_when_the_others_rim_is_hidden(scene: WireChaserScene) -> None:
+    """The wire before the left eye's view of the rim: the right eye and the track's prior give
+    the pose (``mono``); no prior, or one that picks neither normal, gives none."""
+    T_ring = ring_pose()
+    left, right, p_cam, n_cam = view(scene, T_ring, camera_at(T_ring, math.radians(25.0)))
+    hidden = hide_rim(left, keep=0.15)
+    assert estimate_ring_detail(hidden, right, MODEL).estimate is None  # no prior: no pose
+    turn = math.radians(5.0)  # rad: the track's last normal, a little off
+    prior = math.cos(turn) * n_cam + math.sin(turn) * np.cross(n_cam, [0.0, 1.0, 0.0])
+    res = estimate_ring_detail(hidden, right, MODEL, prior=prior / np.linalg.norm(prior))
+    assert res.status is EstimateStatus.MONO and res.estimate is not None
+    centre_err, normal_err = errors(res.estimate, p_cam, n_cam)
+    assert centre_err <= CENTRE_TOL_M  # the right eye's pose, carried to the rig's frame
+    assert normal_err <= NORMAL_TOL
+    across = np.cross(n_cam, [0.0, 0.0, 1.0])  # 90° from the truth: far from both normals
+    res = estimate_ring_detail(hidden, right, MODEL, prior=across / np.linalg.norm(across))
+    assert res.estimate is None

@@ -13,6 +13,7 @@ import pytest
 
 from endocam.camera import StereoCamera
 from endocam.geometry import FloatArray
+from endocam.perception.disparity import plane_normal
 from endocam.perception.ellipse import (
     ImageEllipse,
     centre_image,
@@ -21,7 +22,7 @@ from endocam.perception.ellipse import (
     fit_rim,
     radius_over_distance,
 )
-from endocam.perception.estimator import choose_normal, plane_normal
+from endocam.perception.estimator import choose_normal
 from endocam.perception.segment import HUE_TOL, SAT_MIN, VAL_MIN, ColourKeys, hue_mask, segment
 from endocam.task.config import SceneConfig
 

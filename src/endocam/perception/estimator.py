@@ -16,7 +16,8 @@ Per pair (:func:`estimate_ring_pose`; the method and its failure modes: docs/per
    sight, and the lines of sight differ by ``baseline / Z``). The pair of candidates, one per eye,
    that agree best gives the normal (their mean); the others are discarded. Near the ring's
    axis, where an ellipse's shape barely shows the tilt, that normal is blended with the plane
-   of the core ellipses' row-matched disparities (:func:`plane_normal`, :func:`blended_normal`).
+   of the core ellipses' row-matched disparities (:func:`blended_normal`;
+   :func:`endocam.perception.disparity.plane_normal`).
 5. **Centre**: each eye's image of the circle's centre for that normal, triangulated.
 6. **Once more, by perspective**: with that centre and normal, each eye's core is found again
    from its silhouette points, each moved in by the tube's image half-width at its own depth
@@ -41,8 +42,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from endocam.camera import StereoCamera
+from endocam.camera import Eye, StereoCamera
 from endocam.geometry import FloatArray, frame_with_z
+from endocam.perception.disparity import plane_normal
 from endocam.perception.ellipse import (
     ImageEllipse,
     centre_image,
@@ -52,6 +54,7 @@ from endocam.perception.ellipse import (
     normalised_conic,
     radius_over_distance,
 )
+from endocam.perception.mono import PriorChoice, mono_pose
 from endocam.perception.segment import ColourKeys, hue_mask, segment
 from endocam.task.config import TaskConfig
 
@@ -71,6 +74,7 @@ class EstimateStatus(enum.Enum):
     SIZE_MISMATCH = "size_mismatch"  # the core ellipse is not a ring of radius R at that depth
     NORMALS_DISAGREE = "normals_disagree"  # the eyes' normals do not agree
     AMBIGUOUS = "ambiguous"  # the second eye cannot tell the two candidate normals apart
+    MONO = "mono"  # a pose from one eye, the other's rim hidden, its normal chosen by a prior
 
 
 @dataclass(frozen=True)
@@ -186,15 +190,16 @@ class RingEstimate:
         compare normals up to sign).
     confidence : float
         In (0, 1]: the smaller coverage times the margins left on the size and normal checks.
-    left, right : ImageEllipse
-        The fitted outer silhouettes, px.
+    left, right : ImageEllipse or None
+        The fitted outer silhouettes, px (None for an eye without one: a one-eye pose,
+        ``EstimateStatus.MONO``).
     """
 
     p_cam_ring: FloatArray
     n_cam: FloatArray
     confidence: float
-    left: ImageEllipse
-    right: ImageEllipse
+    left: ImageEllipse | None
+    right: ImageEllipse | None
 
 
 @dataclass(frozen=True)
@@ -319,16 +324,17 @@ def estimate_ring_detail(
     cfg = EstimatorConfig() if config is None else config
     k = model.camera.intrinsics
     shape = (k.height, k.width)
-    frames = (_as_frame(left, "left", shape), _as_frame(right, "right", shape))
-    fits = []
-    for frame in frames:
-        if frame is None:
-            return EstimateResult(None, EstimateStatus.BAD_FRAME)
-        fit = _fit_eye(frame, model.keys)
-        if fit is None:
-            return EstimateResult(None, EstimateStatus.NO_RING)
-        fits.append(fit)
-    fl, fr = fits
+    frame_l, frame_r = _as_frame(left, "left", shape), _as_frame(right, "right", shape)
+    if frame_l is None or frame_r is None:
+        return EstimateResult(None, EstimateStatus.BAD_FRAME)
+    fl, fr = _fit_eye(frame_l, model.keys), _fit_eye(frame_r, model.keys)
+    seen = [f is not None and f.coverage >= cfg.min_coverage for f in (fl, fr)]
+    if seen == [True, False] or seen == [False, True]:  # one eye's rim hidden
+        mono = _one_eye(fl, fr, model, cfg, prior)
+        if mono is not None:
+            return EstimateResult(mono, EstimateStatus.MONO)
+    if fl is None or fr is None:
+        return EstimateResult(None, EstimateStatus.NO_RING)
     coverage = min(fl.coverage, fr.coverage)
     if coverage < cfg.min_coverage:
         return EstimateResult(None, EstimateStatus.LOW_COVERAGE)
@@ -385,6 +391,44 @@ def estimate_ring_detail(
     )
     est = RingEstimate(p, n, max(confidence, 1e-6), fl, fr)
     return EstimateResult(est, EstimateStatus.OK)
+
+
+MONO_CONFIDENCE = 0.5
+"""The confidence of a one-eye pose is its eye's coverage times this: the distance comes from
+the ring's size in one image (its error grows as the distance over the image radius), and the
+normal's choice from the prior, not from a second view."""
+
+
+def _one_eye(
+    fl: ImageEllipse | None,
+    fr: ImageEllipse | None,
+    model: RingModel,
+    cfg: EstimatorConfig,
+    prior: FloatArray | None,
+) -> RingEstimate | None:
+    """The pose from the eye that sees the rim (:func:`~endocam.perception.mono.mono_pose`).
+
+    None without a ``prior`` (camera frame), or when the prior does not single out one of that
+    eye's two normals as :func:`settle_choice` would (within ``prior_fraction`` of their
+    separation; either, if they are within ``ambiguous_separation``). The other eye's fit, if
+    any, is kept for drawing.
+    """
+    if prior is None:
+        return None
+    left_seen = fl is not None and fl.coverage >= cfg.min_coverage
+    eye: Eye = "left" if left_seen else "right"
+    fit = fl if left_seen else fr
+    assert fit is not None
+    K = model.camera.intrinsics.K
+    choice = PriorChoice(cfg.prior_fraction, cfg.ambiguous_separation)
+    got = mono_pose(fit, K, (model.major_radius, model.minor_radius), prior, choice)
+    if got is None:
+        return None
+    p_eye, n = got
+    p = np.asarray(p_eye + model.camera.T_cam_eye(eye)[:3, 3])
+    if not cfg.depth_range[0] <= p[2] <= cfg.depth_range[1]:
+        return None
+    return RingEstimate(p, n, max(fit.coverage * MONO_CONFIDENCE, 1e-6), fl, fr)
 
 
 def _refined(
@@ -542,6 +586,8 @@ def draw_estimate(
     """
     out = np.ascontiguousarray(image.copy())
     fit = estimate.left if eye == "left" else estimate.right
+    if fit is None:
+        raise ValueError(f"the estimate has no fit in the {eye} eye (a one-eye pose)")
     if fit.points is not None:
         for u, v in fit.points.astype(int):
             out[v, u] = (255, 255, 255)
@@ -591,71 +637,3 @@ def blended_normal(
     sign = 1.0 if float(n_plane @ n_ellipse) >= 0.0 else -1.0
     n = sin2_tilt * n_ellipse + w_plane * sign * n_plane
     return np.asarray(n / np.linalg.norm(n))
-
-
-PLANE_ROWS = 24  # rows of the core ellipses the stereo plane fit samples
-PLANE_ROW_SPAN = 0.9  # the central share of the ellipses' common rows it samples
-
-
-def plane_normal(Q_left: FloatArray, Q_right: FloatArray) -> FloatArray | None:
-    """The ring plane's unit normal (3,), camera frame, from the core ellipses' disparities.
-
-    ``Q_left``, ``Q_right`` (3, 3): each eye's core-circle conic in normalised coordinates (the
-    eyes are rectified and parallel, so a row ``y`` is one epipolar line). On ``PLANE_ROWS``
-    rows the two ends of each eye's chord are matched (left end to left end); a plane
-    ``n · X = d`` in the left eye's frame has normalised disparity ``B / Z = B n · (x, y, 1) /
-    d``, linear in the left eye's ``(x, y)``: a least-squares fit of the disparity gives
-    ``n`` up to scale. Unlike the ellipse's shape, whose axis ratio changes as the cosine of the
-    tilt, the disparity changes as its sine: the tilt is well conditioned near the axis.
-    Pointing towards the eyes (negative z); None if fewer than 3 rows are shared or the fit is
-    degenerate.
-    """
-    spans = [_row_span(Q) for Q in (Q_left, Q_right)]
-    if spans[0] is None or spans[1] is None:
-        return None
-    lo, hi = max(spans[0][0], spans[1][0]), min(spans[0][1], spans[1][1])
-    if not hi > lo:
-        return None
-    mid, half = 0.5 * (lo + hi), 0.5 * PLANE_ROW_SPAN * (hi - lo)
-    y = np.linspace(mid - half, mid + half, PLANE_ROWS)
-    xl, xr = _chord_ends(Q_left, y), _chord_ends(Q_right, y)
-    ok = np.all(np.isfinite(xl) & np.isfinite(xr), axis=1)
-    if np.count_nonzero(ok) < 3:
-        return None
-    x = xl[ok].ravel()
-    A = np.stack([x, np.repeat(y[ok], 2), np.ones_like(x)], axis=1)
-    coef, *_ = np.linalg.lstsq(A, (xl[ok] - xr[ok]).ravel(), rcond=None)
-    norm = float(np.linalg.norm(coef))
-    if not norm > 0.0:
-        return None
-    n = coef / norm
-    return np.asarray(-n if n[2] > 0.0 else n)
-
-
-def _row_span(Q: FloatArray) -> tuple[float, float] | None:
-    """The rows ``y`` (normalised) the conic ``Q`` (3, 3) spans: (top, bottom), or None."""
-    # rows where the quadratic in x has a double root: its discriminant, quadratic in y, is 0
-    a, b, c = Q[0, 0], Q[0, 1], Q[0, 2]
-    # disc(y) = (b y + c)^2 - a (Q11 y^2 + 2 Q12 y + Q22)
-    p2 = b * b - a * Q[1, 1]
-    p1 = 2.0 * (b * c - a * Q[1, 2])
-    p0 = c * c - a * Q[2, 2]
-    roots = np.roots([p2, p1, p0])
-    if roots.shape != (2,) or np.any(np.abs(roots.imag) > 0.0):
-        return None
-    top, bottom = sorted(float(r) for r in roots.real)
-    return top, bottom
-
-
-def _chord_ends(Q: FloatArray, y: FloatArray) -> FloatArray:
-    """(len(y), 2) normalised x of the conic ``Q``'s chord ends on rows ``y``, left first.
-
-    NaN on rows off the conic.
-    """
-    a = Q[0, 0]
-    half_b = Q[0, 1] * y + Q[0, 2]
-    c = Q[1, 1] * y * y + 2.0 * Q[1, 2] * y + Q[2, 2]
-    disc = half_b * half_b - a * c
-    root = np.sqrt(np.where(disc >= 0.0, disc, np.nan))
-    ends = np.stack([(-half_b - root) / a, (-half_b + root) / a], axis=1)
-    return np.sort(ends, axis=1)
