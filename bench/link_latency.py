@@ -41,7 +41,7 @@ import numpy as np
 
 from endocam.config import load_config
 from endocam.control.types import Observation, PolicyContext
-from endocam.link.client import LinkLostError, ZenohArm
+from endocam.link.client import LinkLostError, ZenohArm, registration
 from endocam.registry import make_policy
 from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import EpisodeSpec, run_episode
@@ -124,6 +124,7 @@ def run(
     kind = ArmKind(arm_name)
     dt = 1.0 / rate
     arm = ZenohArm(kind, endpoint, dt, timeout=timeout)
+    arm.register(registration(cfg, kind))
     arm.inbox = TimedQueue()
     policy = make_policy(policy_name, cfg.controller)
     rt, own, cpu = [], [], []

@@ -21,6 +21,7 @@ import tempfile
 from pathlib import Path
 
 from endocam.config import load_config
+from endocam.link.client import registration
 from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import EpisodeSpec, run_episode
 from endocam.task.trajectory import TrajectoryKind
@@ -47,7 +48,7 @@ def main() -> None:
     for seed in args.seeds:
         spec = EpisodeSpec(args.policy, TrajectoryKind.NOISY, 71, seed)
         rows = [tuple(errors(run_episode(cfg, spec)).values())]  # image px, centre mm, deg
-        with link_rounding():
+        with link_rounding(registration(cfg, cfg.episode.arm)):
             rows.append(tuple(errors(run_episode(cfg, spec)).values()))
         cells = " | ".join(
             f"{a:.3f} {b:.3f} {100 * (b - a) / a:+.1f}" for a, b in zip(*rows, strict=True)

@@ -38,9 +38,10 @@ import numpy as np
 from endocam.config import ExperimentConfig, load_config
 from endocam.control.types import Observation
 from endocam.geometry import FloatArray
-from endocam.link.client import ZenohArm, run_remote
+from endocam.link.client import ZenohArm, registration, run_remote
 from endocam.link.messages import Codec
 from endocam.robot.actuator import ArmKind
+from endocam.robot.dvrk_frames import CrtkFrames
 from endocam.runner import step
 from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode
 from endocam.task.trajectory import TrajectoryKind
@@ -70,7 +71,7 @@ def rounded(T: FloatArray) -> FloatArray:
 
 
 @contextmanager
-def link_rounding() -> Iterator[None]:
+def link_rounding(frames: CrtkFrames) -> Iterator[None]:
     """In-process episodes whose poses are rounded as over the link, and nothing else.
 
     The policy observes the camera and ring poses through a quaternion and back (the link's
@@ -79,15 +80,20 @@ def link_rounding() -> Iterator[None]:
     what it received as ``run_remote`` does (the look distance from the rounded ring, the
     target's offset from the rounded ``setpoint_cp``; :func:`endocam.runner.step.told_look`,
     :func:`endocam.runner.step.target_offset`); velocities and distances travel as float64,
-    unrounded. With no fault, the episode is then the link's to the last bit (round 14: the
+    unrounded. The camera poses travel as the link carries them, the dVRK's tip in the arm's
+    base frame (``frames``: :func:`endocam.link.client.registration`), converted there and
+    back. With no fault, the episode is then the link's to the last bit (round 14: the
     largest camera position difference 0 mm on every seed).
     """
     exact_observation, exact_step = step.EpisodeLoop.observation, step.EpisodeLoop.step
 
+    def wired(T_world_cam: FloatArray) -> FloatArray:
+        return frames.camera_from_tip(rounded(frames.tip_from_camera(T_world_cam)))
+
     def observed(loop: step.EpisodeLoop) -> Observation:
         o = exact_observation(loop)
         ring = None if o.T_world_ring is None else rounded(o.T_world_ring)
-        return o._replace(T_world_ring=ring, T_world_cam=rounded(o.T_world_cam))
+        return o._replace(T_world_ring=ring, T_world_cam=wired(o.T_world_cam))
 
     def commanded(loop: step.EpisodeLoop, command: step.Command) -> step.StepRecord:
         # as run_remote on the controller's side: the look distance from the ring it received
@@ -96,8 +102,9 @@ def link_rounding() -> Iterator[None]:
         k, jointed = loop.k, loop.jointed
         T_ring = loop.source.sense(k, loop.T_world_cam, loop.q)[0] if jointed else None
         look = step.told_look(command, None if T_ring is None else rounded(T_ring), jointed)
-        out = loop.actuator.step(rounded(command.T_world_cam), look, command.twist)
-        answer = out._replace(T_world_target=rounded(out.T_world_target))
+        twist = command.twist if loop.actuator.follows_twist else None  # as ZenohArm sends
+        out = loop.actuator.step(wired(command.T_world_cam), look, twist)
+        answer = out._replace(T_world_target=wired(out.T_world_target))
         loop.reach_offset = step.target_offset(answer, command, jointed)
         record = step.StepRecord(k, loop.T_world_cam, loop.q, look, out)
         loop.T_world_cam, loop.q, loop.k = out.T_world_cam, out.q, k + 1
@@ -181,7 +188,7 @@ def main() -> None:
             for seed in args.seeds:
                 spec = EpisodeSpec(policy, TrajectoryKind.NOISY, CONTROL_POINTS, seed)
                 local = run_episode(cfg, spec)
-                with link_rounding():
+                with link_rounding(registration(cfg, cfg.episode.arm)):
                     rnd = run_episode(cfg, spec)
                 remote, robot_line = over_link(config_file, cfg, spec)
                 e = errors(local)

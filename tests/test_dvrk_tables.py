@@ -7,11 +7,15 @@ bb73358d; its first three joints) with the tool ``share/tool/PROGRASP_FORCEPS_42
 tool-tip offset from ``core/components/code/mtsIntuitiveResearchKitECM.cpp`` (commit 0210eb1a,
 ``set_endoscope_type``). Forward kinematics is the modified-DH (Craig) product written out
 here, with the files' ±1.5708 read as ±π/2 as cisst's ``robManipulator`` parser does.
+
+The last test holds the robot process (``endocam robot serve``) to the same tables: its
+``measured_cp`` is the dVRK's tip in the arm's base frame, its ``servo_cp`` a pose there.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -110,3 +114,85 @@ def test_ecm_tip_is_the_dvrk_tip_and_its_camera_the_isi_frame_in_opencv_terms() 
         np.testing.assert_allclose(T_rcm_cam[:3, 2:], T_rcm_tip[:3, 2:], atol=ATOL_M)
     np.testing.assert_array_equal(ECM_TOOLTIP_OFFSET_STRAIGHT, DVRK_ECM_TOOLTIP_STRAIGHT)
     np.testing.assert_array_equal(T_TIP_CAM_ECM, np.diag([-1.0, -1.0, 1.0, 1.0]))
+
+
+# -- the link speaks the dVRK's frames: what `endocam robot serve` puts on the wire ----------
+
+WIRE_ATOL_M = 1e-12  # m: a pose through a quaternion and the frames' products, round-off
+SERVO_ATOL_M = 1e-6  # m: the arm's IK converges on the commanded tip to well under a micron
+SERVO_STEPS = 95  # control periods to reach joints a few hundredths away (speed limits)
+LINK_DT = 0.01  # s: the default control period (100 Hz)
+
+
+class _Recorder:
+    """A Zenoh session's publishers, kept: what the robot puts on each key, in order."""
+
+    def __init__(self) -> None:
+        self.sent: list[tuple[str, bytes]] = []
+
+    def declare_publisher(self, key: str, **_: object) -> object:
+        sent = self.sent
+
+        class Publisher:
+            def put(self, data: bytes) -> None:
+                sent.append((key, data))
+
+        return Publisher()
+
+    def latest(self, key: str) -> bytes:
+        return next(data for k, data in reversed(self.sent) if k == key)
+
+
+@pytest.mark.parametrize(
+    ("kind", "table", "tooltip"),
+    [("psm", DVRK_PSM, DVRK_PSM_TOOLTIP), ("ecm", DVRK_ECM, DVRK_ECM_TOOLTIP_STRAIGHT)],
+)
+def test_the_robot_process_speaks_the_dvrk_tip_in_the_base_frame(
+    kind: str, table: list[tuple], tooltip: np.ndarray, tmp_path: Path
+) -> None:
+    """``measured_cp`` on the wire is FK(``measured_js``) of the tables, a ``servo_cp`` of a
+    tip pose takes the arm there, and the controller's edge turns it back into its camera."""
+    from endocam.config import load_config
+    from endocam.link.client import ZenohArm, registration
+    from endocam.link.messages import ENABLED, Codec, stamp_ns
+    from endocam.link.server import LOOK_KEY, CommandGate, JointCommand, Robot, Verdict
+    from endocam.robot.actuator import ArmKind
+    from endocam.runner.episode import EpisodeSpec
+    from endocam.task.trajectory import TrajectoryKind
+
+    config = tmp_path / "short.toml"
+    config.write_text("[task.trajectory]\nduration = 1.0\n", encoding="utf-8")
+    cfg = load_config(config)
+    arm_kind = ArmKind(kind)
+    session = _Recorder()
+    robot = Robot(cfg, EpisodeSpec("orientation", TrajectoryKind.NOISY, 10, 3), arm_kind, session)
+    robot.publish(ENABLED, None)
+    codec, keys = Codec(), robot.keys
+
+    def wire() -> tuple[np.ndarray, np.ndarray]:
+        T_tip, _ = codec.decode_pose(session.latest(keys.measured_cp))
+        return T_tip, codec.decode_joints(session.latest(keys.measured_js))
+
+    # measured_cp is the dVRK's tip in the base (RCM) frame at measured_js: not the camera
+    T_tip, q = wire()
+    np.testing.assert_allclose(T_tip, _table_fk(table, q) @ tooltip, atol=WIRE_ATOL_M, rtol=0)
+    # the controller's edge, registered from the same config, sees the robot's camera
+    client = ZenohArm(arm_kind, "tcp/127.0.0.1:7447", LINK_DT)
+    client.register(registration(cfg, arm_kind))
+    for message in session.sent:
+        client.inbox.put(message)
+    state = client.receive(0, 1.0, first=True)
+    np.testing.assert_allclose(state.T_world_cam, robot.T_cam, atol=WIRE_ATOL_M, rtol=0)
+    # a servo_cp of a known tip pose (the tables' FK of nearby joints) takes the arm there
+    lower, upper = np.array([r[7] for r in table]), np.array([r[8] for r in table])
+    q_goal = np.clip(q + np.resize([0.03, -0.03, 0.004, 0.05, -0.05, 0.05], q.size), lower, upper)
+    T_goal = _table_fk(table, q_goal) @ tooltip
+    gate = CommandGate(keys, JointCommand(arm_kind, robot.arm), robot.frames, LINK_DT)
+    for k in range(SERVO_STEPS):
+        gate.admit(LOOK_KEY, codec.float64(cfg.controller.d_f), k)
+        a = gate.admit(keys.servo_cp, codec.pose(T_goal, stamp_ns(k * LINK_DT)), k)
+        assert a.verdict is Verdict.ACCEPTED and a.command is not None
+        robot.step(a.command.T_world_cmd, a.command.look, a.command.twist, ENABLED)
+    T_tip, q = wire()
+    np.testing.assert_allclose(T_tip, T_goal, atol=SERVO_ATOL_M, rtol=0)
+    np.testing.assert_allclose(q, q_goal, atol=SERVO_ATOL_M, rtol=0)

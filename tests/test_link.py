@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 
 from endocam.config import ExperimentConfig, load_config
-from endocam.link.client import LinkLostError, ZenohArm, run_remote
+from endocam.link.client import LinkLostError, ZenohArm, registration, run_remote
 from endocam.link.messages import PAUSED, Codec, Keys
 from endocam.link.server import LOOK_KEY
 from endocam.robot.actuator import ActuatorStep, ArmKind
@@ -224,7 +224,7 @@ def test_an_arm_follows_servo_jp_and_refuses_joints_beyond_its_limits() -> None:
     arm = make_actuator(ArmKind.PSM, ep.limits, ep.T_tip_cam, scene.T_world_rcm, DT, workspace)
     arm.reset(*arm.start_view(cfg.task, cfg.camera.stereo()))
     keys, codec = Keys.of(ArmKind.PSM), Codec()
-    gate = CommandGate(keys, JointCommand(ArmKind.PSM, arm), DT)
+    gate = CommandGate(keys, JointCommand(ArmKind.PSM, arm), registration(cfg, ArmKind.PSM), DT)
     model = arm_model(ArmKind.PSM)
     q_cmd = np.clip(
         arm.q + np.array([0.03, -0.03, 0.004, 0.05, -0.05, 0.05]), model.lower, model.upper

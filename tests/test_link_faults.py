@@ -18,6 +18,7 @@ from endocam.link.client import LinkLostError, ZenohArm
 from endocam.link.messages import ENABLED, PAUSED, Codec, Keys, stamp_ns
 from endocam.link.server import LOOK_KEY, CommandGate, JointCommand, Verdict
 from endocam.robot.actuator import ActuatorStatus, ArmKind, GuardAction
+from endocam.robot.dvrk_frames import FREE_CAMERA_FRAMES
 
 pytestmark = pytest.mark.no_kernels
 
@@ -47,7 +48,7 @@ def _command(k: int, look: float = LOOK_M) -> list[tuple[str, bytes]]:
 
 
 def _gate() -> CommandGate:
-    return CommandGate(KEYS, JointCommand(ArmKind.FREE, None), DT)
+    return CommandGate(KEYS, JointCommand(ArmKind.FREE, None), FREE_CAMERA_FRAMES, DT)
 
 
 def _feed(gate: CommandGate, messages: list[tuple[str, bytes]], k: int) -> list[Verdict]:

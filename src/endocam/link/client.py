@@ -4,7 +4,12 @@
 (:class:`endocam.robot.actuator.Actuator`): ``step`` sends the command — the look distance
 (``endocam/look_distance``), the feed-forward velocity (``ARM/servo_cv``) when there is one,
 then ``ARM/servo_cp``, all stamped with the state they answer — and returns the carrier's
-answer once the robot has published the next state. :func:`run_remote` is the episode loop of
+answer once the robot has published the next state. It converts at its edge: the controller
+works with the camera in the world, the wire carries the dVRK's tip in the arm's base frame
+(:class:`endocam.robot.dvrk_frames.CrtkFrames`, the registration :meth:`ZenohArm.register`
+is given; :func:`registration` derives it from the config, as the robot does). The feed-forward
+velocity is sent only to the free camera (world = base, camera = tip), the one carrier that
+follows it. :func:`run_remote` is the episode loop of
 :func:`endocam.runner.episode.run_episode` with the observations the robot published (the
 camera, its joints, the sensed ring, the tips); the ground truth its run files are scored
 against (the true ring pose, the touches) is the same world built from the same options.
@@ -35,6 +40,8 @@ from endocam.link.world import link_world, zenoh_config
 from endocam.metrics import center_error_3d, image_centering_error, orientation_error
 from endocam.registry import make_policy
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, GuardAction
+from endocam.robot.carriers import crtk_frames
+from endocam.robot.dvrk_frames import FREE_CAMERA_FRAMES, CrtkFrames
 from endocam.runner.episode import (
     EpisodeLog,
     EpisodeResult,
@@ -65,7 +72,7 @@ class RobotState(NamedTuple):
     k : int
         The step (its stamp over the control period).
     T_world_cam : (4, 4)
-        ``ARM/measured_cp``, m.
+        The camera, m: ``ARM/measured_cp`` (the dVRK's tip in the base frame) converted.
     q : (J,)
         ``ARM/measured_js`` positions, rad / m.
     T_world_ring : (4, 4)
@@ -108,6 +115,8 @@ class ZenohArm:
         self.keys = Keys.of(kind)
         self.endpoint, self.dt, self.timeout = endpoint, dt, timeout
         self.codec = Codec()
+        self.frames: CrtkFrames | None = FREE_CAMERA_FRAMES if kind is ArmKind.FREE else None
+        """Where the wire's poses are (:meth:`register`); an arm has none until registered."""
         self.inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
         self.state: RobotState | None = None
         self._latest: dict[str, bytes] = {}
@@ -119,6 +128,19 @@ class ZenohArm:
 
     # -- connection ---------------------------------------------------------------------------
 
+    def register(self, frames: CrtkFrames) -> None:
+        """The arm's base frame in world and the camera on its tip (on a rig: the registration)."""
+        if self.kind is ArmKind.FREE and not frames.identity:
+            raise ValueError("the free camera's poses are the camera's, in the world")
+        self.frames = frames
+
+    def _frames(self) -> CrtkFrames:
+        if self.frames is None:
+            raise ValueError(
+                f"the {self.kind.value}'s base frame and camera mount are not registered"
+            )
+        return self.frames
+
     def connect(self, wait: float) -> RobotState:
         """Open the link and wait up to ``wait`` s for the robot's first state.
 
@@ -128,6 +150,7 @@ class ZenohArm:
 
         if self.session is not None and self.state is not None:
             return self.state
+        self._frames()  # registered before anything moves
 
         self.session = zenoh.open(zenoh_config(self.endpoint, listen=False))
         k = self.keys
@@ -214,7 +237,7 @@ class ZenohArm:
             raise LinkLostError(
                 f"the robot's measured_cp is not of step {k}: its state stopped advancing"
             )
-        return RobotState(k, T_cam, q, T_ring, ns_ring / 1e9, tips)
+        return RobotState(k, self._frames().camera_from_tip(T_cam), q, T_ring, ns_ring / 1e9, tips)
 
     def _final(self, k: int) -> RobotState:
         assert self.state is not None
@@ -260,18 +283,19 @@ class ZenohArm:
         assert self.state is not None
         k = self.state.k
         ns = stamp_ns(k * self.dt)
+        frames = self._frames()
         self.pub[LOOK_KEY].put(self.codec.float64(look_distance))
-        if twist is not None:
+        if twist is not None and self.follows_twist:  # the free camera's: world = base
             self.pub[self.keys.servo_cv].put(self.codec.twist(twist, ns))
-        self.pub[self.keys.servo_cp].put(self.codec.pose(T_world_cmd, ns))
+        self.pub[self.keys.servo_cp].put(self.codec.pose(frames.tip_from_camera(T_world_cmd), ns))
         self.state = self.receive(k + 1, self.timeout)
         try:
             res = self.codec.decode_array(self._latest[self.keys.servo_result])
-            T_target, _ = self.codec.decode_pose(self._latest[self.keys.setpoint_cp])
+            T_tip, _ = self.codec.decode_pose(self._latest[self.keys.setpoint_cp])
             return ActuatorStep(
                 self.state.T_world_cam,
                 self.state.q,
-                T_target,
+                frames.camera_from_tip(T_tip),
                 list(ActuatorStatus)[int(res[0])],
                 float(res[3]),
                 float(res[4]),
@@ -282,6 +306,16 @@ class ZenohArm:
             raise LinkLostError(
                 f"the robot's answer to step {k} is missing or malformed: {exc!r}"
             ) from exc
+
+
+def registration(config: ExperimentConfig, kind: ArmKind) -> CrtkFrames:
+    """Where carrier ``kind``'s CRTK poses are under ``config``: the robot's own frames.
+
+    The arm's base (RCM) frame from ``task.scene`` and the camera on its tip from
+    ``episode.tip_cam_*`` (the ECM's: :data:`endocam.robot.dvrk_frames.T_TIP_CAM_ECM`), as
+    ``endocam robot serve`` mounts them; on a rig, the registration of the arm to the scene.
+    """
+    return crtk_frames(kind, config.episode.T_tip_cam, config.task.scene.T_world_rcm)
 
 
 class PartialTrajectory(RingTrajectory):
@@ -314,6 +348,7 @@ def run_remote(
 
     Raises ``ValueError`` when the robot's world is not the one of ``config`` and ``spec``
     (its first sensed ring differs), ``LinkLostError`` when no robot answers within ``wait`` s.
+    An arm not yet registered (:meth:`ZenohArm.register`) is given :func:`registration`.
     """
     policy = make_policy(spec.policy, config.controller)
     kind = episode_arm(config, spec.policy)
@@ -323,6 +358,8 @@ def run_remote(
         )
     lw = link_world(config, spec)
     world, camera, trajectory = lw.world, lw.camera, lw.trajectory
+    if arm.frames is None:
+        arm.register(registration(config, kind))
     first = arm.connect(wait)
     if not np.allclose(
         first.T_world_ring, world.T_world_ring_sensed[0], rtol=0.0, atol=RING_ATOL_M

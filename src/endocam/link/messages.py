@@ -12,9 +12,12 @@ Topics (``ARM``: ``PSM3``, ``ECM``, or ``camera`` for the free camera, as the MC
 names them):
 
 robot → controller, once per control step ``k`` (header stamp: the simulation time ``t_k``)
-    ``ARM/measured_cp`` (``geometry_msgs/PoseStamped``, the camera's optical frame in the
-    world), ``ARM/setpoint_cp`` (the pose the carrier heads for), ``ARM/measured_js``
-    (``sensor_msgs/JointState``; empty for the free camera), ``ARM/operating_state``
+    ``ARM/measured_cp`` (``geometry_msgs/PoseStamped``: for the PSM and the ECM the dVRK's
+    tool tip in the arm's base frame, its RCM frame, as a stand-alone dVRK arm reports it;
+    for the free camera its optical frame in the world; :class:`endocam.robot.dvrk_frames.
+    CrtkFrames`), ``ARM/setpoint_cp`` (the pose the carrier heads for, in the same frames),
+    ``ARM/measured_js`` (``sensor_msgs/JointState``, the dVRK's joints; empty for the free
+    camera), ``ARM/operating_state``
     (``crtk_msgs/OperatingState``), ``ring/measured_cp`` (the ring as the camera senses it;
     stamped with its capture time), ``PSM1/tip`` / ``PSM2/tip`` (``geometry_msgs/PointStamped``),
     ``endocam/servo_result`` (``std_msgs/Float64MultiArray``: what the carrier did with the
@@ -22,8 +25,9 @@ robot → controller, once per control step ``k`` (header stamp: the simulation 
 controller → robot, once per step, answering the state stamped ``t_k``
     ``endocam/look_distance`` (``std_msgs/Float64``, m: the distance to the point the command
     looks at), ``ARM/servo_cv`` (``geometry_msgs/TwistStamped``, the feed-forward velocity,
-    when the policy gives one), then ``ARM/servo_cp`` (``geometry_msgs/PoseStamped``, stamped
-    ``t_k``): the command the robot acts on. The look distance and velocity belong to the
+    when the policy gives one and the carrier follows it: the free camera), then ``ARM/servo_cp``
+    (``geometry_msgs/PoseStamped`` in ``measured_cp``'s frames, stamped ``t_k``): the command
+    the robot acts on. The look distance and velocity belong to the
     ``servo_cp`` that follows them (one subscriber per side keeps the sending order).
 """
 

@@ -5,6 +5,12 @@ control step and follows ``servo_cp`` — or, for an arm, ``servo_jp``: the came
 those joints, refused beyond the arm's joint limits — through the same carrier (and so the same
 joint limits, workspace guard and speed limits) as an in-process episode.
 
+**The dVRK's frames.** An arm's ``measured_cp``, ``setpoint_cp`` and ``servo_cp`` are the
+dVRK's tool tip in the arm's base frame (its RCM frame: a stand-alone arm), its joints the
+dVRK's; the carrier works with the camera in the world, converted at this edge by
+:class:`endocam.robot.dvrk_frames.CrtkFrames` (:func:`endocam.robot.carriers.crtk_frames`).
+The free camera has no dVRK counterpart: its poses are the camera's, in the world.
+
 **Time is lock-stepped to the commands.** The simulation advances one control period for each
 accepted command — the one stamped with the state it answers — so the same controller gives
 the same episode over the link as in-process, whatever the network's timing. Commands stamped
@@ -42,6 +48,8 @@ from endocam.link.messages import DISABLED, ENABLED, PAUSED, Codec, Keys, stamp_
 from endocam.link.world import link_world, zenoh_config
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, GuardAction
 from endocam.robot.camera_arm import CameraArm, arm_model
+from endocam.robot.carriers import crtk_frames
+from endocam.robot.dvrk_frames import CrtkFrames
 from endocam.runner.episode import EpisodeSpec
 from endocam.runner.step import start_carrier
 
@@ -93,7 +101,7 @@ class _Inbox:
         self.q.put((str(sample.key_expr), sample.payload.to_bytes()))
 
 
-class _Robot:
+class Robot:
     """One served episode: the carrier, the world row it is at, and what it publishes."""
 
     def __init__(
@@ -111,6 +119,7 @@ class _Robot:
         self.look = float(config.controller.d_f)
         self.dt = 1.0 / config.episode.control_rate
         self.kind = kind
+        self.frames = crtk_frames(kind, config.episode.T_tip_cam, config.task.scene.T_world_rcm)
         self.keys = keys = Keys.of(kind)
         self.codec = Codec()
         self.k = 0
@@ -121,6 +130,7 @@ class _Robot:
 
     @property
     def done(self) -> bool:
+        """The trajectory has ended."""
         return self.k >= self.world.n
 
     def publish(self, state: str, out: ActuatorStep | None) -> None:
@@ -129,13 +139,15 @@ class _Robot:
         ns = stamp_ns(k * self.dt)  # = world.t[k] for k < n; the end is stamped n · dt
         if out is not None:
             self.pub[keys.servo_result].put(c.array(servo_result(out)))
-            self.pub[keys.setpoint_cp].put(c.pose(out.T_world_target, ns))
+            self.pub[keys.setpoint_cp].put(
+                c.pose(self.frames.tip_from_camera(out.T_world_target), ns)
+            )
         if k < w.n:
             self.pub[keys.measured_js].put(c.joints(self.arm.joint_names, self.q, ns))
             self.pub[keys.ring].put(c.pose(w.T_world_ring_sensed[k], stamp_ns(w.t_ring[k])))
             self.pub[keys.tip1].put(c.point(w.p_world_tips[k, 0], ns))
             self.pub[keys.tip2].put(c.point(w.p_world_tips[k, 1], ns))
-            self.pub[keys.measured_cp].put(c.pose(self.T_cam, ns))
+            self.pub[keys.measured_cp].put(c.pose(self.frames.tip_from_camera(self.T_cam), ns))
         if k >= w.n:
             state = DISABLED
         self.pub[keys.operating_state].put(c.operating_state(state, k < w.n, ns))
@@ -156,7 +168,8 @@ class Command(NamedTuple):
     """A whole command, decoded: the pose to head for and what came with it."""
 
     T_world_cmd: FloatArray
-    """(4, 4) the camera pose to head for, world, m (``servo_cp``, or ``servo_jp``'s pose)."""
+    """(4, 4) the camera pose to head for, world, m (``servo_cp``'s tip pose or ``servo_jp``'s
+    joints, converted)."""
     ns: int
     """Its stamp, ns: the state (``k · dt``) it answers."""
     look: float
@@ -216,7 +229,8 @@ class CommandGate:
     """The robot's acceptance rules: which message completes a command it may act on, in order.
 
     A command is the look distance, the velocity (optional, its stamp equal to the pose's) and
-    then the ``servo_cp`` (or ``servo_jp``) that completes it; it is acted on only when it is
+    then the ``servo_cp`` (the dVRK's tip in the arm's base frame) or ``servo_jp`` that
+    completes it; it is acted on only when it is
     stamped with the state the robot is at (``k · dt``). The look distance (``std_msgs/Float64``)
     has no stamp: it belongs to the next ``servo_cp``, and any refused or completed command
     clears it, so a look distance is used at most once.
@@ -227,12 +241,14 @@ class CommandGate:
         The robot's key expressions.
     joints : JointCommand
         ``servo_jp``'s conversion (and the arm's joint limits).
+    frames : CrtkFrames
+        ``servo_cp``'s: the tip pose it carries → the camera pose the carrier heads for.
     dt : float
         Control period, s (stamps are ``k · dt``).
     """
 
-    def __init__(self, keys: Keys, joints: JointCommand, dt: float) -> None:
-        self.keys, self.joints, self.dt = keys, joints, dt
+    def __init__(self, keys: Keys, joints: JointCommand, frames: CrtkFrames, dt: float) -> None:
+        self.keys, self.joints, self.frames, self.dt = keys, joints, frames, dt
         self.codec = Codec()
         self.commands = (LOOK_KEY, keys.servo_cv, keys.servo_cp, keys.servo_jp)
         self.look: float | None = None
@@ -271,7 +287,8 @@ class CommandGate:
                 q, ns = c.decode_joint_command(data)
                 T_goal = self.joints.pose(q)
             else:
-                T_goal, ns = c.decode_pose(data)
+                T_tip, ns = c.decode_pose(data)
+                T_goal = self.frames.camera_from_tip(T_tip)
         except ValueError:
             self.look, self.twist = None, None
             raise
@@ -302,7 +319,7 @@ def serve(
 
     session = zenoh.open(zenoh_config(endpoint, listen=True))
     try:
-        robot = _Robot(config, spec, kind, session)
+        robot = Robot(config, spec, kind, session)
         inbox = _Inbox()
         # one subscriber, remote messages only: the commands in the order they were sent
         sub = session.declare_subscriber("**", inbox.callback, allowed_origin=zenoh.Locality.REMOTE)
@@ -317,7 +334,7 @@ def serve(
 
 
 def _serve_loop(
-    robot: _Robot,
+    robot: Robot,
     inbox: _Inbox,
     watchdog: float,
     wait: float,
@@ -325,7 +342,7 @@ def _serve_loop(
     ready: Callable[[], object] | None,
 ) -> ServeStats:
     stats = ServeStats()
-    gate = CommandGate(robot.keys, JointCommand(robot.kind, robot.arm), robot.dt)
+    gate = CommandGate(robot.keys, JointCommand(robot.kind, robot.arm), robot.frames, robot.dt)
     mode = "waiting"
     if ready is not None:
         ready()

@@ -8,10 +8,10 @@ from endocam.geometry import FloatArray
 from endocam.robot.actuator import Actuator, ArmKind, WorkspaceBound
 from endocam.robot.camera_arm import CameraArm
 from endocam.robot.cartesian import MotionLimits
-from endocam.robot.dvrk_frames import T_RCM_RCMECM, T_TIP_CAM_ECM
+from endocam.robot.dvrk_frames import FREE_CAMERA_FRAMES, T_RCM_RCMECM, T_TIP_CAM_ECM, CrtkFrames
 from endocam.robot.free_camera import FreeCamera
 
-__all__ = ["arm_mount", "make_actuator"]
+__all__ = ["arm_mount", "crtk_frames", "make_actuator"]
 
 
 def arm_mount(
@@ -29,6 +29,17 @@ def arm_mount(
     if kind is ArmKind.ECM:
         return T_rcm @ T_RCM_RCMECM, T_TIP_CAM_ECM.copy()
     return T_rcm, np.asarray(T_tip_cam, dtype=float)
+
+
+def crtk_frames(kind: ArmKind, T_tip_cam: object, T_world_rcm: object) -> CrtkFrames:
+    """The frames of carrier ``kind``'s CRTK poses (arguments as :func:`arm_mount`'s).
+
+    An arm's base frame is its RCM frame and its tip the dVRK's, as :func:`arm_mount` mounts
+    them; the free camera's are the world and the camera (:data:`FREE_CAMERA_FRAMES`).
+    """
+    if kind is ArmKind.FREE:
+        return FREE_CAMERA_FRAMES
+    return CrtkFrames(*arm_mount(kind, T_tip_cam, T_world_rcm))
 
 
 def make_actuator(

@@ -16,9 +16,23 @@ published files). The tip frames:
   turned by :data:`T_RCM_RCMECM` (``Rz(π/2)``: an upright image at zero roll).
 
 Poses are ``(4, 4)``, m, in the arm's RCM frame.
+
+:class:`CrtkFrames` is where the link's CRTK poses are (``measured_cp``, ``setpoint_cp``,
+``servo_cp``): the dVRK's tip in the arm's base frame. The dVRK reports ``measured_cp =
+base_frame · local/measured_cp``, ``local/measured_cp`` being the forward kinematics in the
+arm's RCM frame, and its ``base_frame`` is the identity until a user or the set-up joints set
+one; ``servo_cp`` is a pose in the same frame (jhu-dvrk/sawIntuitiveResearchKit commit
+5ce5795b, ``core/components/code/mtsIntuitiveResearchKitArm.cpp``: ``Init`` sets
+``m_base_frame`` to the identity, ``get_robot_data`` computes ``m_measured_cp_frame =
+m_base_frame * m_local_measured_cp_frame``, ``control_servo_cs`` solves the IK for
+``m_base_frame.Inverse() * goal``). So for a stand-alone arm, as endocam's are, the base frame
+is the RCM frame :func:`endocam.robot.carriers.arm_mount` places, and ``measured_cp`` equals
+``local/measured_cp``.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -26,9 +40,11 @@ from endocam.geometry import FloatArray, as_pose, invert_pose
 
 __all__ = [
     "ECM_TOOLTIP_OFFSET_STRAIGHT",
+    "FREE_CAMERA_FRAMES",
     "T_ISI_OPENCV",
     "T_RCM_RCMECM",
     "T_TIP_CAM_ECM",
+    "CrtkFrames",
     "dvrk_ecm_tip",
     "ecm_camera_from_dvrk_tip",
 ]
@@ -73,3 +89,57 @@ def ecm_camera_from_dvrk_tip(T_rcm_tip: object) -> FloatArray:
     Returns ``T_rcm_cam`` (4, 4), OpenCV optical frame: ``T_rcm_tip · T_TIP_CAM_ECM``.
     """
     return as_pose(T_rcm_tip, "T_rcm_tip") @ T_TIP_CAM_ECM
+
+
+@dataclass(frozen=True, eq=False)
+class CrtkFrames:
+    """Where a carrier's CRTK poses are: the dVRK's tip in the arm's base frame.
+
+    endocam works with the camera's optical frame in the world (``T_world_cam``); a dVRK's
+    ``measured_cp``, ``setpoint_cp`` and ``servo_cp`` carry the tool tip in the arm's base
+    frame (``T_base_tip``; see the module docstring). ``T_world_cam = T_world_base ·
+    T_base_tip · T_tip_cam``: this class converts both ways, the one place it is done.
+
+    Attributes
+    ----------
+    T_world_base : (4, 4)
+        The arm's base frame in world, m: its RCM frame as
+        :func:`endocam.robot.carriers.arm_mount` places it (on a rig: the registration).
+    T_tip_cam : (4, 4)
+        The camera optical frame in the dVRK's tip frame, m (the PSM's pickup mount, or
+        :data:`T_TIP_CAM_ECM`).
+    """
+
+    T_world_base: FloatArray
+    T_tip_cam: FloatArray
+    _T_base_world: FloatArray = field(init=False, repr=False)
+    _T_cam_tip: FloatArray = field(init=False, repr=False)
+    identity: bool = field(init=False)
+    """World is the base frame and the camera is the tip (the free camera): no conversion."""
+
+    def __post_init__(self) -> None:
+        T_world_base = as_pose(self.T_world_base, "T_world_base").copy()
+        T_tip_cam = as_pose(self.T_tip_cam, "T_tip_cam").copy()
+        object.__setattr__(self, "T_world_base", T_world_base)
+        object.__setattr__(self, "T_tip_cam", T_tip_cam)
+        object.__setattr__(self, "_T_base_world", invert_pose(T_world_base))
+        object.__setattr__(self, "_T_cam_tip", invert_pose(T_tip_cam))
+        eye = np.eye(4)
+        same = np.array_equal(T_world_base, eye) and np.array_equal(T_tip_cam, eye)
+        object.__setattr__(self, "identity", same)
+
+    def tip_from_camera(self, T_world_cam: FloatArray) -> FloatArray:
+        """``T_base_tip`` (4, 4), m, of the camera pose ``T_world_cam`` (4, 4), world, m."""
+        if self.identity:
+            return np.array(T_world_cam, dtype=float)
+        return self._T_base_world @ T_world_cam @ self._T_cam_tip
+
+    def camera_from_tip(self, T_base_tip: FloatArray) -> FloatArray:
+        """``T_world_cam`` (4, 4), world, m, of the tip pose ``T_base_tip`` (4, 4), m."""
+        if self.identity:
+            return np.array(T_base_tip, dtype=float)
+        return self.T_world_base @ T_base_tip @ self.T_tip_cam
+
+
+FREE_CAMERA_FRAMES = CrtkFrames(np.eye(4), np.eye(4))
+"""The free camera's: it has no dVRK counterpart; its base is the world, its tip the camera."""
