@@ -137,6 +137,12 @@ class EstimatorConfig:
         plane's (:func:`plane_normal`) weigh the same: the normal is their mean weighted
         ``sin² tilt`` to the ellipses' and ``sin² plane_tilt`` to the plane's (the ellipses'
         error grows as ``1 / sin tilt`` near the axis; the plane's stays about 1°).
+    mono_max_depth : float
+        m: a pose from one eye (:func:`_one_eye`) only this near, the tracker's working band
+        (``d_f`` 50 mm): one image's size gives the distance with an error growing as its
+        square, and the far views are the approach, where a one-eye pose taken before the
+        stereo track exists made the gate refuse the good ones that followed for 2.4 s
+        (round 15, the free camera's ``ideal-36``).
     prior_fraction : float
         An ambiguous choice is settled by a prior normal (the track's, e.g. the last
         estimate) when one hypothesis lies within this fraction of the hypotheses' separation
@@ -154,6 +160,7 @@ class EstimatorConfig:
     ambiguous_separation: float = math.radians(20.0)
     prior_fraction: float = 0.25
     plane_tilt: float = math.radians(15.0)
+    mono_max_depth: float = 0.06
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_coverage <= 1.0:
@@ -171,6 +178,7 @@ class EstimatorConfig:
             "margin_depth",
             "ambiguous_separation",
             "plane_tilt",
+            "mono_max_depth",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
@@ -426,7 +434,7 @@ def _one_eye(
         return None
     p_eye, n = got
     p = np.asarray(p_eye + model.camera.T_cam_eye(eye)[:3, 3])
-    if not cfg.depth_range[0] <= p[2] <= cfg.depth_range[1]:
+    if not cfg.depth_range[0] <= p[2] <= min(cfg.depth_range[1], cfg.mono_max_depth):
         return None
     return RingEstimate(p, n, max(fit.coverage * MONO_CONFIDENCE, 1e-6), fl, fr)
 
