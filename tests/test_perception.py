@@ -270,7 +270,10 @@ def test_one_eye_gives_the_pose_when_the_others_rim_is_hidden(scene: WireChaserS
     assert estimate_ring_detail(hidden, right, MODEL).estimate is None  # no prior: no pose
     turn = math.radians(5.0)  # rad: the track's last normal, a little off
     prior = math.cos(turn) * n_cam + math.sin(turn) * np.cross(n_cam, [0.0, 1.0, 0.0])
-    res = estimate_ring_detail(hidden, right, MODEL, prior=prior / np.linalg.norm(prior))
+    prior = prior / np.linalg.norm(prior)
+    before_track = estimate_ring_detail(hidden, right, MODEL, prior=prior, mono=False)
+    assert before_track.estimate is None  # a loop whose track does not exist yet: no one-eye pose
+    res = estimate_ring_detail(hidden, right, MODEL, prior=prior)
     assert res.status is EstimateStatus.MONO and res.estimate is not None
     centre_err, normal_err = errors(res.estimate, p_cam, n_cam)
     assert centre_err <= CENTRE_TOL_M  # the right eye's pose, carried to the rig's frame

@@ -17,6 +17,7 @@ from endocam.perception.estimator import NormalChoice, settle_choice
 from endocam.perception.loop import (
     TrackFilter,
     capture_steps,
+    depth_scaled_gains,
     estimate_errors,
     prior_normal,
     resampled,
@@ -198,6 +199,44 @@ def test_the_track_filter_gives_the_normal_its_own_gains() -> None:
         turned = math.atan2(y[4], y[5])  # rad, about x
         blended = math.atan2(expected * math.sin(tilt), 1.0 - expected + expected * math.cos(tilt))
         assert turned == pytest.approx(blended, abs=1e-12)  # rad
+
+
+GAIN_TOL = 1e-12  # -, gains of order one from a few square roots
+
+
+@pytest.mark.parametrize("alpha", [0.1, 0.35, 0.7, 0.9])
+@pytest.mark.parametrize("scale", [0.25, 1.0, 4.0, 16.0])
+def test_depth_scaled_gains_are_kalatas_for_the_scaled_tracking_index(
+    alpha: float, scale: float
+) -> None:
+    """Kalata's pairs satisfy Λ² = β² / (1 − α) (the tracking index, process over measurement
+    noise): starting from one (α, Kalata's β), a noise ``scale`` times larger gives the pair
+    whose index is the reference's over ``scale``, and larger noise lower gains."""
+    beta = 2.0 * (2.0 - alpha) - 4.0 * math.sqrt(1.0 - alpha)  # Kalata's β for alpha
+    a, b = depth_scaled_gains(alpha, beta, scale)
+    index_ref = beta / math.sqrt(1.0 - alpha)
+    assert b / math.sqrt(1.0 - a) == pytest.approx(index_ref / scale, abs=GAIN_TOL)
+    assert b == pytest.approx(2.0 * (2.0 - a) - 4.0 * math.sqrt(1.0 - a), abs=GAIN_TOL)
+    if scale > 1.0:
+        assert a < alpha and b < beta
+    if scale == 1.0:
+        assert (a, b) == (alpha, beta)
+
+
+def test_the_track_filter_takes_a_far_estimate_with_less_gain() -> None:
+    """With a reference depth, the same innovation moves the centre by the reference gain at
+    that depth, less four times farther, more nearer; the normal's gain does not change."""
+    frame_s, alpha, beta, depth_ref = 1.0 / 30.0, 0.7, 0.4, 0.05  # s, -, -, m
+    p1 = np.array([1.0e-3, 0.0, 0.0])  # m, under the default gate
+    n0 = np.array([0.0, 0.0, 1.0])
+    moved = {}
+    for depth in (0.025, depth_ref, 0.2):  # m
+        f = TrackFilter(alpha, beta, alpha_normal=0.2, beta_normal=0.02, reference_depth=depth_ref)
+        f.update(0.0, np.zeros(3), n0, depth)
+        moved[depth] = f.update(frame_s, p1, n0, depth)[0] / p1[0]
+    assert moved[depth_ref] == pytest.approx(alpha, abs=GAIN_TOL)
+    assert moved[0.2] == pytest.approx(depth_scaled_gains(alpha, beta, 16.0)[0], abs=GAIN_TOL)
+    assert moved[0.2] < alpha < moved[0.025]
 
 
 def test_the_controller_is_given_the_track_predicted_to_now_until_it_is_too_old() -> None:

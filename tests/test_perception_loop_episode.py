@@ -4,7 +4,8 @@ At 32x24 px the ring is a pixel or two, under the segmentation's smallest compon
 frame gives an estimate: the controller gets no observation and must hold (lost tracking),
 the est_* columns are logged empty, and the safety check stays clean. With no estimate, every
 frame's estimator prior is the setup's registration normal (it never lapses, unlike a last
-estimate's): the PSM's far start view needs it to settle its ambiguous pairs.
+estimate's): the PSM's far start view needs it to settle its ambiguous pairs, but not to
+pick a one-eye pose, which waits for the track.
 """
 
 from __future__ import annotations
@@ -32,10 +33,12 @@ def test_a_stereo_run_that_sees_no_ring_holds_and_logs_empty_estimates(
     from endocam.runner.experiments import run_and_write
 
     priors = []  # the prior each frame's estimate is given, camera frame
+    monos = []  # whether each frame may give a one-eye pose
     estimate = ring_source.estimate_ring_detail
 
     def recording(*args, **kwargs):  # type: ignore[no-untyped-def]
         priors.append(kwargs.get("prior"))
+        monos.append(kwargs.get("mono"))
         return estimate(*args, **kwargs)
 
     monkeypatch.setattr(ring_source, "estimate_ring_detail", recording)
@@ -72,6 +75,7 @@ def test_a_stereo_run_that_sees_no_ring_holds_and_logs_empty_estimates(
     for prior in priors:  # the registration, to the last frame
         assert prior is not None
         np.testing.assert_allclose(prior, R_cam.T @ n_reg, atol=PRIOR_ATOL)
+    assert monos == [False] * per["frames"]  # no track yet: the registration picks no one-eye pose
     scene = json.loads((tmp_path / "scene.json").read_text(encoding="utf-8"))
     assert scene["log"]["estimates"] is True
 

@@ -138,11 +138,14 @@ class EstimatorConfig:
         ``sin² tilt`` to the ellipses' and ``sin² plane_tilt`` to the plane's (the ellipses'
         error grows as ``1 / sin tilt`` near the axis; the plane's stays about 1°).
     mono_max_depth : float
-        m: a pose from one eye (:func:`_one_eye`) only this near, the tracker's working band
-        (``d_f`` 50 mm): one image's size gives the distance with an error growing as its
-        square, and the far views are the approach, where a one-eye pose taken before the
-        stereo track exists made the gate refuse the good ones that followed for 2.4 s
-        (round 15, the free camera's ``ideal-36``).
+        m: a pose from one eye (:func:`_one_eye`) only this near. One image's size gives the
+        distance with an error ``d² δr / (f R)`` growing as its square: at 0.1 m an error
+        ``δr`` of 0.1 px in the rim's radius (the one-eye poses' centres were 0.02–0.06 mm off
+        at 50 mm, i.e. 0.02–0.05 px) moves the centre 0.48 mm (``f`` 416 px, ``R`` 5 mm), half
+        the observation gate's 1 mm stereo floor (``perception.loop.STEREO_FLOOR_M``). (Round
+        15's 60 mm, the working band, cut off the poses a lagging PSM needed at 60–66 mm:
+        1.1 s lost on ``t3-71-high``; the approach's far poses it was meant to keep out are
+        kept out by ``mono=False`` before the track exists, :func:`estimate_ring_detail`.)
     prior_fraction : float
         An ambiguous choice is settled by a prior normal (the track's, e.g. the last
         estimate) when one hypothesis lies within this fraction of the hypotheses' separation
@@ -160,7 +163,7 @@ class EstimatorConfig:
     ambiguous_separation: float = math.radians(20.0)
     prior_fraction: float = 0.25
     plane_tilt: float = math.radians(15.0)
-    mono_max_depth: float = 0.06
+    mono_max_depth: float = 0.1
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_coverage <= 1.0:
@@ -320,14 +323,18 @@ def estimate_ring_detail(
     model: RingModel,
     config: EstimatorConfig | None = None,
     prior: FloatArray | None = None,
+    mono: bool = True,
 ) -> EstimateResult:
     """:func:`estimate_ring_pose` with the reason when there is no estimate (same parameters).
 
     ``prior`` (3,): a unit normal in the camera frame the ring is expected to have (a
-    tracker's last estimate, carried to this camera pose), or None. It only settles a choice
-    of normal the second eye leaves ambiguous, and only when one hypothesis lies within
-    ``config.prior_fraction`` of their separation of it (:func:`settle_choice`); everything
-    else is as without.
+    tracker's last estimate, carried to this camera pose), or None. It settles a choice
+    of normal the second eye leaves ambiguous, only when one hypothesis lies within
+    ``config.prior_fraction`` of their separation of it (:func:`settle_choice`), and picks a
+    one-eye pose's normal (status ``mono``) when ``mono`` is True and one eye's rim is
+    hidden. A loop passes ``mono=False`` until its track exists: a one-eye pose on the
+    approach, whose prior is only the setup's registration, made the gate refuse the good
+    stereo poses that followed for 2.4 s (round 15, the free camera's ``ideal-36``).
     """
     cfg = EstimatorConfig() if config is None else config
     k = model.camera.intrinsics
@@ -337,10 +344,10 @@ def estimate_ring_detail(
         return EstimateResult(None, EstimateStatus.BAD_FRAME)
     fl, fr = _fit_eye(frame_l, model.keys), _fit_eye(frame_r, model.keys)
     seen = [f is not None and f.coverage >= cfg.min_coverage for f in (fl, fr)]
-    if seen == [True, False] or seen == [False, True]:  # one eye's rim hidden
-        mono = _one_eye(fl, fr, model, cfg, prior)
-        if mono is not None:
-            return EstimateResult(mono, EstimateStatus.MONO)
+    if mono and seen in ([True, False], [False, True]):  # one eye's rim hidden
+        one_eye = _one_eye(fl, fr, model, cfg, prior)
+        if one_eye is not None:
+            return EstimateResult(one_eye, EstimateStatus.MONO)
     if fl is None or fr is None:
         return EstimateResult(None, EstimateStatus.NO_RING)
     coverage = min(fl.coverage, fr.coverage)

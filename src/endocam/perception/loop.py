@@ -127,6 +127,15 @@ class PerceptionConfig(BaseModel):
         description="The track filter's beta for the face normal (stereo); default: filter_beta.",
     )
 
+    filter_reference_depth: float | None = Field(
+        None,
+        gt=0.0,
+        le=0.3,
+        description="The depth at which the track filter's centre gains are filter_alpha / "
+        "filter_beta, m; at depth d they are Kalata's for a noise (d / this)² times as large "
+        "(perception.loop.depth_scaled_gains; stereo). None: fixed gains.",
+    )
+
     filter_gate_position: float = Field(
         FILTER_GATE_M,
         gt=0.0,
@@ -253,6 +262,28 @@ def prior_normal(
 FILTER_RESET_S = 0.25  # s, a gap between estimates longer than this restarts the track filter
 
 
+def depth_scaled_gains(alpha: float, beta: float, scale: float) -> tuple[float, float]:
+    """An alpha-beta filter's gains for a measurement noise ``scale`` times the reference's.
+
+    ``alpha``, ``beta``: the gains at the reference noise. Kalata's optimal steady-state
+    alpha-beta filter (the constant-velocity Kalman filter's gains, Kalata 1984, "The
+    tracking index") has one parameter, the tracking index ``Λ = σ_a T² / σ_v`` (process
+    noise over measurement noise), with ``α = 1 − r²``, ``β = 2 (2 − α) − 4 r`` and
+    ``r = (4 + Λ − √(Λ² + 8 Λ)) / 4``. Here ``Λ`` is the one whose ``α`` is ``alpha``,
+    divided by ``scale``; each gain is returned as the given one times the ratio of Kalata's
+    gain at that index to his at the reference (so ``scale = 1`` returns ``alpha, beta``).
+    """
+    if not 0.0 < alpha < 1.0 or scale == 1.0:
+        return alpha, beta
+    r_ref = math.sqrt(1.0 - alpha)
+    index = 2.0 * (1.0 - r_ref) ** 2 / r_ref / scale  # Kalata's Λ for alpha, over the scale
+    r = (4.0 + index - math.sqrt(index * index + 8.0 * index)) / 4.0
+    a = 1.0 - r * r
+    b_ref = 2.0 * (2.0 - alpha) - 4.0 * r_ref
+    b = 2.0 * (2.0 - a) - 4.0 * r
+    return a, (beta * b / b_ref if b_ref > 0.0 else beta)
+
+
 class TrackFilter:
     """An alpha-beta filter on the estimated ring centre and normal (world), per estimate.
 
@@ -266,6 +297,13 @@ class TrackFilter:
     longer than :data:`FILTER_RESET_S` restarts it at the estimate. ``alpha = 1, beta = 0``
     and infinite gates: the raw estimates. ``alpha_normal``, ``beta_normal``: the normal's
     gains (``None``: the centre's).
+
+    ``reference_depth`` (m, or None): the depth at which the centre's gains are ``alpha``,
+    ``beta``. A stereo centre's error grows as the square of its depth (the disparity's
+    error over ``f b / d²``), so an estimate at depth ``d`` is taken with the gains
+    :func:`depth_scaled_gains` gives for a noise ``(d / reference_depth)²`` times the
+    reference's: the far estimates of the approach (10–250 mm) weigh little, the near ones
+    of the working band a lot. None: fixed gains.
     """
 
     def __init__(
@@ -276,9 +314,12 @@ class TrackFilter:
         gate_angle: float = math.pi,
         alpha_normal: float | None = None,
         beta_normal: float | None = None,
+        reference_depth: float | None = None,
     ) -> None:
         a_n = alpha if alpha_normal is None else alpha_normal
         b_n = beta if beta_normal is None else beta_normal
+        self._gains = (alpha, beta)  # the centre's at the reference depth
+        self.reference_depth = reference_depth
         self._alpha = np.array([alpha] * 3 + [a_n] * 3)  # (6,): the centre's, the normal's
         self._beta = np.array([beta] * 3 + [b_n] * 3)
         self.gate_position = gate_position
@@ -288,8 +329,17 @@ class TrackFilter:
         self.v = np.zeros(6)  # their rates, m/s and 1/s
         self.clipped = 0  # estimates whose innovation was clipped, since the start
 
-    def update(self, t: float, p_world: FloatArray, n_world: FloatArray) -> FloatArray:
-        """The filtered (6,) centre (m) and unit normal after the estimate at ``t`` s."""
+    def update(
+        self, t: float, p_world: FloatArray, n_world: FloatArray, depth: float | None = None
+    ) -> FloatArray:
+        """The filtered (6,) centre (m) and unit normal after the estimate at ``t`` s.
+
+        ``depth`` (m): the estimate's depth in the camera, for the centre's gains (ignored
+        without a ``reference_depth``).
+        """
+        if self.reference_depth is not None and depth is not None:
+            scale = (depth / self.reference_depth) ** 2
+            self._alpha[:3], self._beta[:3] = depth_scaled_gains(*self._gains, scale)
         z = np.concatenate([p_world, n_world])
         dt = math.inf if self.t is None else t - self.t
         if not 0.0 < dt <= FILTER_RESET_S:

@@ -112,6 +112,7 @@ class StereoSource:
             per.filter_gate_angle,
             per.filter_alpha_normal,
             per.filter_beta_normal,
+            per.filter_reference_depth,
         )
         self.dt = 1.0 / ep.control_rate
         self._rim = _rim(config.task.ring.major_radius)
@@ -197,7 +198,9 @@ class StereoSource:
             left = self._degrade(left, "left", k, T_world_cam)
             right = self._degrade(right, "right", k, T_world_cam)
         t0, c0 = time.perf_counter(), time.thread_time()
-        out = estimate_ring_detail(left, right, self.model, prior=self._prior(k, T_world_cam))
+        prior = self._prior(k, T_world_cam)
+        tracked = math.isfinite(self._last[0])  # a delivered estimate, not the registration
+        out = estimate_ring_detail(left, right, self.model, prior=prior, mono=tracked)
         self.frame_wall.append(time.perf_counter() - t0)
         self.frame_cpu.append(time.thread_time() - c0)
         self.frame_status.append(out.status.value)
@@ -205,7 +208,8 @@ class StereoSource:
         if out.estimate is not None:
             t = float(world.t[k])
             T_est = estimate_in_world(out.estimate, T_world_cam, self._last[1])
-            x = self.filter.update(t, T_est[:3, 3], T_est[:3, 2])
+            depth = float(out.estimate.p_cam_ring[2])
+            x = self.filter.update(t, T_est[:3, 3], T_est[:3, 2], depth)
             T_est = ring_pose(x[:3], x[3:])
             track = np.concatenate([x, self.filter.v])
             self._pending.append(_Pending(t + self.delay, t, T_est, track))
