@@ -15,13 +15,12 @@ import pytest
 from endocam.config import ExperimentConfig
 from endocam.perception.estimator import NormalChoice, settle_choice
 from endocam.perception.loop import (
-    TrackFilter,
     capture_steps,
-    depth_scaled_gains,
     estimate_errors,
     prior_normal,
     resampled,
 )
+from endocam.perception.track import TrackFilter, depth_scaled_gains
 from endocam.robot.actuator import ArmKind
 from endocam.runner.log_schema import (
     ESTIMATE_COLUMNS,

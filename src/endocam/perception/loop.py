@@ -23,9 +23,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from endocam.geometry import FloatArray, frame_with_z
+from endocam.perception.track import FILTER_GATE_M, FILTER_GATE_RAD, NormalAdaptation
 
 if TYPE_CHECKING:
     from endocam.perception.estimator import RingEstimate
@@ -36,13 +37,6 @@ MEASURED_PROCESSING_S = 0.010
 shared 2-core machine (7.7–9.7 ms over round 11's runs), rounded up: the default delay."""
 
 
-FILTER_GATE_M = 2.0e-3
-"""m: the track filter's centre gate: the raw estimator's centre error was 0.23 mm at the p95
-and 2.1 mm at the max over 300 pairs (bench/perception_estimator.py, image model on)."""
-FILTER_GATE_RAD = math.radians(6.0)
-"""rad: the filter's normal gate: the raw normal error was 3.9° at the p95, 16.5° at the max;
-an estimate 6° or more off moves the filter's pose by at most alpha × 6° (1.2° at the default
-alpha), under the controller gate's stereo floor (3°)."""
 STEREO_FLOOR_M = 1.0e-3
 """m: the gate's centre noise floor on stereo. The innovation the gate sees on the filtered
 estimates (their constant-velocity prediction's miss, frame to frame) was 0.15-0.23 mm at the
@@ -136,6 +130,22 @@ class PerceptionConfig(BaseModel):
         "(perception.loop.depth_scaled_gains; stereo). None: fixed gains.",
     )
 
+    filter_normal_noise: float | None = Field(
+        None,
+        gt=0.0,
+        le=math.radians(10.0),
+        description="The estimator's typical normal error, rad: with it the track filter's "
+        "normal gain follows the path's own motion (perception.track.NormalAdaptation), from "
+        "filter_alpha_normal up to filter_alpha_normal_max (stereo). None: fixed gains.",
+    )
+    filter_alpha_normal_max: float = Field(
+        0.4,
+        gt=0.0,
+        lt=1.0,
+        description="The largest normal gain the adaptation gives (stereo; with "
+        "filter_normal_noise).",
+    )
+
     filter_gate_position: float = Field(
         FILTER_GATE_M,
         gt=0.0,
@@ -176,6 +186,24 @@ class PerceptionConfig(BaseModel):
     def stereo(self) -> bool:
         """Whether the controller is fed the stereo estimator's poses."""
         return self.source is PerceptionSource.STEREO
+
+    def normal_adaptation(self) -> NormalAdaptation | None:
+        """The track filter's normal adaptation, or None (fixed gains)."""
+        if self.filter_normal_noise is None:
+            return None
+        return NormalAdaptation(self.filter_normal_noise, self.filter_alpha_normal_max)
+
+    @model_validator(mode="after")
+    def _adaptation_above_the_fixed_gain(self) -> PerceptionConfig:
+        alpha_n = (
+            self.filter_alpha if self.filter_alpha_normal is None else self.filter_alpha_normal
+        )
+        if self.filter_normal_noise is not None and self.filter_alpha_normal_max < alpha_n:
+            raise ValueError(
+                f"perception.filter_alpha_normal_max ({self.filter_alpha_normal_max}) is below "
+                f"the normal's fixed gain ({alpha_n})"
+            )
+        return self
 
 
 def capture_steps(n: int, dt: float, frame_rate: float) -> np.ndarray:
@@ -257,108 +285,6 @@ def prior_normal(
     if t - t_last > max_age:
         return None
     return np.asarray(T_world_cam[:3, :3].T @ n_world_last)
-
-
-FILTER_RESET_S = 0.25  # s, a gap between estimates longer than this restarts the track filter
-
-
-def depth_scaled_gains(alpha: float, beta: float, scale: float) -> tuple[float, float]:
-    """An alpha-beta filter's gains for a measurement noise ``scale`` times the reference's.
-
-    ``alpha``, ``beta``: the gains at the reference noise. Kalata's optimal steady-state
-    alpha-beta filter (the constant-velocity Kalman filter's gains, Kalata 1984, "The
-    tracking index") has one parameter, the tracking index ``Λ = σ_a T² / σ_v`` (process
-    noise over measurement noise), with ``α = 1 − r²``, ``β = 2 (2 − α) − 4 r`` and
-    ``r = (4 + Λ − √(Λ² + 8 Λ)) / 4``. Here ``Λ`` is the one whose ``α`` is ``alpha``,
-    divided by ``scale``; each gain is returned as the given one times the ratio of Kalata's
-    gain at that index to his at the reference (so ``scale = 1`` returns ``alpha, beta``).
-    """
-    if not 0.0 < alpha < 1.0 or scale == 1.0:
-        return alpha, beta
-    r_ref = math.sqrt(1.0 - alpha)
-    index = 2.0 * (1.0 - r_ref) ** 2 / r_ref / scale  # Kalata's Λ for alpha, over the scale
-    r = (4.0 + index - math.sqrt(index * index + 8.0 * index)) / 4.0
-    a = 1.0 - r * r
-    b_ref = 2.0 * (2.0 - alpha) - 4.0 * r_ref
-    b = 2.0 * (2.0 - a) - 4.0 * r
-    return a, (beta * b / b_ref if b_ref > 0.0 else beta)
-
-
-class TrackFilter:
-    """An alpha-beta filter on the estimated ring centre and normal (world), per estimate.
-
-    The estimator's normal is noisy near the ring's axis (1–5°, docs/perception.md); the
-    filter takes ``alpha`` of each innovation into the pose and ``beta / Δt`` of it into the
-    rates (constant-velocity prediction: no lag on a steady motion). An innovation longer
-    than ``gate_position`` (m, the centre) or ``gate_angle`` (rad, the normal) is clipped to
-    that length first (a Huber filter): a bad fit or a wrong choice of normal moves the pose
-    by at most ``alpha`` times the gate, and a real change the filter lags is still followed,
-    at most that much per estimate, with no jump the controller's gate would refuse. A gap
-    longer than :data:`FILTER_RESET_S` restarts it at the estimate. ``alpha = 1, beta = 0``
-    and infinite gates: the raw estimates. ``alpha_normal``, ``beta_normal``: the normal's
-    gains (``None``: the centre's).
-
-    ``reference_depth`` (m, or None): the depth at which the centre's gains are ``alpha``,
-    ``beta``. A stereo centre's error grows as the square of its depth (the disparity's
-    error over ``f b / d²``), so an estimate at depth ``d`` is taken with the gains
-    :func:`depth_scaled_gains` gives for a noise ``(d / reference_depth)²`` times the
-    reference's: the far estimates of the approach (10–250 mm) weigh little, the near ones
-    of the working band a lot. None: fixed gains.
-    """
-
-    def __init__(
-        self,
-        alpha: float,
-        beta: float,
-        gate_position: float = math.inf,
-        gate_angle: float = math.pi,
-        alpha_normal: float | None = None,
-        beta_normal: float | None = None,
-        reference_depth: float | None = None,
-    ) -> None:
-        a_n = alpha if alpha_normal is None else alpha_normal
-        b_n = beta if beta_normal is None else beta_normal
-        self._gains = (alpha, beta)  # the centre's at the reference depth
-        self.reference_depth = reference_depth
-        self._alpha = np.array([alpha] * 3 + [a_n] * 3)  # (6,): the centre's, the normal's
-        self._beta = np.array([beta] * 3 + [b_n] * 3)
-        self.gate_position = gate_position
-        self.gate_normal = 2.0 * math.sin(0.5 * min(gate_angle, math.pi))  # chord, unit normals
-        self.t: float | None = None
-        self.x = np.zeros(6)  # centre (m), unit normal
-        self.v = np.zeros(6)  # their rates, m/s and 1/s
-        self.clipped = 0  # estimates whose innovation was clipped, since the start
-
-    def update(
-        self, t: float, p_world: FloatArray, n_world: FloatArray, depth: float | None = None
-    ) -> FloatArray:
-        """The filtered (6,) centre (m) and unit normal after the estimate at ``t`` s.
-
-        ``depth`` (m): the estimate's depth in the camera, for the centre's gains (ignored
-        without a ``reference_depth``).
-        """
-        if self.reference_depth is not None and depth is not None:
-            scale = (depth / self.reference_depth) ** 2
-            self._alpha[:3], self._beta[:3] = depth_scaled_gains(*self._gains, scale)
-        z = np.concatenate([p_world, n_world])
-        dt = math.inf if self.t is None else t - self.t
-        if not 0.0 < dt <= FILTER_RESET_S:
-            self.x, self.v = z, np.zeros(6)
-        else:
-            predicted = self.x + self.v * dt
-            r = z - predicted
-            clipped = False
-            for part, gate in ((slice(0, 3), self.gate_position), (slice(3, 6), self.gate_normal)):
-                length = float(np.linalg.norm(r[part]))
-                if length > gate:
-                    r[part] *= gate / length
-                    clipped = True
-            self.clipped += clipped
-            self.x = predicted + self._alpha * r
-            self.v = self.v + (self._beta / dt) * r
-            self.x[3:] /= np.linalg.norm(self.x[3:])
-        self.t = t
-        return self.x.copy()
 
 
 @dataclass(frozen=True)

@@ -34,13 +34,13 @@ from endocam.perception.image_model import ImageModelConfig, degrade
 from endocam.perception.loop import (
     CAPTURE_TOL_S,
     EstimateLog,
-    TrackFilter,
     capture_steps,
     estimate_in_world,
     prior_normal,
     resampled,
     ring_pose,
 )
+from endocam.perception.track import TrackFilter
 from endocam.robot.actuator import ArmKind
 from endocam.runner.step import EpisodeWorld
 from endocam.sim.render import WireChaserScene
@@ -113,6 +113,7 @@ class StereoSource:
             per.filter_alpha_normal,
             per.filter_beta_normal,
             per.filter_reference_depth,
+            per.normal_adaptation(),
         )
         self.dt = 1.0 / ep.control_rate
         self._rim = _rim(config.task.ring.major_radius)
