@@ -20,7 +20,12 @@ from endocam.perception.loop import (
     prior_normal,
     resampled,
 )
-from endocam.perception.track import TrackFilter, depth_scaled_gains
+from endocam.perception.track import (
+    NormalAdaptation,
+    TrackFilter,
+    depth_scaled_gains,
+    kalata_beta,
+)
 from endocam.robot.actuator import ArmKind
 from endocam.runner.log_schema import (
     ESTIMATE_COLUMNS,
@@ -236,6 +241,41 @@ def test_the_track_filter_takes_a_far_estimate_with_less_gain() -> None:
     assert moved[depth_ref] == pytest.approx(alpha, abs=GAIN_TOL)
     assert moved[0.2] == pytest.approx(depth_scaled_gains(alpha, beta, 16.0)[0], abs=GAIN_TOL)
     assert moved[0.2] < alpha < moved[0.025]
+
+
+def test_the_normal_gain_follows_the_paths_motion_not_the_estimators_noise() -> None:
+    """A still ring seen with the estimator's noise keeps the configured normal gain; a ring
+    whose normal jitters by several times that noise raises it to the cap, with Kalata's β;
+    the gain rule between: α = 1 − noise² / m²."""
+    frame_s, noise = 1.0 / 30.0, math.radians(0.9)  # s, rad
+    adapt = NormalAdaptation(noise, alpha_max=0.4, frames=90)
+    alpha_n, beta_n = 0.2, 0.02  # the configured (least) gains
+    assert adapt.gains(noise, alpha_n, beta_n) == (alpha_n, beta_n)
+    typical = noise / math.sqrt(1.0 - 0.3)  # the innovation at which α is 0.3
+    a, b = adapt.gains(typical, alpha_n, beta_n)
+    assert a == pytest.approx(0.3, abs=GAIN_TOL)
+    assert b == pytest.approx(beta_n * kalata_beta(0.3) / kalata_beta(alpha_n), abs=GAIN_TOL)
+    rng = np.random.default_rng(3)
+    still = TrackFilter(0.7, 0.4, alpha_normal=alpha_n, beta_normal=beta_n, adapt=adapt)
+    for j in range(300):
+        tilt = rng.normal(0.0, noise / math.sqrt(2.0), 2)  # rad, per axis: |tilt| ~ noise
+        still.update(j * frame_s, np.zeros(3), np.array([tilt[0], tilt[1], 1.0]))
+    assert still.gains[2:] == (alpha_n, beta_n)
+    jitter = TrackFilter(0.7, 0.4, alpha_normal=alpha_n, beta_normal=beta_n, adapt=adapt)
+    for j in range(300):
+        swing = 5.0 * noise * math.sin(2.0 * math.pi * 3.0 * j * frame_s)  # rad, 3 Hz
+        jitter.update(j * frame_s, np.zeros(3), np.array([math.sin(swing), 0.0, math.cos(swing)]))
+    assert jitter.gains[2:] == pytest.approx(
+        (0.4, beta_n * kalata_beta(0.4) / kalata_beta(alpha_n))
+    )
+    assert jitter.gains[:2] == still.gains[:2] == (0.7, 0.4)  # the centre's are its own
+
+
+def test_an_adaptation_capped_below_the_fixed_gain_is_refused() -> None:
+    with pytest.raises(ValueError, match="filter_alpha_normal_max"):
+        stereo_config(
+            filter_normal_noise=0.01, filter_alpha_normal=0.5, filter_alpha_normal_max=0.4
+        )
 
 
 def test_the_controller_is_given_the_track_predicted_to_now_until_it_is_too_old() -> None:

@@ -165,6 +165,16 @@ class TrackFilter:
         self.v = np.zeros(6)  # their rates, m/s and 1/s
         self.clipped = 0  # estimates whose innovation was clipped, since the start
 
+    @property
+    def gains(self) -> tuple[float, float, float, float]:
+        """The gains the last estimate was taken with: the centre's α, β, the normal's α, β."""
+        return (
+            float(self._alpha[0]),
+            float(self._beta[0]),
+            float(self._alpha[3]),
+            float(self._beta[3]),
+        )
+
     def update(
         self, t: float, p_world: FloatArray, n_world: FloatArray, depth: float | None = None
     ) -> FloatArray:
