@@ -112,6 +112,24 @@ class NormalAdaptation:
         return a, (beta * kalata_beta(a) / b_ref if b_ref > 0.0 else beta)
 
 
+@dataclass(frozen=True)
+class StepLimit:
+    """How far one estimate may move the pose the controller is given.
+
+    On delivery the given pose (the track predicted ``horizon`` s past its capture: the
+    delay and the carrier's lead, ``perception.loop.resampled``) moves by ``(α + β ·
+    horizon / Δt)`` times the estimate's innovation. The filter clips each innovation so that
+    this step stays within the observation gate's stereo floors (``position``, m; ``angle``,
+    rad): a faster filter then never hands the gate a step it refuses, and the gate still
+    refuses what a fault adds after the filter. At the default gains (0.2 / 0.02) the limits
+    lie beyond the filter's own gates and change nothing.
+    """
+
+    position: float
+    angle: float
+    horizon: float
+
+
 class TrackFilter:
     """An alpha-beta filter on the estimated ring centre and normal (world), per estimate.
 
@@ -134,7 +152,9 @@ class TrackFilter:
     of the working band a lot. None: fixed gains.
 
     ``adapt``: the normal's gain set by the path's own motion (:class:`NormalAdaptation`);
-    None: the normal's gains are fixed. A restart keeps the innovations seen (the path's
+    None: the normal's gains are fixed. ``step_limit``: the innovations are clipped further so
+    that no estimate moves the given pose past the observation gate's floors
+    (:class:`StepLimit`). A restart keeps the innovations seen (the path's
     character outlasts a gap).
     """
 
@@ -148,6 +168,7 @@ class TrackFilter:
         beta_normal: float | None = None,
         reference_depth: float | None = None,
         adapt: NormalAdaptation | None = None,
+        step_limit: StepLimit | None = None,
     ) -> None:
         a_n = alpha if alpha_normal is None else alpha_normal
         b_n = beta if beta_normal is None else beta_normal
@@ -155,6 +176,7 @@ class TrackFilter:
         self._gains_normal = (a_n, b_n)  # the normal's, the least adaptation gives
         self.reference_depth = reference_depth
         self.adapt = adapt
+        self.step_limit = step_limit
         self._innovations: deque[float] = deque(maxlen=1 if adapt is None else adapt.frames)
         self._alpha = np.array([alpha] * 3 + [a_n] * 3)  # (6,): the centre's, the normal's
         self._beta = np.array([beta] * 3 + [b_n] * 3)
@@ -164,6 +186,17 @@ class TrackFilter:
         self.x = np.zeros(6)  # centre (m), unit normal
         self.v = np.zeros(6)  # their rates, m/s and 1/s
         self.clipped = 0  # estimates whose innovation was clipped, since the start
+
+    def _gates(self, dt: float) -> tuple[float, float]:
+        """The centre's (m) and the normal's (chord) innovation clips for a frame ``dt`` s."""
+        lim = self.step_limit
+        if lim is None:
+            return self.gate_position, self.gate_normal
+        k = lim.horizon / dt
+        step_p = lim.position / float(self._alpha[0] + self._beta[0] * k)
+        step_n = 2.0 * math.sin(0.5 * min(lim.angle, math.pi))
+        step_n /= float(self._alpha[3] + self._beta[3] * k)
+        return min(self.gate_position, step_p), min(self.gate_normal, step_n)
 
     @property
     def gains(self) -> tuple[float, float, float, float]:
@@ -176,13 +209,23 @@ class TrackFilter:
         )
 
     def update(
-        self, t: float, p_world: FloatArray, n_world: FloatArray, depth: float | None = None
+        self,
+        t: float,
+        p_world: FloatArray,
+        n_world: FloatArray,
+        depth: float | None = None,
+        one_eye: bool = False,
     ) -> FloatArray:
         """The filtered (6,) centre (m) and unit normal after the estimate at ``t`` s.
 
         ``depth`` (m): the estimate's depth in the camera, for the centre's gains (ignored
-        without a ``reference_depth``).
+        without a ``reference_depth``) and, with an adaptation, the normal's noise, taken to
+        grow as the centre's (the disparity plane's tilt error grows as ``d²``): a typical
+        innovation is set against the noise at that depth. ``one_eye``: a pose from one eye
+        (status ``mono``), whose normal a prior chose: with an adaptation its normal is taken
+        with the least gains and its innovation left out of the median.
         """
+        scale = None
         if self.reference_depth is not None and depth is not None:
             scale = (depth / self.reference_depth) ** 2
             self._alpha[:3], self._beta[:3] = depth_scaled_gains(*self._gains, scale)
@@ -193,12 +236,16 @@ class TrackFilter:
         else:
             predicted = self.x + self.v * dt
             r = z - predicted
-            if self.adapt is not None:
+            if self.adapt is not None and one_eye:
+                self._alpha[3:], self._beta[3:] = self._gains_normal
+            elif self.adapt is not None:
                 self._innovations.append(float(np.linalg.norm(r[3:])))
                 typical = float(np.median(self._innovations))
-                self._alpha[3:], self._beta[3:] = self.adapt.gains(typical, *self._gains_normal)
+                noise_scale = 1.0 if scale is None else scale  # the normal's noise grows too
+                gains = self.adapt.gains(typical / noise_scale, *self._gains_normal)
+                self._alpha[3:], self._beta[3:] = gains
             clipped = False
-            for part, gate in ((slice(0, 3), self.gate_position), (slice(3, 6), self.gate_normal)):
+            for part, gate in zip((slice(0, 3), slice(3, 6)), self._gates(dt), strict=True):
                 length = float(np.linalg.norm(r[part]))
                 if length > gate:
                     r[part] *= gate / length

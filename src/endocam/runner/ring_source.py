@@ -29,7 +29,7 @@ from endocam.camera import Eye
 from endocam.config import ExperimentConfig
 from endocam.faults import DeliveredFaults
 from endocam.geometry import FloatArray
-from endocam.perception.estimator import RingModel, estimate_ring_detail
+from endocam.perception.estimator import EstimateStatus, RingModel, estimate_ring_detail
 from endocam.perception.image_model import ImageModelConfig, degrade
 from endocam.perception.loop import (
     CAPTURE_TOL_S,
@@ -40,7 +40,7 @@ from endocam.perception.loop import (
     resampled,
     ring_pose,
 )
-from endocam.perception.track import TrackFilter
+from endocam.perception.track import StepLimit, TrackFilter
 from endocam.robot.actuator import ArmKind
 from endocam.runner.step import EpisodeWorld
 from endocam.sim.render import WireChaserScene
@@ -114,6 +114,7 @@ class StereoSource:
             per.filter_beta_normal,
             per.filter_reference_depth,
             per.normal_adaptation(),
+            StepLimit(per.gate_floor_position, per.gate_floor_angle, self.delay + self.lead),
         )
         self.dt = 1.0 / ep.control_rate
         self._rim = _rim(config.task.ring.major_radius)
@@ -210,7 +211,8 @@ class StereoSource:
             t = float(world.t[k])
             T_est = estimate_in_world(out.estimate, T_world_cam, self._last[1])
             depth = float(out.estimate.p_cam_ring[2])
-            x = self.filter.update(t, T_est[:3, 3], T_est[:3, 2], depth)
+            one_eye = out.status is EstimateStatus.MONO
+            x = self.filter.update(t, T_est[:3, 3], T_est[:3, 2], depth, one_eye)
             T_est = ring_pose(x[:3], x[3:])
             track = np.concatenate([x, self.filter.v])
             self._pending.append(_Pending(t + self.delay, t, T_est, track))
