@@ -22,6 +22,7 @@ from endocam.perception.loop import (
 )
 from endocam.perception.track import (
     NormalAdaptation,
+    StepLimit,
     TrackFilter,
     depth_scaled_gains,
     kalata_beta,
@@ -269,6 +270,33 @@ def test_the_normal_gain_follows_the_paths_motion_not_the_estimators_noise() -> 
         (0.4, beta_n * kalata_beta(0.4) / kalata_beta(alpha_n))
     )
     assert jitter.gains[:2] == still.gains[:2] == (0.7, 0.4)  # the centre's are its own
+
+
+def test_no_estimate_moves_the_given_pose_past_the_gates_floors() -> None:
+    """A fast filter's step (its pose predicted across the delay and lead, before and after
+    one estimate) stays within the observation gate's floors with a step limit, and not
+    without: the limit, not the gains, keeps the gate from refusing the filter's own poses."""
+    frame_s, horizon = 1.0 / 30.0, 0.1  # s: a frame; the capture's delay plus the lead
+    floor_m, floor_rad = 1.0e-3, math.radians(3.0)  # m, rad: the stereo floors
+    limit = StepLimit(floor_m, floor_rad, horizon)
+    n0 = np.array([0.0, 0.0, 1.0])
+    turn = math.radians(5.0)  # rad, inside the filter's own 6° gate
+    p1, n1 = np.array([1.8e-3, 0.0, 0.0]), np.array([0.0, math.sin(turn), math.cos(turn)])
+    steps = {}
+    for name, lim in (("limited", limit), ("free", None)):
+        f = TrackFilter(0.7, 0.4, alpha_normal=0.4, beta_normal=0.09, step_limit=lim)
+        for j in range(5):
+            f.update(j * frame_s, np.zeros(3), n0)
+        before = f.x + f.v * (frame_s + horizon)  # the given pose at the next frame, predicted
+        after = f.update(5 * frame_s, p1, n1)
+        after = after + f.v * horizon
+        n_a, n_b = after[3:] / np.linalg.norm(after[3:]), before[3:] / np.linalg.norm(before[3:])
+        steps[name] = (
+            float(np.linalg.norm(after[:3] - before[:3])),
+            math.acos(min(1.0, float(n_a @ n_b))),
+        )
+    assert steps["limited"][0] <= floor_m * (1 + 1e-9) < steps["free"][0]
+    assert steps["limited"][1] <= floor_rad * (1 + 1e-6) < steps["free"][1]
 
 
 def test_an_adaptation_capped_below_the_fixed_gain_is_refused() -> None:
