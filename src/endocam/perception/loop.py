@@ -93,41 +93,46 @@ class PerceptionConfig(BaseModel):
         True, description="Apply the image model (noise, blur, highlights, gain) (stereo)."
     )
     filter_alpha: float = Field(
-        0.2,
+        0.7,
         gt=0.0,
         le=1.0,
         description="Alpha-beta track filter on the estimates (stereo): the share of an "
-        "estimate's innovation taken into the pose (1 with beta 0: raw estimates; 0.2: "
-        "steady image error 4.5 px against 6.1 at 0.35 on ideal-36, docs/perception.md).",
+        "estimate's centre innovation taken into the pose at filter_reference_depth (1 with "
+        "beta 0: raw estimates). 0.7 / 0.4 (Kalata's pair): the centre's error, 0.02-0.05 mm "
+        "at the working distance, is far below the noisy paths' jitter (docs/perception.md, "
+        "'Round 16').",
     )
     filter_beta: float = Field(
-        0.02,
+        0.4,
         ge=0.0,
         lt=1.0,
-        description="Alpha-beta track filter (stereo): the share of the innovation per frame "
-        "period taken into the rates.",
+        description="Alpha-beta track filter (stereo): the share of the centre's innovation "
+        "per frame period taken into its rate, at filter_reference_depth.",
     )
 
     filter_alpha_normal: float | None = Field(
-        None,
+        0.2,
         gt=0.0,
         le=1.0,
-        description="The track filter's alpha for the face normal (stereo); default: filter_alpha.",
+        description="The track filter's alpha for the face normal (stereo; None: "
+        "filter_alpha). 0.2: the normal's error (0.55 deg median) is not far below the "
+        "paths' jitter, and faster gains cost the ideal paths (docs/perception.md).",
     )
     filter_beta_normal: float | None = Field(
-        None,
+        0.02,
         ge=0.0,
         lt=1.0,
-        description="The track filter's beta for the face normal (stereo); default: filter_beta.",
+        description="The track filter's beta for the face normal (stereo; None: filter_beta).",
     )
 
     filter_reference_depth: float | None = Field(
-        None,
+        0.05,
         gt=0.0,
         le=0.3,
         description="The depth at which the track filter's centre gains are filter_alpha / "
-        "filter_beta, m; at depth d they are Kalata's for a noise (d / this)² times as large "
-        "(perception.loop.depth_scaled_gains; stereo). None: fixed gains.",
+        "filter_beta, m (the working distance); at depth d they are Kalata's for a noise "
+        "(d / this)² times as large (perception.track.depth_scaled_gains; stereo): the "
+        "approach's far estimates weigh little. None: fixed gains.",
     )
 
     filter_normal_noise: float | None = Field(
