@@ -6,6 +6,8 @@
 - :mod:`~endocam.perception.estimator`: :func:`estimate_ring_pose`, the stereo pose estimator;
 - :mod:`~endocam.perception.image_model`: sensor noise, motion blur, specular highlights and
   brightness changes, seeded pure functions on images;
+- :mod:`~endocam.perception.track`: the track filter between the estimator and the
+  controller (centre gains by depth, the step the gate accepts), no OpenCV;
 - :mod:`~endocam.perception.loop`: the control loop on perception (``PerceptionConfig``, the
   capture schedule, the estimates' log and errors), no OpenCV.
 
