@@ -422,7 +422,8 @@ class ECM(RcmArm):
         found = solve12(*args, None)
         if found.outcome == SOLVE_NEED_NEAREST:
             q_clip = self.clamp(np.array(found.q))[:3]
-            near = self._nearest_position(np.array(found.p_goal), q_clip).tolist()
+            shallow = found.q[2] < self.ik_lower[2]  # the aim's insertion: the bound binds
+            near = self._nearest_position(np.array(found.p_goal), q_clip, shallow).tolist()
             found = solve12(*args, (near[0], near[1], near[2]))
         return IKResult(
             np.array(found.q),
@@ -444,13 +445,15 @@ class ECM(RcmArm):
         ok, q = exact12(self._chain.param_array, self._consts, goal12, float(seed[3]))
         return list(q) if ok else None
 
-    def _nearest_position(self, p_goal: FloatArray, q0: FloatArray) -> FloatArray:
+    def _nearest_position(self, p_goal: FloatArray, q0: FloatArray, shallow: bool) -> FloatArray:
         """Yaw, pitch, insertion within :attr:`ik_lower` and the limits, tip closest to ``p_goal``.
 
         Solved within the joint limits first and, only if that insertion is below the IK's
         40 mm, again within the IK's bounds: the solver's steps depend on its bounds, so an
         insertion the bound does not touch is found exactly as without it (episodes that stay
-        deeper than 40 mm are bit-identical to the joint-limit IK's).
+        deeper than 40 mm are bit-identical to the joint-limit IK's). ``shallow``: the goal is
+        nearer the RCM than the tip at 40 mm, so the nearest position is at the bound (the
+        first solve is skipped).
         """
 
         def residual(x: FloatArray) -> FloatArray:  # the tip position of chain_forward
@@ -458,7 +461,7 @@ class ECM(RcmArm):
             return np.array(pose12_point(T, self._chain._tip_rows)) - p_goal
 
         hi = self._upper[:3]
-        for lo in (self._lower[:3], self.ik_lower[:3]):
+        for lo in (self.ik_lower[:3],) if shallow else (self._lower[:3], self.ik_lower[:3]):
             span = hi - lo
             x0 = np.clip(q0, lo + 1e-9 * span, hi - 1e-9 * span)
             sol = least_squares(residual, x0, bounds=(lo, hi), method="trf", xtol=1e-12, ftol=1e-12)
