@@ -122,6 +122,7 @@ WIRE_ATOL_M = 1e-12  # m: a pose through a quaternion and the frames' products, 
 SERVO_ATOL_M = 1e-6  # m: the arm's IK converges on the commanded tip to well under a micron
 SERVO_STEPS = 95  # control periods to reach joints a few hundredths away (speed limits)
 LINK_DT = 0.01  # s: the default control period (100 Hz)
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 
 
 class _Recorder:
@@ -173,9 +174,12 @@ def test_the_robot_process_speaks_the_dvrk_tip_in_the_base_frame(
         T_tip, _ = codec.decode_pose(session.latest(keys.measured_cp))
         return T_tip, codec.decode_joints(session.latest(keys.measured_js))
 
-    # measured_cp is the dVRK's tip in the base (RCM) frame at measured_js: not the camera
+    # measured_cp is the dVRK's tip in the base (RCM) frame at measured_js: not the camera,
+    # and its header names that frame as the dVRK does (PSM3_base, ECM_base)
     T_tip, q = wire()
     np.testing.assert_allclose(T_tip, _table_fk(table, q) @ tooltip, atol=WIRE_ATOL_M, rtol=0)
+    header = codec.store.deserialize_cdr(session.latest(keys.measured_cp), POSE_STAMPED).header
+    assert header.frame_id == f"{keys.measured_cp.split('/')[0]}_base"
     # the controller's edge, registered from the same config, sees the robot's camera
     client = ZenohArm(arm_kind, "tcp/127.0.0.1:7447", LINK_DT)
     client.register(registration(cfg, arm_kind))

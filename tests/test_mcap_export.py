@@ -19,8 +19,11 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from scipy.spatial.transform import Rotation
 
 from endocam.cli import main
+from endocam.config import config_from_mapping
+from endocam.robot import PSM
 from endocam.robot.actuator import ArmKind
 from endocam.runner.log_schema import episode_column_names
 from endocam.runner.mcap_export import topic_map
@@ -43,7 +46,9 @@ TEXT = ("state", "fault", "reason")
 
 # The reader's side, written out here rather than taken from the exporter: topic -> columns.
 ARM = "PSM3"
-POSES = {"/ring/measured_cp": "ring", f"/{ARM}/measured_cp": "cam", f"/{ARM}/servo_cp": "cmd"}
+POSES = {"/ring/measured_cp": "ring", "/camera/measured_cp": "cam", "/camera/servo_cp": "cmd"}
+TIPS = {f"/{ARM}/measured_cp": "cam", f"/{ARM}/servo_cp": "cmd"}  # the dVRK's tip, base frame
+TIP_ATOL_M = 1e-12  # m: a pose through a quaternion and three 4x4 products, round-off
 POINTS = {"/PSM1/tip": "psm1_tip", "/PSM2/tip": "psm2_tip"}
 SCALARS = {
     "/endocam/sim_time": "t",
@@ -139,6 +144,33 @@ def test_every_value_of_episode_csv_comes_back_exactly(run_dir: Path) -> None:
         assert {h.frame_id for h in heads} == {"world"}
     for topic in SCALARS:
         assert [log for log, _ in topics[topic]] == stamps, topic
+    # the arm's CRTK topics as on the link: the PSM's tip (its forward kinematics at the
+    # logged joints) in its base frame, named as the dVRK names it
+    for topic in TIPS:
+        assert [log for log, _ in topics[topic]] == stamps, topic
+        assert {m.header.frame_id for _, m in topics[topic]} == {f"{ARM}_base"}
+    q = np.array([[got[f"q_{name}"][k] for name in names] for k in range(n)])
+    psm = PSM()
+    tip = {t: np.array([_matrix(m.pose) for _, m in topics[t]]) for t in TIPS}
+    for k in range(0, n, 10):
+        np.testing.assert_allclose(
+            tip[f"/{ARM}/measured_cp"][k], psm.forward(q[k]), atol=TIP_ATOL_M
+        )
+    config = config_from_mapping(json.loads((run_dir / "scene.json").read_text())["config"])
+    T_world_rcm, T_tip_cam = config.task.scene.T_world_rcm, config.episode.T_tip_cam
+    for topic, prefix in TIPS.items():  # the camera in the world on that tip: the logged pose
+        T_world_cam = T_world_rcm @ tip[topic] @ T_tip_cam
+        p = np.column_stack([expected[f"{prefix}_{axis}"] for axis in "xyz"])
+        np.testing.assert_allclose(T_world_cam[:, :3, 3], p, atol=TIP_ATOL_M, rtol=0, err_msg=topic)
+
+
+def _matrix(pose: object) -> np.ndarray:
+    """(4, 4) of a decoded ``geometry_msgs/Pose``."""
+    p, o = pose.position, pose.orientation  # type: ignore[attr-defined]
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat([o.x, o.y, o.z, o.w]).as_matrix()
+    T[:3, 3] = p.x, p.y, p.z
+    return T
 
 
 def test_video_frames_decode_at_their_steps(run_dir: Path, tmp_path: Path) -> None:

@@ -27,6 +27,7 @@ from endocam.robot.dh import (
     pose12_times,
     pose12_to_matrix,
 )
+from endocam.robot.ecm import ECM_IK_MIN_INSERTION
 from endocam.robot.ik import (
     IK_ORIENTATION_TOL_RAD,
     IK_POSITION_TOL_M,
@@ -74,6 +75,13 @@ def _trans(axis: int, d: float) -> np.ndarray:
 def _random_q(arm: PSM | ECM, rng: np.random.Generator, margin: float = 0.0) -> np.ndarray:
     span = arm.upper - arm.lower
     return rng.uniform(arm.lower + margin * span, arm.upper - margin * span)
+
+
+def _random_ecm_ik_q(rng: np.random.Generator, margin: float = 0.0) -> np.ndarray:
+    """ECM joints the IK reaches: within the limits, insertion ≥ 40 mm (``ECM.ik_lower``)."""
+    lower, upper = ECM_ARM.ik_lower, ECM_ARM.upper
+    span = upper - lower
+    return rng.uniform(lower + margin * span, upper - margin * span)
 
 
 def _shaft_direction(q1: float, q2: float) -> np.ndarray:
@@ -428,6 +436,7 @@ def test_ecm_ik_keeps_its_promises() -> None:
         seed = rng.uniform(-4.0, 4.0, 4)
         got = ECM_ARM.solve_unchecked(T, seed)
         assert ECM_ARM.within_limits(got.q)
+        assert got.q[2] >= ECM_IK_MIN_INSERTION  # the dVRK IK's least insertion
         np.testing.assert_allclose(
             got.T_rcm_tip, chain_frames(ECM_ARM.chain, got.q)[-1], atol=ATOL_M
         )
@@ -436,7 +445,8 @@ def test_ecm_ik_keeps_its_promises() -> None:
         assert got.orientation_error == pytest.approx(ang, abs=1e-7)
         if got.status is IKStatus.OK:
             assert pos <= IK_POSITION_TOL_M and ang <= IK_ORIENTATION_TOL_RAD
-        if i % 3 == 0 and ECM_ARM.within_limits(q0):  # a reachable goal: reached
+        ik_reach = bool(np.all((q0 >= ECM_ARM.ik_lower) & (q0 <= ECM_ARM.upper)))
+        if i % 3 == 0 and ik_reach:  # a goal at joints the IK allows: reached
             assert got.status is IKStatus.OK
         exact = ECM_ARM.exact12_unchecked(pose12_from_matrix(T), seed)
         assert (exact is not None) == (got.status is IKStatus.OK)
@@ -571,10 +581,25 @@ def _look_pose(p: np.ndarray, z: np.ndarray, roll: float) -> np.ndarray:
     return T
 
 
+def test_ecm_ik_raises_a_shallow_insertion_to_40_mm_and_says_so() -> None:
+    """The dVRK's ``mtsIntuitiveResearchKitECM::InverseKinematics`` rule: insertion ≥ 40 mm.
+
+    A goal on the axis at 10 mm is met at 40 mm on the same axis, ``CLAMPED_TO_LIMITS``; the
+    joint limit itself (``clamp``, ``servo_jp``) stays 0 m.
+    """
+    q = np.array([0.2, -0.1, 0.01, 0.3])  # rad, rad, m, rad
+    res = ECM_ARM.solve(ECM_ARM.forward(q), q_seed=q)
+    assert res.status is IKStatus.CLAMPED_TO_LIMITS
+    assert res.q[2] == pytest.approx(ECM_IK_MIN_INSERTION, abs=ATOL_M)  # bounded lsq: 1e-9 span
+    np.testing.assert_allclose(res.q[[0, 1, 3]], q[[0, 1, 3]], atol=ATOL_RAD)
+    assert res.position_error == pytest.approx(ECM_IK_MIN_INSERTION - q[2], abs=ATOL_M)
+    assert ECM_ARM.clamp(q)[2] == q[2]
+
+
 def test_ecm_round_trip() -> None:
     rng = np.random.default_rng(9)
     for _ in range(100):
-        q = _random_q(ECM_ARM, rng)
+        q = _random_ecm_ik_q(rng)  # a depth the dVRK's IK allows
         res = ECM_ARM.solve(ECM_ARM.forward(q), q_seed=q)
         assert res.status is IKStatus.OK
         np.testing.assert_allclose(res.q, q, atol=1e-7)
@@ -583,7 +608,7 @@ def test_ecm_round_trip() -> None:
 def test_ecm_residual_zero_iff_axis_through_rcm() -> None:
     rng = np.random.default_rng(10)
     for _ in range(50):
-        q = _random_q(ECM_ARM, rng, margin=0.1)
+        q = _random_ecm_ik_q(rng, margin=0.1)  # a depth the dVRK's IK allows
         on_axis = ECM_ARM.forward(q)
         p = on_axis[:3, 3]
         # the optical axis (z) passes through the RCM: z = p / |p|

@@ -287,7 +287,8 @@ class ZenohArm:
         self.pub[LOOK_KEY].put(self.codec.float64(look_distance))
         if twist is not None and self.follows_twist:  # the free camera's: world = base
             self.pub[self.keys.servo_cv].put(self.codec.twist(twist, ns))
-        self.pub[self.keys.servo_cp].put(self.codec.pose(frames.tip_from_camera(T_world_cmd), ns))
+        T_cmd_tip = frames.tip_from_camera(T_world_cmd)
+        self.pub[self.keys.servo_cp].put(self.codec.pose(T_cmd_tip, ns, frames.frame_id))
         self.state = self.receive(k + 1, self.timeout)
         try:
             res = self.codec.decode_array(self._latest[self.keys.servo_result])

@@ -40,9 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from endocam.geometry import FloatArray
 from endocam.robot.actuator import ArmKind
-
-ARM_NAMESPACES = {ArmKind.PSM: "PSM3", ArmKind.ECM: "ECM", ArmKind.FREE: "camera"}
-"""The carrier's CRTK namespace (the MCAP export's names: PSM1 and PSM2 hold the instruments)."""
+from endocam.robot.dvrk_frames import ARM_NAMESPACES, WORLD_FRAME_ID, crtk_pose_fields
 
 OPERATING_STATE_MSG = """std_msgs/Header header
 string state
@@ -126,10 +124,10 @@ class Codec:
         self._point = self.t["geometry_msgs/msg/Point"]
         self._quat = self.t["geometry_msgs/msg/Quaternion"]
 
-    def _header(self, ns: int) -> Any:
+    def _header(self, ns: int, frame_id: str = WORLD_FRAME_ID) -> Any:
         Time = self.t["builtin_interfaces/msg/Time"]
         return self.t["std_msgs/msg/Header"](
-            stamp=Time(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S), frame_id="world"
+            stamp=Time(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S), frame_id=frame_id
         )
 
     def _encode(self, msg: Any, typename: str) -> bytes:
@@ -141,15 +139,17 @@ class Codec:
         except Exception as exc:  # rosbags raises several kinds on a malformed payload
             raise ValueError(f"not a {typename}: {exc}") from exc
 
-    def pose(self, T: FloatArray, ns: int) -> bytes:
-        """``geometry_msgs/PoseStamped`` of the pose ``T`` (4, 4), m, stamped ``ns``."""
-        x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
-        p = T[:3, 3]
+    def pose(self, T: FloatArray, ns: int, frame_id: str = WORLD_FRAME_ID) -> bytes:
+        """``geometry_msgs/PoseStamped`` of the pose ``T`` (4, 4), m, in ``frame_id``, at ``ns``.
+
+        Its fields are :func:`endocam.robot.dvrk_frames.crtk_pose_fields`'s, as in MCAP files.
+        """
+        px, py, pz, x, y, z, w = crtk_pose_fields(T)
         msg = self.t["geometry_msgs/msg/PoseStamped"](
-            header=self._header(ns),
+            header=self._header(ns, frame_id),
             pose=self._pose(
-                position=self._point(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                orientation=self._quat(x=float(x), y=float(y), z=float(z), w=float(w)),
+                position=self._point(x=px, y=py, z=pz),
+                orientation=self._quat(x=x, y=y, z=z, w=w),
             ),
         )
         return self._encode(msg, "geometry_msgs/msg/PoseStamped")

@@ -140,14 +140,15 @@ class Robot:
         if out is not None:
             self.pub[keys.servo_result].put(c.array(servo_result(out)))
             self.pub[keys.setpoint_cp].put(
-                c.pose(self.frames.tip_from_camera(out.T_world_target), ns)
+                c.pose(self.frames.tip_from_camera(out.T_world_target), ns, self.frames.frame_id)
             )
         if k < w.n:
             self.pub[keys.measured_js].put(c.joints(self.arm.joint_names, self.q, ns))
             self.pub[keys.ring].put(c.pose(w.T_world_ring_sensed[k], stamp_ns(w.t_ring[k])))
             self.pub[keys.tip1].put(c.point(w.p_world_tips[k, 0], ns))
             self.pub[keys.tip2].put(c.point(w.p_world_tips[k, 1], ns))
-            self.pub[keys.measured_cp].put(c.pose(self.frames.tip_from_camera(self.T_cam), ns))
+            T_tip = self.frames.tip_from_camera(self.T_cam)
+            self.pub[keys.measured_cp].put(c.pose(T_tip, ns, self.frames.frame_id))
         if k >= w.n:
             state = DISABLED
         self.pub[keys.operating_state].put(c.operating_state(state, k < w.n, ns))

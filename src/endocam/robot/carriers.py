@@ -8,7 +8,13 @@ from endocam.geometry import FloatArray
 from endocam.robot.actuator import Actuator, ArmKind, WorkspaceBound
 from endocam.robot.camera_arm import CameraArm
 from endocam.robot.cartesian import MotionLimits
-from endocam.robot.dvrk_frames import FREE_CAMERA_FRAMES, T_RCM_RCMECM, T_TIP_CAM_ECM, CrtkFrames
+from endocam.robot.dvrk_frames import (
+    FREE_CAMERA_FRAMES,
+    T_RCM_RCMECM,
+    T_TIP_CAM_ECM,
+    CrtkFrames,
+    crtk_frame_id,
+)
 from endocam.robot.free_camera import FreeCamera
 
 __all__ = ["arm_mount", "crtk_frames", "make_actuator"]
@@ -35,11 +41,12 @@ def crtk_frames(kind: ArmKind, T_tip_cam: object, T_world_rcm: object) -> CrtkFr
     """The frames of carrier ``kind``'s CRTK poses (arguments as :func:`arm_mount`'s).
 
     An arm's base frame is its RCM frame and its tip the dVRK's, as :func:`arm_mount` mounts
-    them; the free camera's are the world and the camera (:data:`FREE_CAMERA_FRAMES`).
+    them, named ``<ARM>_base``; the free camera's are the world and the camera
+    (:data:`FREE_CAMERA_FRAMES`).
     """
     if kind is ArmKind.FREE:
         return FREE_CAMERA_FRAMES
-    return CrtkFrames(*arm_mount(kind, T_tip_cam, T_world_rcm))
+    return CrtkFrames(*arm_mount(kind, T_tip_cam, T_world_rcm), crtk_frame_id(kind))
 
 
 def make_actuator(

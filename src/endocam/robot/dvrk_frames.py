@@ -35,19 +35,55 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from endocam.geometry import FloatArray, as_pose, invert_pose
+from endocam.robot.actuator import ArmKind
 
 __all__ = [
+    "ARM_NAMESPACES",
     "ECM_TOOLTIP_OFFSET_STRAIGHT",
     "FREE_CAMERA_FRAMES",
     "T_ISI_OPENCV",
     "T_RCM_RCMECM",
     "T_TIP_CAM_ECM",
+    "WORLD_FRAME_ID",
     "CrtkFrames",
+    "crtk_frame_id",
+    "crtk_pose_fields",
     "dvrk_ecm_tip",
     "ecm_camera_from_dvrk_tip",
 ]
+
+ARM_NAMESPACES = {ArmKind.PSM: "PSM3", ArmKind.ECM: "ECM", ArmKind.FREE: "camera"}
+"""The carrier's CRTK namespace, on the link and in MCAP files: the dVRK names its arms PSM1-3
+and ECM (PSM1 and PSM2 hold the instruments here: PSM1 the ring, PSM2 the second tool); the free
+camera, which has no dVRK counterpart, is ``camera``."""
+
+WORLD_FRAME_ID = "world"
+"""``frame_id`` of a pose in the simulation's world frame."""
+
+
+def crtk_frame_id(kind: ArmKind) -> str:
+    """``frame_id`` of carrier ``kind``'s CRTK poses (``measured_cp``, ``setpoint_cp``, ...).
+
+    An arm's: its base frame as the dVRK names it, ``<ARM>_base`` (``m_measured_cp.
+    SetReferenceFrame(GetName() + "_base")`` in ``mtsIntuitiveResearchKitArm::Init``,
+    jhu-dvrk/sawIntuitiveResearchKit commit 9e535e68); the free camera's: the world.
+    """
+    return WORLD_FRAME_ID if kind is ArmKind.FREE else f"{ARM_NAMESPACES[kind]}_base"
+
+
+def crtk_pose_fields(T: FloatArray) -> tuple[float, ...]:
+    """A pose's ``geometry_msgs/Pose`` fields ``(x, y, z, qx, qy, qz, qw)`` (m; ROS's order).
+
+    ``T`` : (4, 4) the pose, m. The one conversion of a pose to its message: the link and the
+    MCAP export both write poses through it.
+    """
+    x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+    p = T[:3, 3]
+    return (float(p[0]), float(p[1]), float(p[2]), float(x), float(y), float(z), float(w))
+
 
 ECM_TOOLTIP_OFFSET_STRAIGHT = np.array(
     [[0.0, 1.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
@@ -108,10 +144,13 @@ class CrtkFrames:
     T_tip_cam : (4, 4)
         The camera optical frame in the dVRK's tip frame, m (the PSM's pickup mount, or
         :data:`T_TIP_CAM_ECM`).
+    frame_id : str
+        The base frame's name, the poses' ``header.frame_id`` (:func:`crtk_frame_id`).
     """
 
     T_world_base: FloatArray
     T_tip_cam: FloatArray
+    frame_id: str = WORLD_FRAME_ID
     _T_base_world: FloatArray = field(init=False, repr=False)
     _T_cam_tip: FloatArray = field(init=False, repr=False)
     identity: bool = field(init=False)

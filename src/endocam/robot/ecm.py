@@ -24,6 +24,16 @@ The residual orientation error is therefore zero exactly when the goal's optical
 through the RCM (``z_goal = p / |p|``), and it is reported otherwise (status
 ``UNREACHABLE``). Joint limits clamp yaw/pitch/insertion (then a bounded least-squares
 solve restores the closest reachable position) and roll (to its nearer limit).
+
+**Least insertion** (:data:`ECM_IK_MIN_INSERTION`): the IK keeps the insertion at 40 mm or
+deeper, as the dVRK's does. ``mtsIntuitiveResearchKitECM::InverseKinematics``
+(jhu-dvrk/sawIntuitiveResearchKit commit 9e535e68, ``core/components/code/
+mtsIntuitiveResearchKitECM.cpp``) solves, then "make sure we are away from RCM point": an
+insertion below ``40.0 * cmn_mm`` is raised to 40 mm. It acts on the Cartesian commands only
+(``servo_cp``, ``move_cp``: the IK), not on ``servo_jp`` or the joint limits (0-0.255 m).
+endocam applies it the way its IK applies any joint limit: as the IK's lower insertion bound,
+the closest pose at 40 mm and status ``CLAMPED_TO_LIMITS`` (the dVRK moves there too, but
+reports success); joint commands and :meth:`ECM.clamp` keep the joint limit.
 """
 
 from __future__ import annotations
@@ -69,6 +79,7 @@ from endocam.robot.kinematics import (
 __all__ = [
     "ECM",
     "ECM_CHAIN",
+    "ECM_IK_MIN_INSERTION",
     "SOLVE_DONE",
     "SOLVE_NEED_NEAREST",
     "EcmSolve",
@@ -97,6 +108,7 @@ DH values and joint limits from jhu-dvrk/sawIntuitiveResearchKit ``share/kinemat
 0-0.255 m, roll ±1.552 rad (±88°).
 """
 
+ECM_IK_MIN_INSERTION = 0.04  # m: the dVRK ECM IK's least insertion (module docstring)
 _EPS_GEOM = 1e-9  # m: a goal this close to the RCM has no defined shaft direction
 _EXACT_TOL_RAD = 1e-9  # rad: orientation residual counted as zero with unlimited joints
 _AXIS_MISS_RAD = 1e-6  # rad: an optical axis this far off the RCM's ray is not exact (≫ round-off)
@@ -366,13 +378,19 @@ class ECM(RcmArm):
             raise ValueError("chain: the ECM closed form needs 4 links")
         links = chain.links
         tool = chain.T_last_tip[:3, :3]
+        ik_lower = self._lower.copy()  # the IK's bounds: the joint limits, insertion ≥ 40 mm
+        ik_lower[2] = min(max(ik_lower[2], ECM_IK_MIN_INSERTION), self._upper[2])
+        ik_lower.setflags(write=False)
+        self.ik_lower = ik_lower
+        """(4,) the IK's lower bounds, rad / m: the joint limits, the insertion raised to
+        :data:`ECM_IK_MIN_INSERTION`."""
         self._consts = np.array(  # the compiled IK's constants (_C_* above)
             [
                 *invert_pose(chain.T_last_tip)[:3].ravel().tolist(),
                 *chain.T_last_tip[:3].ravel().tolist(),
                 *tool.ravel().tolist(),
                 links[2].offset + links[3].D,  # m, tip on axis at insertion 0
-                *self._lower.tolist(),
+                *ik_lower.tolist(),
                 *self._upper.tolist(),
             ]
         )
@@ -395,7 +413,8 @@ class ECM(RcmArm):
             ``OK`` when the goal is reached (its optical axis passes through the RCM and the
             joints are in limits); ``UNREACHABLE`` when the optical axis misses the RCM
             (residual orientation error > 0); ``CLAMPED_TO_LIMITS`` when only joint limits
-            prevent it. ``q`` is always within the limits. Compiled (:func:`solve12`)
+            prevent it (the insertion's IK bound, 40 mm, included). ``q`` is always within
+            the limits and :attr:`ik_lower`. Compiled (:func:`solve12`)
             but for the nearest in-limit position of an axis out of its limits (scipy).
         """
         goal = pose12_from_matrix(T_goal)
@@ -403,7 +422,8 @@ class ECM(RcmArm):
         found = solve12(*args, None)
         if found.outcome == SOLVE_NEED_NEAREST:
             q_clip = self.clamp(np.array(found.q))[:3]
-            near = self._nearest_position(np.array(found.p_goal), q_clip).tolist()
+            shallow = found.q[2] < self.ik_lower[2]  # the aim's insertion: the bound binds
+            near = self._nearest_position(np.array(found.p_goal), q_clip, shallow).tolist()
             found = solve12(*args, (near[0], near[1], near[2]))
         return IKResult(
             np.array(found.q),
@@ -425,15 +445,27 @@ class ECM(RcmArm):
         ok, q = exact12(self._chain.param_array, self._consts, goal12, float(seed[3]))
         return list(q) if ok else None
 
-    def _nearest_position(self, p_goal: FloatArray, q0: FloatArray) -> FloatArray:
-        """Yaw, pitch, insertion within limits whose tip is closest to ``p_goal`` (m)."""
-        lo, hi = self._lower[:3], self._upper[:3]
-        span = hi - lo
-        x0 = np.clip(q0, lo + 1e-9 * span, hi - 1e-9 * span)
+    def _nearest_position(self, p_goal: FloatArray, q0: FloatArray, shallow: bool) -> FloatArray:
+        """Yaw, pitch, insertion within :attr:`ik_lower` and the limits, tip closest to ``p_goal``.
+
+        Solved within the joint limits first and, only if that insertion is below the IK's
+        40 mm, again within the IK's bounds: the solver's steps depend on its bounds, so an
+        insertion the bound does not touch is found exactly as without it (episodes that stay
+        deeper than 40 mm are bit-identical to the joint-limit IK's). ``shallow``: the goal is
+        nearer the RCM than the tip at 40 mm, so the nearest position is at the bound (the
+        first solve is skipped).
+        """
 
         def residual(x: FloatArray) -> FloatArray:  # the tip position of chain_forward
             T = compose_links(self._chain, [*x.tolist(), 0.0])
             return np.array(pose12_point(T, self._chain._tip_rows)) - p_goal
 
-        sol = least_squares(residual, x0, bounds=(lo, hi), method="trf", xtol=1e-12, ftol=1e-12)
-        return np.clip(np.asarray(sol.x, dtype=np.float64), lo, hi)
+        hi = self._upper[:3]
+        for lo in (self.ik_lower[:3],) if shallow else (self._lower[:3], self.ik_lower[:3]):
+            span = hi - lo
+            x0 = np.clip(q0, lo + 1e-9 * span, hi - 1e-9 * span)
+            sol = least_squares(residual, x0, bounds=(lo, hi), method="trf", xtol=1e-12, ftol=1e-12)
+            q = np.clip(np.asarray(sol.x, dtype=np.float64), lo, hi)
+            if q[2] >= self.ik_lower[2]:
+                break
+        return q

@@ -7,12 +7,17 @@ endocam-specific type. Every value of ``episode.csv`` is in a message, bit for b
 in CDR is the float64 the CSV holds); a reader needs no endocam code (docs/robot.md,
 "Recordings: MCAP").
 
-Topics follow the CRTK names the dVRK publishes per arm (``/PSM3/measured_cp``,
-``/PSM3/servo_cp``, ``/PSM3/measured_js``; :func:`topic_map`): the carrier's namespace is
-``PSM3`` (the camera on a PSM), ``ECM`` or ``camera`` (the free camera, no joints). Time
-stamps are the simulation's: header stamps and log times are ``t`` rounded to the
-nanosecond; ``t`` itself, as a float64, is on :data:`SIM_TIME_TOPIC`. Poses are in the
-world frame (``frame_id`` ``world``), m, quaternions as ROS orders them (x, y, z, w).
+Topics follow the CRTK names the dVRK publishes per arm, and a name means what it means on
+the live link (:mod:`endocam.link.messages`): ``/PSM3/measured_cp`` and ``/PSM3/servo_cp``
+(``/ECM/...`` for the ECM; :func:`crtk_topics`) are the dVRK's tool tip in the arm's base
+frame (``frame_id`` ``PSM3_base``), converted from the logged camera pose by the link's own
+:class:`endocam.robot.dvrk_frames.CrtkFrames`; ``/PSM3/measured_js`` the dVRK's joints. The
+logged values themselves (:func:`topic_map`) are in the world frame (``frame_id`` ``world``):
+the camera's optical frame on ``/camera/measured_cp``, the command on ``/camera/servo_cp``
+— for the free camera (no dVRK counterpart, no joints) these are its CRTK topics on the link
+too. Time stamps are the simulation's: header stamps and log times are ``t`` rounded to the
+nanosecond; ``t`` itself, as a float64, is on :data:`SIM_TIME_TOPIC`. Poses are in m,
+quaternions as ROS orders them (x, y, z, w).
 
 The video's frames go in as ``foxglove_msgs/msg/CompressedVideo`` (``h264``: the left eye
 re-encoded without B-frames, a key frame with its SPS/PPS every second, one access unit per
@@ -37,8 +42,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from endocam.config import config_from_mapping
 from endocam.robot.actuator import ArmKind
+from endocam.robot.carriers import crtk_frames
+from endocam.robot.dvrk_frames import (
+    ARM_NAMESPACES,
+    WORLD_FRAME_ID,
+    CrtkFrames,
+    crtk_pose_fields,
+)
 from endocam.runner.check import EPISODE_CSV, SCENE_JSON
 from endocam.runner.log_schema import (
     LogHeader,
@@ -52,8 +66,10 @@ from endocam.runner.outputs import VIDEO_MP4, video_frame_steps, write_atomic
 
 EPISODE_MCAP = "episode.mcap"
 """The file ``--mcap`` writes into each run folder (``endocam export mcap``'s default)."""
-WORLD_FRAME = "world"
-"""``frame_id`` of every pose and point: the simulation's world frame."""
+WORLD_FRAME = WORLD_FRAME_ID
+"""``frame_id`` of every logged pose and point: the simulation's world frame."""
+CAMERA_NS = ARM_NAMESPACES[ArmKind.FREE]
+"""Namespace of the camera's optical frame in the world (``/camera/measured_cp``, ``servo_cp``)."""
 IMAGE_FRAME = "endoscope_left_optical"
 """``frame_id`` of the video frames: the left eye, OpenCV optical frame (x right, y down)."""
 SIM_TIME_TOPIC = "/endocam/sim_time"
@@ -61,9 +77,6 @@ SIM_TIME_TOPIC = "/endocam/sim_time"
 NS_PER_S = 1_000_000_000  # ns in a second: header stamps and MCAP log times are integer ns
 JPEG_QUALITY = 85  # 0..100, OpenCV's JPEG quality for --video jpeg (the wire stays crisp)
 VIDEO_CRF = 20  # x264 constant rate factor of the re-encoded H.264 (as video.mp4's)
-ARM_NAMESPACES = {ArmKind.PSM: "PSM3", ArmKind.ECM: "ECM", ArmKind.FREE: "camera"}
-"""The carrier's CRTK namespace: the dVRK names its arms PSM1-3 and ECM (PSM1 and PSM2 hold
-the instruments here: PSM1 the ring, PSM2 the second tool)."""
 
 _SEP = "\n" + "=" * 80 + "\n"
 
@@ -160,8 +173,8 @@ def topic_map(carrier: ArmKind, estimates: bool = False) -> tuple[Topic, ...]:
     topics = [
         Topic(SIM_TIME_TOPIC, FLOAT, ("t",)),
         Topic("/ring/measured_cp", POSE, pose("ring")),
-        Topic(f"/{arm}/measured_cp", POSE, pose("cam")),
-        Topic(f"/{arm}/servo_cp", POSE, pose("cmd")),
+        Topic(f"/{CAMERA_NS}/measured_cp", POSE, pose("cam")),
+        Topic(f"/{CAMERA_NS}/servo_cp", POSE, pose("cmd")),
         Topic("/PSM1/tip", POINT, xyz_names("psm1_tip")),
         Topic("/PSM2/tip", POINT, xyz_names("psm2_tip")),
         Topic("/endocam/state", TEXT, ("state",)),
@@ -189,6 +202,43 @@ def topic_map(carrier: ArmKind, estimates: bool = False) -> tuple[Topic, ...]:
             Topic("/ring/estimate/age_s", FLOAT, ("est_age_s",)),
         ]
     return tuple(topics)
+
+
+def crtk_topics(carrier: ArmKind) -> tuple[Topic, ...]:
+    """An arm's CRTK pose topics, converted from the logged camera poses (the free camera: none).
+
+    ``/ARM/measured_cp`` from the ``cam_*`` columns, ``/ARM/servo_cp`` from the ``cmd_*``
+    columns (``columns``: the world camera pose each is converted from), each the dVRK's tip in
+    the arm's base frame as the link carries it. The link's ``setpoint_cp`` is not logged in
+    ``episode.csv``, so a file has none.
+    """
+    if carrier is ArmKind.FREE:
+        return ()
+    arm = ARM_NAMESPACES[carrier]
+    by_name = {t.name: t for t in topic_map(carrier)}
+    return tuple(
+        Topic(f"/{arm}/{name}", POSE, by_name[f"/{CAMERA_NS}/{name}"].columns)
+        for name in ("measured_cp", "servo_cp")
+    )
+
+
+def crtk_poses(
+    columns: Mapping[str, np.ndarray], names: tuple[str, ...], frames: CrtkFrames
+) -> list[Any]:
+    """The tip poses of the world camera poses in ``columns[names]`` (ROS order), as message fields.
+
+    ``names`` : the 7 columns ``x, y, z, qx, qy, qz, qw`` of a camera pose in the world, m.
+    Returns per step ``(x, y, z, qx, qy, qz, qw)`` of ``frames.tip_from_camera`` (the link's
+    conversion, :func:`endocam.robot.dvrk_frames.crtk_pose_fields`), all NaN where the logged
+    pose is not finite.
+    """
+    v = np.column_stack([np.asarray(columns[c], dtype=float) for c in names])
+    ok = np.all(np.isfinite(v), axis=1)
+    T = np.tile(np.eye(4), (len(v), 1, 1))
+    T[:, :3, 3] = v[:, :3]
+    T[ok, :3, :3] = Rotation.from_quat(v[ok, 3:]).as_matrix()
+    nan = (math.nan,) * 7
+    return [crtk_pose_fields(frames.tip_from_camera(T[k])) if ok[k] else nan for k in range(len(v))]
 
 
 def video_topic(video: VideoFormat) -> Topic:
@@ -231,6 +281,7 @@ class RunFiles:
     ``columns`` : every ``episode.csv`` column, (N,) float64 (NaN for an empty cell) or, for
     the text columns, strings. ``video`` : the ``video.mp4`` path, or ``None``.
     ``frame_steps`` : (F,) the control step each video frame shows.
+    ``frames`` : where the carrier's CRTK poses are (the run's config, as the link mounts it).
     """
 
     header: LogHeader
@@ -238,6 +289,7 @@ class RunFiles:
     columns: Mapping[str, np.ndarray]
     video: Path | None
     frame_steps: np.ndarray
+    frames: CrtkFrames
 
 
 def read_run(run_dir: Path) -> RunFiles:
@@ -263,7 +315,9 @@ def read_run(run_dir: Path) -> RunFiles:
         steps = video_frame_steps(
             header.duration, episode["control_rate"], episode["video_fps"], len(columns["t"])
         )
-    return RunFiles(header, scene, columns, video if video.is_file() else None, steps)
+    config = config_from_mapping(scene.get("config", {}), f"{run_dir / SCENE_JSON} (config)")
+    frames = crtk_frames(header.carrier, config.episode.T_tip_cam, config.task.scene.T_world_rcm)
+    return RunFiles(header, scene, columns, video if video.is_file() else None, steps, frames)
 
 
 def export_mcap(
@@ -309,9 +363,11 @@ def _write(
     from mcap_ros2.writer import Writer
 
     topics = topic_map(run.header.carrier, run.header.estimates)
+    tips = crtk_topics(run.header.carrier)
     vtopic = video_topic(video) if frames else None
     used = {t.type for t in topics} | ({vtopic.type} if vtopic is not None else set())
     cols = run.columns
+    tip_poses = {t.name: crtk_poses(cols, t.columns, run.frames) for t in tips}
     writer = Writer(fh)
     schemas = {n: writer.register_msgdef(n, SCHEMAS[n]) for n in SCHEMAS if n in used}
     writer.add_metadata("endocam", _metadata(run))
@@ -328,6 +384,11 @@ def _write(
         for topic in topics:
             msg = _message(topic, k, header, values, names)
             writer.write_message(topic.name, schemas[topic.type], msg, ns, ns, k)
+            messages += 1
+        tip_header = {"stamp": header["stamp"], "frame_id": run.frames.frame_id}
+        for topic in tips:
+            msg = _pose_message(tip_header, tip_poses[topic.name][k])
+            writer.write_message(topic.name, schemas[POSE], msg, ns, ns, k)
             messages += 1
         if vtopic is not None:
             for j in frames_at.get(k, ()):
@@ -348,13 +409,7 @@ def _message(
     """The message of ``topic`` at step ``k`` (a dict in the ROS 2 type's field layout)."""
     v = [values[c][k] for c in topic.columns]
     if topic.type == POSE:
-        return {
-            "header": header,
-            "pose": {
-                "position": {"x": v[0], "y": v[1], "z": v[2]},
-                "orientation": {"x": v[3], "y": v[4], "z": v[5], "w": v[6]},
-            },
-        }
+        return _pose_message(header, v)
     if topic.type == POINT:
         return {"header": header, "point": {"x": v[0], "y": v[1], "z": v[2]}}
     if topic.type == VECTOR:
@@ -364,6 +419,17 @@ def _message(
     if topic.type == "std_msgs/msg/Bool":
         return {"data": bool(v[0])}
     return {"data": v[0]}
+
+
+def _pose_message(header: dict[str, Any], v: Any) -> dict[str, Any]:
+    """``geometry_msgs/PoseStamped`` of the fields ``v`` = ``(x, y, z, qx, qy, qz, qw)``."""
+    return {
+        "header": header,
+        "pose": {
+            "position": {"x": v[0], "y": v[1], "z": v[2]},
+            "orientation": {"x": v[3], "y": v[4], "z": v[5], "w": v[6]},
+        },
+    }
 
 
 def _frame_message(video: VideoFormat, data: bytes, stamp: dict[str, int]) -> dict[str, Any]:
