@@ -52,9 +52,7 @@ def depth_scaled_gains(alpha: float, beta: float, scale: float) -> tuple[float, 
     index = 2.0 * (1.0 - r_ref) ** 2 / r_ref / scale  # Kalata's Λ for alpha, over the scale
     r = (4.0 + index - math.sqrt(index * index + 8.0 * index)) / 4.0
     a = 1.0 - r * r
-    b_ref = kalata_beta(alpha)
-    b = kalata_beta(a)
-    return a, (beta * b / b_ref if b_ref > 0.0 else beta)
+    return a, kalata_scaled_beta(beta, alpha, a)
 
 
 def kalata_beta(alpha: float) -> float:
@@ -63,6 +61,20 @@ def kalata_beta(alpha: float) -> float:
     ``β = 2 (2 − α) − 4 √(1 − α)``.
     """
     return 2.0 * (2.0 - alpha) - 4.0 * math.sqrt(1.0 - alpha)
+
+
+def kalata_scaled_beta(beta: float, alpha_ref: float, alpha: float) -> float:
+    """A configured ``beta`` (given at ``alpha_ref``) moved along Kalata's curve to ``alpha``.
+
+    ``beta`` times the ratio of Kalata's ``β`` at ``alpha`` to his at ``alpha_ref``.
+    """
+    b_ref = kalata_beta(alpha_ref)
+    return beta * kalata_beta(alpha) / b_ref if b_ref > 0.0 else beta
+
+
+def chord(angle: float) -> float:
+    """The chord between two unit vectors ``angle`` rad apart (capped at π)."""
+    return 2.0 * math.sin(0.5 * min(angle, math.pi))
 
 
 @dataclass(frozen=True)
@@ -108,8 +120,7 @@ class NormalAdaptation:
         """
         a = 1.0 - (self.noise / typical) ** 2 if typical > 0.0 else 0.0
         a = min(self.alpha_max, max(alpha, a))
-        b_ref = kalata_beta(alpha)
-        return a, (beta * kalata_beta(a) / b_ref if b_ref > 0.0 else beta)
+        return a, kalata_scaled_beta(beta, alpha, a)
 
 
 @dataclass(frozen=True)
@@ -121,8 +132,10 @@ class StepLimit:
     horizon / Δt)`` times the estimate's innovation. The filter clips each innovation so that
     this step stays within the observation gate's stereo floors (``position``, m; ``angle``,
     rad): a faster filter then never hands the gate a step it refuses, and the gate still
-    refuses what a fault adds after the filter. At the default gains (0.2 / 0.02) the limits
-    lie beyond the filter's own gates and change nothing.
+    refuses what a fault adds after the filter. At round 15's gains (0.2 / 0.02) the limits
+    lay beyond the filter's own gates (2 mm, 6°); at the centre's 0.7 / 0.4 (50 mm, 30
+    frames/s, 0.1 s horizon) its clip is 1 mm / 1.9 ≈ 0.5 mm; the normal's (0.2 / 0.02) stays
+    the filter's own 6°.
     """
 
     position: float
@@ -181,7 +194,7 @@ class TrackFilter:
         self._alpha = np.array([alpha] * 3 + [a_n] * 3)  # (6,): the centre's, the normal's
         self._beta = np.array([beta] * 3 + [b_n] * 3)
         self.gate_position = gate_position
-        self.gate_normal = 2.0 * math.sin(0.5 * min(gate_angle, math.pi))  # chord, unit normals
+        self.gate_normal = chord(gate_angle)  # unit normals: the gate as a chord
         self.t: float | None = None
         self.x = np.zeros(6)  # centre (m), unit normal
         self.v = np.zeros(6)  # their rates, m/s and 1/s
@@ -194,8 +207,7 @@ class TrackFilter:
             return self.gate_position, self.gate_normal
         k = lim.horizon / dt
         step_p = lim.position / float(self._alpha[0] + self._beta[0] * k)
-        step_n = 2.0 * math.sin(0.5 * min(lim.angle, math.pi))
-        step_n /= float(self._alpha[3] + self._beta[3] * k)
+        step_n = chord(lim.angle) / float(self._alpha[3] + self._beta[3] * k)
         return min(self.gate_position, step_p), min(self.gate_normal, step_n)
 
     @property
