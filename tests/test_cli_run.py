@@ -179,3 +179,24 @@ def test_config_command_prints_validated_defaults(capsys: pytest.CaptureFixture[
     text = capsys.readouterr().out
     assert "cone_base_radius: 0.25" in text
     assert "control_rate: 100.0" in text
+
+
+def test_the_progress_bars_clock_starts_after_the_first_steps() -> None:
+    """The first steps' compile or cache load is not read as the loop's speed."""
+    import io
+    import time
+
+    from tqdm import tqdm
+
+    from endocam.runner.experiments import clock_from_first_update
+
+    first_steps_s = 0.5  # s: a stand-in for the first steps' kernel loading
+    bar = tqdm(total=600, file=io.StringIO(), mininterval=0.0)
+    update = clock_from_first_update(bar)
+    time.sleep(first_steps_s)
+    update(60)
+    assert bar.n == 60  # the first steps count
+    assert bar.format_dict["elapsed"] < first_steps_s  # but the clock starts after them
+    update(60)
+    assert bar.n == 120
+    bar.close()

@@ -169,3 +169,37 @@ def test_importing_endocam_points_numba_at_it_unless_the_user_chose(tmp_path: Pa
     assert expected.is_dir()
     chosen = tmp_path / "mine"
     assert _numba_cache_dir({**env, "NUMBA_CACHE_DIR": str(chosen)}) == str(chosen)
+
+
+def test_a_cache_folder_without_an_index_file_is_cold(tmp_path: Path) -> None:
+    from endocam.runner.precompile import kernels_cached
+
+    assert not kernels_cached({"NUMBA_CACHE_DIR": str(tmp_path)})
+    (tmp_path / "control_0" / "x.nbc").parent.mkdir()
+    (tmp_path / "control_0" / "x.nbc").write_bytes(b"")  # data without its index: not loadable
+    assert not kernels_cached({"NUMBA_CACHE_DIR": str(tmp_path)})
+    (tmp_path / "control_0" / "plan.plan_step-10.py311.nbi").write_bytes(b"")
+    assert kernels_cached({"NUMBA_CACHE_DIR": str(tmp_path)})
+    assert kernels_cached({})  # no folder of endocam's choosing: numba's own, not looked at
+
+
+def test_commands_that_run_episodes_say_when_they_will_compile(tmp_path: Path) -> None:
+    from endocam.cli import build_parser, first_use_note
+
+    cold = {"NUMBA_CACHE_DIR": str(tmp_path)}
+    parser = build_parser()
+    run = parser.parse_args(["run", "--policy", "endocam", "--trajectory", "noisy", "--out", "r"])
+    note = first_use_note(run, cold)
+    assert note is not None and str(tmp_path) in note and "compil" in note
+    assert "\n" not in note
+    for argv in (["demo"], ["sweep", "--out", "w"], ["study", "make", "--out", "s"]):
+        assert first_use_note(parser.parse_args(argv), cold) is not None, argv
+    for argv in (
+        ["check", "r"],
+        ["policies"],
+        ["compile"],
+        ["study", "serve", "--study", "s", "--db", "d"],
+    ):
+        assert first_use_note(parser.parse_args(argv), cold) is None, argv  # they run none
+    (tmp_path / "x.nbi").write_bytes(b"")
+    assert first_use_note(run, cold) is None  # warm: nothing to say

@@ -37,7 +37,15 @@ from endocam.cli import check, export, kernels, link, policies, run, study, swee
 from endocam.cli.common import EXIT_INTERNAL, EXIT_UNSAFE, EXIT_USAGE, Parser, UsageError
 from endocam.task.layout import FramingError
 
-__all__ = ["EXIT_INTERNAL", "EXIT_UNSAFE", "EXIT_USAGE", "UsageError", "build_parser", "main"]
+__all__ = [
+    "EXIT_INTERNAL",
+    "EXIT_UNSAFE",
+    "EXIT_USAGE",
+    "UsageError",
+    "build_parser",
+    "first_use_note",
+    "main",
+]
 
 Handler = Callable[[argparse.Namespace], int | None]
 
@@ -59,11 +67,33 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def first_use_note(args: argparse.Namespace, environ: dict[str, str] | None = None) -> str | None:
+    """The line saying a command's first episode compiles the kernels, or ``None``.
+
+    Said when the command runs episodes (its parser's ``runs_episodes``) and numba's cache folder
+    holds no compiled kernel yet (:func:`endocam.runner.precompile.kernels_cached`): the first
+    episode then spends tens of seconds of CPU compiling before its first step, which its
+    progress bar alone would show as a stall.
+    """
+    from endocam.runner.precompile import kernels_cached
+
+    if not getattr(args, "runs_episodes", False) or kernels_cached(environ):
+        return None
+    folder = (os.environ if environ is None else environ)["NUMBA_CACHE_DIR"]
+    return (
+        "endocam: compiling the control loop's kernels for their first use (~30 s of CPU, once; "
+        f"later runs load them from {folder}; `endocam compile` does it ahead)"
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; returns the process exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
     handler: Handler = args.handler
+    note = first_use_note(args)
+    if note is not None:
+        print(note, file=sys.stderr)
     try:
         with _sigterm_interrupts(), _named_stdout():
             code = handler(args)

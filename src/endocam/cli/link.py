@@ -182,7 +182,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument(
         "--wait", type=_number, default=60.0, help="wait this many s for a controller (default 60)"
     )
-    s.set_defaults(handler=_serve)
+    s.set_defaults(handler=_serve, runs_episodes=True)
 
     c = sub.add_parser(
         "control",
@@ -213,4 +213,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument(
         "--wait", type=_number, default=30.0, help="wait this many s for the robot (default 30)"
     )
-    c.set_defaults(handler=_control)
+    c.set_defaults(handler=_control, runs_episodes=True)

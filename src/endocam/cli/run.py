@@ -253,7 +253,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     _faults_arg(p)
     perception_arg(p)
     _mcap_arg(p)
-    p.set_defaults(handler=_run)
+    p.set_defaults(handler=_run, runs_episodes=True)
 
     d = sub.add_parser(
         "demo",
@@ -266,7 +266,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--config", help="TOML or YAML config file")
     perception_arg(d)
     _mcap_arg(d)
-    d.set_defaults(handler=_demo)
+    d.set_defaults(handler=_demo, runs_episodes=True)
 
     e = sub.add_parser("experiment", help="reproduce the paper's experiments")
     esub = e.add_subparsers(dest="experiment", metavar="NAME")
@@ -294,7 +294,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     ep.add_argument("--config", help="TOML or YAML config file")
     _faults_arg(ep)
     _mcap_arg(ep)
-    ep.set_defaults(handler=_experiment)
+    ep.set_defaults(handler=_experiment, runs_episodes=True)
     et = esub.add_parser(
         "tracking",
         help="the tracking protocol: controllers (paper, endocam, centering, oracle, "
@@ -321,7 +321,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     _faults_arg(et)
     perception_arg(et)
     _mcap_arg(et)
-    et.set_defaults(handler=_tracking)
+    et.set_defaults(handler=_tracking, runs_episodes=True)
     epc = esub.add_parser(
         "perception",
         help="the stereo estimator alone on rendered pairs over the paper's six paths (the "
@@ -337,7 +337,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="stereo pairs over the twelve episodes (default 300: about a minute)",
     )
     epc.add_argument("--config", help="TOML or YAML config file")
-    epc.set_defaults(handler=_perception)
+    epc.set_defaults(handler=_perception, runs_episodes=True)
     ef = esub.add_parser(
         "faults",
         help="the fault matrix: each fault alone at two severities, then all at once, on the "
@@ -349,7 +349,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     ef.add_argument("--config", help="TOML or YAML config file (its faults section is ignored)")
     perception_arg(ef)  # the matrix on the stereo estimate (faults on what it delivers)
     _mcap_arg(ef)
-    ef.set_defaults(handler=_faults)
+    ef.set_defaults(handler=_faults, runs_episodes=True)
 
     c = sub.add_parser("config", help="print the full config (defaults, or --config merged)")
     c.add_argument("--config", help="TOML or YAML config file to validate and show")

@@ -151,7 +151,7 @@ def _add_observe(sub: argparse._SubParsersAction) -> None:
         default=DEFAULT_WORKERS,
         help="worker processes that count videos (1: in this process; default: %(default)s)",
     )
-    p.set_defaults(handler=_observe)
+    p.set_defaults(handler=_observe, runs_episodes=True)
 
 
 # --- study ideal-observer (a learned observer, issue 27) -------------------------------------
@@ -470,7 +470,7 @@ def _add_make(sub: argparse._SubParsersAction) -> None:
         help="write no practice video (default: videos/practice.mp4, the easiest trajectory "
         "with its own seed and the fixed camera, shown with feedback before the first set)",
     )
-    p.set_defaults(handler=_make)
+    p.set_defaults(handler=_make, runs_episodes=True)
 
 
 def _add_serve(sub: argparse._SubParsersAction) -> None:

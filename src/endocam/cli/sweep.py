@@ -172,4 +172,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument(
         "--base-config", dest="config", help="base TOML/YAML config without a sweep file"
     )
-    s.set_defaults(handler=_sweep)
+    s.set_defaults(handler=_sweep, runs_episodes=True)

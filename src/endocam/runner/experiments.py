@@ -71,13 +71,35 @@ def ground_truth(config: ExperimentConfig, kind: TrajectoryKind, n: int, seed: i
     return touch_events(traj, wire, config.task.ring, config.task.trajectory.touch_sample_dt)
 
 
+def clock_from_first_update(bar: tqdm) -> Callable[[int], object]:
+    """``bar.update``, but the bar's clock restarts at the first update.
+
+    An episode's first steps load (or, on first use, compile) its kernels: seconds to tens of
+    seconds before the loop runs at its speed. Counted in, they make the bar's rate and time
+    left read as a stall (2 steps/s and "35:13" left, for a loop that then runs in 5 s). Those
+    first steps still count; the rate and time left are of the steps after them.
+    """
+    started = False
+
+    def update(n: int) -> object:
+        nonlocal started
+        if not started:
+            started = True
+            done = bar.n
+            bar.reset()  # tqdm's public way to restart its clock (and its count: restored next)
+            return bar.update(done + n)
+        return bar.update(n)
+
+    return update
+
+
 def run_with_progress(
     config: ExperimentConfig, spec: EpisodeSpec, touches: TouchReport | None = None
 ) -> EpisodeResult:
     """:func:`run_episode` with a progress bar over control steps."""
     steps = math.floor(config.task.trajectory.duration * config.episode.control_rate + 1e-9) + 1
     with _bar(steps, f"{spec.policy} control") as bar:
-        return run_episode(config, spec, progress=bar.update, touches=touches)
+        return run_episode(config, spec, progress=clock_from_first_update(bar), touches=touches)
 
 
 def run_and_write(

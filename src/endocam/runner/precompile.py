@@ -15,14 +15,22 @@ before. The episodes' results are discarded.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 from endocam.config import ExperimentConfig, config_from_mapping
 from endocam.registry import POLICIES
 from endocam.robot.actuator import ArmKind
 
-__all__ = ["DEFAULT_DURATION_S", "PrecompileJob", "precompile", "precompile_jobs"]
+__all__ = [
+    "DEFAULT_DURATION_S",
+    "PrecompileJob",
+    "kernels_cached",
+    "precompile",
+    "precompile_jobs",
+]
 
 DEFAULT_DURATION_S = 2.0
 """s: long enough for every carrier to leave its start pose, plan, transfer and brake."""
@@ -42,6 +50,24 @@ class PrecompileJob:
 
     arm: ArmKind
     policy: str
+
+
+def kernels_cached(environ: dict[str, str] | None = None) -> bool:
+    """Whether numba's cache folder holds compiled kernels (any index file, ``*.nbi``).
+
+    ``False`` means the next episode compiles its kernels (tens of seconds of CPU) before its
+    first step. Without ``NUMBA_CACHE_DIR`` (numba imported before endocam chose its folder)
+    the cache sits beside the sources and is not looked at: ``True``.
+
+    Parameters
+    ----------
+    environ : dict, optional
+        The environment to read ``NUMBA_CACHE_DIR`` from (default: this process's).
+    """
+    folder = (os.environ if environ is None else environ).get("NUMBA_CACHE_DIR")
+    if not folder:
+        return True
+    return next(Path(folder).rglob("*.nbi"), None) is not None
 
 
 def precompile_jobs(arms: Sequence[ArmKind] = tuple(ArmKind)) -> list[PrecompileJob]:
