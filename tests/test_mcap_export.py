@@ -277,6 +277,8 @@ def test_bad_input_exits_2_and_writes_nothing(
         assert main(["export", "mcap", *args]) == 2, args
         assert needle in _err_line(capsys)
         assert not out.exists()
+    assert main(["export", "mcap", str(tmp_path / "missing")]) == 2  # the input named first
+    assert "missing is not a folder" in _err_line(capsys)
     assert main(["export", "mcap", str(run_dir)]) == 2  # --mcap wrote it: not replaced
     assert "--force" in _err_line(capsys)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["no_csv", "short"]  # no temp files

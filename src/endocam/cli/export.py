@@ -50,6 +50,10 @@ def _export_mcap(args: argparse.Namespace) -> int:
 
     require_mcap()
     run_dir = Path(args.run_dir)
+    try:
+        run = read_run(run_dir)  # the input first: a missing run is named as such
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     out = Path(args.out) if args.out is not None else run_dir / EPISODE_MCAP
     if out.is_dir():
         raise UsageError(f"--out {out} is a folder; name a file, e.g. {out / EPISODE_MCAP}")
@@ -58,7 +62,6 @@ def _export_mcap(args: argparse.Namespace) -> int:
     if not out.parent.is_dir():
         raise UsageError(f"--out {out}: folder {out.parent} does not exist")
     try:
-        run = read_run(run_dir)  # refuse a bad folder before any work
         video = VideoFormat(args.video)
         frames = run.video is not None and video is not VideoFormat.NONE
         total = len(run.columns["t"]) + (len(run.frame_steps) if frames else 0)
