@@ -72,6 +72,7 @@ from endocam.control.occlusion import (
     GAP_M,
     GapPoints,
     RingShape,
+    contact_points,
     direction_table,
     eye_positions,
     gap_points,
@@ -178,6 +179,22 @@ class VisibleConfig:
     either_eye : bool
         A candidate is worth its better eye's share (the study counts a gap seen from either
         eye); ``False``: the two eyes' mean.
+    contact_arc : float
+        The views are judged on the predicted contact's neighbourhood: ``contact_points`` gap
+        points within this arc of rim (m) either side of the rim point nearest the wire
+        (:func:`~endocam.control.occlusion.contact_points`), equally weighted, instead of
+        the whole rim's weighted share (0: the whole rim).
+    contact_points : int
+        Gap points in the contact's neighbourhood (``contact_arc`` > 0).
+    contact_side : bool
+        With ``contact_arc``: the side too is chosen on the contact's neighbourhood; ``False``:
+        the side on the whole rim's share (the steadier judgement of where the wire leans
+        away), the tilt on the contact's.
+    tilt_feedforward : float
+        Gain on the tilt's own turn rate fed forward in the commanded twist (the camera's
+        orbit about the ring centre while the axis moves towards its target: angular
+        ``ω = a₀ × a₁ / dt`` of the axis before and after the step, linear ``ω × (p − c)``);
+        0: the tracker's twist alone (it reads the turned normal through its predictor only).
     """
 
     max_tilt: float = math.radians(20.0)
@@ -203,11 +220,15 @@ class VisibleConfig:
     engage_clearance: float = 1.0e-3
     horizon_poses: int = 4
     either_eye: bool = True
+    contact_arc: float = 0.0
+    contact_points: int = 7
+    contact_side: bool = False
+    tilt_feedforward: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt <= math.radians(25.0):
             raise ValueError(f"max_tilt must be in (0, 25°] rad, got {self.max_tilt}")
-        for name in ("tilt_steps", "azimuths", "rim_points", "horizon_poses"):
+        for name in ("tilt_steps", "azimuths", "rim_points", "horizon_poses", "contact_points"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be ≥ 1, got {getattr(self, name)}")
         for name in (
@@ -233,6 +254,8 @@ class VisibleConfig:
             "wire_slack",
             "lookahead",
             "max_predicted_turn",
+            "contact_arc",
+            "tilt_feedforward",
         ):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"{name} must be ≥ 0, got {getattr(self, name)}")
@@ -302,6 +325,7 @@ class VisiblePolicy(EndocamPolicy):
         self.idle_scorings = 0  # scorings skipped this episode (no touch near)
         self.engaged = False  # the last scoring had a touch near
         self._track: deque[tuple[float, FloatArray]] = deque()  # accepted (t_ring s, T_ring)
+        self._axis_rate = np.zeros(3)  # rad/s, world: the axis' own turn this step (the tilt's)
 
     def reset(self, context: PolicyContext) -> None:
         """The tracker's reset; the axis back on the normal, no side yet."""
@@ -344,7 +368,9 @@ class VisiblePolicy(EndocamPolicy):
         if n is not None and self._wire is not None and t >= self._next_score:
             self._next_score = t + self.visible.score_period
             self._score(self._ahead_poses(T_ring, t_ring, t), t)
+        before = self._offset
         self._advance()
+        self._axis_rate = self._turn_rate(n, before)
         ox, oy, oz = self._offset
         if n is None or (ox == 0.0 and oy == 0.0 and oz == 0.0):
             plan = super()._plan_step(obs, T_cam, T_ring)
@@ -356,6 +382,34 @@ class VisiblePolicy(EndocamPolicy):
             while len(self._track) > 2 and self._track[1][0] <= t_ring - self._window:
                 self._track.popleft()
         return plan
+
+    def _turn_rate(
+        self, n: tuple[float, float, float] | None, before: tuple[float, ...]
+    ) -> FloatArray:
+        """The axis' turn rate (3,), rad/s, world, from offset ``before`` to the applied one.
+
+        Zero without a usable normal ``n``, a side, or ``tilt_feedforward``.
+        """
+        side = self._side if self._side != 0.0 else self._want
+        if n is None or side == 0.0 or self.visible.tilt_feedforward == 0.0:
+            return np.zeros(3)
+        n_arr = np.array(n)
+        a0 = _axis(side, n_arr, (before[0], before[1], before[2]))
+        a1 = _axis(side, n_arr, self._offset)
+        return np.asarray(np.cross(a0, a1) / self._dt, dtype=float)
+
+    def _feedforward_twist(self, goal: FloatArray, twist: FloatArray, d_f: float) -> FloatArray:
+        """The tracker's twist (6,) plus the tilt's own turn × ``tilt_feedforward``.
+
+        The camera at ``goal`` (4, 4) orbits the ring centre (``d_f`` m along the axis) at the
+        axis' turn rate: linear ``ω × (p − c)``, angular ``ω`` (world).
+        """
+        twist = super()._feedforward_twist(goal, twist, d_f)
+        w = self.visible.tilt_feedforward * self._axis_rate
+        if not np.any(w):
+            return twist
+        r = -d_f * np.asarray(goal[:3, 2], dtype=float)  # the camera from the ring centre
+        return np.asarray(twist + np.concatenate([np.cross(w, r), w]), dtype=float)
 
     def _lose(self, reason: str) -> CameraCommand:
         """The tracker's lost tracking; the prediction's samples are forgotten too."""
@@ -453,37 +507,50 @@ class VisiblePolicy(EndocamPolicy):
         c = self._candidates(p_c, n_arr, side_now)
         left, right = eye_positions(p_c, c.dirs, self.d_f, self._baseline)
         feasible, beyond = self._feasible(c, p_c, left + 0.5 * (right - left))
-        shares = view_shares(
-            np.vstack([left, right]),
-            np.vstack([-c.dirs, -c.dirs]),
-            sight(gaps, self._focal_px, vc.resolved_px),
-            occluders(window, wire.radius, T_ring, self._shape),
-        )
-        m = len(c.dirs)
+        eyes, axes = np.vstack([left, right]), np.vstack([-c.dirs, -c.dirs])
+        occ = occluders(window, wire.radius, T_ring, self._shape)
         urgency = math.exp(-nearest / vc.urgency_scale)  # a touch near: the view matters
-        if vc.either_eye:  # the better eye's share: the study counts either eye
-            score = urgency * np.maximum(shares[:m], shares[m:])
-        else:
-            score = urgency * 0.5 * (shares[:m] + shares[m:])
         cost = vc.tilt_cost * (c.tilt + beyond)  # the orientation error it is expected to pay
-        utility = np.where(feasible, score - cost, -np.inf)
+        shares = view_shares(eyes, axes, sight(gaps, self._focal_px, vc.resolved_px), occ)
+        rim = self._utility(shares, urgency, cost, feasible)  # the side's: the whole rim's
+        near = rim  # the tilt's: the whole rim's, or the contact's neighbourhood's
+        if vc.contact_arc > 0.0:
+            arc, count = vc.contact_arc, vc.contact_points
+            contact = contact_points(T_ring, window, self._shape, wire.radius, arc, count)
+            shares = view_shares(eyes, axes, sight(contact, self._focal_px, vc.resolved_px), occ)
+            near = self._utility(shares, urgency, cost, feasible)
+        side_u = near if vc.contact_side else rim
         k = c.per_side
-        j = int(np.argmax(utility[:k]))
+        j = int(np.argmax(near[:k]))
         offset = _ZERO if j == 0 else _offset_of(side_now, n_arr, c.dirs[j])
-        now = utility[0] if self._targets[side_now] == _ZERO else utility[k + 1]
+        now = near[0] if self._targets[side_now] == _ZERO else near[k + 1]
         scores = {
-            side_now: SideScore(float(utility[j]), offset, float(now)),
-            -side_now: SideScore(float(utility[k]), _ZERO),  # the other side: its own view
+            side_now: SideScore(float(np.max(side_u[:k])), offset, float(now)),
+            -side_now: SideScore(float(side_u[k]), _ZERO),  # the other side: its own view
         }
         self.last_scores = scores
         want, self._since = choose_side(side_now, scores, self._since, t, vc)
         if want != self._want and self._want != 0.0:
             self.side_changes += 1
         self._want = want
-        best = scores[side_now]
-        if best.utility > best.current + vc.tilt_margin:
-            self._targets[side_now] = best.offset
+        if near[j] > now + vc.tilt_margin:
+            self._targets[side_now] = offset
         self._targets[-side_now] = _ZERO  # a new side starts on its own view
+
+    def _utility(
+        self, shares: FloatArray, urgency: float, cost: FloatArray, feasible: np.ndarray
+    ) -> FloatArray:
+        """(C,) each candidate's utility: its score less ``cost`` (C,), −inf if not feasible.
+
+        ``shares`` (2C,): the left eyes' shares, then the right eyes'; the score is the
+        better eye's (``either_eye``) or their mean, times ``urgency``.
+        """
+        m = len(cost)
+        if self.visible.either_eye:  # the better eye's share: the study counts either eye
+            score = urgency * np.maximum(shares[:m], shares[m:])
+        else:
+            score = urgency * 0.5 * (shares[:m] + shares[m:])
+        return np.asarray(np.where(feasible, score - cost, -np.inf), dtype=float)
 
     def _gaps(self, T_ring: FloatArray, window: FloatArray) -> GapPoints:
         """The gap points of the ring at ``T_ring`` (4, 4) by the wire's ``window`` (K, 3)."""
