@@ -202,10 +202,10 @@ def test_the_contact_neighbourhood_surrounds_the_rim_point_nearest_the_wire() ->
 
 
 def test_the_scorer_judges_the_contact_neighbourhood(monkeypatch: pytest.MonkeyPatch) -> None:
-    """With ``contact_arc`` the views are scored on the contact's neighbourhood alone, equally
-    weighted (``contact_points`` of them), not on the whole rim's ``rim_points``: the points
-    handed to the sight lines all lie within the arc's chord of the rim's point nearest the
-    wire."""
+    """With ``contact_arc`` the tilt is scored on the contact's neighbourhood, equally
+    weighted (``contact_points`` of them), besides the whole rim's ``rim_points`` (the side's):
+    the points handed to the second sight-line call all lie within the arc of the rim's point
+    nearest the wire; without it there is one call, on the whole rim."""
     import endocam.control.policies.visible as visible
 
     wire = centred_wire()
@@ -213,11 +213,10 @@ def test_the_scorer_judges_the_contact_neighbourhood(monkeypatch: pytest.MonkeyP
     rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)
     start = look_at_pose(P_RING + 0.045 * N_RING, P_RING)
     touching = ring_pose(P_RING + 2.8e-3 * E_CONTACT, N_RING)  # the rim 0.2 mm from the wire
-    handed: list[np.ndarray] = []
+    handed: list[tuple[np.ndarray, np.ndarray]] = []
 
     def shares(eyes: np.ndarray, axes: np.ndarray, seen: object, occ: object) -> np.ndarray:
-        handed.append(np.asarray(seen.weights))  # type: ignore[attr-defined]
-        handed.append(np.asarray(seen.points))  # type: ignore[attr-defined]
+        handed.append((np.asarray(seen.weights), np.asarray(seen.points)))  # type: ignore[attr-defined]
         return np.zeros(len(eyes))
 
     monkeypatch.setattr(visible, "view_shares", shares)
@@ -228,10 +227,12 @@ def test_the_scorer_judges_the_contact_neighbourhood(monkeypatch: pytest.MonkeyP
         policy.reset(context)
         handed.clear()
         policy._score([touching], 0.0)
-        weights, points = handed
+        assert len(handed[0][0]) == cfg.rim_points
         if arc == 0.0:
-            assert len(weights) == cfg.rim_points
+            assert len(handed) == 1
             continue
+        assert len(handed) == 2
+        weights, points = handed[1]
         assert len(weights) == cfg.contact_points and np.all(weights == 1.0)
         line = P_RING + np.linspace(-0.08, 0.08, 5)[:, None] * N_RING  # the wire's centre line
         contact = contact_points(touching, line, RING, WIRE_R, 0.0, 1).points[0]
