@@ -190,11 +190,6 @@ class VisibleConfig:
         With ``contact_arc``: the side too is chosen on the contact's neighbourhood; ``False``:
         the side on the whole rim's share (the steadier judgement of where the wire leans
         away), the tilt on the contact's.
-    tilt_feedforward : float
-        Gain on the tilt's own turn rate fed forward in the commanded twist (the camera's
-        orbit about the ring centre while the axis moves towards its target: angular
-        ``ω = a₀ × a₁ / dt`` of the axis before and after the step, linear ``ω × (p − c)``);
-        0: the tracker's twist alone (it reads the turned normal through its predictor only).
     """
 
     max_tilt: float = math.radians(20.0)
@@ -223,7 +218,6 @@ class VisibleConfig:
     contact_arc: float = 0.0
     contact_points: int = 7
     contact_side: bool = False
-    tilt_feedforward: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt <= math.radians(25.0):
@@ -255,7 +249,6 @@ class VisibleConfig:
             "lookahead",
             "max_predicted_turn",
             "contact_arc",
-            "tilt_feedforward",
         ):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"{name} must be ≥ 0, got {getattr(self, name)}")
@@ -325,7 +318,6 @@ class VisiblePolicy(EndocamPolicy):
         self.idle_scorings = 0  # scorings skipped this episode (no touch near)
         self.engaged = False  # the last scoring had a touch near
         self._track: deque[tuple[float, FloatArray]] = deque()  # accepted (t_ring s, T_ring)
-        self._axis_rate = np.zeros(3)  # rad/s, world: the axis' own turn this step (the tilt's)
 
     def reset(self, context: PolicyContext) -> None:
         """The tracker's reset; the axis back on the normal, no side yet."""
@@ -368,9 +360,7 @@ class VisiblePolicy(EndocamPolicy):
         if n is not None and self._wire is not None and t >= self._next_score:
             self._next_score = t + self.visible.score_period
             self._score(self._ahead_poses(T_ring, t_ring, t), t)
-        before = self._offset
         self._advance()
-        self._axis_rate = self._turn_rate(n, before)
         ox, oy, oz = self._offset
         if n is None or (ox == 0.0 and oy == 0.0 and oz == 0.0):
             plan = super()._plan_step(obs, T_cam, T_ring)
@@ -382,34 +372,6 @@ class VisiblePolicy(EndocamPolicy):
             while len(self._track) > 2 and self._track[1][0] <= t_ring - self._window:
                 self._track.popleft()
         return plan
-
-    def _turn_rate(
-        self, n: tuple[float, float, float] | None, before: tuple[float, ...]
-    ) -> FloatArray:
-        """The axis' turn rate (3,), rad/s, world, from offset ``before`` to the applied one.
-
-        Zero without a usable normal ``n``, a side, or ``tilt_feedforward``.
-        """
-        side = self._side if self._side != 0.0 else self._want
-        if n is None or side == 0.0 or self.visible.tilt_feedforward == 0.0:
-            return np.zeros(3)
-        n_arr = np.array(n)
-        a0 = _axis(side, n_arr, (before[0], before[1], before[2]))
-        a1 = _axis(side, n_arr, self._offset)
-        return np.asarray(np.cross(a0, a1) / self._dt, dtype=float)
-
-    def _feedforward_twist(self, goal: FloatArray, twist: FloatArray, d_f: float) -> FloatArray:
-        """The tracker's twist (6,) plus the tilt's own turn × ``tilt_feedforward``.
-
-        The camera at ``goal`` (4, 4) orbits the ring centre (``d_f`` m along the axis) at the
-        axis' turn rate: linear ``ω × (p − c)``, angular ``ω`` (world).
-        """
-        twist = super()._feedforward_twist(goal, twist, d_f)
-        w = self.visible.tilt_feedforward * self._axis_rate
-        if not np.any(w):
-            return twist
-        r = -d_f * np.asarray(goal[:3, 2], dtype=float)  # the camera from the ring centre
-        return np.asarray(twist + np.concatenate([np.cross(w, r), w]), dtype=float)
 
     def _lose(self, reason: str) -> CameraCommand:
         """The tracker's lost tracking; the prediction's samples are forgotten too."""
