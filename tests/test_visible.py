@@ -240,6 +240,54 @@ def test_the_scorer_judges_the_contact_neighbourhood(monkeypatch: pytest.MonkeyP
         assert np.max(np.linalg.norm(points - contact, axis=1)) <= arc + ATOL_M
 
 
+def test_the_side_is_judged_on_the_whole_rim_the_tilt_on_the_contact(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """With ``contact_arc``, two judgements: the whole rim's shares (first sight-line call)
+    decide the side, the contact neighbourhood's (second) the tilt. A scene where the rim
+    sees both sides alike but the contact would favour the other side's view starts no side
+    change, and still tilts on this side to the view that shows the contact; judged on the
+    contact alone (the rim's shares replaced by the contact's) it would start one."""
+    import endocam.control.policies.visible as visible
+
+    wire = centred_wire()
+    up_perp = np.array([0.0, 0.0, 1.0]) - N_RING[2] * N_RING
+    rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)
+    start = look_at_pose(P_RING + 0.045 * N_RING, P_RING)
+    touching = ring_pose(P_RING + 2.8e-3 * E_CONTACT, N_RING)  # the rim 0.2 mm from the wire
+
+    def contact_shares(m: int) -> np.ndarray:
+        one = np.full(m, 0.5)  # this side's tilted views: half the contact
+        one[0] = one[-1] = 0.0  # its normal (and the target on it): none
+        one[-2] = 1.0  # the other side's own view: all of it
+        return np.concatenate([one, one])
+
+    for rim_like_contact in (False, True):
+        calls: list[int] = []
+
+        def shares(
+            eyes: np.ndarray,
+            *_: object,
+            calls: list[int] = calls,
+            flat: bool = not rim_like_contact,
+        ) -> np.ndarray:
+            calls.append(1)
+            m = len(eyes) // 2
+            if len(calls) == 1 and flat:
+                return np.full(2 * m, 0.6)  # the whole rim: every view alike
+            return contact_shares(m)
+
+        monkeypatch.setattr(visible, "view_shares", shares)
+        context = PolicyContext(CAMERA, start, touching, rcm, DT, wire=wire, ring=RingConfig())
+        policy = VisiblePolicy(ControllerConfig(), VisibleConfig(contact_arc=0.7e-3))
+        policy.reset(context)
+        policy._score([touching], 0.0)
+        side = policy._want
+        assert len(calls) == 2
+        assert (policy._since is not None) is rim_like_contact  # a side change started
+        assert policy._targets[side] != (0.0, 0.0, 0.0)  # tilted to show the contact
+
+
 def test_visible_config_validates() -> None:
     with pytest.raises(ValueError, match="contact_points"):
         VisibleConfig(contact_points=0)

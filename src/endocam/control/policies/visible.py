@@ -180,16 +180,14 @@ class VisibleConfig:
         A candidate is worth its better eye's share (the study counts a gap seen from either
         eye); ``False``: the two eyes' mean.
     contact_arc : float
-        The views are judged on the predicted contact's neighbourhood: ``contact_points`` gap
+        The tilt is judged on the predicted contact's neighbourhood: ``contact_points`` gap
         points within this arc of rim (m) either side of the rim point nearest the wire
-        (:func:`~endocam.control.occlusion.contact_points`), equally weighted, instead of
-        the whole rim's weighted share (0: the whole rim).
+        (:func:`~endocam.control.occlusion.contact_points`), equally weighted; the side stays
+        judged on the whole rim's weighted share (where the wire leans away is a property of
+        the whole hole; judged on the contact alone the side flips, and every flip is an orbit)
+        (0: the tilt on the whole rim's share too).
     contact_points : int
         Gap points in the contact's neighbourhood (``contact_arc`` > 0).
-    contact_side : bool
-        With ``contact_arc``: the side too is chosen on the contact's neighbourhood; ``False``:
-        the side on the whole rim's share (the steadier judgement of where the wire leans
-        away), the tilt on the contact's.
     """
 
     max_tilt: float = math.radians(20.0)
@@ -217,7 +215,6 @@ class VisibleConfig:
     either_eye: bool = True
     contact_arc: float = 0.0
     contact_points: int = 7
-    contact_side: bool = False
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_tilt <= math.radians(25.0):
@@ -481,14 +478,13 @@ class VisiblePolicy(EndocamPolicy):
             contact = contact_points(T_ring, window, self._shape, wire.radius, arc, count)
             shares = view_shares(eyes, axes, sight(contact, self._focal_px, vc.resolved_px), occ)
             near = self._utility(shares, urgency, cost, feasible)
-        side_u = near if vc.contact_side else rim
         k = c.per_side
         j = int(np.argmax(near[:k]))
         offset = _ZERO if j == 0 else _offset_of(side_now, n_arr, c.dirs[j])
         now = near[0] if self._targets[side_now] == _ZERO else near[k + 1]
         scores = {
-            side_now: SideScore(float(np.max(side_u[:k])), offset, float(now)),
-            -side_now: SideScore(float(side_u[k]), _ZERO),  # the other side: its own view
+            side_now: SideScore(float(np.max(rim[:k])), offset, float(now)),
+            -side_now: SideScore(float(rim[k]), _ZERO),  # the other side: its own view
         }
         self.last_scores = scores
         want, self._since = choose_side(side_now, scores, self._since, t, vc)
