@@ -24,6 +24,10 @@ wire clearance, :mod:`endocam.control.clearance`) and the observed ring pose:
    (:math:`\hat s` the line of sight, ``Z`` the depth): a gap opening along the line of sight
    shows nothing however clear it is.
 
+4. **The contact's neighbourhood** (:func:`contact_points`): the rim point nearest the wire
+   (searched every 1°) and gap points evenly within an arc of rim either side of it, equally
+   weighted: the ``endocam-visible`` tilt is judged on these (the side on item 1's).
+
 :func:`view_scores` combines them: per candidate view, the weighted share of the gap points
 in sight and resolved, per eye. Arrays are numpy, world frame, metres; a call with ~40
 candidates, 12 rim points and a 60 mm window takes about a millisecond, so the policy scores
