@@ -19,6 +19,7 @@ from endocam import StereoCamera, look_at_pose
 from endocam.control.config import ControllerConfig
 from endocam.control.occlusion import (
     RingShape,
+    contact_points,
     direction_table,
     eye_positions,
     gap_points,
@@ -174,7 +175,124 @@ def test_side_hysteresis_holds_against_a_flicker() -> None:
     assert side == -1.0 and since is None
 
 
+ATOL_CONTACT_RAD = math.radians(1.0)  # rad: the contact search's step (CONTACT_SEARCH)
+
+
+def test_the_contact_neighbourhood_surrounds_the_rim_point_nearest_the_wire() -> None:
+    """``contact_points`` spreads its points evenly over ``±arc`` of rim about the rim point
+    nearest the wire (found to the search's 1°), each weighted 1: with the wire 2 mm towards
+    ``E_CONTACT`` the middle point is the rim's on ``E_CONTACT``, the ends ``arc / R`` rad
+    either side, and every point's clearance is at least the middle's."""
+    T = ring_pose(P_RING, N_RING)
+    window = leaning_wire(0.0)
+    arc, count = 0.7e-3, 7  # m, points
+    got = contact_points(T, window, RING, WIRE_R, arc, count)
+    assert got.points.shape == (count, 3) and np.all(got.weights == 1.0)
+    c = got.clearances
+    assert np.argmin(c) == count // 2 and np.all(c >= c[count // 2])
+    np.testing.assert_allclose(c[count // 2], RING.major - 2.0e-3 - RING.minor - WIRE_R,
+                               atol=RING.major * (1.0 - math.cos(ATOL_CONTACT_RAD)))  # fmt: skip
+    rim = got.points - P_RING  # gap points: on the wire's side of each rim point
+    across = rim - (rim @ N_RING)[:, None] * N_RING
+    bearing = np.arctan2(across @ np.cross(N_RING, E_CONTACT), across @ E_CONTACT)
+    assert abs(bearing[count // 2]) <= ATOL_CONTACT_RAD
+    assert np.all(np.diff(bearing) * np.sign(bearing[-1] - bearing[0]) > 0.0)  # in order
+    one = contact_points(T, window, RING, WIRE_R, arc, 1)
+    np.testing.assert_allclose(one.points[0], got.points[count // 2], atol=ATOL_M)
+
+
+def test_the_scorer_judges_the_contact_neighbourhood(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With ``contact_arc`` the tilt is scored on the contact's neighbourhood, equally
+    weighted (``contact_points`` of them), besides the whole rim's ``rim_points`` (the side's):
+    the points handed to the second sight-line call all lie within the arc of the rim's point
+    nearest the wire; without it there is one call, on the whole rim."""
+    import endocam.control.policies.visible as visible
+
+    wire = centred_wire()
+    up_perp = np.array([0.0, 0.0, 1.0]) - N_RING[2] * N_RING
+    rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)
+    start = look_at_pose(P_RING + 0.045 * N_RING, P_RING)
+    touching = ring_pose(P_RING + 2.8e-3 * E_CONTACT, N_RING)  # the rim 0.2 mm from the wire
+    handed: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def shares(eyes: np.ndarray, axes: np.ndarray, seen: object, occ: object) -> np.ndarray:
+        handed.append((np.asarray(seen.weights), np.asarray(seen.points)))  # type: ignore[attr-defined]
+        return np.zeros(len(eyes))
+
+    monkeypatch.setattr(visible, "view_shares", shares)
+    for arc in (0.0, 0.7e-3):
+        cfg = VisibleConfig(contact_arc=arc)
+        context = PolicyContext(CAMERA, start, touching, rcm, DT, wire=wire, ring=RingConfig())
+        policy = VisiblePolicy(ControllerConfig(), cfg)
+        policy.reset(context)
+        handed.clear()
+        policy._score([touching], 0.0)
+        assert len(handed[0][0]) == cfg.rim_points
+        if arc == 0.0:
+            assert len(handed) == 1
+            continue
+        assert len(handed) == 2
+        weights, points = handed[1]
+        assert len(weights) == cfg.contact_points and np.all(weights == 1.0)
+        line = P_RING + np.linspace(-0.08, 0.08, 5)[:, None] * N_RING  # the wire's centre line
+        contact = contact_points(touching, line, RING, WIRE_R, 0.0, 1).points[0]
+        # the wire's straight: the gap points fan from one wire point, within the arc
+        assert np.max(np.linalg.norm(points - contact, axis=1)) <= arc + ATOL_M
+
+
+def test_the_side_is_judged_on_the_whole_rim_the_tilt_on_the_contact(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """With ``contact_arc``, two judgements: the whole rim's shares (first sight-line call)
+    decide the side, the contact neighbourhood's (second) the tilt. A scene where the rim
+    sees both sides alike but the contact would favour the other side's view starts no side
+    change, and still tilts on this side to the view that shows the contact; judged on the
+    contact alone (the rim's shares replaced by the contact's) it would start one."""
+    import endocam.control.policies.visible as visible
+
+    wire = centred_wire()
+    up_perp = np.array([0.0, 0.0, 1.0]) - N_RING[2] * N_RING
+    rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)
+    start = look_at_pose(P_RING + 0.045 * N_RING, P_RING)
+    touching = ring_pose(P_RING + 2.8e-3 * E_CONTACT, N_RING)  # the rim 0.2 mm from the wire
+
+    def contact_shares(m: int) -> np.ndarray:
+        one = np.full(m, 0.5)  # this side's tilted views: half the contact
+        one[0] = one[-1] = 0.0  # its normal (and the target on it): none
+        one[-2] = 1.0  # the other side's own view: all of it
+        return np.concatenate([one, one])
+
+    for rim_like_contact in (False, True):
+        calls: list[int] = []
+
+        def shares(
+            eyes: np.ndarray,
+            *_: object,
+            calls: list[int] = calls,
+            flat: bool = not rim_like_contact,
+        ) -> np.ndarray:
+            calls.append(1)
+            m = len(eyes) // 2
+            if len(calls) == 1 and flat:
+                return np.full(2 * m, 0.6)  # the whole rim: every view alike
+            return contact_shares(m)
+
+        monkeypatch.setattr(visible, "view_shares", shares)
+        context = PolicyContext(CAMERA, start, touching, rcm, DT, wire=wire, ring=RingConfig())
+        policy = VisiblePolicy(ControllerConfig(), VisibleConfig(contact_arc=0.7e-3))
+        policy.reset(context)
+        policy._score([touching], 0.0)
+        side = policy._want
+        assert len(calls) == 2
+        assert (policy._since is not None) is rim_like_contact  # a side change started
+        assert policy._targets[side] != (0.0, 0.0, 0.0)  # tilted to show the contact
+
+
 def test_visible_config_validates() -> None:
+    with pytest.raises(ValueError, match="contact_points"):
+        VisibleConfig(contact_points=0)
+    with pytest.raises(ValueError, match="contact_arc"):
+        VisibleConfig(contact_arc=-1e-3)
     with pytest.raises(ValueError, match="max_tilt"):
         VisibleConfig(max_tilt=math.radians(30.0))
     with pytest.raises(ValueError, match="azimuths"):

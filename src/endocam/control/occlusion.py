@@ -24,6 +24,10 @@ wire clearance, :mod:`endocam.control.clearance`) and the observed ring pose:
    (:math:`\hat s` the line of sight, ``Z`` the depth): a gap opening along the line of sight
    shows nothing however clear it is.
 
+4. **The contact's neighbourhood** (:func:`contact_points`): the rim point nearest the wire
+   (searched every 1°) and gap points evenly within an arc of rim either side of it, equally
+   weighted: the ``endocam-visible`` tilt is judged on these (the side on item 1's).
+
 :func:`view_scores` combines them: per candidate view, the weighted share of the gap points
 in sight and resolved, per eye. Arrays are numpy, world frame, metres; a call with ~40
 candidates, 12 rim points and a 60 mm window takes about a millisecond, so the policy scores
@@ -47,6 +51,7 @@ __all__ = [
     "RAY_TOLERANCE_M",
     "GapPoints",
     "RingShape",
+    "contact_points",
     "direction_table",
     "eye_positions",
     "gap_points",
@@ -64,6 +69,7 @@ GAP_M = 0.5e-3  # m: the gap whose closing is judged (the study's GAP_SEEN)
 RAY_TOLERANCE_M = 2.0e-3  # m: the ray cast's allowance before a point (DEFAULT_RAY_TOLERANCE)
 RIM_SAMPLE_M = 0.4e-3  # m: spacing of the samples along a ray tested against the rim
 WINDOW_SPACING_M = 2.0e-3  # m: spacing of the wire polyline near the ring (sagitta ≪ r_w)
+CONTACT_SEARCH = 360  # count: rim angles searched for the contact (1°: 0.09 mm of a 5 mm rim)
 WEIGHT_FLOOR = 0.2  # unitless: gap points weighing less than this share of the most are dropped
 _EPS = 1e-12  # m or unitless: below this a length or a direction is degenerate
 _UP = np.array([0.0, 0.0, 1.0])
@@ -170,6 +176,43 @@ def gap_points(
     weights = np.exp(-np.maximum(clearance, 0.0) / scale)
     weights[weights < WEIGHT_FLOOR * np.max(weights)] = 0.0
     return GapPoints(g, u, clearance, weights)
+
+
+def contact_points(
+    T_world_ring: FloatArray,
+    window: FloatArray,
+    ring: RingShape,
+    wire_radius: float,
+    arc: float,
+    count: int,
+) -> GapPoints:
+    """``count`` gap points, equally weighted, within ``arc`` (m, of rim) of the contact.
+
+    The predicted contact is the rim point nearest the wire (searched every
+    ``360° / CONTACT_SEARCH``); the points lie evenly on the core circle from ``arc`` before
+    it to ``arc`` after it (one point, ``count`` = 1: the contact itself), each with its gap
+    point and direction as in :func:`gap_points`, weight 1. A view is then judged by what it
+    shows of the **contact's neighbourhood**, not of the whole rim: where along the rim the
+    ring touches is uncertain by a fraction of a millimetre, and a sight line grazing the
+    wire there decides whether the touch is seen.
+
+    ``T_world_ring`` (4, 4), world, m; ``window`` (K, 3) the wire near the ring, m;
+    ``wire_radius``, ``arc`` m (``arc`` ≥ 0); ``count`` ≥ 1.
+    """
+    T = np.asarray(T_world_ring, dtype=float)
+    c, e1, e2 = T[:3, 3], T[:3, 0], T[:3, 1]
+    phi = np.arange(CONTACT_SEARCH) * (2.0 * math.pi / CONTACT_SEARCH)
+    q = c + ring.major * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+    best = float(phi[int(np.argmin(np.linalg.norm(q - _nearest_on_polyline(q, window), axis=1)))])
+    half = arc / ring.major  # rad of rim either side
+    phi = best + (np.linspace(-half, half, count) if count > 1 else np.zeros(1))
+    q = c + ring.major * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+    p = _nearest_on_polyline(q, window)
+    gap = q - p
+    dist = np.linalg.norm(gap, axis=1)
+    u = gap / np.maximum(dist, _EPS)[:, None]
+    g = p + (wire_radius + 0.5 * GAP_M) * u
+    return GapPoints(g, u, dist - ring.minor - wire_radius, np.ones(len(q)))
 
 
 def _nearest_on_polyline(q: FloatArray, poly: FloatArray) -> FloatArray:
