@@ -41,7 +41,7 @@ from endocam.metrics import center_error_3d, image_centering_error, orientation_
 from endocam.registry import make_policy
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, GuardAction
 from endocam.robot.carriers import crtk_frames
-from endocam.robot.dvrk_frames import FREE_CAMERA_FRAMES, CrtkFrames
+from endocam.robot.dvrk_frames import FREE_CAMERA_FRAMES, WORLD_FRAME_ID, CrtkFrames
 from endocam.runner.episode import (
     EpisodeLog,
     EpisodeResult,
@@ -186,6 +186,7 @@ class ZenohArm:
         """
         deadline = time.monotonic() + timeout
         want = stamp_ns(k * self.dt)
+        refused = ""  # why the last first state was not taken (a wrong frame, say)
         while True:
             left = deadline - time.monotonic()
             try:
@@ -194,6 +195,7 @@ class ZenohArm:
                 what = "no state from the robot" if first else "the robot went silent"
                 raise LinkLostError(
                     f"{what} for {timeout:g} s (waiting for step {k}, t = {k * self.dt:.3f} s)"
+                    + (f"; its last state was refused: {refused}" if refused else "")
                 ) from None
             self.received += 1
             if key != self.keys.operating_state:
@@ -206,7 +208,8 @@ class ZenohArm:
             if first and ns == want:
                 try:
                     return self._state(k)
-                except LinkLostError:
+                except LinkLostError as exc:
+                    refused = str(exc)
                     continue  # joined mid-way through a state: the robot repeats it
             if ns < want or first:
                 continue  # an older state repeated (the robot waiting for its first command)
@@ -225,8 +228,8 @@ class ZenohArm:
     def _state(self, k: int) -> RobotState:
         c, L, keys = self.codec, self._latest, self.keys
         try:
-            T_cam, ns = c.decode_pose(L[keys.measured_cp])
-            T_ring, ns_ring = c.decode_pose(L[keys.ring])
+            T_cam, ns = c.decode_pose(L[keys.measured_cp], self._frames().frame_id)
+            T_ring, ns_ring = c.decode_pose(L[keys.ring], WORLD_FRAME_ID)
             q = c.decode_joints(L[keys.measured_js])
             tips = np.stack([c.decode_point(L[keys.tip1]), c.decode_point(L[keys.tip2])])
         except (KeyError, ValueError) as exc:
@@ -292,7 +295,7 @@ class ZenohArm:
         self.state = self.receive(k + 1, self.timeout)
         try:
             res = self.codec.decode_array(self._latest[self.keys.servo_result])
-            T_tip, _ = self.codec.decode_pose(self._latest[self.keys.setpoint_cp])
+            T_tip, _ = self.codec.decode_pose(self._latest[self.keys.setpoint_cp], frames.frame_id)
             return ActuatorStep(
                 self.state.T_world_cam,
                 self.state.q,
