@@ -120,6 +120,8 @@ class ZenohArm:
         self.inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
         self.state: RobotState | None = None
         self._latest: dict[str, bytes] = {}
+        self._pending: list[tuple[str, bytes]] = []
+        """Messages received since the last operating state (Zenoh's callback thread only)."""
         self._names: tuple[str, ...] = ()
         self.session: Any = None
         self.pub: dict[str, Any] = {}
@@ -175,7 +177,14 @@ class ZenohArm:
             self.session = None
 
     def _on_sample(self, sample: Any) -> None:
-        self.inbox.put((str(sample.key_expr), sample.payload.to_bytes()))
+        # a state's messages reach the inbox together, with its operating state (published
+        # last): the controller wakes once per state, not once per message
+        key = str(sample.key_expr)
+        self._pending.append((key, sample.payload.to_bytes()))
+        if key == self.keys.operating_state:
+            for message in self._pending:
+                self.inbox.put(message)
+            self._pending.clear()
 
     def receive(self, k: int, timeout: float, *, first: bool = False) -> RobotState:
         """Collect messages until the operating state of step ``k`` (all its messages before).
