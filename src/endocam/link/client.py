@@ -16,9 +16,10 @@ against (the true ring pose, the touches) is the same world built from the same 
 
 **The controller holds when the link fails.** When no new state arrives within ``timeout`` s
 (wall clock) of a command, when the robot's state stops advancing or jumps (its watchdog held
-the arm), or when the robot ends early, the controller sends nothing more — the robot's
-watchdog stops the arm — and the episode ends there with the reason (:class:`LinkLostError`); the
-run folder holds the steps done and says why in ``link.json``.
+the arm), when a pose it receives names another frame than the registered one (``measured_cp``,
+``setpoint_cp``; the ring: ``world``), or when the robot ends early, the controller sends
+nothing more — the robot's watchdog stops the arm — and the episode ends there with the reason
+(:class:`LinkLostError`); the run folder holds the steps done and says why in ``link.json``.
 """
 
 from __future__ import annotations
