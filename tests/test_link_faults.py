@@ -257,3 +257,23 @@ def test_the_controller_says_why_a_first_state_in_another_frame_is_not_taken() -
     arm = _arm(_state(0)[:4] + wrong + _state(0)[5:])
     with pytest.raises(LinkLostError, match=r"refused: .*frame 'PSM3_base', not 'world'"):
         arm.receive(0, SILENCE_S, first=True)
+
+
+def test_poses_decoded_together_are_the_poses_decoded_alone() -> None:
+    """The controller decodes a state's poses in one call: the same bits as one by one."""
+    rng = np.random.default_rng(5)
+    payloads = []
+    for k in range(6):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.random(rng=rng).as_matrix()
+        T[:3, 3] = rng.normal(size=3)
+        payloads.append((CODEC.pose(T, stamp_ns(k * DT), "PSM3_base"), "PSM3_base"))
+    together = CODEC.decode_poses(payloads)
+    for (data, frame), (T, ns) in zip(payloads, together, strict=True):
+        T_alone, ns_alone = CODEC.decode_pose(data, frame)
+        assert np.array_equal(T, T_alone) and ns == ns_alone
+        q = CODEC.store.deserialize_cdr(data, "geometry_msgs/msg/PoseStamped").pose.orientation
+        R = Rotation.from_quat(np.array([q.x, q.y, q.z, q.w])).as_matrix()  # scipy, one quat
+        assert np.array_equal(T[:3, :3], R)
+    with pytest.raises(ValueError, match="pose in frame 'PSM3_base', not 'world'"):
+        CODEC.decode_poses([payloads[0], (payloads[1][0], "world")])

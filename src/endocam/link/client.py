@@ -238,8 +238,9 @@ class ZenohArm:
     def _state(self, k: int) -> RobotState:
         c, L, keys = self.codec, self._latest, self.keys
         try:
-            T_cam, ns = c.decode_pose(L[keys.measured_cp], self._frames().frame_id)
-            T_ring, ns_ring = c.decode_pose(L[keys.ring], WORLD_FRAME_ID)
+            (T_cam, ns), (T_ring, ns_ring) = c.decode_poses(
+                [(L[keys.measured_cp], self._frames().frame_id), (L[keys.ring], WORLD_FRAME_ID)]
+            )
             q = c.decode_joints(L[keys.measured_js])
             tips = np.stack([c.decode_point(L[keys.tip1]), c.decode_point(L[keys.tip2])])
         except (KeyError, ValueError) as exc:

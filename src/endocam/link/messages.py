@@ -34,6 +34,7 @@ controller → robot, once per step, answering the state stamped ``t_k``
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -163,20 +164,37 @@ class Codec:
         Raises ``ValueError`` also for a non-finite value, a quaternion far from unit length,
         or (given ``frame_id``) a pose whose ``header.frame_id`` is not ``frame_id``.
         """
-        msg = self._decode(data, "geometry_msgs/msg/PoseStamped")
-        if frame_id is not None and msg.header.frame_id != frame_id:
-            raise ValueError(f"pose in frame {msg.header.frame_id!r}, not {frame_id!r}")
-        p, q = msg.pose.position, msg.pose.orientation
-        v = (p.x, p.y, p.z, q.x, q.y, q.z, q.w)  # Python floats: no small-array overhead
-        if not all(map(math.isfinite, v)):
-            raise ValueError("pose with a non-finite value")
-        if abs(math.hypot(*v[3:]) - 1.0) > QUAT_NORM_TOL:
-            raise ValueError("pose whose quaternion is not of unit length")
-        T = np.empty((4, 4))
-        T[:3, :3] = Rotation.from_quat(v[3:]).as_matrix()  # normalised by scipy, as before
-        T[:3, 3] = v[:3]
-        T[3] = (0.0, 0.0, 0.0, 1.0)
-        return T, _ns(msg.header)
+        return self.decode_poses([(data, frame_id)])[0]
+
+    def decode_poses(
+        self, payloads: Sequence[tuple[bytes, str | None]]
+    ) -> list[tuple[FloatArray, int]]:
+        """:meth:`decode_pose` of each ``(data, frame_id)``, with one scipy conversion for all.
+
+        The same poses to the bit as one by one (scipy converts each quaternion alone).
+        """
+        fields, stamps = [], []
+        for data, frame_id in payloads:
+            msg = self._decode(data, "geometry_msgs/msg/PoseStamped")
+            if frame_id is not None and msg.header.frame_id != frame_id:
+                raise ValueError(f"pose in frame {msg.header.frame_id!r}, not {frame_id!r}")
+            p, q = msg.pose.position, msg.pose.orientation
+            v = (p.x, p.y, p.z, q.x, q.y, q.z, q.w)  # Python floats: no small-array overhead
+            if not all(map(math.isfinite, v)):
+                raise ValueError("pose with a non-finite value")
+            if abs(math.hypot(*v[3:]) - 1.0) > QUAT_NORM_TOL:
+                raise ValueError("pose whose quaternion is not of unit length")
+            fields.append(v)
+            stamps.append(_ns(msg.header))
+        R = Rotation.from_quat([v[3:] for v in fields]).as_matrix()  # normalised, as before
+        poses = []
+        for v, R_k, ns in zip(fields, R, stamps, strict=True):
+            T = np.empty((4, 4))
+            T[:3, :3] = R_k
+            T[:3, 3] = v[:3]
+            T[3] = (0.0, 0.0, 0.0, 1.0)
+            poses.append((T, ns))
+        return poses
 
     def point(self, p: FloatArray, ns: int) -> bytes:
         """``geometry_msgs/PointStamped`` of ``p`` (3,), m."""
