@@ -194,9 +194,35 @@ def test_the_robot_process_speaks_the_dvrk_tip_in_the_base_frame(
     gate = CommandGate(keys, JointCommand(arm_kind, robot.arm), robot.frames, LINK_DT)
     for k in range(SERVO_STEPS):
         gate.admit(LOOK_KEY, codec.float64(cfg.controller.d_f), k)
-        a = gate.admit(keys.servo_cp, codec.pose(T_goal, stamp_ns(k * LINK_DT)), k)
+        T_cp = codec.pose(T_goal, stamp_ns(k * LINK_DT), robot.frames.frame_id)
+        a = gate.admit(keys.servo_cp, T_cp, k)
         assert a.verdict is Verdict.ACCEPTED and a.command is not None
         robot.step(a.command.T_world_cmd, a.command.look, a.command.twist, ENABLED)
     T_tip, q = wire()
     np.testing.assert_allclose(T_tip, T_goal, atol=SERVO_ATOL_M, rtol=0)
     np.testing.assert_allclose(q, q_goal, atol=SERVO_ATOL_M, rtol=0)
+
+
+def test_crtk_pose_fields_are_scipys_conversion_for_every_matrix() -> None:
+    """Its fast path for valid rotations gives scipy's general ``from_matrix`` to the bit.
+
+    Valid rotations (products of random ones, as the link's frame conversions make), a matrix
+    just off orthonormal (scipy orthogonalises it) and a left-handed one (scipy refuses it).
+    """
+    from scipy.spatial.transform import Rotation
+
+    from endocam.robot.dvrk_frames import crtk_pose_fields
+
+    rng = np.random.default_rng(17)
+    for _ in range(500):
+        T = np.eye(4)
+        R = Rotation.random(3, rng=rng).as_matrix()
+        T[:3, :3] = R[0] @ R[1] @ R[2]
+        T[:3, 3] = rng.normal(size=3)
+        expected = Rotation.from_matrix(T[:3, :3]).as_quat()
+        assert crtk_pose_fields(T) == (*T[:3, 3], *expected)
+    T[:3, :3] *= 1.0 + 1e-9  # not orthonormal: |R Rᵀ − I| ~ 2e-9 > scipy's 1e-12
+    assert crtk_pose_fields(T)[3:] == tuple(Rotation.from_matrix(T[:3, :3]).as_quat())
+    T[:3, 0] *= -1.0  # left-handed
+    with pytest.raises(ValueError, match="determinant"):
+        crtk_pose_fields(T)

@@ -18,6 +18,7 @@ from endocam.link.client import LinkLostError, ZenohArm
 from endocam.link.messages import ENABLED, PAUSED, Codec, Keys, stamp_ns
 from endocam.link.server import LOOK_KEY, CommandGate, JointCommand, Verdict
 from endocam.robot.actuator import ActuatorStatus, ArmKind, GuardAction
+from endocam.robot.carriers import crtk_frames
 from endocam.robot.dvrk_frames import FREE_CAMERA_FRAMES
 
 pytestmark = pytest.mark.no_kernels
@@ -106,8 +107,12 @@ def test_reordered_commands_are_never_acted_on_out_of_order() -> None:
         (LOOK_KEY, CODEC.float64(2.0), "look distance"),
         (KEYS.servo_cv, CODEC.twist(np.full(6, np.inf), stamp_ns(2 * DT)), "non-finite"),
         (KEYS.servo_jp, CODEC.joints(("j",), np.zeros(1), stamp_ns(2 * DT)), "no joints"),
+        (KEYS.servo_cp, CODEC.pose(_pose(2), stamp_ns(2 * DT), "PSM3_base"), "'PSM3_base'"),
     ],
-    ids=["garbage", "truncated", "wrong-type", "nan-look", "far-look", "inf-twist", "jp-free"],
+    ids=[
+        *("garbage", "truncated", "wrong-type", "nan-look", "far-look", "inf-twist", "jp-free"),
+        "cp-frame",
+    ],
 )
 def test_a_malformed_message_is_refused_and_clears_the_pending_command(
     key: str, payload: bytes, why: str
@@ -160,8 +165,24 @@ def test_the_controller_skips_repeated_states_and_malformed_operating_states() -
         (_state(1, PAUSED), "watchdog held the arm"),
         ([*_state(1)[:4], (KEYS.measured_cp, b"\x00\x01\x00\x00x"), *_state(1)[5:]], "malformed"),
         (_state(1)[:4] + _state(0)[4:5] + _state(1)[5:], "stopped advancing"),
+        (
+            [
+                *_state(1)[:4],
+                (KEYS.measured_cp, CODEC.pose(_pose(1), stamp_ns(DT), "ECM_base")),
+                *_state(1)[5:],
+            ],
+            "pose in frame 'ECM_base', not 'world'",
+        ),
+        (
+            [
+                *_state(1)[:1],
+                (KEYS.ring, CODEC.pose(np.eye(4), stamp_ns(DT), "PSM1_base")),
+                *_state(1)[2:],
+            ],
+            "pose in frame 'PSM1_base', not 'world'",
+        ),
     ],
-    ids=["jumped", "paused", "malformed-pose", "stale-pose"],
+    ids=["jumped", "paused", "malformed-pose", "stale-pose", "cp-frame", "ring-frame"],
 )
 def test_the_controller_holds_at_once_when_the_robot_held_or_its_state_is_bad(
     messages: list[tuple[str, bytes]], match: str
@@ -211,3 +232,48 @@ def test_a_step_with_a_malformed_answer_holds_instead_of_crashing() -> None:
         arm.inbox.put(m)
     with pytest.raises(LinkLostError, match="answer to step 1 is missing or malformed"):
         arm.step(_pose(1), LOOK_M)
+
+
+@pytest.mark.parametrize("kind", [ArmKind.PSM, ArmKind.ECM])
+def test_an_arm_refuses_a_servo_cp_not_in_its_base_frame(kind: ArmKind) -> None:
+    """A tip pose in another frame (the world, another arm's base) is refused, never acted on."""
+    keys, frames = Keys.of(kind), crtk_frames(kind, np.eye(4), np.eye(4))
+    gate = CommandGate(keys, JointCommand(kind, None), frames, DT)
+    ns = stamp_ns(4 * DT)
+    for wrong in ("world", "PSM3_base" if kind is ArmKind.ECM else "ECM_base", ""):
+        assert gate.admit(LOOK_KEY, CODEC.float64(LOOK_M), 4).verdict is Verdict.PART
+        refused = gate.admit(keys.servo_cp, CODEC.pose(_pose(4), ns, wrong), 4)
+        assert refused.verdict is Verdict.REFUSED
+        assert f"pose in frame {wrong!r}, not {frames.frame_id!r}" in refused.why
+    assert gate.admit(LOOK_KEY, CODEC.float64(LOOK_M), 4).verdict is Verdict.PART
+    a = gate.admit(keys.servo_cp, CODEC.pose(_pose(4), ns, frames.frame_id), 4)
+    assert a.verdict is Verdict.ACCEPTED
+
+
+def test_the_controller_says_why_a_first_state_in_another_frame_is_not_taken() -> None:
+    """A robot whose measured_cp names another frame: the controller never starts, and says so."""
+    ns = stamp_ns(0.0)
+    wrong = [(KEYS.measured_cp, CODEC.pose(_pose(0), ns, "PSM3_base"))]
+    arm = _arm(_state(0)[:4] + wrong + _state(0)[5:])
+    with pytest.raises(LinkLostError, match=r"refused: .*frame 'PSM3_base', not 'world'"):
+        arm.receive(0, SILENCE_S, first=True)
+
+
+def test_poses_decoded_together_are_the_poses_decoded_alone() -> None:
+    """The controller decodes a state's poses in one call: the same bits as one by one."""
+    rng = np.random.default_rng(5)
+    payloads = []
+    for k in range(6):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.random(rng=rng).as_matrix()
+        T[:3, 3] = rng.normal(size=3)
+        payloads.append((CODEC.pose(T, stamp_ns(k * DT), "PSM3_base"), "PSM3_base"))
+    together = CODEC.decode_poses(payloads)
+    for (data, frame), (T, ns) in zip(payloads, together, strict=True):
+        T_alone, ns_alone = CODEC.decode_pose(data, frame)
+        assert np.array_equal(T, T_alone) and ns == ns_alone
+        q = CODEC.store.deserialize_cdr(data, "geometry_msgs/msg/PoseStamped").pose.orientation
+        R = Rotation.from_quat(np.array([q.x, q.y, q.z, q.w])).as_matrix()  # scipy, one quat
+        assert np.array_equal(T[:3, :3], R)
+    with pytest.raises(ValueError, match="pose in frame 'PSM3_base', not 'world'"):
+        CODEC.decode_poses([payloads[0], (payloads[1][0], "world")])

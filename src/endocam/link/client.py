@@ -16,9 +16,10 @@ against (the true ring pose, the touches) is the same world built from the same 
 
 **The controller holds when the link fails.** When no new state arrives within ``timeout`` s
 (wall clock) of a command, when the robot's state stops advancing or jumps (its watchdog held
-the arm), or when the robot ends early, the controller sends nothing more — the robot's
-watchdog stops the arm — and the episode ends there with the reason (:class:`LinkLostError`); the
-run folder holds the steps done and says why in ``link.json``.
+the arm), when a pose it receives names another frame than the registered one (``measured_cp``,
+``setpoint_cp``; the ring: ``world``), or when the robot ends early, the controller sends
+nothing more — the robot's watchdog stops the arm — and the episode ends there with the reason
+(:class:`LinkLostError`); the run folder holds the steps done and says why in ``link.json``.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ from endocam.metrics import center_error_3d, image_centering_error, orientation_
 from endocam.registry import make_policy
 from endocam.robot.actuator import ActuatorStatus, ActuatorStep, ArmKind, GuardAction
 from endocam.robot.carriers import crtk_frames
-from endocam.robot.dvrk_frames import FREE_CAMERA_FRAMES, CrtkFrames
+from endocam.robot.dvrk_frames import FREE_CAMERA_FRAMES, WORLD_FRAME_ID, CrtkFrames
 from endocam.runner.episode import (
     EpisodeLog,
     EpisodeResult,
@@ -120,6 +121,8 @@ class ZenohArm:
         self.inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
         self.state: RobotState | None = None
         self._latest: dict[str, bytes] = {}
+        self._pending: list[tuple[str, bytes]] = []
+        """Messages received since the last operating state (Zenoh's callback thread only)."""
         self._names: tuple[str, ...] = ()
         self.session: Any = None
         self.pub: dict[str, Any] = {}
@@ -175,7 +178,14 @@ class ZenohArm:
             self.session = None
 
     def _on_sample(self, sample: Any) -> None:
-        self.inbox.put((str(sample.key_expr), sample.payload.to_bytes()))
+        # a state's messages reach the inbox together, with its operating state (published
+        # last): the controller wakes once per state, not once per message
+        key = str(sample.key_expr)
+        self._pending.append((key, sample.payload.to_bytes()))
+        if key == self.keys.operating_state:
+            for message in self._pending:
+                self.inbox.put(message)
+            self._pending.clear()
 
     def receive(self, k: int, timeout: float, *, first: bool = False) -> RobotState:
         """Collect messages until the operating state of step ``k`` (all its messages before).
@@ -186,6 +196,7 @@ class ZenohArm:
         """
         deadline = time.monotonic() + timeout
         want = stamp_ns(k * self.dt)
+        refused = ""  # why the last first state was not taken (a wrong frame, say)
         while True:
             left = deadline - time.monotonic()
             try:
@@ -194,6 +205,7 @@ class ZenohArm:
                 what = "no state from the robot" if first else "the robot went silent"
                 raise LinkLostError(
                     f"{what} for {timeout:g} s (waiting for step {k}, t = {k * self.dt:.3f} s)"
+                    + (f"; its last state was refused: {refused}" if refused else "")
                 ) from None
             self.received += 1
             if key != self.keys.operating_state:
@@ -206,7 +218,8 @@ class ZenohArm:
             if first and ns == want:
                 try:
                     return self._state(k)
-                except LinkLostError:
+                except LinkLostError as exc:
+                    refused = str(exc)
                     continue  # joined mid-way through a state: the robot repeats it
             if ns < want or first:
                 continue  # an older state repeated (the robot waiting for its first command)
@@ -225,8 +238,9 @@ class ZenohArm:
     def _state(self, k: int) -> RobotState:
         c, L, keys = self.codec, self._latest, self.keys
         try:
-            T_cam, ns = c.decode_pose(L[keys.measured_cp])
-            T_ring, ns_ring = c.decode_pose(L[keys.ring])
+            (T_cam, ns), (T_ring, ns_ring) = c.decode_poses(
+                [(L[keys.measured_cp], self._frames().frame_id), (L[keys.ring], WORLD_FRAME_ID)]
+            )
             q = c.decode_joints(L[keys.measured_js])
             tips = np.stack([c.decode_point(L[keys.tip1]), c.decode_point(L[keys.tip2])])
         except (KeyError, ValueError) as exc:
@@ -292,7 +306,7 @@ class ZenohArm:
         self.state = self.receive(k + 1, self.timeout)
         try:
             res = self.codec.decode_array(self._latest[self.keys.servo_result])
-            T_tip, _ = self.codec.decode_pose(self._latest[self.keys.setpoint_cp])
+            T_tip, _ = self.codec.decode_pose(self._latest[self.keys.setpoint_cp], frames.frame_id)
             return ActuatorStep(
                 self.state.T_world_cam,
                 self.state.q,

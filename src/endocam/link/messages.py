@@ -33,6 +33,8 @@ controller → robot, once per step, answering the state stamped ``t_k``
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -121,13 +123,15 @@ class Codec:
         self.store = _typestore()
         self.t = self.store.types
         self._pose = self.t["geometry_msgs/msg/Pose"]
+        self._pose_stamped = self.t["geometry_msgs/msg/PoseStamped"]
         self._point = self.t["geometry_msgs/msg/Point"]
         self._quat = self.t["geometry_msgs/msg/Quaternion"]
+        self._time = self.t["builtin_interfaces/msg/Time"]
+        self._header_t = self.t["std_msgs/msg/Header"]
 
     def _header(self, ns: int, frame_id: str = WORLD_FRAME_ID) -> Any:
-        Time = self.t["builtin_interfaces/msg/Time"]
-        return self.t["std_msgs/msg/Header"](
-            stamp=Time(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S), frame_id=frame_id
+        return self._header_t(
+            stamp=self._time(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S), frame_id=frame_id
         )
 
     def _encode(self, msg: Any, typename: str) -> bytes:
@@ -145,7 +149,7 @@ class Codec:
         Its fields are :func:`endocam.robot.dvrk_frames.crtk_pose_fields`'s, as in MCAP files.
         """
         px, py, pz, x, y, z, w = crtk_pose_fields(T)
-        msg = self.t["geometry_msgs/msg/PoseStamped"](
+        msg = self._pose_stamped(
             header=self._header(ns, frame_id),
             pose=self._pose(
                 position=self._point(x=px, y=py, z=pz),
@@ -154,22 +158,43 @@ class Codec:
         )
         return self._encode(msg, "geometry_msgs/msg/PoseStamped")
 
-    def decode_pose(self, data: bytes) -> tuple[FloatArray, int]:
+    def decode_pose(self, data: bytes, frame_id: str | None = None) -> tuple[FloatArray, int]:
         """The pose (4, 4), m, and stamp (ns) of a ``PoseStamped``; ``ValueError`` if malformed.
 
-        Raises ``ValueError`` also for a non-finite value or a quaternion far from unit length.
+        Raises ``ValueError`` also for a non-finite value, a quaternion far from unit length,
+        or (given ``frame_id``) a pose whose ``header.frame_id`` is not ``frame_id``.
         """
-        msg = self._decode(data, "geometry_msgs/msg/PoseStamped")
-        p, q = msg.pose.position, msg.pose.orientation
-        v = np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w], dtype=float)
-        if not np.all(np.isfinite(v)):
-            raise ValueError("pose with a non-finite value")
-        if abs(float(np.linalg.norm(v[3:])) - 1.0) > QUAT_NORM_TOL:
-            raise ValueError("pose whose quaternion is not of unit length")
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(v[3:]).as_matrix()
-        T[:3, 3] = v[:3]
-        return T, _ns(msg.header)
+        return self.decode_poses([(data, frame_id)])[0]
+
+    def decode_poses(
+        self, payloads: Sequence[tuple[bytes, str | None]]
+    ) -> list[tuple[FloatArray, int]]:
+        """:meth:`decode_pose` of each ``(data, frame_id)``, with one scipy conversion for all.
+
+        The same poses to the bit as one by one (scipy converts each quaternion alone).
+        """
+        fields, stamps = [], []
+        for data, frame_id in payloads:
+            msg = self._decode(data, "geometry_msgs/msg/PoseStamped")
+            if frame_id is not None and msg.header.frame_id != frame_id:
+                raise ValueError(f"pose in frame {msg.header.frame_id!r}, not {frame_id!r}")
+            p, q = msg.pose.position, msg.pose.orientation
+            v = (p.x, p.y, p.z, q.x, q.y, q.z, q.w)  # Python floats: no small-array overhead
+            if not all(map(math.isfinite, v)):
+                raise ValueError("pose with a non-finite value")
+            if abs(math.hypot(*v[3:]) - 1.0) > QUAT_NORM_TOL:
+                raise ValueError("pose whose quaternion is not of unit length")
+            fields.append(v)
+            stamps.append(_ns(msg.header))
+        R = Rotation.from_quat([v[3:] for v in fields]).as_matrix()  # normalised, as before
+        poses = []
+        for v, R_k, ns in zip(fields, R, stamps, strict=True):
+            T = np.empty((4, 4))
+            T[:3, :3] = R_k
+            T[:3, 3] = v[:3]
+            T[3] = (0.0, 0.0, 0.0, 1.0)
+            poses.append((T, ns))
+        return poses
 
     def point(self, p: FloatArray, ns: int) -> bytes:
         """``geometry_msgs/PointStamped`` of ``p`` (3,), m."""

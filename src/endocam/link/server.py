@@ -22,7 +22,9 @@ one control period per wall period, so the carrier brakes within its limits and 
 the world moves on. A command answering the current state resumes servoing (``ENABLED``).
 
 **Refused.** A payload that does not decode as the message of its topic, a non-finite pose,
-twist or look distance, a quaternion not of unit length, a look distance ≤ 0 or beyond
+twist or look distance, a quaternion not of unit length, a ``servo_cp`` whose
+``header.frame_id`` is not the base frame of the poses it publishes (``PSM3_base``,
+``ECM_base``; ``world`` for the free camera), a look distance ≤ 0 or beyond
 :data:`MAX_LOOK_M`: one line on stderr, never a crash, never acted on.
 
 Before the first command the robot republishes the first state every control period for up to
@@ -288,7 +290,7 @@ class CommandGate:
                 q, ns = c.decode_joint_command(data)
                 T_goal = self.joints.pose(q)
             else:
-                T_tip, ns = c.decode_pose(data)
+                T_tip, ns = c.decode_pose(data, self.frames.frame_id)
                 T_goal = self.frames.camera_from_tip(T_tip)
         except ValueError:
             self.look, self.twist = None, None
