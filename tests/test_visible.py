@@ -572,3 +572,20 @@ def test_the_default_horizon_reaches_a_touch_three_quarters_of_a_second_ahead() 
         policy._score(policy._ahead_poses(ring_at(t_now), t_now, t_now), t_now)
         assert (policy.idle_scorings == 0) is engaged
         assert bool(policy.last_scores) is engaged
+
+
+ATOL_POLYLINE_M = 1e-8  # m: round-off of squared distances of ~1e-6 m², far below 1 µm
+
+
+def test_the_contact_searchs_distances_are_the_segments_closest_points() -> None:
+    """``polyline_distances_sq`` (the contact search's (M, S) form) against Ericson's closest
+    points of segments (``segment_distances``, a point as a zero-length segment)."""
+    from endocam.control.occlusion import polyline_distances_sq, segment_distances
+
+    rng = np.random.default_rng(27)
+    for _ in range(20):
+        poly = np.cumsum(rng.normal(0.0, 2e-3, (int(rng.integers(2, 12)), 3)), axis=0)
+        q = rng.normal(0.0, 4e-3, (50, 3))
+        got = np.sqrt(np.maximum(polyline_distances_sq(q, poly), 0.0))
+        want = segment_distances(poly[:-1], poly[1:], q, q).min(axis=0)
+        np.testing.assert_allclose(got, want, atol=ATOL_POLYLINE_M)

@@ -58,6 +58,7 @@ __all__ = [
     "gap_spans",
     "hidden",
     "occluders",
+    "polyline_distances_sq",
     "segment_distances",
     "sight",
     "view_directions",
@@ -203,7 +204,7 @@ def contact_points(
     c, e1, e2 = T[:3, 3], T[:3, 0], T[:3, 1]
     phi = np.arange(CONTACT_SEARCH) * (2.0 * math.pi / CONTACT_SEARCH)
     q = c + ring.major * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
-    best = float(phi[int(np.argmin(np.linalg.norm(q - _nearest_on_polyline(q, window), axis=1)))])
+    best = float(phi[int(np.argmin(polyline_distances_sq(q - c, np.asarray(window) - c)))])
     half = arc / ring.major  # rad of rim either side
     phi = best + (np.linspace(-half, half, count) if count > 1 else np.zeros(1))
     q = c + ring.major * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
@@ -213,6 +214,24 @@ def contact_points(
     u = gap / np.maximum(dist, _EPS)[:, None]
     g = p + (wire_radius + 0.5 * GAP_M) * u
     return GapPoints(g, u, dist - ring.minor - wire_radius, np.ones(len(q)))
+
+
+def polyline_distances_sq(q: FloatArray, poly: FloatArray) -> FloatArray:
+    """(M,) squared distances of the points ``q`` (M, 3) to the polyline ``poly`` (K, 3), m².
+
+    What :func:`_nearest_on_polyline` finds, without its (M, S, 3) arrays: with ``w = q − a``
+    and the segment ``d = b − a``, ``|w − t d|² = |w|² − 2 t w·d + t² |d|²`` at the clamped
+    ``t``, every term from (M, S) products. Pass points near the origin (the ring's centre
+    subtracted) so that ``|w|²`` keeps its digits.
+    """
+    a, b = poly[:-1], poly[1:]
+    d = b - a  # (S, 3)
+    dd = np.maximum(np.einsum("ij,ij->i", d, d), _EPS)  # (S,)
+    qa = q @ a.T  # (M, S)
+    ww = np.einsum("ij,ij->i", q, q)[:, None] - 2.0 * qa + np.einsum("ij,ij->i", a, a)[None]
+    wd = q @ d.T - np.einsum("ij,ij->i", a, d)[None]  # (M, S)
+    t = np.clip(wd / dd, 0.0, 1.0)
+    return np.asarray(np.min(ww - 2.0 * t * wd + t * t * dd, axis=1), dtype=float)
 
 
 def _nearest_on_polyline(q: FloatArray, poly: FloatArray) -> FloatArray:
