@@ -164,16 +164,8 @@ def gap_points(
     scale : float
         ``λ``, m (> 0): how fast the weight falls with the clearance.
     """
-    T = np.asarray(T_world_ring, dtype=float)
-    c, e1, e2 = T[:3, 3], T[:3, 0], T[:3, 1]
     phi = np.arange(count) * (2.0 * math.pi / count)
-    q = c + ring.major * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)  # (M, 3)
-    p = _nearest_on_polyline(q, window)
-    gap = q - p
-    dist = np.linalg.norm(gap, axis=1)
-    u = gap / np.maximum(dist, _EPS)[:, None]
-    clearance = dist - ring.minor - wire_radius
-    g = p + (wire_radius + 0.5 * GAP_M) * u
+    g, u, clearance = _gaps_at(_rim_points(T_world_ring, ring, phi), window, ring, wire_radius)
     weights = np.exp(-np.maximum(clearance, 0.0) / scale)
     weights[weights < WEIGHT_FLOOR * np.max(weights)] = 0.0
     return GapPoints(g, u, clearance, weights)
@@ -200,20 +192,37 @@ def contact_points(
     ``T_world_ring`` (4, 4), world, m; ``window`` (K, 3) the wire near the ring, m;
     ``wire_radius``, ``arc`` m (``arc`` ≥ 0); ``count`` ≥ 1.
     """
-    T = np.asarray(T_world_ring, dtype=float)
-    c, e1, e2 = T[:3, 3], T[:3, 0], T[:3, 1]
+    c = np.asarray(T_world_ring, dtype=float)[:3, 3]
     phi = np.arange(CONTACT_SEARCH) * (2.0 * math.pi / CONTACT_SEARCH)
-    q = c + ring.major * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+    q = _rim_points(T_world_ring, ring, phi)
     best = float(phi[int(np.argmin(polyline_distances_sq(q - c, np.asarray(window) - c)))])
     half = arc / ring.major  # rad of rim either side
     phi = best + (np.linspace(-half, half, count) if count > 1 else np.zeros(1))
-    q = c + ring.major * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+    g, u, clearance = _gaps_at(_rim_points(T_world_ring, ring, phi), window, ring, wire_radius)
+    return GapPoints(g, u, clearance, np.ones(len(phi)))
+
+
+def _rim_points(T_world_ring: FloatArray, ring: RingShape, phi: np.ndarray) -> FloatArray:
+    """(M, 3) points of the ring's core circle at the angles ``phi`` (M,), rad, world, m."""
+    T = np.asarray(T_world_ring, dtype=float)
+    c, e1, e2 = T[:3, 3], T[:3, 0], T[:3, 1]
+    return np.asarray(c + ring.major * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2))
+
+
+def _gaps_at(
+    q: FloatArray, window: FloatArray, ring: RingShape, wire_radius: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Gap points (M, 3), their directions (M, 3) and clearances (M,), m, of rim points ``q``.
+
+    Each rim point's gap lies towards it from its nearest point on the wire's ``window``
+    (K, 3), ``GAP_M`` / 2 beyond the wire's surface (module docstring, item 1).
+    """
     p = _nearest_on_polyline(q, window)
     gap = q - p
     dist = np.linalg.norm(gap, axis=1)
     u = gap / np.maximum(dist, _EPS)[:, None]
     g = p + (wire_radius + 0.5 * GAP_M) * u
-    return GapPoints(g, u, dist - ring.minor - wire_radius, np.ones(len(q)))
+    return g, u, dist - ring.minor - wire_radius
 
 
 def polyline_distances_sq(q: FloatArray, poly: FloatArray) -> FloatArray:
