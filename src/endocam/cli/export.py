@@ -30,12 +30,11 @@ def require_mcap() -> None:
 
 def export_runs(out: Path) -> int:
     """Write ``episode.mcap`` into every run folder under ``out`` (``--mcap``); returns how many."""
-    from tqdm import tqdm
-
+    from endocam.progress import progress_bar
     from endocam.runner.mcap_export import EPISODE_MCAP, export_mcap, run_folders
 
     folders = run_folders(out)
-    for folder in tqdm(folders, desc="mcap", unit="run", leave=False, disable=len(folders) < 2):
+    for folder in progress_bar(folders, desc="mcap", unit="run", disable=len(folders) < 2):
         try:
             export_mcap(folder, folder / EPISODE_MCAP)
         except ValueError as exc:
@@ -44,8 +43,7 @@ def export_runs(out: Path) -> int:
 
 
 def _export_mcap(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+    from endocam.progress import progress_bar
     from endocam.runner.mcap_export import EPISODE_MCAP, VideoFormat, export_mcap, read_run
 
     require_mcap()
@@ -65,7 +63,7 @@ def _export_mcap(args: argparse.Namespace) -> int:
         video = VideoFormat(args.video)
         frames = run.video is not None and video is not VideoFormat.NONE
         total = len(run.columns["t"]) + (len(run.frame_steps) if frames else 0)
-        with tqdm(total=total, desc="mcap", unit="step", leave=False) as bar:
+        with progress_bar(total=total, desc="mcap", unit="step") as bar:
             result = export_mcap(run_dir, out, video, progress=bar.update)
     except ValueError as exc:
         raise UsageError(str(exc)) from None

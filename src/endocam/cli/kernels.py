@@ -39,8 +39,7 @@ def _arms(text: str) -> str:
 
 
 def _compile(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+    from endocam.progress import progress_bar
     from endocam.runner.precompile import DEFAULT_DURATION_S, precompile, precompile_jobs
 
     if os.environ.get("NUMBA_DISABLE_JIT") == "1":
@@ -49,7 +48,7 @@ def _compile(args: argparse.Namespace) -> int:
     start = time.process_time()
     jobs = precompile_jobs(arms)
     duration_s = args.duration or DEFAULT_DURATION_S
-    with tqdm(total=len(jobs), desc="compile", unit="episode", leave=False) as bar:
+    with progress_bar(total=len(jobs), desc="compile", unit="episode") as bar:
         n = precompile(duration_s, arms=arms, done=lambda job: bar.update(1))
     cpu = time.process_time() - start
     where = os.environ.get("NUMBA_CACHE_DIR", "numba's default (__pycache__)")

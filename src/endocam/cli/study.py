@@ -98,8 +98,7 @@ def _print_hypothesis(folder: Path) -> None:
 def _observe(args: argparse.Namespace) -> int:
     import json
 
-    from tqdm import tqdm
-
+    from endocam.progress import progress_bar
     from endocam.study.hypothesis import SEEDS_DIR, kept_seeds, recount_study
     from endocam.study.manifest import ManifestError, load_manifest
     from endocam.study.observer import OBSERVER_JSON
@@ -112,7 +111,7 @@ def _observe(args: argparse.Namespace) -> int:
     except (ManifestError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     total = len(manifest.videos) + len(manifest.conditions) * n_seeds
-    with tqdm(total=total, desc="observer", unit="video", leave=False) as bar:
+    with progress_bar(total=total, desc="observer", unit="video") as bar:
         try:
             hypothesis = recount_study(folder, args.workers, progress=bar.update)
         except ValueError as exc:  # a malformed or foreign file in the folder: one line
@@ -158,8 +157,7 @@ def _add_observe(sub: argparse._SubParsersAction) -> None:
 def _ideal_observer(args: argparse.Namespace) -> int:
     import json
 
-    from tqdm import tqdm
-
+    from endocam.progress import progress_bar
     from endocam.runner.outputs import write_atomic
     from endocam.study import ideal_observer_study as ios
     from endocam.study.ideal_observer_report import report_html
@@ -187,8 +185,10 @@ def _ideal_observer(args: argparse.Namespace) -> int:
     n_videos = eyes * len(study.conditions) * len(study.seed_dirs)
     folds = len(inputs) * len(study.conditions) * len(study.seed_dirs)
     with (
-        tqdm(total=ios.frames_per_video(study) * n_videos, desc="crops", unit="frame") as crops,
-        tqdm(total=folds, desc="folds", unit="fold") as fits,
+        progress_bar(
+            total=ios.frames_per_video(study) * n_videos, desc="crops", unit="frame", leave=True
+        ) as crops,
+        progress_bar(total=folds, desc="folds", unit="fold", leave=True) as fits,
         threadpool_limits(limits=args.threads),
     ):
         try:

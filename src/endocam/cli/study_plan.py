@@ -74,8 +74,7 @@ def _check_fraction(name: str, value: float, low_open: bool = True) -> None:
 
 
 def _power(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+    from endocam.progress import progress_bar
     from endocam.study import power as pw
 
     for name in ("alpha", "power"):
@@ -107,7 +106,7 @@ def _power(args: argparse.Namespace) -> int:
         outliers=outliers,
         tukey_k=tukey_k,
     )
-    with tqdm(desc="power", unit="study", leave=False) as bar:
+    with progress_bar(desc="power", unit="study") as bar:
         result = pw.sample_size(model, config, progress=bar.update)
     doc = json.dumps(pw.power_document(result), indent=2, allow_nan=False) + "\n"
     written = write_files(
@@ -216,8 +215,7 @@ def add_power(sub: argparse._SubParsersAction) -> None:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+    from endocam.progress import progress_bar
     from endocam.study import simulate as sim
     from endocam.study.manifest import load_manifest
 
@@ -247,7 +245,7 @@ def _simulate(args: argparse.Namespace) -> int:
         tukey_k=tukey_k,
         bootstrap_resamples=args.resamples,
     )
-    with tqdm(total=args.replications, desc="replications", unit="study", leave=False) as bar:
+    with progress_bar(total=args.replications, desc="replications", unit="study") as bar:
         result = sim.simulate(
             Path(args.study), model, args.replications, args.seed, config, args.alpha, bar.update
         )

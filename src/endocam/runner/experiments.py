@@ -17,6 +17,7 @@ from tqdm import tqdm
 
 from endocam.camera import Eye
 from endocam.config import ExperimentConfig
+from endocam.progress import progress_bar
 from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode
 from endocam.runner.outputs import (
     CARRIERS,
@@ -61,7 +62,7 @@ PAPER_IDEAL_POINTS = (36, 54, 71)
 
 
 def _bar(total: int, desc: str) -> tqdm:
-    return tqdm(total=total, desc=desc, unit="step", leave=False, dynamic_ncols=True)
+    return progress_bar(total=total, desc=desc, unit="step", dynamic_ncols=True)
 
 
 def ground_truth(config: ExperimentConfig, kind: TrajectoryKind, n: int, seed: int) -> TouchReport:
@@ -109,7 +110,7 @@ def run_and_write(
     result = run_with_progress(config, spec)
     if video:
         n_frames = len(frame_indices(result))
-        with tqdm(total=n_frames, desc="render", unit="frame", leave=False) as bar:
+        with progress_bar(total=n_frames, desc="render", unit="frame") as bar:
             write_run(result, out_dir, video=True, progress=bar.update)
     else:
         write_run(result, out_dir, video=False)
@@ -215,7 +216,7 @@ def render_side_by_side(
     The side-by-side video carries a caption strip naming each panel's policy.
     """
     total = len(frame_indices(results[0])) * len(results)
-    with tqdm(total=total, desc="render", unit="frame", leave=False) as bar:
+    with progress_bar(total=total, desc="render", unit="frame") as bar:
         render_episodes(results, paths, grid_path, bar.update)
 
 
@@ -384,7 +385,7 @@ def run_paper_experiment(
     """Three ideal and three noisy trajectories; returns a Markdown table beside the paper's."""
     episodes = paper_episodes(config, policy)
     results = []
-    for ep in tqdm(episodes, desc="episodes", unit="episode", leave=False):
+    for ep in progress_bar(episodes, desc="episodes", unit="episode"):
         results.append(run_with_progress(ep.config, ep.spec))
     names = {id(r): ep.name for r, ep in zip(results, episodes, strict=True)}
     table_rows: list[dict[str, Any]] = []

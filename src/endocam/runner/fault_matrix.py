@@ -30,10 +30,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from endocam.config import ExperimentConfig
 from endocam.faults import ARM_FAULTS, FAULT_NAMES, FaultsConfig, fault_names
+from endocam.progress import progress_bar
 from endocam.robot.actuator import ArmKind
 from endocam.runner.episode import EpisodeResult, EpisodeSpec, run_episode
 from endocam.runner.experiments import CONDITION_POLICY
@@ -228,7 +228,7 @@ def run_fault_matrix(
     jobs = matrix_rows(carriers)
     done: dict[str, dict[str, Any]] = {}
     with atomic_dir(Path(out_dir)) as tmp:
-        bar = tqdm(total=len(jobs), desc="fault matrix", unit="episode", leave=False)
+        bar = progress_bar(total=len(jobs), desc="fault matrix", unit="episode")
         with bar, executor(workers) as pool:
             futures = {
                 pool.submit(_episode, config, c, f, s, tmp / folder(c, f, s)): folder(c, f, s)

@@ -329,16 +329,16 @@ def run_perception_experiment(config: ExperimentConfig, out_dir: Path, frames: i
     Writes ``pairs.csv``, ``report.json``, ``report.md`` and ``errors.png`` into ``out_dir``
     (replaced atomically). Raises ``ValueError`` for fewer pairs than episodes.
     """
-    from tqdm import tqdm
+    from endocam.progress import progress_bar
 
     runs_n = len(paper_paths()) * len(CARRIERS)
     if frames < runs_n:
         raise ValueError(f"--frames must be at least {runs_n} (one per episode), got {frames}")
     per_run = math.ceil(frames / runs_n)
     with atomic_dir(Path(out_dir)) as tmp:
-        with tqdm(total=runs_n, desc="episodes", unit="episode", leave=False) as bar:
+        with progress_bar(total=runs_n, desc="episodes", unit="episode") as bar:
             runs = tracker_episodes(config, bar.update)
-        with tqdm(total=per_run * runs_n, desc="pairs", unit="pair", leave=False) as bar:
+        with progress_bar(total=per_run * runs_n, desc="pairs", unit="pair") as bar:
             rows = sample_pairs(config, runs, per_run, progress=bar.update)
         report = {c: summarise(rows, c) for c in CONDITIONS}
         table = report_table(report)

@@ -46,6 +46,7 @@ from pydantic import BaseModel
 from tqdm import tqdm
 
 from endocam.config import ExperimentConfig, config_from_mapping
+from endocam.progress import progress_bar
 from endocam.runner.episode import DEFAULT_SEED, LOG_STATES, EpisodeSpec, run_episode
 from endocam.runner.experiments import ground_truth
 from endocam.runner.outputs import (
@@ -526,8 +527,12 @@ def run_sweep(
     clean_partial(episodes_dir)
     write_atomic(out_dir / SWEEP_JSON, lambda p: write_json(p, json_safe(dict(description or {}))))
     todo = [t for t in tasks if not done(t, episodes_dir)]
-    with tqdm(
-        total=len(tasks), initial=len(tasks) - len(todo), desc="episodes", unit="episode"
+    with progress_bar(
+        total=len(tasks),
+        initial=len(tasks) - len(todo),
+        desc="episodes",
+        unit="episode",
+        leave=True,
     ) as bar:
         if todo:
             backend(trajectory_order(todo), episodes_dir, bar.update)

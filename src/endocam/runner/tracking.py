@@ -40,10 +40,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from endocam.config import ExperimentConfig
 from endocam.geometry import FloatArray, so3_log
+from endocam.progress import progress_bar
 from endocam.robot.actuator import ArmKind
 from endocam.robot.arm import ECM_MAX_VELOCITY, PSM_MAX_VELOCITY
 from endocam.runner.episode import BLOCKED, UNREACHABLE, EpisodeResult, EpisodeSpec, run_episode
@@ -262,7 +262,7 @@ def run_tracking_experiment(
     jobs = [(c, a, p) for p in paths for a in carriers for c in controllers]
     summaries: dict[str, dict[str, Any]] = {}
     with atomic_dir(Path(out_dir)) as tmp:
-        bar = tqdm(total=len(paths) + len(jobs), desc="episodes", unit="job", leave=False)
+        bar = progress_bar(total=len(paths) + len(jobs), desc="episodes", unit="job")
         with bar, executor(workers) as pool:
             touch_futures = {p.name: pool.submit(_touches, config, p) for p in paths}
             futures = {}

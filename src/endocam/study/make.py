@@ -66,10 +66,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from tqdm import tqdm
 
 from endocam import __version__
 from endocam.config import ExperimentConfig
+from endocam.progress import progress_bar
 from endocam.runner.pool import DEFAULT_WORKERS, executor
 from endocam.study.counterbalance import presentation_orders
 from endocam.study.hypothesis import (
@@ -301,7 +301,7 @@ def make_study(
     kind = TrajectoryKind.NOISY
 
     runs: list[tuple[StudyTrajectory, int, list[EpisodeResult]]] = []
-    with tqdm(total=len(trajectories) * len(conds), desc="episodes", leave=False) as bar:
+    with progress_bar(total=len(trajectories) * len(conds), desc="episodes") as bar:
         for traj, traj_seed in zip(trajectories, seeds, strict=True):
             cfg = trajectory_config(config, traj)
             touches = ground_truth(cfg, kind, traj.control_points, traj_seed)
@@ -356,21 +356,21 @@ def make_study(
     records: list[TouchObservation] = []
     with atomic_dir(out) as tmp:
         # cheap outputs first: a failure there must not waste the long render
-        for traj, _, results in tqdm(runs, desc="logs", leave=False):
+        for traj, _, results in progress_bar(runs, desc="logs"):
             for c, result in zip(conds, results, strict=True):
                 write_run(result, tmp / LOGS_DIR / key[(traj.name, c)], video=False)
         if practice_run is not None:
             write_run(practice_run[2], tmp / LOGS_DIR / PRACTICE_NAME, video=False)
         first = runs[0][2][0]
         with WireChaserScene(first.config.task, first.camera) as scene:
-            for traj, _, results in tqdm(runs, desc="observability", leave=False):
+            for traj, _, results in progress_bar(runs, desc="observability"):
                 for c, result in zip(conds, results, strict=True):
                     vid = key[(traj.name, c)]
                     records += observe_episode(
                         result, scene, video_id=vid, condition=c, trajectory=traj.name
                     )
         (tmp / VIDEOS_DIR).mkdir()
-        with tqdm(total=n_frames + n_practice, desc="render", unit="frame", leave=False) as bar:
+        with progress_bar(total=n_frames + n_practice, desc="render", unit="frame") as bar:
             for traj, _, results in runs:
                 paths = [tmp / VIDEOS_DIR / f"{key[(traj.name, c)]}.mp4" for c in conds]
                 render_conditions(results, paths, bar.update)
@@ -378,7 +378,7 @@ def make_study(
                 render_conditions([practice_run[2]], [tmp / PRACTICE_FILE], bar.update)
         keys = ColourKeys.from_scene(config.task.scene)
         observations: dict[str, VideoObservation] = {}
-        with tqdm(total=n_frames, desc="observer", unit="frame", leave=False) as bar:
+        with progress_bar(total=n_frames, desc="observer", unit="frame") as bar:
             for v in manifest.videos:
                 observations[v.id] = observe_video(tmp / v.file, keys, bar.update)
         records = [with_gaps(r, observations[r.video_id]) for r in records]
@@ -464,7 +464,7 @@ def run_extra_seeds(
     seeds = extra_seed_values(extra.seed, extra.n)
     rows: dict[int, list[dict[str, Any]] | None] = {}
     with (
-        tqdm(total=extra.n, desc="extra seeds", unit="seed") as bar,
+        progress_bar(total=extra.n, desc="extra seeds", unit="seed", leave=True) as bar,
         executor(workers, "spawn") as pool,
     ):
         futures = {
