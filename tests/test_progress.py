@@ -5,7 +5,11 @@ from __future__ import annotations
 import io
 import time
 
+import pytest
+
 from endocam.progress import LOG_INTERVAL_S, progress_bar, writes_to_terminal
+
+pytestmark = pytest.mark.no_kernels  # run while the kernels compile (tests/conftest.py)
 
 STEPS = 40
 STEP_S = 0.01  # s between updates: 0.4 s in all, four of tqdm's 0.1 s redraw intervals
