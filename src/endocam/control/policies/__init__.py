@@ -23,7 +23,8 @@ from endocam.control.policies.paper import (
     OrientationEcmPolicy,
     OrientationPolicy,
 )
-from endocam.control.policies.visible import VisibleConfig, VisiblePolicy
+from endocam.control.policies.visible import VisiblePolicy
+from endocam.control.policies.visible_config import VisibleConfig
 
 __all__ = [
     "DETOUR_REASON",
