@@ -81,7 +81,7 @@ def first_use_note(args: argparse.Namespace, environ: dict[str, str] | None = No
         return None
     folder = (os.environ if environ is None else environ)["NUMBA_CACHE_DIR"]
     return (
-        "endocam: compiling the control loop's kernels for their first use (~30 s of CPU, once; "
+        "endocam: compiling the control loop's kernels for their first use (~20 s of CPU, once; "
         f"later runs load them from {folder}; `endocam compile` does it ahead)"
     )
 
