@@ -47,6 +47,9 @@ def test_a_bar_on_a_terminal_redraws_as_it_goes() -> None:
 def test_the_log_interval_is_the_bars_and_can_be_overridden() -> None:
     with progress_bar(total=1, file=io.StringIO()) as bar:
         assert bar.mininterval == LOG_INTERVAL_S
+        assert bar.maxinterval >= LOG_INTERVAL_S  # tqdm's monitor thread would redraw sooner
+    with progress_bar(total=1, file=Terminal()) as bar:
+        assert bar.mininterval < LOG_INTERVAL_S and bar.maxinterval < LOG_INTERVAL_S
     with progress_bar(total=1, file=io.StringIO(), mininterval=1.0) as bar:
         assert bar.mininterval == 1.0
 

@@ -38,9 +38,12 @@ def progress_bar(iterable: Iterable[T] | None = None, **kwargs: Any) -> tqdm:
 
     ``iterable`` and ``kwargs`` are tqdm's (``total``, ``desc``, ``unit``, ``file``, ...).
     Unless ``mininterval`` is given, a bar whose ``file`` (default ``sys.stderr``) is not a
-    terminal redraws at most every :data:`LOG_INTERVAL_S` seconds.
+    terminal redraws at most every :data:`LOG_INTERVAL_S` seconds (and tqdm's monitor thread,
+    which redraws a bar silent for ``maxinterval`` s, waits as long).
     """
     kwargs.setdefault("leave", False)
     if not writes_to_terminal(kwargs.get("file") or sys.stderr):
         kwargs.setdefault("mininterval", LOG_INTERVAL_S)
+        # tqdm's monitor thread redraws a bar silent for ``maxinterval`` (10 s by default)
+        kwargs.setdefault("maxinterval", max(LOG_INTERVAL_S, kwargs["mininterval"]))
     return tqdm(iterable, **kwargs)
