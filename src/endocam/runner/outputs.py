@@ -446,9 +446,12 @@ def plot_tracking(results: Sequence[EpisodeResult], labels: Sequence[str], path:
         ("center_error", 1e3, "3D centring\nerror (mm)"),
         ("orientation_error", math.degrees(1.0), "Orientation\nerror (deg)"),
     ]
+    # each line thinner than the one before, drawn over it: lines that coincide (the fixed and
+    # the centring camera keep one orientation) stay visible as a band and the line inside it
+    widths = np.linspace(1.0 + 0.8 * (len(results) - 1), 1.0, len(results))
     for ax, (attr, scale, ylabel) in zip(axes, series, strict=True):
-        for result, label in zip(results, labels, strict=True):
-            ax.plot(result.log.t, getattr(result, attr) * scale, lw=1.0, label=label)
+        for result, label, lw in zip(results, labels, widths, strict=True):
+            ax.plot(result.log.t, getattr(result, attr) * scale, lw=lw, label=label)
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
         ax.set_ylim(bottom=0)
