@@ -23,6 +23,7 @@ from endocam.control.occlusion import (
     direction_table,
     eye_positions,
     gap_points,
+    gap_points_along,
     hidden,
     occluders,
     segment_distances,
@@ -52,6 +53,7 @@ DT = 0.01  # s, control period
 ATOL_M = 1e-12  # m: two formulas for the same distance
 ATOL_ANGLE = 1e-6  # rad: an axis on the normal up to round-off
 ATOL_SHARE = 1e-12  # unitless: the compiled and the numpy share of the same sight lines
+WEIGHT_FLOOR_CHECK = 0.2  # unitless: occlusion.WEIGHT_FLOOR, the share of the largest weight kept
 P_RING = np.array([0.0, 0.0, 0.06])  # m, the constructed scene's ring centre
 N_RING = np.array([1.0, 0.0, 0.1]) / math.hypot(1.0, 0.1)  # its normal: the first side is +1
 E_CONTACT = np.array([0.0, 1.0, 0.0])  # ⟂ N_RING: the wire sits towards the rim on this side
@@ -125,14 +127,13 @@ def test_the_compiled_sight_lines_are_the_numpy_ones() -> None:
         dirs = np.vstack([view_directions(T[:3, 2], table), -view_directions(T[:3, 2], table)])
         eyes = eye_positions(P_RING, dirs, 0.045, CAMERA.baseline)
         ref = view_scores(eyes, -dirs, gaps, window, T, RING, WIRE_R, FOCAL_PX, 2.0)
-        got = view_shares(
-            np.vstack(eyes),
-            np.vstack([-dirs, -dirs]),
-            sight(gaps, FOCAL_PX, 2.0),
-            occluders(window, WIRE_R, T, RING),
-        )
+        args = (np.vstack(eyes), np.vstack([-dirs, -dirs]), sight(gaps, FOCAL_PX, 2.0),
+                occluders(window, WIRE_R, T, RING))  # fmt: skip
+        got = view_shares(*args, np.ones(2 * len(dirs), dtype=bool))
         np.testing.assert_allclose(got, np.concatenate([ref[:, 0], ref[:, 1]]), atol=ATOL_SHARE)
         agree += int(np.ptp(got) > 0.0)
+        scored = rng.random(2 * len(dirs)) < 0.5  # the eyes not scored: 0, the others as before
+        np.testing.assert_array_equal(view_shares(*args, scored), np.where(scored, got, 0.0))
     assert agree >= 2  # the scenes tell views apart
 
 
@@ -178,6 +179,29 @@ def test_side_hysteresis_holds_against_a_flicker() -> None:
 ATOL_CONTACT_RAD = math.radians(1.0)  # rad: the contact search's step (CONTACT_SEARCH)
 
 
+def test_the_gap_points_of_several_poses_are_each_poses_own() -> None:
+    """``gap_points_along`` measures several poses in one batch: each pose's points,
+    clearances and weights are those of the pose alone (its weights floored against its own
+    largest, not the batch's), whatever the others are: here a ring touching the wire and two
+    farther from it (the last 3 mm), whose weights the first's would otherwise floor to zero."""
+    window = leaning_wire(0.0)
+    poses = [ring_pose(P_RING + k * E_CONTACT, N_RING) for k in (-1.0e-3, 1.0e-3, 2.0e-3)]  # m
+    batch = gap_points_along(poses, window, RING, WIRE_R, 12, 1.5e-3)
+    assert len(batch) == len(poses)
+    for T, got in zip(poses, batch, strict=True):
+        alone = gap_points(T, window, RING, WIRE_R, 12, 1.5e-3)
+        for a, b in zip(
+            (got.points, got.directions, got.clearances, got.weights),
+            (alone.points, alone.directions, alone.clearances, alone.weights),
+            strict=True,
+        ):
+            np.testing.assert_allclose(a, b, rtol=0.0, atol=ATOL_M)
+    # the nearest rim points far enough apart that a batch-wide floor would zero the last's
+    nearest = np.array([b.clearances.min() for b in batch])
+    assert np.ptp(nearest) > -1.5e-3 * math.log(WEIGHT_FLOOR_CHECK)
+    assert all(np.count_nonzero(b.weights) > 0 for b in batch)
+
+
 def test_the_contact_neighbourhood_surrounds_the_rim_point_nearest_the_wire() -> None:
     """``contact_points`` spreads its points evenly over ``±arc`` of rim about the rim point
     nearest the wire (found to the search's 1°), each weighted 1: with the wire 2 mm towards
@@ -215,7 +239,7 @@ def test_the_scorer_judges_the_contact_neighbourhood(monkeypatch: pytest.MonkeyP
     touching = ring_pose(P_RING + 2.8e-3 * E_CONTACT, N_RING)  # the rim 0.2 mm from the wire
     handed: list[tuple[np.ndarray, np.ndarray]] = []
 
-    def shares(eyes: np.ndarray, axes: np.ndarray, seen: object, occ: object) -> np.ndarray:
+    def shares(eyes: np.ndarray, axes: np.ndarray, seen: object, *_: object) -> np.ndarray:
         handed.append((np.asarray(seen.weights), np.asarray(seen.points)))  # type: ignore[attr-defined]
         return np.zeros(len(eyes))
 

@@ -37,6 +37,7 @@ a few times per second, not every control step.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,6 +56,7 @@ __all__ = [
     "direction_table",
     "eye_positions",
     "gap_points",
+    "gap_points_along",
     "gap_spans",
     "hidden",
     "occluders",
@@ -164,11 +166,32 @@ def gap_points(
     scale : float
         ``λ``, m (> 0): how fast the weight falls with the clearance.
     """
+    return gap_points_along([T_world_ring], window, ring, wire_radius, count, scale)[0]
+
+
+def gap_points_along(
+    T_world_rings: Sequence[FloatArray],
+    window: FloatArray,
+    ring: RingShape,
+    wire_radius: float,
+    count: int,
+    scale: float,
+) -> list[GapPoints]:
+    """:func:`gap_points` of each ring pose (4, 4) of ``T_world_rings`` by one ``window``.
+
+    The poses' rim points are measured against the wire in one batch (one set of numpy calls
+    for all of them); each pose's gap points, clearances and weights are its own.
+    """
     phi = np.arange(count) * (2.0 * math.pi / count)
-    g, u, clearance = _gaps_at(_rim_points(T_world_ring, ring, phi), window, ring, wire_radius)
-    weights = np.exp(-np.maximum(clearance, 0.0) / scale)
-    weights[weights < WEIGHT_FLOOR * np.max(weights)] = 0.0
-    return GapPoints(g, u, clearance, weights)
+    q = np.concatenate([_rim_points(T, ring, phi) for T in T_world_rings])
+    g, u, clearance = _gaps_at(q, window, ring, wire_radius)
+    out = []
+    for i in range(len(T_world_rings)):
+        rows = slice(i * count, (i + 1) * count)
+        weights = np.exp(-np.maximum(clearance[rows], 0.0) / scale)
+        weights[weights < WEIGHT_FLOOR * np.max(weights)] = 0.0
+        out.append(GapPoints(g[rows], u[rows], clearance[rows], weights))
+    return out
 
 
 def contact_points(

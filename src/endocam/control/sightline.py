@@ -165,13 +165,14 @@ def _through_rim(a: FloatArray, b: FloatArray, occ: Occluders) -> bool:  # pragm
 
 @njit(cache=True)  # compiled once, then loaded from the cache (endocam._numba_cache)
 def view_shares(
-    eyes: FloatArray, axes: FloatArray, sight: Sight, occ: Occluders
+    eyes: FloatArray, axes: FloatArray, sight: Sight, occ: Occluders, scored: np.ndarray
 ) -> FloatArray:  # pragma: no cover - compiled
     """(E,) weighted share of ``sight``'s points each eye sees clear and resolved.
 
     ``eyes`` (E, 3), world, m; ``axes`` (E, 3) each eye's unit optical axis. A point counts
     when it is in front of the eye, its gap spans ``resolved_px`` and the sight line passes
-    every occluder (:func:`endocam.control.occlusion.view_scores`, per eye).
+    every occluder (:func:`endocam.control.occlusion.view_scores`, per eye). ``scored`` (E,)
+    bool: an eye not scored (its view cannot be taken anyway) is not traced; its share is 0.
     """
     total = 0.0
     for w in sight.weights:
@@ -181,6 +182,8 @@ def view_shares(
         return out
     end = np.empty(3)
     for e in range(eyes.shape[0]):
+        if not scored[e]:
+            continue
         eye = eyes[e]
         share = 0.0
         for m in range(sight.points.shape[0]):

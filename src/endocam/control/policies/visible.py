@@ -81,6 +81,7 @@ from endocam.control.occlusion import (
     direction_table,
     eye_positions,
     gap_points,
+    gap_points_along,
     occluders,
     sight,
     view_directions,
@@ -289,8 +290,10 @@ class VisiblePolicy(EndocamPolicy):
         window = wire_window(wire, T_rings[len(T_rings) // 2][:3, 3], vc.window)
         closing: tuple[FloatArray, GapPoints, float] | None = None
         rims: list[float] = []
-        for T in T_rings:
-            gaps = self._gaps(T, window)
+        along = gap_points_along(
+            T_rings, window, self._shape, wire.radius, vc.rim_points, vc.weight_scale
+        )  # every pose's at once; the loop reads them until the gap closes
+        for T, gaps in zip(T_rings, along, strict=True):
             rims.append(float(np.min(gaps.clearances)))  # the rim's to the wire, m
             if closing is None or rims[-1] < closing[2]:
                 closing = (T, gaps, rims[-1])
@@ -325,13 +328,15 @@ class VisiblePolicy(EndocamPolicy):
         occ = occluders(window, wire.radius, T_ring, self._shape)
         urgency = math.exp(-nearest / vc.urgency_scale)  # a touch near: the view matters
         cost = vc.tilt_cost * (c.tilt + beyond)  # the orientation error it is expected to pay
-        shares = view_shares(eyes, axes, sight(gaps, self._focal_px, vc.resolved_px), occ)
+        scored = np.concatenate([feasible, feasible])  # an infeasible view's eyes: share 0
+        focal, px = self._focal_px, vc.resolved_px
+        shares = view_shares(eyes, axes, sight(gaps, focal, px), occ, scored)
         rim = self._utility(shares, urgency, cost, feasible)  # the side's: the whole rim's
         near = rim  # the tilt's: the whole rim's, or the contact's neighbourhood's
         if vc.contact_arc > 0.0:
             arc, count = vc.contact_arc, vc.contact_points
             contact = contact_points(T_ring, window, self._shape, wire.radius, arc, count)
-            shares = view_shares(eyes, axes, sight(contact, self._focal_px, vc.resolved_px), occ)
+            shares = view_shares(eyes, axes, sight(contact, focal, px), occ, scored)
             near = self._utility(shares, urgency, cost, feasible)
         k = c.per_side
         j = int(np.argmax(near[:k]))
