@@ -177,10 +177,12 @@ def gap_points_along(
     count: int,
     scale: float,
 ) -> list[GapPoints]:
-    """:func:`gap_points` of each ring pose (4, 4) of ``T_world_rings`` by one ``window``.
+    """:func:`gap_points` of each ring pose (4, 4), world, m, of ``T_world_rings``.
 
-    The poses' rim points are measured against the wire in one batch (one set of numpy calls
-    for all of them); each pose's gap points, clearances and weights are its own.
+    ``window`` (K, 3), ``ring``, ``wire_radius``, ``count`` and ``scale`` as
+    :func:`gap_points`'s. The poses' rim points are measured against the wire in one batch
+    (one set of numpy calls for all of them); each pose's gap points, clearances and weights
+    are its own (its weights floored against its own largest).
     """
     phi = np.arange(count) * (2.0 * math.pi / count)
     q = np.concatenate([_rim_points(T, ring, phi) for T in T_world_rings])
