@@ -1,11 +1,12 @@
 """Where a first run's compile goes: numba's compile CPU per entry point and per module.
 
 Runs one ``endocam`` CLI command in this process with an empty numba cache (a new temporary
-``NUMBA_CACHE_DIR`` unless one is set) and listens to numba's ``numba:compile`` events (its
-event API, ``numba.core.event``). A compile started while another is under way is that one's
-callee: its CPU counts in its caller's *inclusive* time and in its own module's *exclusive*
-time. Printed: the command's CPU after the imports, the compiles' count and total, the entry
-points (compiles started from Python) by inclusive CPU, and the modules by exclusive CPU::
+``NUMBA_CACHE_DIR``, deleted at the end, unless one is set) and listens to numba's
+``numba:compile`` events (its event API, ``numba.core.event``). A compile started while
+another is under way is that one's callee: its CPU counts in its caller's *inclusive* time
+and in its own module's *exclusive* time. Printed: the command's CPU after the imports, the
+compiles' count and total, the entry points (compiles started from Python) by inclusive CPU,
+and the modules by exclusive CPU::
 
     MUJOCO_GL=egl .venv/bin/python bench/compile_profile.py run --policy endocam --arm psm \\
         --trajectory noisy --no-video --out /tmp/first
@@ -15,7 +16,9 @@ points (compiles started from Python) by inclusive CPU, and the modules by exclu
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -25,6 +28,7 @@ from typing import Any
 
 if not os.environ.get("NUMBA_CACHE_DIR"):  # before numba is imported: an empty cache
     os.environ["NUMBA_CACHE_DIR"] = tempfile.mkdtemp(prefix="endocam-compile-profile-")
+    atexit.register(shutil.rmtree, os.environ["NUMBA_CACHE_DIR"], ignore_errors=True)
 
 from numba.core import event
 
@@ -76,7 +80,7 @@ def main(argv: list[str]) -> int:
     total = time.process_time() - start
     compiled = sum(t for _, t in listener.entries)
     opt = os.environ.get("NUMBA_OPT", "default")
-    print(f"\nNUMBA_CACHE_DIR={os.environ['NUMBA_CACHE_DIR']}, NUMBA_OPT={opt}")
+    print(f"\nNUMBA_OPT={opt}")
     print(f"CPU after the imports {total:.2f} s; {listener.count} compiles, {compiled:.2f} s")
     print(f"{len(listener.entries)} entry points (inclusive CPU, s):")
     for name, t in sorted(listener.entries, key=lambda e: -e[1]):

@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 from endocam import StereoCamera, look_at_pose
 from endocam.control.config import ControllerConfig
 from endocam.control.occlusion import (
+    WEIGHT_FLOOR,
     RingShape,
     contact_points,
     direction_table,
@@ -53,7 +54,6 @@ DT = 0.01  # s, control period
 ATOL_M = 1e-12  # m: two formulas for the same distance
 ATOL_ANGLE = 1e-6  # rad: an axis on the normal up to round-off
 ATOL_SHARE = 1e-12  # unitless: the compiled and the numpy share of the same sight lines
-WEIGHT_FLOOR_CHECK = 0.2  # unitless: occlusion.WEIGHT_FLOOR, the share of the largest weight kept
 P_RING = np.array([0.0, 0.0, 0.06])  # m, the constructed scene's ring centre
 N_RING = np.array([1.0, 0.0, 0.1]) / math.hypot(1.0, 0.1)  # its normal: the first side is +1
 E_CONTACT = np.array([0.0, 1.0, 0.0])  # ⟂ N_RING: the wire sits towards the rim on this side
@@ -117,6 +117,7 @@ def test_a_point_behind_the_wire_or_the_rim_is_hidden() -> None:
 def test_the_compiled_sight_lines_are_the_numpy_ones() -> None:
     """``view_shares`` (compiled, coarse-to-fine rim test) against ``view_scores`` (numpy)."""
     rng = np.random.default_rng(1)
+    mask_rng = np.random.default_rng(2)  # its own stream: the scenes stay those of rng
     table = direction_table(np.radians([15.0]), 5)
     agree = 0
     for lean in rng.uniform(-1.0, 1.0, size=4):
@@ -132,7 +133,7 @@ def test_the_compiled_sight_lines_are_the_numpy_ones() -> None:
         got = view_shares(*args, np.ones(2 * len(dirs), dtype=bool))
         np.testing.assert_allclose(got, np.concatenate([ref[:, 0], ref[:, 1]]), atol=ATOL_SHARE)
         agree += int(np.ptp(got) > 0.0)
-        scored = rng.random(2 * len(dirs)) < 0.5  # the eyes not scored: 0, the others as before
+        scored = mask_rng.random(2 * len(dirs)) < 0.5  # not scored: 0; the others as before
         np.testing.assert_array_equal(view_shares(*args, scored), np.where(scored, got, 0.0))
     assert agree >= 2  # the scenes tell views apart
 
@@ -198,7 +199,7 @@ def test_the_gap_points_of_several_poses_are_each_poses_own() -> None:
             np.testing.assert_allclose(a, b, rtol=0.0, atol=ATOL_M)
     # the nearest rim points far enough apart that a batch-wide floor would zero the last's
     nearest = np.array([b.clearances.min() for b in batch])
-    assert np.ptp(nearest) > -1.5e-3 * math.log(WEIGHT_FLOOR_CHECK)
+    assert np.ptp(np.maximum(nearest, 0.0)) > -1.5e-3 * math.log(WEIGHT_FLOOR)  # weights clamp c
     assert all(np.count_nonzero(b.weights) > 0 for b in batch)
 
 
@@ -496,8 +497,12 @@ def test_a_view_counts_what_its_better_eye_sees(monkeypatch: pytest.MonkeyPatch)
     start = look_at_pose(P_RING + 0.045 * N_RING, P_RING)
     touching = ring_pose(P_RING + 2.8e-3 * E_CONTACT, N_RING)  # the rim 0.2 mm from the wire
 
-    def shares(eyes: np.ndarray, *_: object) -> np.ndarray:
+    def shares(eyes: np.ndarray, *args: object) -> np.ndarray:
         m = len(eyes) // 2  # candidates: this side's, the other side's view, the target
+        scored = np.asarray(args[-1])  # (2m,): all left eyes, then all right eyes
+        per_side = m - 2
+        assert scored.shape == (2 * m,) and np.array_equal(scored[:m], scored[m:])
+        assert scored[0] and scored[per_side]  # the tracker's own views are always scored
         left, right = np.ones(m), np.zeros(m)
         left[0] = right[0] = left[-1] = right[-1] = 0.6  # the normal (and the target on it)
         left[-2] = 0.0  # the other side's view: nothing

@@ -3,9 +3,9 @@ r"""Progress bars: tqdm's, drawn every 0.1 s on a terminal and every 30 s in a l
 A bar on a terminal redraws itself in place. Written to a file or a pipe (``make demo > log``),
 each redraw is a ``\r`` and a new copy of the bar: tqdm's 0.1 s default filled a log with about
 100 KB of copies for one demo. So every bar of endocam is made here, and one whose stream is not
-a terminal redraws at most every :data:`LOG_INTERVAL_S` seconds (the first and last states are
-always drawn): a log keeps the progress of a long run and stays readable
-(``tr '\r' '\n' < log``).
+a terminal redraws at most every :data:`LOG_INTERVAL_S` seconds (its first state is always
+drawn; a bar with ``leave=True`` also draws its last): a log keeps the progress of a long run
+and stays readable (``tr '\r' '\n' < log``).
 """
 
 from __future__ import annotations

@@ -433,6 +433,9 @@ def _shade_states(ax: Any, t: np.ndarray, state: np.ndarray) -> None:
             )
 
 
+MAX_LINE_WIDTH = 2.6  # pt: the first of several lines (the paper experiment draws six)
+
+
 def plot_tracking(results: Sequence[EpisodeResult], labels: Sequence[str], path: Path) -> None:
     """The three tracking errors against time, one line per episode (like paper Figs. 5–6).
 
@@ -448,7 +451,7 @@ def plot_tracking(results: Sequence[EpisodeResult], labels: Sequence[str], path:
     ]
     # each line thinner than the one before, drawn over it: lines that coincide (the fixed and
     # the centring camera keep one orientation) stay visible as a band and the line inside it
-    widths = np.linspace(1.0 + 0.8 * (len(results) - 1), 1.0, len(results))
+    widths = np.linspace(min(1.0 + 0.8 * (len(results) - 1), MAX_LINE_WIDTH), 1.0, len(results))
     for ax, (attr, scale, ylabel) in zip(axes, series, strict=True):
         for result, label, lw in zip(results, labels, widths, strict=True):
             ax.plot(result.log.t, getattr(result, attr) * scale, lw=lw, label=label)

@@ -83,8 +83,9 @@ class VisibleConfig:
         Ring poses predicted over the look-ahead, evenly from the step (the delay bridged) to
         ``lookahead``; the one scored is where the rim's clearance comes down to the closing
         gap ``GAP_M`` (the prediction stops at contact: between the last pose clear of it and
-        the first that is not, :func:`closing_fraction`, :func:`pose_between`; constant
-        velocity carries the ring into the wire, the wire stops it), else the closest (1: the
+        the first that is not, ``closing_fraction`` and ``pose_between`` of
+        :mod:`~endocam.control.policies.visible`; constant velocity carries the ring into the
+        wire, the wire stops it), else the closest (1: the
         ``lookahead`` pose alone). Round 12: 0.75 s and 4 poses against 0.5 s and 1 pose, on
         seeds 7–26 paired per touch: 76 % against 73 % resolved, at 9.1° against 8.1°.
     either_eye : bool
