@@ -203,6 +203,32 @@ def test_the_robot_process_speaks_the_dvrk_tip_in_the_base_frame(
     np.testing.assert_allclose(q, q_goal, atol=SERVO_ATOL_M, rtol=0)
 
 
+SHEAR_INSIDE = 0.45e-12  # unitless: R Rᵀ's off-diagonal 0.9e-12, inside scipy's atol 1e-12
+SHEAR_OUTSIDE = 1.0e-12  # unitless: 2e-12, outside it
+
+
+def test_the_fast_paths_validity_test_is_scipys_on_both_sides_of_its_tolerance() -> None:
+    """``crtk_pose_fields`` repeats scipy's validity test to take ``assume_valid`` for valid
+    rotations. Just inside scipy's tolerance scipy's general conversion equals its
+    ``assume_valid`` one (scipy took the matrix as valid), just outside it does not (scipy
+    orthogonalised it); ``crtk_pose_fields`` equals the general conversion on both sides. If
+    scipy's tolerance moves either way, this fails (and ``dvrk_frames._GRAM_ATOL`` with it)."""
+    from scipy.spatial.transform import Rotation
+
+    from endocam.robot.dvrk_frames import crtk_pose_fields
+
+    rng = np.random.default_rng(23)
+    shear = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])  # R Rᵀ ≈ I + 2 δ shear
+    for delta, valid in ((SHEAR_INSIDE, True), (SHEAR_OUTSIDE, False)):
+        for _ in range(50):
+            T = np.eye(4)
+            T[:3, :3] = (np.eye(3) + delta * shear) @ Rotation.random(rng=rng).as_matrix()
+            general = Rotation.from_matrix(T[:3, :3]).as_quat()
+            fast = Rotation.from_matrix(T[:3, :3], assume_valid=True).as_quat()
+            assert np.array_equal(general, fast) is valid, delta
+            assert crtk_pose_fields(T)[3:] == tuple(general)
+
+
 def test_crtk_pose_fields_are_scipys_conversion_for_every_matrix() -> None:
     """Its fast path for valid rotations gives scipy's general ``from_matrix`` to the bit.
 
