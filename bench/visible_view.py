@@ -85,8 +85,10 @@ class Tally:
     violations: int = 0
     cpu_s: list[float] = field(default_factory=list)
     hiders: Counter[str] = field(default_factory=Counter)
+    lost: list[float] = field(default_factory=list)  # per episode: share of lost-tracking steps
 
 
+LOST = "lost_tracking"  # the log's state while the tracker holds on a refused or missing pose
 DENSE_TILTS_RAD = np.radians([5.0, 10.0, 15.0, 20.0, 25.0])  # the oracle's denser set
 DENSE_AZIMUTHS = 12
 
@@ -263,6 +265,7 @@ def main() -> None:
                     tally.orientation_deg.append(
                         math.degrees(float(np.mean(result.orientation_error)))
                     )
+                    tally.lost.append(float(np.mean(result.log.state == LOST)))
                     run_dir = Path(tmp) / f"{policy}-{traj.name}-{seed}"
                     write_run(result, run_dir, video=False)
                     tally.violations += check_run(run_dir).total
@@ -309,7 +312,7 @@ def main() -> None:
                     print(
                         f"  seed {seed} {traj.name} {policy}: {len(result.touches.events)} "
                         f"touches, orientation {tally.orientation_deg[-1]:.1f} deg, "
-                        f"CPU {tally.cpu_s[-1]:.2f} s{counts}",
+                        f"CPU {tally.cpu_s[-1]:.2f} s, lost {tally.lost[-1]:.1%}{counts}",
                         flush=True,
                     )
     if args.touches_csv and rows:
@@ -321,7 +324,8 @@ def main() -> None:
     if overrides:
         print(f"VisibleConfig overrides: {overrides}")
     print(
-        "policy | touches | left | either | resolved | orient. deg | violations | CPU s/ep", end=""
+        "policy | touches | left | either | resolved | orient. deg | violations | lost | CPU s/ep",
+        end="",
     )
     print(" | hiders")
     for policy, t in tallies.items():
@@ -329,7 +333,7 @@ def main() -> None:
         print(
             f"{policy} | {t.touches} | {t.left / n:.0%} | {t.either / n:.0%} | "
             f"{t.resolved / n:.0%} | {np.mean(t.orientation_deg):.1f} | {t.violations} | "
-            f"{np.median(t.cpu_s):.2f} | {dict(t.hiders.most_common())}"
+            f"{np.mean(t.lost):.2%} | {np.median(t.cpu_s):.2f} | {dict(t.hiders.most_common())}"
         )
 
 

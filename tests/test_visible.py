@@ -54,6 +54,7 @@ DT = 0.01  # s, control period
 ATOL_M = 1e-12  # m: two formulas for the same distance
 ATOL_ANGLE = 1e-6  # rad: an axis on the normal up to round-off
 ATOL_SHARE = 1e-12  # unitless: the compiled and the numpy share of the same sight lines
+RATE_RTOL = 1e-9  # relative: ruckig's limits hold to round-off
 P_RING = np.array([0.0, 0.0, 0.06])  # m, the constructed scene's ring centre
 N_RING = np.array([1.0, 0.0, 0.1]) / math.hypot(1.0, 0.1)  # its normal: the first side is +1
 E_CONTACT = np.array([0.0, 1.0, 0.0])  # ⟂ N_RING: the wire sits towards the rim on this side
@@ -358,6 +359,36 @@ def test_the_policy_orbits_to_the_side_with_the_clear_hole() -> None:
 
 ATOL_PRED_M = 1e-9  # m: a constant-velocity motion extrapolated exactly (round-off only)
 ATOL_PRED = 1e-9  # unitless: rotation matrix entries, the same
+
+
+def test_the_axis_offset_moves_smoothly_even_when_its_target_reverses() -> None:
+    """The offset (the turned normal's tilt) moves at most ``tilt_rate`` and changes its rate
+    by at most ``tilt_acceleration · dt`` a step, also when a new target reverses its motion
+    (round 18: a jump of its rate made the tracker's observation gate refuse the ring); it
+    reaches each target and rests there."""
+    cfg = VisibleConfig()
+    up_perp = np.array([0.0, 0.0, 1.0]) - N_RING[2] * N_RING
+    rcm = P_RING + 0.25 * up_perp / np.linalg.norm(up_perp)
+    start = look_at_pose(P_RING + 0.045 * N_RING, P_RING)
+    context = PolicyContext(CAMERA, start, ring_pose(P_RING, N_RING), rcm, DT,
+                            wire=centred_wire(), ring=RingConfig())  # fmt: skip
+    policy = VisiblePolicy(ControllerConfig(), cfg)
+    policy.reset(context)
+    policy._want = 1.0
+    out, back = (0.2, 0.1, -0.05), (-0.2, 0.0, 0.1)  # tan θ: a tilt, then one the other way
+    path = [np.array(policy._offset)]
+    for target, steps in ((out, 8), (back, 60), (out, 60)):  # the first is cut off halfway
+        policy._targets[1.0] = target
+        for _ in range(steps):
+            policy._advance()
+            path.append(np.array(policy._offset))
+        if steps == 60:
+            assert policy._offset == target  # reached, exactly
+    rate = np.diff(np.array(path), axis=0) / DT  # (steps, 3), 1/s
+    assert np.max(np.linalg.norm(rate, axis=1)) <= cfg.tilt_rate * (1.0 + RATE_RTOL)
+    jump = np.linalg.norm(np.diff(rate, axis=0), axis=1) / DT  # 1/s²
+    assert np.max(jump) <= cfg.tilt_acceleration * (1.0 + RATE_RTOL)
+    assert np.max(jump) > 0.5 * cfg.tilt_acceleration  # it did accelerate and reverse
 
 
 def test_the_prediction_extrapolates_a_constant_velocity_and_caps_the_turn() -> None:

@@ -42,8 +42,9 @@ port than ``port_angle``, is not taken; the tracker's own view always may be (th
 its guard handle it as before).
 
 * **Tilt** (on the side the camera is on): the best candidate becomes the target when its
-  utility beats the current target's by ``tilt_margin``. The axis moves towards the target at
-  ``tilt_rate`` (rad/s of the offset), never in a jump.
+  utility beats the current target's by ``tilt_margin``. The axis moves towards the target
+  (ruckig) at most at ``tilt_rate`` (rad/s of the offset) and ``tilt_acceleration``, never in
+  a jump of its angle or of its rate.
 * **Side**: the first is the tracker's (above the feature); the other side is taken only when
   its own view's utility beats this side's best by ``side_margin`` at every scoring for
   ``side_hold`` s (never for a moment's gain, :func:`choose_side`); the camera then moves there
@@ -54,8 +55,9 @@ The axis reaches the tracker as the observed ring pose with its normal turned to
 :math:`n' = \operatorname{normalize}(n + \tau_\perp)`, where ``τ`` (world) is the axis' offset
 and :math:`\tau_\perp` its part across the observed normal (the tracker's step reads only the
 ring's centre and normal): ``n'`` moves with the ring, at most ``max_tilt`` from it and at most
-``tilt_rate`` faster, so the observation gate (``ring_max_rate``) and the predictor see a
-smooth normal. A faulty or degenerate ring pose is passed on untouched (the checks answer it).
+``tilt_rate`` faster, its rate changing by at most ``tilt_acceleration``, so the observation
+gate (``ring_max_rate``, and the angle innovation it allows) and the predictor see a smooth
+normal. A faulty or degenerate ring pose is passed on untouched (the checks answer it).
 Without a wire model (``PolicyContext.wire``) nothing is scored and the camera is ``endocam``.
 
 The tilt is the orientation error this camera pays for the view: ``experiment tracking``
@@ -70,6 +72,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from ruckig import InputParameter, OutputParameter, Result, Ruckig
 
 from endocam.control.checks import OBS_OK
 from endocam.control.config import ControllerConfig
@@ -161,6 +164,8 @@ class VisiblePolicy(EndocamPolicy):
 
     def _reset_memory(self) -> None:
         self._offset = _ZERO  # τ applied, world
+        self._tilt_moving = False  # ruckig is moving it (its velocity is ruckig's state)
+        self._tilt_target = _ZERO  # the target ruckig moves it to
         self._targets: dict[float, tuple[float, float, float]] = {1.0: _ZERO, -1.0: _ZERO}
         self._want = 0.0  # the side the scorer wants (0: none yet)
         self._since: float | None = None  # when the other side started being better
@@ -182,6 +187,12 @@ class VisiblePolicy(EndocamPolicy):
         self._baseline = float(context.camera.baseline)
         self._dt = context.dt
         self._window = max(self.visible.velocity_window, context.dt)
+        vc = self.visible
+        self._tilt_otg = Ruckig(3, context.dt)  # the offset's motion: rate- and accel-limited
+        self._tilt_in, self._tilt_out = InputParameter(3), OutputParameter(3)
+        self._tilt_in.max_velocity = [vc.tilt_rate / math.sqrt(3.0)] * 3
+        self._tilt_in.max_acceleration = [vc.tilt_acceleration / math.sqrt(3.0)] * 3
+        self._tilt_in.current_position = self._tilt_in.target_position = _ZERO  # at rest on it
 
     def view_axes(self, T_ring: FloatArray | None) -> tuple[FloatArray, FloatArray] | None:
         """The viewing axes (3,) the camera is turned to now, world: the target's, the applied.
@@ -257,16 +268,27 @@ class VisiblePolicy(EndocamPolicy):
         return [self._predicted(T_ring, t_ring, t + vc.lookahead * k / (n - 1)) for k in range(n)]
 
     def _advance(self) -> None:
-        """Move the applied offset towards the current side's target at ``tilt_rate``."""
+        """Move the applied offset one step towards the current side's target (ruckig).
+
+        At most ``tilt_rate`` and ``tilt_acceleration`` (per axis over √3): the turned normal
+        the tracker is given changes smoothly, never by a jump of its rate.
+        """
         side = self._side if self._side != 0.0 else self._want
         target = self._targets.get(side, _ZERO)
-        o = self._offset
-        dx, dy, dz = target[0] - o[0], target[1] - o[1], target[2] - o[2]
-        dist = math.sqrt(dx * dx + dy * dy + dz * dz)
-        if dist == 0.0:
+        if target == self._offset and not self._tilt_moving:
             return
-        k = min(1.0, self.visible.tilt_rate * self._dt / dist)
-        self._offset = (o[0] + k * dx, o[1] + k * dy, o[2] + k * dz)
+        inp, out = self._tilt_in, self._tilt_out
+        if target != self._tilt_target:  # a new target: ruckig plans afresh from where it is
+            inp.target_position = self._tilt_target = target
+        result = self._tilt_otg.update(inp, out)
+        out.pass_to_input(inp)  # ruckig's state carries on from its own step
+        if result == Result.Finished:  # there this step: on the target exactly, at rest
+            self._offset, self._tilt_moving = target, False
+        elif result == Result.Working:
+            x, y, z = out.new_position
+            self._offset, self._tilt_moving = (x, y, z), True
+        else:
+            raise RuntimeError(f"ruckig failed to move the viewing axis towards {target}")
 
     # -- the scoring -------------------------------------------------------------------------
 

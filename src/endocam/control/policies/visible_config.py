@@ -46,6 +46,13 @@ class VisibleConfig:
         Utility a new tilt must gain over the current target to replace it.
     tilt_rate : float
         Fastest change of the axis' offset, rad/s (small-angle: the offset is ``tan θ``).
+    tilt_acceleration : float
+        Largest acceleration of the axis' offset, rad/s² (ruckig moves it, per axis
+        ``tilt_rate / √3`` and ``tilt_acceleration / √3``): the turned normal the tracker sees
+        must stay on the track its observation gate predicts (``ring_max_angular_acceleration``
+        500 rad/s²; a step of the offset's velocity by ``tilt_rate`` alone is ~1° of innovation
+        in one 10 ms step). Round 18: without it, a new target that reversed the offset's motion
+        made the gate refuse the ring for ~0.6 s (2 % of a PSM episode lost).
     side_margin : float
         Utility the other side must gain over this side's to be taken ...
     side_hold : float
@@ -115,6 +122,7 @@ class VisibleConfig:
     tilt_cost: float = 0.5
     tilt_margin: float = 0.1
     tilt_rate: float = 2.0
+    tilt_acceleration: float = 20.0
     side_margin: float = 0.3
     side_hold: float = 1.0
     resolved_px: float = 2.0
@@ -142,6 +150,7 @@ class VisibleConfig:
             "urgency_scale",
             "window",
             "tilt_rate",
+            "tilt_acceleration",
             "resolved_px",
             "velocity_window",
             "engage_clearance",
