@@ -55,6 +55,7 @@ from endocam.control.occlusion import (
     view_scores,
     wire_window,
 )
+from endocam.control.types import TrackingState
 from endocam.robot.actuator import ArmKind
 from endocam.runner.check import check_run
 from endocam.runner.episode import EpisodeSpec, run_episode
@@ -88,7 +89,7 @@ class Tally:
     lost: list[float] = field(default_factory=list)  # per episode: share of lost-tracking steps
 
 
-LOST = "lost_tracking"  # the log's state while the tracker holds on a refused or missing pose
+LOST = TrackingState.LOST_TRACKING.value  # the log's state while the tracker holds
 DENSE_TILTS_RAD = np.radians([5.0, 10.0, 15.0, 20.0, 25.0])  # the oracle's denser set
 DENSE_AZIMUTHS = 12
 

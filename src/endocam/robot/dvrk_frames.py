@@ -38,6 +38,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from endocam.geometry import FloatArray, as_pose, invert_pose
+from endocam.kernels import cross, dot
 from endocam.robot.actuator import ArmKind
 
 __all__ = [
@@ -97,15 +98,14 @@ def _valid_rotation(R: list[list[float]]) -> bool:
     here on one matrix's nine floats: a valid rotation then skips scipy's general path (~5× its
     cost per call) for the same conversion and the same bits; anything else takes that path
     (orthogonalised, or refused) exactly as before. With the Gram matrix that close to I the
-    determinant is ±1 to ~1e-5, so its sign by cofactors is the sign scipy's LU gives.
+    determinant is ±1 to ~1e-5, so the sign of r0 · (r1 × r2) is the sign scipy's LU gives.
     """
+    rows = [(r[0], r[1], r[2]) for r in R]
     for i in range(3):
         for j in range(i, 3):
-            g = R[i][0] * R[j][0] + R[i][1] * R[j][1] + R[i][2] * R[j][2]
-            if abs(g - (i == j)) > _GRAM_ATOL + _GRAM_RTOL * (i == j):
+            if abs(dot(rows[i], rows[j]) - (i == j)) > _GRAM_ATOL + _GRAM_RTOL * (i == j):
                 return False
-    (a, b, c), (d, e, f), (g, h, k) = R
-    return a * (e * k - f * h) - b * (d * k - f * g) + c * (d * h - e * g) > 0.0
+    return dot(rows[0], cross(rows[1], rows[2])) > 0.0  # the determinant
 
 
 ECM_TOOLTIP_OFFSET_STRAIGHT = np.array(

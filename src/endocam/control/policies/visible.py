@@ -83,7 +83,6 @@ from endocam.control.occlusion import (
     contact_points,
     direction_table,
     eye_positions,
-    gap_points,
     gap_points_along,
     occluders,
     sight,
@@ -312,9 +311,7 @@ class VisiblePolicy(EndocamPolicy):
         window = wire_window(wire, T_rings[len(T_rings) // 2][:3, 3], vc.window)
         closing: tuple[FloatArray, GapPoints, float] | None = None
         rims: list[float] = []
-        along = gap_points_along(
-            T_rings, window, self._shape, wire.radius, vc.rim_points, vc.weight_scale
-        )  # every pose's at once; the loop reads them until the gap closes
+        along = self._gaps(T_rings, window)  # every pose's at once; read until the gap closes
         for T, gaps in zip(T_rings, along, strict=True):
             rims.append(float(np.min(gaps.clearances)))  # the rim's to the wire, m
             if closing is None or rims[-1] < closing[2]:
@@ -325,7 +322,7 @@ class VisiblePolicy(EndocamPolicy):
         k, f = closing_fraction(np.array(rims), GAP_M)
         if k > 0 and f < 1.0:  # stop the prediction where the gap closes
             T = pose_between(T_rings[k - 1], T_rings[k], f)
-            gaps = self._gaps(T, window)
+            gaps = self._gaps([T], window)[0]
             closing = (T, gaps, float(np.min(gaps.clearances)))
         T_ring, gaps, nearest = closing[0], closing[1], max(closing[2], 0.0)
         p_c = T_ring[:3, 3]
@@ -392,12 +389,15 @@ class VisiblePolicy(EndocamPolicy):
             score = urgency * 0.5 * (shares[:m] + shares[m:])
         return np.asarray(np.where(feasible, score - cost, -np.inf), dtype=float)
 
-    def _gaps(self, T_ring: FloatArray, window: FloatArray) -> GapPoints:
-        """The gap points of the ring at ``T_ring`` (4, 4) by the wire's ``window`` (K, 3)."""
+    def _gaps(self, T_rings: list[FloatArray], window: FloatArray) -> list[GapPoints]:
+        """The gap points of the ring at each pose (4, 4) of ``T_rings``, in one batch.
+
+        By the wire's ``window`` (K, 3) (:func:`~endocam.control.occlusion.gap_points_along`).
+        """
         vc, wire = self.visible, self._wire
         assert wire is not None
-        return gap_points(T_ring, window, self._shape, wire.radius, vc.rim_points,
-                          vc.weight_scale)  # fmt: skip
+        return gap_points_along(T_rings, window, self._shape, wire.radius, vc.rim_points,
+                                vc.weight_scale)  # fmt: skip
 
     def _candidates(self, p_c: FloatArray, n: FloatArray, side: float) -> Candidates:
         """The candidate axes: this ``side``'s, the other side's own view, this side's target.
